@@ -1,0 +1,448 @@
+//! One BARN run: robot, sensor, the robot's own map and global path, and the protocol
+//! (start, goal radius, clock that starts after 0.1 m of motion, timeout, collision).
+//!
+//! The episode is stepped by its caller one control period at a time, so the same type
+//! serves evaluation (a planner every 0.05 s) and RL (an agent every 0.25 s on top).
+
+use rand::SeedableRng;
+use rand_pcg::Pcg64Mcg;
+use serde::{Deserialize, Serialize};
+
+use crate::costmap::{Costmap, CostmapConfig};
+use crate::geometry::Vec2;
+use crate::lidar::{Lidar, LidarConfig};
+use crate::navigation::{point_at_arc_length, smooth, GlobalPlanner};
+use crate::robot::{RobotLimits, RobotState, Twist};
+use crate::score::barn_score;
+use crate::world::World;
+
+/// Episode parameters. Defaults follow the BARN protocol (DESIGN §3).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct EpisodeConfig {
+    /// Physics integration step (s); at most 0.01.
+    pub physics_dt: f64,
+    /// Control period: one planner cycle (s).
+    pub control_dt: f64,
+    /// Timeout on the run clock (s).
+    pub timeout_s: f64,
+    /// The run clock starts once the robot is this far from its start (m).
+    pub clock_start_distance: f64,
+    /// Replan the global path every this many control periods (and whenever none exists).
+    pub replan_every: u32,
+    /// Window of the moving average that smooths the global path (points).
+    pub smoothing_window: usize,
+    /// Sensor.
+    pub lidar: LidarConfig,
+    /// The robot's map.
+    pub costmap: CostmapConfig,
+    /// Robot limits.
+    pub robot: RobotLimits,
+}
+
+impl Default for EpisodeConfig {
+    fn default() -> Self {
+        Self {
+            physics_dt: 0.01,
+            control_dt: 0.05,
+            timeout_s: 100.0,
+            clock_start_distance: 0.1,
+            replan_every: 5,
+            smoothing_window: 9,
+            lidar: LidarConfig::default(),
+            costmap: CostmapConfig::default(),
+            robot: RobotLimits::JACKAL,
+        }
+    }
+}
+
+impl EpisodeConfig {
+    /// Checks the values.
+    pub fn validate(&self) -> Result<(), String> {
+        if !(self.physics_dt > 0.0 && self.physics_dt <= 0.01) {
+            return Err(format!("physics_dt = {} must be in (0, 0.01]", self.physics_dt));
+        }
+        if !(self.control_dt >= self.physics_dt) {
+            return Err(format!("control_dt = {} must be >= physics_dt", self.control_dt));
+        }
+        if !(self.timeout_s > 0.0) {
+            return Err(format!("timeout_s = {} must be > 0", self.timeout_s));
+        }
+        if self.replan_every == 0 {
+            return Err("replan_every must be >= 1".into());
+        }
+        self.lidar.validate()
+    }
+}
+
+/// How a run stands.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Status {
+    /// Still going.
+    Running,
+    /// Reached the goal radius.
+    Succeeded,
+    /// The footprint touched an obstacle.
+    Collided,
+    /// The clock passed the timeout.
+    TimedOut,
+}
+
+/// The outcome of a finished (or abandoned) run.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct EpisodeResult {
+    /// World id.
+    pub world: usize,
+    /// Final status.
+    pub status: Status,
+    /// Run-clock time at the end (s): from the first 0.1 m of motion.
+    pub time_s: f64,
+    /// Simulated time since reset (s).
+    pub sim_time_s: f64,
+    /// BARN score.
+    pub score: f64,
+    /// Distance driven (m).
+    pub distance_m: f64,
+}
+
+/// What the planners may see: the robot's own perception, all in the robot frame.
+#[derive(Clone, Copy, Debug)]
+pub struct Perception<'a> {
+    /// Lidar ranges, one per beam (m).
+    pub ranges: &'a [f64],
+    /// Lidar returns as points (robot frame); beams without a return are absent.
+    pub points: &'a [Vec2],
+    /// Measured velocity.
+    pub vel: Twist,
+    /// The local goal (robot frame).
+    pub local_goal: Vec2,
+    /// The smoothed global path up to a little past the local goal (robot frame).
+    pub local_path: &'a [Vec2],
+    /// The global goal (robot frame).
+    pub goal: Vec2,
+}
+
+/// A running BARN episode. Owns all its buffers; stepping does not allocate once warm.
+pub struct Episode<'w> {
+    world: &'w World,
+    cfg: EpisodeConfig,
+    lidar: Lidar,
+    rng: Pcg64Mcg,
+    state: RobotState,
+    sim_time: f64,
+    clock_start: Option<f64>,
+    distance: f64,
+    status: Status,
+    end_time: f64,
+    cycles: u64,
+    ranges: Vec<f64>,
+    points: Vec<Vec2>,
+    costmap: Costmap,
+    global: GlobalPlanner,
+    raw_path: Vec<Vec2>,
+    path: Vec<Vec2>,
+    path_robot: Vec<Vec2>,
+    local_goal_world: Vec2,
+}
+
+impl<'w> Episode<'w> {
+    /// Resets the robot to the world's start; the seed drives the sensor noise.
+    pub fn new(world: &'w World, cfg: EpisodeConfig, seed: u64) -> Self {
+        let lidar = Lidar::new(cfg.lidar);
+        let costmap = Costmap::around(cfg.costmap, world.start.position(), world.goal);
+        let mut ep = Self {
+            world,
+            cfg,
+            lidar,
+            rng: Pcg64Mcg::seed_from_u64(seed),
+            state: RobotState {
+                pose: world.start,
+                vel: Twist::default(),
+            },
+            sim_time: 0.0,
+            clock_start: None,
+            distance: 0.0,
+            status: Status::Running,
+            end_time: 0.0,
+            cycles: 0,
+            ranges: Vec::new(),
+            points: Vec::new(),
+            costmap,
+            global: GlobalPlanner::default(),
+            raw_path: Vec::new(),
+            path: Vec::new(),
+            path_robot: Vec::new(),
+            local_goal_world: world.goal,
+        };
+        ep.sense();
+        ep
+    }
+
+    /// The world being driven.
+    pub fn world(&self) -> &'w World {
+        self.world
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &EpisodeConfig {
+        &self.cfg
+    }
+
+    /// Ground-truth robot state (world frame). Planners must not use it; it is for the
+    /// harness, rewards and drawing.
+    pub fn state(&self) -> &RobotState {
+        &self.state
+    }
+
+    /// Current status.
+    pub fn status(&self) -> Status {
+        self.status
+    }
+
+    /// Simulated time since reset (s).
+    pub fn sim_time(&self) -> f64 {
+        self.sim_time
+    }
+
+    /// The smoothed global path (world frame).
+    pub fn global_path(&self) -> &[Vec2] {
+        &self.path
+    }
+
+    /// The local goal (world frame).
+    pub fn local_goal_world(&self) -> Vec2 {
+        self.local_goal_world
+    }
+
+    /// The robot's costmap.
+    pub fn costmap(&self) -> &Costmap {
+        &self.costmap
+    }
+
+    /// What the planner sees now.
+    pub fn perception(&self) -> Perception<'_> {
+        let pose = &self.state.pose;
+        Perception {
+            ranges: &self.ranges,
+            points: &self.points,
+            vel: self.state.vel,
+            local_goal: pose.to_local(self.local_goal_world),
+            local_path: &self.path_robot,
+            goal: pose.to_local(self.world.goal),
+        }
+    }
+
+    /// Applies `cmd` for one control period (several physics steps), then senses and updates
+    /// the map and path. Does nothing once the run has ended.
+    pub fn step(&mut self, cmd: Twist) -> Status {
+        if self.status != Status::Running {
+            return self.status;
+        }
+        let n = (self.cfg.control_dt / self.cfg.physics_dt).round().max(1.0) as usize;
+        let dt = self.cfg.control_dt / n as f64;
+        let fp = self.cfg.robot.footprint;
+        for _ in 0..n {
+            let before = self.state.pose.position();
+            self.state.step(&self.cfg.robot, cmd, dt);
+            self.sim_time += dt;
+            let pos = self.state.pose.position();
+            self.distance += pos.dist(before);
+            if self.clock_start.is_none()
+                && pos.dist(self.world.start.position()) >= self.cfg.clock_start_distance
+            {
+                self.clock_start = Some(self.sim_time);
+            }
+            if self.world.collides(&fp, &self.state.pose) {
+                return self.finish(Status::Collided);
+            }
+            if pos.dist(self.world.goal) <= self.world.goal_radius {
+                return self.finish(Status::Succeeded);
+            }
+            if self.run_time() >= self.cfg.timeout_s {
+                return self.finish(Status::TimedOut);
+            }
+        }
+        self.cycles += 1;
+        self.sense();
+        self.status
+    }
+
+    /// Ends the run early as a timeout (used by callers with their own step cap).
+    pub fn abandon(&mut self) {
+        if self.status == Status::Running {
+            self.finish(Status::TimedOut);
+        }
+    }
+
+    /// The run clock: since the robot first moved 0.1 m (or since reset if it never did, so
+    /// a robot that never moves still times out).
+    pub fn run_time(&self) -> f64 {
+        self.sim_time - self.clock_start.unwrap_or(0.0)
+    }
+
+    /// The result so far (final once the status is not `Running`).
+    pub fn result(&self) -> EpisodeResult {
+        let time_s = if self.status == Status::Running {
+            self.run_time()
+        } else {
+            self.end_time
+        };
+        EpisodeResult {
+            world: self.world.id,
+            status: self.status,
+            time_s,
+            sim_time_s: self.sim_time,
+            score: barn_score(self.status == Status::Succeeded, self.world.optimal_time_s, time_s),
+            distance_m: self.distance,
+        }
+    }
+
+    fn finish(&mut self, status: Status) -> Status {
+        self.status = status;
+        self.end_time = self.run_time();
+        status
+    }
+
+    /// Scan, mark the map, replan when due, and recompute the local goal.
+    fn sense(&mut self) {
+        let pose = self.state.pose;
+        self.lidar.scan(self.world, &pose, &mut self.rng, &mut self.ranges);
+        self.lidar.points(&self.ranges, &mut self.points);
+        let pts = &self.points;
+        self.costmap
+            .mark(pose.position(), pts.iter().map(|p| pose.to_world(*p)));
+        let due = self.cycles % self.cfg.replan_every as u64 == 0;
+        if self.path.is_empty() || due {
+            if self
+                .global
+                .plan(&self.costmap, pose.position(), self.world.goal, &mut self.raw_path)
+            {
+                smooth(&self.raw_path, self.cfg.smoothing_window, &mut self.path);
+            } else {
+                self.path.clear();
+                self.path.push(pose.position());
+                self.path.push(self.world.goal);
+            }
+        }
+        // Local goal: arc length 2v + 1 ahead along the path from its point nearest the robot.
+        let here = pose.position();
+        let nearest = self
+            .path
+            .iter()
+            .enumerate()
+            .take(40)
+            .min_by(|a, b| a.1.dist(here).total_cmp(&b.1.dist(here)))
+            .map(|(i, _)| i)
+            .unwrap_or(0);
+        let lookahead = 2.0 * self.state.vel.v.max(0.0) + 1.0;
+        let tail = &self.path[nearest..];
+        let (goal, end) = point_at_arc_length(tail, lookahead);
+        self.local_goal_world = goal;
+        self.path_robot.clear();
+        let keep = (end + 5).min(tail.len());
+        self.path_robot
+            .extend(tail[..keep].iter().map(|p| pose.to_local(*p)));
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::{Circle, Pose};
+
+    fn corridor(with_wall: bool) -> World {
+        // Two walls of cylinders 2 m apart along +y; optionally a wall across at y = 4.
+        let mut c = Vec::new();
+        for i in 0..100 {
+            let y = -1.0 + 0.15 * i as f64;
+            c.push(Circle { c: Vec2::new(-1.0, y), r: 0.075 });
+            c.push(Circle { c: Vec2::new(1.0, y), r: 0.075 });
+        }
+        if with_wall {
+            for i in 0..14 {
+                c.push(Circle { c: Vec2::new(-1.0 + 0.15 * i as f64, 4.0), r: 0.075 });
+            }
+        }
+        World::new(0, c, Pose::new(0.0, 0.0, std::f64::consts::FRAC_PI_2), Vec2::new(0.0, 10.0), 10.0, vec![])
+    }
+
+    #[test]
+    fn straight_drive_into_wall_collides() {
+        let w = corridor(true);
+        let mut ep = Episode::new(&w, EpisodeConfig::default(), 1);
+        let mut status = Status::Running;
+        for _ in 0..400 {
+            status = ep.step(Twist::new(1.0, 0.0));
+            if status != Status::Running {
+                break;
+            }
+        }
+        assert_eq!(status, Status::Collided);
+        // Contact happens when the front (0.254 ahead) reaches the wall surface at y = 3.925.
+        let y = ep.state().pose.y;
+        assert!((y + 0.254 - 3.925).abs() < 0.02, "collided at y = {y}");
+        let r = ep.result();
+        assert_eq!(r.score, 0.0);
+        // After the result, stepping does nothing.
+        assert_eq!(ep.step(Twist::new(1.0, 0.0)), Status::Collided);
+        assert_eq!(ep.result(), r);
+    }
+
+    #[test]
+    fn clear_corridor_succeeds_and_scores() {
+        let w = corridor(false);
+        let mut ep = Episode::new(&w, EpisodeConfig::default(), 1);
+        while ep.step(Twist::new(2.0, 0.0)) == Status::Running {}
+        let r = ep.result();
+        assert_eq!(r.status, Status::Succeeded);
+        // 9 m to the goal radius at 2 m/s after a 0.1 s ramp: about 4.5 s.
+        assert!((r.time_s - 4.5).abs() < 0.1, "{}", r.time_s);
+        assert!((r.score - barn_score(true, 5.0, r.time_s)).abs() < 1e-12);
+        // The local goal is ahead and the path runs up the corridor.
+        assert!(ep.global_path().iter().all(|p| p.x.abs() < 0.5));
+    }
+
+    #[test]
+    fn standing_still_times_out_and_clock_waits_for_motion() {
+        let w = corridor(false);
+        let cfg = EpisodeConfig { timeout_s: 2.0, ..Default::default() };
+        let mut ep = Episode::new(&w, cfg, 1);
+        let mut steps = 0;
+        while ep.step(Twist::new(0.0, 0.0)) == Status::Running {
+            steps += 1;
+        }
+        assert_eq!(ep.status(), Status::TimedOut);
+        assert_eq!(steps, 39);
+        // Moving slowly: the clock starts only after 0.1 m.
+        let mut ep = Episode::new(&w, EpisodeConfig::default(), 1);
+        for _ in 0..20 {
+            ep.step(Twist::new(0.05, 0.0));
+        }
+        // 1 s at 0.05 m/s = 0.05 m: the clock has not started, run time = sim time.
+        assert!((ep.run_time() - ep.sim_time()).abs() < 1e-12);
+        for _ in 0..60 {
+            ep.step(Twist::new(0.05, 0.0));
+        }
+        assert!(ep.run_time() < ep.sim_time() - 1.5);
+    }
+
+    #[test]
+    fn same_seed_same_trajectory() {
+        let w = crate::barn::world(10).unwrap();
+        let run = |seed| {
+            let mut ep = Episode::new(w, EpisodeConfig::default(), seed);
+            let mut out = Vec::new();
+            for k in 0..100 {
+                let p = ep.perception();
+                // A simple reactive controller that depends on the noisy scan.
+                let w_cmd = (p.local_goal.y.atan2(p.local_goal.x)).clamp(-1.0, 1.0) + p.ranges[k] * 1e-3;
+                ep.step(Twist::new(0.5, w_cmd));
+                out.push(ep.state().pose);
+            }
+            out
+        };
+        assert_eq!(run(5), run(5));
+        assert_ne!(run(5), run(6));
+    }
+}

@@ -1,0 +1,20 @@
+//! The simulator: BARN worlds, Jackal kinematics, a 2-D lidar, exact footprint collision,
+//! the robot's own costmap and global path, episodes with the BARN protocol, and the score.
+//!
+//! Pure and deterministic: every random draw comes from a seed the caller passes in.
+
+pub mod barn;
+pub mod costmap;
+pub mod episode;
+pub mod geometry;
+pub mod lidar;
+pub mod navigation;
+pub mod robot;
+pub mod score;
+pub mod splits;
+pub mod world;
+
+pub use episode::{Episode, EpisodeConfig, EpisodeResult, Perception, Status};
+pub use geometry::{Circle, Footprint, Pose, Vec2};
+pub use robot::{RobotLimits, RobotState, Twist};
+pub use world::World;
