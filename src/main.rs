@@ -1,1 +1,192 @@
-fn main(){}
+//! `adp`: train and ship adaptive-dynamics navigation planners on BARN.
+
+mod config;
+mod eval;
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use anyhow::Context;
+use clap::{Parser, Subcommand};
+
+use config::EvalConfig;
+use eval::{EvalPlan, Fidelity, PlannerKind};
+use sim::splits::SplitFile;
+use sim::World;
+
+#[derive(Parser)]
+#[command(name = "adp", version, about = "Adaptive/decremental dynamics planning on BARN")]
+struct Cli {
+    #[command(subcommand)]
+    cmd: Cmd,
+}
+
+/// Where the worlds come from: the embedded BARN data unless files are given.
+#[derive(clap::Args, Clone)]
+struct WorldData {
+    /// Obstacles file in the BARN JSONL format (default: the embedded BARN worlds).
+    #[arg(long, requires = "paths")]
+    obstacles: Option<PathBuf>,
+    /// Paths file in the BARN JSONL format (default: the embedded BARN paths).
+    #[arg(long, requires = "obstacles")]
+    paths: Option<PathBuf>,
+}
+
+impl WorldData {
+    fn load(&self) -> anyhow::Result<std::borrow::Cow<'static, [World]>> {
+        match (&self.obstacles, &self.paths) {
+            (Some(o), Some(p)) => {
+                let ot = std::fs::read_to_string(o).with_context(|| format!("cannot read {}", o.display()))?;
+                let pt = std::fs::read_to_string(p).with_context(|| format!("cannot read {}", p.display()))?;
+                Ok(sim::barn::parse(&o.display().to_string(), &ot, &p.display().to_string(), &pt)?.into())
+            }
+            _ => Ok(sim::barn::worlds().into()),
+        }
+    }
+}
+
+#[derive(Subcommand)]
+enum Cmd {
+    /// Evaluate planners x fidelity x speeds on a set of worlds and print the table.
+    Eval {
+        /// Planner(s), comma-separated.
+        #[arg(long, value_enum, value_delimiter = ',', default_value = "dwa")]
+        planner: Vec<PlannerKind>,
+        /// Fidelity strategy (or strategies), comma-separated.
+        #[arg(long, value_enum, value_delimiter = ',', default_value = "ddp")]
+        fidelity: Vec<Fidelity>,
+        /// Speed cap(s) in m/s, comma-separated: one row per value.
+        #[arg(long, value_delimiter = ',', default_value = "1.5")]
+        max_speed: Vec<f64>,
+        /// Worlds: a split (train, test, hardest50, all), a range 0..50, or a list 3,7,9.
+        #[arg(long, default_value = "test")]
+        worlds: String,
+        /// Runs per world.
+        #[arg(long, default_value_t = 1)]
+        runs: usize,
+        /// Drop this many best and worst runs (by time) of each world before averaging.
+        #[arg(long, default_value_t = 0)]
+        trim: usize,
+        /// Base seed of every run's noise.
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        /// Worker threads (default: all cores).
+        #[arg(long)]
+        jobs: Option<usize>,
+        /// Also write the rows and per-world results as JSON here.
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Configuration file (default: the embedded configs/eval.toml).
+        #[arg(long)]
+        config: Option<PathBuf>,
+        #[command(flatten)]
+        data: WorldData,
+    },
+    /// List or inspect worlds and splits.
+    Worlds {
+        #[command(subcommand)]
+        cmd: WorldsCmd,
+    },
+}
+
+#[derive(Subcommand)]
+enum WorldsCmd {
+    /// Print the world ids of a selection, one per line.
+    List {
+        /// A split (train, test, hardest50, all), a range 0..50, or a list 3,7,9.
+        #[arg(long, default_value = "all")]
+        split: String,
+    },
+    /// Print one world's facts.
+    Show {
+        /// World id.
+        id: usize,
+        #[command(flatten)]
+        data: WorldData,
+    },
+    /// Print a split file drawn with another seed (the format of configs/splits/barn.toml).
+    Splits {
+        /// Seed for the training-world draw.
+        #[arg(long)]
+        seed: u64,
+    },
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    match run(cli) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {}", config::one_line(&format!("{e:#}")));
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn run(cli: Cli) -> anyhow::Result<()> {
+    match cli.cmd {
+        Cmd::Eval {
+            planner,
+            fidelity,
+            max_speed,
+            worlds,
+            runs,
+            trim,
+            seed,
+            jobs,
+            out,
+            config,
+            data,
+        } => {
+            let cfg = EvalConfig::load(config.as_deref())?;
+            let ids = SplitFile::embedded().select(&worlds)?;
+            if runs == 0 {
+                anyhow::bail!("--runs must be at least 1");
+            }
+            let all = data.load()?;
+            let plan = EvalPlan {
+                planners: planner,
+                fidelities: fidelity,
+                speeds: max_speed,
+                worlds: ids,
+                runs,
+                trim,
+                seed,
+            };
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(jobs.unwrap_or(0))
+                .build()
+                .context("cannot start worker threads")?;
+            let rows = pool.install(|| eval::run(&plan, &cfg, &all))?;
+            print!("{}", eval::table(&rows));
+            if let Some(path) = out {
+                let json = serde_json::to_string_pretty(&rows)?;
+                std::fs::write(&path, json).with_context(|| format!("cannot write {}", path.display()))?;
+            }
+            Ok(())
+        }
+        Cmd::Worlds { cmd } => match cmd {
+            WorldsCmd::List { split } => {
+                for id in SplitFile::embedded().select(&split)? {
+                    println!("{id}");
+                }
+                Ok(())
+            }
+            WorldsCmd::Show { id, data } => {
+                let all = data.load()?;
+                let w = all.get(id).with_context(|| format!("world {id} does not exist ({} worlds)", all.len()))?;
+                println!("world {}", w.id);
+                println!("cylinders {}", w.cylinders.len());
+                println!("start {:.3} {:.3} {:.4}", w.start.x, w.start.y, w.start.yaw);
+                println!("goal {:.3} {:.3} (radius {} m)", w.goal.x, w.goal.y, w.goal_radius);
+                println!("path_length_m {:.6}", w.path_length_m);
+                println!("optimal_time_s {:.6}", w.optimal_time_s);
+                Ok(())
+            }
+            WorldsCmd::Splits { seed } => {
+                print!("{}", sim::splits::render_toml(seed));
+                Ok(())
+            }
+        },
+    }
+}

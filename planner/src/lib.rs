@@ -1,1 +1,82 @@
+//! Sampling local planners over fidelity schedules.
+//!
+//! Every planner maps what the robot perceives (lidar points in the robot frame, velocity,
+//! local path and goal) plus a [`Schedule`] to a velocity command, behind one trait,
+//! [`Planner`]. Schedules come from fixed strategies (vanilla, DDP) or, later, a policy.
 
+pub mod dwa;
+pub mod local_map;
+pub mod run;
+pub mod schedule;
+
+pub use dwa::{Dwa, DwaConfig};
+pub use schedule::Schedule;
+
+use sim::episode::Perception;
+use sim::geometry::Pose;
+use sim::robot::Twist;
+
+/// Everything a planner may use in one cycle.
+#[derive(Clone, Copy, Debug)]
+pub struct PlanInput<'a> {
+    /// The robot's perception (robot frame).
+    pub perception: Perception<'a>,
+    /// The rollout time grid and check densities.
+    pub schedule: &'a Schedule,
+    /// The run's speed cap (m/s).
+    pub max_speed: f64,
+}
+
+/// A local planner. One instance per episode: `plan` takes `&mut self` so planners keep
+/// warm-start state and reusable buffers; instances are `Send` so episodes run on any thread.
+pub trait Planner: Send {
+    /// Name used in configs and tables.
+    fn name(&self) -> &'static str;
+    /// Computes the command for this cycle.
+    fn plan(&mut self, input: &PlanInput<'_>) -> Twist;
+    /// The rollouts of the last cycle (empty unless recording is on).
+    fn rollouts(&self) -> &Rollouts;
+    /// Turns recording of rollouts on or off (off by default: it costs time).
+    fn set_recording(&mut self, on: bool);
+    /// Collision-check points evaluated since construction (centre + boundary points).
+    fn evaluated_points(&self) -> u64;
+}
+
+/// The sampled trajectories of one planning cycle, robot frame, stored flat.
+#[derive(Clone, Debug, Default)]
+pub struct Rollouts {
+    /// All poses, rollout after rollout.
+    pub poses: Vec<Pose>,
+    /// `(start, end, collision_free)` of each rollout in `poses`.
+    pub spans: Vec<(usize, usize, bool)>,
+    /// The step lengths of the schedule used (pose k of a rollout ends step k).
+    pub dts: Vec<f64>,
+}
+
+impl Rollouts {
+    /// Empties the store for a new cycle with the given step lengths.
+    pub fn clear(&mut self, dts: &[f64]) {
+        self.poses.clear();
+        self.spans.clear();
+        self.dts.clear();
+        self.dts.extend_from_slice(dts);
+    }
+
+    /// Starts a rollout.
+    pub fn begin(&mut self) {
+        self.spans.push((self.poses.len(), self.poses.len(), true));
+    }
+
+    /// Appends a pose to the current rollout.
+    pub fn push(&mut self, pose: Pose) {
+        self.poses.push(pose);
+    }
+
+    /// Closes the current rollout.
+    pub fn end(&mut self, collision_free: bool) {
+        if let Some(last) = self.spans.last_mut() {
+            last.1 = self.poses.len();
+            last.2 = collision_free;
+        }
+    }
+}

@@ -1,0 +1,269 @@
+//! Dynamic Window Approach over a fidelity schedule.
+//!
+//! Each cycle samples a `v_samples x w_samples` grid of constant commands inside the window
+//! reachable within one control period, rolls each out over the schedule's time grid (the
+//! velocity approaching the command at the acceleration limits, then exact arcs), checks the
+//! footprint after every step with the schedule's check density, and returns the cheapest
+//! collision-free command.
+
+use serde::{Deserialize, Serialize};
+use sim::geometry::{Pose, Vec2};
+use sim::robot::{approach, Twist};
+
+use crate::local_map::LocalMap;
+use crate::{PlanInput, Planner, Rollouts};
+
+/// DWA parameters (defaults used by `adp eval`).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct DwaConfig {
+    /// Linear-velocity samples across the window.
+    pub v_samples: usize,
+    /// Angular-velocity samples across the window.
+    pub w_samples: usize,
+    /// Planner's yaw-rate cap (rad/s).
+    pub max_w: f64,
+    /// Linear acceleration assumed in rollouts and the window (m/s^2).
+    pub accel_v: f64,
+    /// Angular acceleration assumed in rollouts and the window (rad/s^2).
+    pub accel_w: f64,
+    /// The window spans what is reachable in this time (s): one control period.
+    pub window_dt: f64,
+    /// A rollout whose estimated clearance drops below this is infeasible (m).
+    pub margin: f64,
+    /// Clearances above this cost nothing (m).
+    pub clearance_cap: f64,
+    /// Weight of the end point's distance to the local goal.
+    pub w_goal: f64,
+    /// Weight of the end point's distance to the local path.
+    pub w_path: f64,
+    /// Weight of the obstacle-proximity cost.
+    pub w_obstacle: f64,
+    /// Weight of the slowness cost.
+    pub w_speed: f64,
+    /// Distance-field cell size (m).
+    pub map_resolution: f64,
+}
+
+impl Default for DwaConfig {
+    fn default() -> Self {
+        Self {
+            v_samples: 20,
+            w_samples: 20,
+            max_w: 2.0,
+            accel_v: 20.0,
+            accel_w: 25.0,
+            window_dt: 0.05,
+            margin: 0.02,
+            clearance_cap: 0.5,
+            w_goal: 1.0,
+            w_path: 0.4,
+            w_obstacle: 0.8,
+            w_speed: 0.3,
+            map_resolution: 0.05,
+        }
+    }
+}
+
+/// The DWA planner. Owns its buffers; one per episode (`Send`, not shared).
+#[derive(Clone, Debug)]
+pub struct Dwa {
+    cfg: DwaConfig,
+    map: LocalMap,
+    /// Per w sample and step: (w, sin yaw, cos yaw).
+    w_prof: Vec<(f64, f64, f64)>,
+    /// Per v sample and step: v.
+    v_prof: Vec<f64>,
+    cost: Vec<Candidate>,
+    rollouts: Rollouts,
+    recording: bool,
+    evaluated: u64,
+}
+
+#[derive(Clone, Copy, Debug)]
+struct Candidate {
+    cmd: Twist,
+    goal: f64,
+    path: f64,
+    obstacle: f64,
+    speed: f64,
+}
+
+impl Dwa {
+    /// A DWA planner.
+    pub fn new(cfg: DwaConfig) -> Self {
+        Self {
+            cfg,
+            map: LocalMap::new(sim::Footprint::JACKAL, cfg.map_resolution, crate::schedule::DEFAULT_BOUNDARY_POINTS),
+            w_prof: Vec::new(),
+            v_prof: Vec::new(),
+            cost: Vec::new(),
+            rollouts: Rollouts::default(),
+            recording: false,
+            evaluated: 0,
+        }
+    }
+}
+
+/// Distance from `p` to the polyline `path` (or to `fallback` if the path is empty).
+pub fn distance_to_path(path: &[Vec2], p: Vec2, fallback: Vec2) -> f64 {
+    if path.len() < 2 {
+        return p.dist(path.first().copied().unwrap_or(fallback));
+    }
+    let mut best = f64::INFINITY;
+    for s in path.windows(2) {
+        let (a, b) = (s[0], s[1]);
+        let ab = b - a;
+        let len2 = ab.dot(ab);
+        let t = if len2 > 0.0 { ((p - a).dot(ab) / len2).clamp(0.0, 1.0) } else { 0.0 };
+        best = best.min(p.dist(a + ab * t));
+    }
+    best
+}
+
+fn sample(lo: f64, hi: f64, k: usize, i: usize) -> f64 {
+    if k <= 1 {
+        0.5 * (lo + hi)
+    } else {
+        lo + (hi - lo) * i as f64 / (k - 1) as f64
+    }
+}
+
+impl Planner for Dwa {
+    fn name(&self) -> &'static str {
+        "dwa"
+    }
+
+    fn plan(&mut self, input: &PlanInput<'_>) -> Twist {
+        let cfg = self.cfg;
+        let per = &input.perception;
+        let sched = input.schedule;
+        let steps = sched.len();
+        self.map.set_boundary_points(sched.boundary_points());
+        let reach = input.max_speed * sched.horizon() + self.map.footprint().circumscribed_radius() + cfg.clearance_cap;
+        self.map.build(per.points, 1.0, reach);
+
+        let v0 = per.vel.v;
+        let w0 = per.vel.w;
+        let v_lo = (v0 - cfg.accel_v * cfg.window_dt).max(0.0);
+        let v_hi = (v0 + cfg.accel_v * cfg.window_dt).min(input.max_speed).max(v_lo);
+        let w_lo = (w0 - cfg.accel_w * cfg.window_dt).max(-cfg.max_w);
+        let w_hi = (w0 + cfg.accel_w * cfg.window_dt).min(cfg.max_w).max(w_lo);
+        let (nv, nw) = (cfg.v_samples.max(1), cfg.w_samples.max(1));
+
+        // Velocity profiles are separable: v depends only on the v command, yaw only on w.
+        self.v_prof.clear();
+        for i in 0..nv {
+            let cmd = sample(v_lo, v_hi, nv, i);
+            let mut v = v0;
+            for &dt in sched.dts() {
+                v = approach(v, cmd, cfg.accel_v * dt);
+                self.v_prof.push(v);
+            }
+        }
+        self.w_prof.clear();
+        for j in 0..nw {
+            let cmd = sample(w_lo, w_hi, nw, j);
+            let (mut w, mut yaw) = (w0, 0.0f64);
+            for &dt in sched.dts() {
+                w = approach(w, cmd, cfg.accel_w * dt);
+                yaw += w * dt;
+                let (s, c) = yaw.sin_cos();
+                self.w_prof.push((w, s, c));
+            }
+        }
+
+        self.rollouts.clear(sched.dts());
+        self.cost.clear();
+        for i in 0..nv {
+            for j in 0..nw {
+                let (mut x, mut y, mut s0, mut c0) = (0.0, 0.0, 0.0, 1.0);
+                let mut min_clear = cfg.clearance_cap;
+                let mut feasible = true;
+                if self.recording {
+                    self.rollouts.begin();
+                }
+                for k in 0..steps {
+                    let v = self.v_prof[i * steps + k];
+                    let (w, s1, c1) = self.w_prof[j * steps + k];
+                    let dt = sched.dts()[k];
+                    if (w * dt).abs() > 1e-9 {
+                        x += v / w * (s1 - s0);
+                        y -= v / w * (c1 - c0);
+                    } else {
+                        x += v * dt * c0;
+                        y += v * dt * s0;
+                    }
+                    (s0, c0) = (s1, c1);
+                    let pose = Pose::new(x, y, s1.atan2(c1));
+                    if self.recording {
+                        self.rollouts.push(pose);
+                    }
+                    let clear = self.map.footprint_clearance(
+                        &pose,
+                        sched.checks()[k] as usize,
+                        cfg.clearance_cap,
+                        &mut self.evaluated,
+                    );
+                    if clear < cfg.margin {
+                        feasible = false;
+                        break;
+                    }
+                    min_clear = min_clear.min(clear);
+                }
+                if self.recording {
+                    self.rollouts.end(feasible);
+                }
+                if !feasible {
+                    continue;
+                }
+                let end = Vec2::new(x, y);
+                let cmd = Twist::new(sample(v_lo, v_hi, nv, i), sample(w_lo, w_hi, nw, j));
+                self.cost.push(Candidate {
+                    cmd,
+                    goal: end.dist(per.local_goal),
+                    path: distance_to_path(per.local_path, end, per.local_goal),
+                    obstacle: (cfg.clearance_cap - min_clear) / cfg.clearance_cap,
+                    speed: if input.max_speed > 0.0 { (input.max_speed - cmd.v) / input.max_speed } else { 0.0 },
+                });
+            }
+        }
+        if self.cost.is_empty() {
+            // Nothing is safe: stop and turn toward the local goal.
+            let bearing = per.local_goal.y.atan2(per.local_goal.x);
+            return Twist::new(0.0, bearing.clamp(-1.0, 1.0));
+        }
+        let span = |f: fn(&Candidate) -> f64, cs: &[Candidate]| {
+            let (lo, hi) = cs
+                .iter()
+                .map(f)
+                .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), x| (a.min(x), b.max(x)));
+            (lo, if hi - lo > 1e-9 { hi - lo } else { 1.0 })
+        };
+        let (g_lo, g_span) = span(|c| c.goal, &self.cost);
+        let (p_lo, p_span) = span(|c| c.path, &self.cost);
+        let total = |c: &Candidate| {
+            cfg.w_goal * (c.goal - g_lo) / g_span
+                + cfg.w_path * (c.path - p_lo) / p_span
+                + cfg.w_obstacle * c.obstacle
+                + cfg.w_speed * c.speed
+        };
+        self.cost
+            .iter()
+            .min_by(|a, b| total(a).total_cmp(&total(b)))
+            .map(|c| c.cmd)
+            .unwrap_or_default()
+    }
+
+    fn rollouts(&self) -> &Rollouts {
+        &self.rollouts
+    }
+
+    fn set_recording(&mut self, on: bool) {
+        self.recording = on;
+    }
+
+    fn evaluated_points(&self) -> u64 {
+        self.evaluated
+    }
+}

@@ -1,0 +1,314 @@
+//! `adp eval`: planners x fidelities x speeds over a set of worlds, run in parallel, reduced
+//! to the papers' table (success, time, score, collision, timeout).
+
+use std::time::Instant;
+
+use anyhow::{bail, Context};
+use indicatif::{ProgressBar, ProgressStyle};
+use rayon::prelude::*;
+use serde::Serialize;
+
+use planner::{run::run_episode, Dwa, Planner, Schedule};
+use sim::{EpisodeResult, Status, World};
+
+use crate::config::EvalConfig;
+
+/// Time charged to a failed run when averaging times (s), as in the ADP paper.
+pub const FAILED_RUN_TIME: f64 = 50.0;
+
+/// A fidelity strategy selectable on the command line.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, clap::ValueEnum)]
+#[serde(rename_all = "kebab-case")]
+pub enum Fidelity {
+    /// Uniform 0.05 s x 20 steps, full collision checks.
+    Vanilla,
+    /// Decremental: p = 1.7, T = 2 s, N = 20, check points decaying as N_t.
+    Ddp,
+}
+
+impl Fidelity {
+    /// The schedule of this strategy.
+    pub fn schedule(self) -> Schedule {
+        match self {
+            Fidelity::Vanilla => Schedule::vanilla(),
+            Fidelity::Ddp => Schedule::ddp_default(),
+        }
+    }
+}
+
+/// A planner selectable on the command line.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, clap::ValueEnum)]
+#[serde(rename_all = "kebab-case")]
+pub enum PlannerKind {
+    /// Dynamic Window Approach.
+    Dwa,
+}
+
+impl PlannerKind {
+    /// A fresh planner for one episode.
+    pub fn build(self, cfg: &EvalConfig) -> Box<dyn Planner> {
+        match self {
+            PlannerKind::Dwa => Box::new(Dwa::new(cfg.dwa)),
+        }
+    }
+}
+
+/// What to evaluate.
+#[derive(Clone, Debug)]
+pub struct EvalPlan {
+    /// Planners.
+    pub planners: Vec<PlannerKind>,
+    /// Fidelity strategies.
+    pub fidelities: Vec<Fidelity>,
+    /// Speed caps (m/s).
+    pub speeds: Vec<f64>,
+    /// World ids.
+    pub worlds: Vec<usize>,
+    /// Runs per world.
+    pub runs: usize,
+    /// Best and worst runs (by time) dropped per world.
+    pub trim: usize,
+    /// Base seed.
+    pub seed: u64,
+}
+
+/// One table row.
+#[derive(Clone, Debug, Serialize)]
+pub struct Row {
+    /// Planner.
+    pub planner: PlannerKind,
+    /// Fidelity strategy.
+    pub fidelity: Fidelity,
+    /// Speed cap (m/s).
+    pub max_speed: f64,
+    /// Successful runs (%).
+    pub success_pct: f64,
+    /// Mean time (s), failed runs counted as 50 s.
+    pub avg_time_s: f64,
+    /// Mean BARN score.
+    pub avg_score: f64,
+    /// Collided runs (%).
+    pub collision_pct: f64,
+    /// Timed-out runs (%).
+    pub timeout_pct: f64,
+    /// Runs counted (after trimming).
+    pub episodes: usize,
+    /// Every run of every world, untrimmed.
+    pub per_world: Vec<WorldRuns>,
+}
+
+/// All runs of one world in one row.
+#[derive(Clone, Debug, Serialize)]
+pub struct WorldRuns {
+    /// World id.
+    pub world: usize,
+    /// Runs in seed order.
+    pub runs: Vec<EpisodeResult>,
+}
+
+/// Seed of one run: a SplitMix64 mix of the base seed, world and run index, so every run
+/// has its own reproducible noise stream whatever the thread layout.
+pub fn run_seed(base: u64, world: usize, run: usize) -> u64 {
+    let mut z = base ^ (world as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ (run as u64).wrapping_mul(0xD1B5_4A32_D192_ED03);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^ (z >> 31)
+}
+
+fn charged_time(r: &EpisodeResult) -> f64 {
+    if r.status == Status::Succeeded {
+        r.time_s
+    } else {
+        FAILED_RUN_TIME
+    }
+}
+
+/// Reduces the runs of one row: per world, sort by charged time, drop `trim` best and worst,
+/// then average over everything kept.
+pub fn summarize(per_world: &[WorldRuns], trim: usize) -> (f64, f64, f64, f64, f64, usize) {
+    let mut kept: Vec<&EpisodeResult> = Vec::new();
+    for w in per_world {
+        let mut runs: Vec<&EpisodeResult> = w.runs.iter().collect();
+        runs.sort_by(|a, b| charged_time(a).total_cmp(&charged_time(b)));
+        kept.extend(&runs[trim..runs.len() - trim]);
+    }
+    let n = kept.len().max(1) as f64;
+    let pct = |s: Status| 100.0 * kept.iter().filter(|r| r.status == s).count() as f64 / n;
+    (
+        pct(Status::Succeeded),
+        kept.iter().map(|r| charged_time(r)).sum::<f64>() / n,
+        kept.iter().map(|r| r.score).sum::<f64>() / n,
+        pct(Status::Collided),
+        pct(Status::TimedOut),
+        kept.len(),
+    )
+}
+
+/// Runs the whole plan on `worlds` (indexed by id) and returns one row per
+/// (planner, fidelity, speed).
+pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Result<Vec<Row>> {
+    if plan.runs == 0 {
+        bail!("--runs must be at least 1");
+    }
+    if 2 * plan.trim >= plan.runs {
+        bail!("--trim {} drops every run: it must be less than half of --runs {}", plan.trim, plan.runs);
+    }
+    for &s in &plan.speeds {
+        if !(s > 0.0 && s <= cfg.episode.robot.max_v) {
+            bail!("--max-speed {s} must be in (0, {}] m/s", cfg.episode.robot.max_v);
+        }
+    }
+    for &w in &plan.worlds {
+        worlds.get(w).with_context(|| format!("world {w} is not in the loaded data ({} worlds)", worlds.len()))?;
+    }
+    let mut jobs = Vec::new();
+    for (ri, (&p, &f, &s)) in plan
+        .planners
+        .iter()
+        .flat_map(|p| plan.fidelities.iter().flat_map(move |f| plan.speeds.iter().map(move |s| (p, f, s))))
+        .enumerate()
+    {
+        for &w in &plan.worlds {
+            for r in 0..plan.runs {
+                jobs.push((ri, p, f, s, w, r));
+            }
+        }
+    }
+    let bar = ProgressBar::new(jobs.len() as u64).with_style(
+        ProgressStyle::with_template("{spinner} [{elapsed_precise}] {bar:40} {pos}/{len} episodes (eta {eta})")
+            .expect("static template"),
+    );
+    let t0 = Instant::now();
+    let results: Vec<(usize, usize, usize, EpisodeResult, u64)> = jobs
+        .par_iter()
+        .map(|&(ri, p, f, s, w, r)| {
+            let mut planner = p.build(cfg);
+            let (res, cycles) = run_episode(
+                &worlds[w],
+                cfg.episode,
+                planner.as_mut(),
+                &f.schedule(),
+                s,
+                run_seed(plan.seed, w, r),
+                |_, _| {},
+            );
+            bar.inc(1);
+            (ri, w, r, res, cycles)
+        })
+        .collect();
+    bar.finish_and_clear();
+    let cycles: u64 = results.iter().map(|x| x.4).sum();
+    let secs = t0.elapsed().as_secs_f64();
+    eprintln!(
+        "{} episodes, {} planner cycles in {:.1} s ({:.0} cycles/s, {:.0}x real time per thread)",
+        results.len(),
+        cycles,
+        secs,
+        cycles as f64 / secs,
+        cycles as f64 * cfg.episode.control_dt / secs / rayon::current_num_threads() as f64
+    );
+
+    let mut rows = Vec::new();
+    let combos = plan
+        .planners
+        .iter()
+        .flat_map(|p| plan.fidelities.iter().flat_map(move |f| plan.speeds.iter().map(move |s| (*p, *f, *s))));
+    for (ri, (p, f, s)) in combos.enumerate() {
+        let per_world: Vec<WorldRuns> = plan
+            .worlds
+            .iter()
+            .map(|&w| {
+                let mut runs: Vec<(usize, EpisodeResult)> = results
+                    .iter()
+                    .filter(|x| x.0 == ri && x.1 == w)
+                    .map(|x| (x.2, x.3))
+                    .collect();
+                runs.sort_by_key(|x| x.0);
+                WorldRuns {
+                    world: w,
+                    runs: runs.into_iter().map(|x| x.1).collect(),
+                }
+            })
+            .collect();
+        let (success_pct, avg_time_s, avg_score, collision_pct, timeout_pct, episodes) = summarize(&per_world, plan.trim);
+        rows.push(Row {
+            planner: p,
+            fidelity: f,
+            max_speed: s,
+            success_pct,
+            avg_time_s,
+            avg_score,
+            collision_pct,
+            timeout_pct,
+            episodes,
+            per_world,
+        });
+    }
+    Ok(rows)
+}
+
+/// The markdown table of the rows.
+pub fn table(rows: &[Row]) -> String {
+    let mut out = String::from(
+        "| planner | fidelity | max speed (m/s) | success (%) | avg time (s) | avg score | collision (%) | timeout (%) | episodes |\n\
+         |---|---|---|---|---|---|---|---|---|\n",
+    );
+    for r in rows {
+        out.push_str(&format!(
+            "| {} | {} | {:.1} | {:.2} | {:.2} | {:.3} | {:.2} | {:.2} | {} |\n",
+            serde_json::to_value(r.planner).expect("enum").as_str().unwrap_or("?"),
+            serde_json::to_value(r.fidelity).expect("enum").as_str().unwrap_or("?"),
+            r.max_speed,
+            r.success_pct,
+            r.avg_time_s,
+            r.avg_score,
+            r.collision_pct,
+            r.timeout_pct,
+            r.episodes
+        ));
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn res(status: Status, time_s: f64, score: f64) -> EpisodeResult {
+        EpisodeResult {
+            world: 0,
+            status,
+            time_s,
+            sim_time_s: time_s,
+            score,
+            distance_m: 0.0,
+        }
+    }
+
+    #[test]
+    fn trimming_drops_best_and_worst_per_world() {
+        let w = WorldRuns {
+            world: 0,
+            runs: vec![
+                res(Status::Succeeded, 10.0, 0.4),
+                res(Status::Succeeded, 8.0, 0.5),
+                res(Status::Collided, 3.0, 0.0),
+                res(Status::Succeeded, 12.0, 0.3),
+            ],
+        };
+        // Charged times: 10, 8, 50 (collision), 12. Trim 1 drops 8 and 50.
+        let (succ, time, score, coll, to, n) = summarize(&[w.clone()], 1);
+        assert_eq!((succ, coll, to, n), (100.0, 0.0, 0.0, 2));
+        assert!((time - 11.0).abs() < 1e-12 && (score - 0.35).abs() < 1e-12);
+        let (succ, time, _, coll, _, n) = summarize(&[w], 0);
+        assert_eq!((succ, coll, n), (75.0, 25.0, 4));
+        assert!((time - 20.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn run_seeds_differ_and_repeat() {
+        assert_eq!(run_seed(1, 2, 3), run_seed(1, 2, 3));
+        assert_ne!(run_seed(1, 2, 3), run_seed(1, 3, 2));
+        assert_ne!(run_seed(1, 2, 3), run_seed(2, 2, 3));
+    }
+}
