@@ -31,14 +31,20 @@ impl EvalConfig {
         };
         let cfg: EvalConfig =
             toml::from_str(&text).map_err(|e| anyhow::anyhow!("{name}: {}", one_line(&e.to_string())))?;
-        cfg.episode.validate().map_err(|e| anyhow::anyhow!("{name}: [episode] {e}"))?;
+        cfg.episode
+            .validate()
+            .map_err(|e| anyhow::anyhow!("{name}: [episode] {e}"))?;
         Ok(cfg)
     }
 }
 
 /// Collapses a multi-line parser message (toml prints a snippet) into one line.
 pub fn one_line(s: &str) -> String {
-    s.lines().map(str::trim).filter(|l| !l.is_empty() && !l.starts_with('|') && !l.chars().all(|c| c == '^' || c == ' ')).collect::<Vec<_>>().join(" ")
+    s.lines()
+        .map(str::trim)
+        .filter(|l| !l.is_empty() && !l.starts_with('|') && !l.chars().all(|c| c == '^' || c == ' '))
+        .collect::<Vec<_>>()
+        .join(" ")
 }
 
 #[cfg(test)]

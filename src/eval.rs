@@ -45,8 +45,8 @@ pub enum PlannerKind {
 }
 
 impl PlannerKind {
-    /// A fresh planner for one episode.
-    pub fn build(self, cfg: &EvalConfig) -> Box<dyn Planner> {
+    /// A fresh planner for one episode; `seed` drives its sampling.
+    pub fn build(self, cfg: &EvalConfig, _seed: u64) -> Box<dyn Planner> {
         match self {
             PlannerKind::Dwa => Box::new(Dwa::new(cfg.dwa)),
         }
@@ -109,7 +109,9 @@ pub struct WorldRuns {
 /// Seed of one run: a SplitMix64 mix of the base seed, world and run index, so every run
 /// has its own reproducible noise stream whatever the thread layout.
 pub fn run_seed(base: u64, world: usize, run: usize) -> u64 {
-    let mut z = base ^ (world as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ (run as u64).wrapping_mul(0xD1B5_4A32_D192_ED03);
+    let mut z = base
+        ^ (world as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
+        ^ (run as u64).wrapping_mul(0xD1B5_4A32_D192_ED03);
     z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
     z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
     z ^ (z >> 31)
@@ -151,7 +153,11 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
         bail!("--runs must be at least 1");
     }
     if 2 * plan.trim >= plan.runs {
-        bail!("--trim {} drops every run: it must be less than half of --runs {}", plan.trim, plan.runs);
+        bail!(
+            "--trim {} drops every run: it must be less than half of --runs {}",
+            plan.trim,
+            plan.runs
+        );
     }
     for &s in &plan.speeds {
         if !(s > 0.0 && s <= cfg.episode.robot.max_v) {
@@ -159,13 +165,19 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
         }
     }
     for &w in &plan.worlds {
-        worlds.get(w).with_context(|| format!("world {w} is not in the loaded data ({} worlds)", worlds.len()))?;
+        worlds
+            .get(w)
+            .with_context(|| format!("world {w} is not in the loaded data ({} worlds)", worlds.len()))?;
     }
     let mut jobs = Vec::new();
     for (ri, (&p, &f, &s)) in plan
         .planners
         .iter()
-        .flat_map(|p| plan.fidelities.iter().flat_map(move |f| plan.speeds.iter().map(move |s| (p, f, s))))
+        .flat_map(|p| {
+            plan.fidelities
+                .iter()
+                .flat_map(move |f| plan.speeds.iter().map(move |s| (p, f, s)))
+        })
         .enumerate()
     {
         for &w in &plan.worlds {
@@ -175,21 +187,24 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
         }
     }
     let bar = ProgressBar::new(jobs.len() as u64).with_style(
-        ProgressStyle::with_template("{spinner} [{elapsed_precise}] {bar:40} {pos}/{len} episodes (eta {eta})")
-            .expect("static template"),
+        ProgressStyle::with_template(
+            "{spinner} [{elapsed_precise}] {bar:40} {pos}/{len} episodes (eta {eta})",
+        )
+        .expect("static template"),
     );
     let t0 = Instant::now();
     let results: Vec<(usize, usize, usize, EpisodeResult, u64)> = jobs
         .par_iter()
         .map(|&(ri, p, f, s, w, r)| {
-            let mut planner = p.build(cfg);
+            let seed = run_seed(plan.seed, w, r);
+            let mut planner = p.build(cfg, seed ^ 0x5eed_91a2);
             let (res, cycles) = run_episode(
                 &worlds[w],
                 cfg.episode,
                 planner.as_mut(),
                 &f.schedule(),
                 s,
-                run_seed(plan.seed, w, r),
+                seed,
                 |_, _| {},
             );
             bar.inc(1);
@@ -209,10 +224,11 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
     );
 
     let mut rows = Vec::new();
-    let combos = plan
-        .planners
-        .iter()
-        .flat_map(|p| plan.fidelities.iter().flat_map(move |f| plan.speeds.iter().map(move |s| (*p, *f, *s))));
+    let combos = plan.planners.iter().flat_map(|p| {
+        plan.fidelities
+            .iter()
+            .flat_map(move |f| plan.speeds.iter().map(move |s| (*p, *f, *s)))
+    });
     for (ri, (p, f, s)) in combos.enumerate() {
         let per_world: Vec<WorldRuns> = plan
             .worlds
@@ -230,7 +246,8 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
                 }
             })
             .collect();
-        let (success_pct, avg_time_s, avg_score, collision_pct, timeout_pct, episodes) = summarize(&per_world, plan.trim);
+        let (success_pct, avg_time_s, avg_score, collision_pct, timeout_pct, episodes) =
+            summarize(&per_world, plan.trim);
         rows.push(Row {
             planner: p,
             fidelity: f,
@@ -256,8 +273,14 @@ pub fn table(rows: &[Row]) -> String {
     for r in rows {
         out.push_str(&format!(
             "| {} | {} | {:.1} | {:.2} | {:.2} | {:.3} | {:.2} | {:.2} | {} |\n",
-            serde_json::to_value(r.planner).expect("enum").as_str().unwrap_or("?"),
-            serde_json::to_value(r.fidelity).expect("enum").as_str().unwrap_or("?"),
+            serde_json::to_value(r.planner)
+                .expect("enum")
+                .as_str()
+                .unwrap_or("?"),
+            serde_json::to_value(r.fidelity)
+                .expect("enum")
+                .as_str()
+                .unwrap_or("?"),
             r.max_speed,
             r.success_pct,
             r.avg_time_s,
@@ -297,7 +320,7 @@ mod tests {
             ],
         };
         // Charged times: 10, 8, 50 (collision), 12. Trim 1 drops 8 and 50.
-        let (succ, time, score, coll, to, n) = summarize(&[w.clone()], 1);
+        let (succ, time, score, coll, to, n) = summarize(std::slice::from_ref(&w), 1);
         assert_eq!((succ, coll, to, n), (100.0, 0.0, 0.0, 2));
         assert!((time - 11.0).abs() < 1e-12 && (score - 0.35).abs() < 1e-12);
         let (succ, time, _, coll, _, n) = summarize(&[w], 0);

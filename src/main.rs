@@ -15,7 +15,11 @@ use sim::splits::SplitFile;
 use sim::World;
 
 #[derive(Parser)]
-#[command(name = "adp", version, about = "Adaptive/decremental dynamics planning on BARN")]
+#[command(
+    name = "adp",
+    version,
+    about = "Adaptive/decremental dynamics planning on BARN"
+)]
 struct Cli {
     #[command(subcommand)]
     cmd: Cmd,
@@ -36,8 +40,10 @@ impl WorldData {
     fn load(&self) -> anyhow::Result<std::borrow::Cow<'static, [World]>> {
         match (&self.obstacles, &self.paths) {
             (Some(o), Some(p)) => {
-                let ot = std::fs::read_to_string(o).with_context(|| format!("cannot read {}", o.display()))?;
-                let pt = std::fs::read_to_string(p).with_context(|| format!("cannot read {}", p.display()))?;
+                let ot =
+                    std::fs::read_to_string(o).with_context(|| format!("cannot read {}", o.display()))?;
+                let pt =
+                    std::fs::read_to_string(p).with_context(|| format!("cannot read {}", p.display()))?;
                 Ok(sim::barn::parse(&o.display().to_string(), &ot, &p.display().to_string(), &pt)?.into())
             }
             _ => Ok(sim::barn::worlds().into()),
@@ -174,11 +180,16 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             }
             WorldsCmd::Show { id, data } => {
                 let all = data.load()?;
-                let w = all.get(id).with_context(|| format!("world {id} does not exist ({} worlds)", all.len()))?;
+                let w = all
+                    .get(id)
+                    .with_context(|| format!("world {id} does not exist ({} worlds)", all.len()))?;
                 println!("world {}", w.id);
                 println!("cylinders {}", w.cylinders.len());
                 println!("start {:.3} {:.3} {:.4}", w.start.x, w.start.y, w.start.yaw);
-                println!("goal {:.3} {:.3} (radius {} m)", w.goal.x, w.goal.y, w.goal_radius);
+                println!(
+                    "goal {:.3} {:.3} (radius {} m)",
+                    w.goal.x, w.goal.y, w.goal_radius
+                );
                 println!("path_length_m {:.6}", w.path_length_m);
                 println!("optimal_time_s {:.6}", w.optimal_time_s);
                 Ok(())

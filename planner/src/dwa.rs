@@ -33,6 +33,9 @@ pub struct DwaConfig {
     pub margin: f64,
     /// Clearances above this cost nothing (m).
     pub clearance_cap: f64,
+    /// Boundary points are evaluated only where the circumscribed-disk bound is below this
+    /// (m); farther away the disk bound is the clearance estimate.
+    pub detail_within: f64,
     /// Weight of the end point's distance to the local goal.
     pub w_goal: f64,
     /// Weight of the end point's distance to the local path.
@@ -56,6 +59,7 @@ impl Default for DwaConfig {
             window_dt: 0.05,
             margin: 0.02,
             clearance_cap: 0.5,
+            detail_within: 0.1,
             w_goal: 1.0,
             w_path: 0.4,
             w_obstacle: 0.8,
@@ -94,7 +98,11 @@ impl Dwa {
     pub fn new(cfg: DwaConfig) -> Self {
         Self {
             cfg,
-            map: LocalMap::new(sim::Footprint::JACKAL, cfg.map_resolution, crate::schedule::DEFAULT_BOUNDARY_POINTS),
+            map: LocalMap::new(
+                sim::Footprint::JACKAL,
+                cfg.map_resolution,
+                crate::schedule::DEFAULT_BOUNDARY_POINTS,
+            ),
             w_prof: Vec::new(),
             v_prof: Vec::new(),
             cost: Vec::new(),
@@ -115,7 +123,11 @@ pub fn distance_to_path(path: &[Vec2], p: Vec2, fallback: Vec2) -> f64 {
         let (a, b) = (s[0], s[1]);
         let ab = b - a;
         let len2 = ab.dot(ab);
-        let t = if len2 > 0.0 { ((p - a).dot(ab) / len2).clamp(0.0, 1.0) } else { 0.0 };
+        let t = if len2 > 0.0 {
+            ((p - a).dot(ab) / len2).clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
         best = best.min(p.dist(a + ab * t));
     }
     best
@@ -140,7 +152,9 @@ impl Planner for Dwa {
         let sched = input.schedule;
         let steps = sched.len();
         self.map.set_boundary_points(sched.boundary_points());
-        let reach = input.max_speed * sched.horizon() + self.map.footprint().circumscribed_radius() + cfg.clearance_cap;
+        let reach = input.max_speed * sched.horizon()
+            + self.map.footprint().circumscribed_radius()
+            + cfg.clearance_cap;
         self.map.build(per.points, 1.0, reach);
 
         let v0 = per.vel.v;
@@ -202,7 +216,7 @@ impl Planner for Dwa {
                     let clear = self.map.footprint_clearance(
                         &pose,
                         sched.checks()[k] as usize,
-                        cfg.clearance_cap,
+                        cfg.detail_within,
                         &mut self.evaluated,
                     );
                     if clear < cfg.margin {
@@ -224,7 +238,11 @@ impl Planner for Dwa {
                     goal: end.dist(per.local_goal),
                     path: distance_to_path(per.local_path, end, per.local_goal),
                     obstacle: (cfg.clearance_cap - min_clear) / cfg.clearance_cap,
-                    speed: if input.max_speed > 0.0 { (input.max_speed - cmd.v) / input.max_speed } else { 0.0 },
+                    speed: if input.max_speed > 0.0 {
+                        (input.max_speed - cmd.v) / input.max_speed
+                    } else {
+                        0.0
+                    },
                 });
             }
         }
@@ -237,7 +255,9 @@ impl Planner for Dwa {
             let (lo, hi) = cs
                 .iter()
                 .map(f)
-                .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), x| (a.min(x), b.max(x)));
+                .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), x| {
+                    (a.min(x), b.max(x))
+                });
             (lo, if hi - lo > 1e-9 { hi - lo } else { 1.0 })
         };
         let (g_lo, g_span) = span(|c| c.goal, &self.cost);

@@ -70,7 +70,13 @@ impl LocalMap {
         let perim = 4.0 * (self.footprint.half_length + self.footprint.half_width);
         self.points = (0..=n).map(|m| self.footprint.boundary_points(m)).collect();
         self.half_gap = (0..=n)
-            .map(|m| if m == 0 { f64::INFINITY } else { perim / (2.0 * m as f64) })
+            .map(|m| {
+                if m == 0 {
+                    f64::INFINITY
+                } else {
+                    perim / (2.0 * m as f64)
+                }
+            })
             .collect();
     }
 
@@ -250,7 +256,10 @@ mod tests {
             let exact = brute(&pts, q);
             let est = map.distance(q);
             // Two cell half-diagonals of discretisation plus the half-cell correction.
-            assert!(est <= exact + 0.036 && est >= exact - 0.1, "q {q:?}: est {est} exact {exact}");
+            assert!(
+                est <= exact + 0.036 && est >= exact - 0.1,
+                "q {q:?}: est {est} exact {exact}"
+            );
         }
         assert_eq!(map.distance(Vec2::new(50.0, 0.0)), FAR);
     }
@@ -268,7 +277,10 @@ mod tests {
         let fine = map.footprint_clearance(&pose, 20, 1.0, &mut n);
         assert_eq!(n, 22);
         assert!(coarse < 0.0, "disk bound: 0.30 - 0.333 < 0 ({coarse})");
-        assert!(fine > coarse && fine <= 0.046 + 0.01, "boundary bound is tighter: {fine}");
+        assert!(
+            fine > coarse && fine <= 0.046 + 0.01,
+            "boundary bound is tighter: {fine}"
+        );
         // Moved onto the wall: the centre check alone reports contact.
         let inside = map.footprint_clearance(&Pose::new(0.2, 0.0, 0.0), 20, 1.0, &mut n);
         assert!(inside < 0.0);
@@ -285,12 +297,12 @@ mod tests {
         let mut v = [0usize; 8];
         let mut z = [0f32; 9];
         edt_1d(&f, &mut d, &mut v, &mut z);
-        for q in 0..8 {
+        for (q, &dq) in d.iter().enumerate() {
             let b = (0..8)
                 .filter(|&p| f[p] < 1e19)
                 .map(|p| ((q as f32 - p as f32).powi(2)) + f[p])
                 .fold(f32::INFINITY, f32::min);
-            assert_eq!(d[q], b, "q = {q}");
+            assert_eq!(dq, b, "q = {q}");
         }
     }
 }

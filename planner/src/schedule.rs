@@ -74,7 +74,13 @@ impl Schedule {
 
     /// The ADP decremental family: t_i = alpha (i/N) T + (1 - alpha) (i/N)^p T, with the
     /// check density decaying as in DDP. `alpha` = 0 is DDP; `alpha` = 1 is uniform.
-    pub fn decremental(p: f64, total_time: f64, steps: usize, alpha: f64, n: usize) -> Result<Self, ScheduleError> {
+    pub fn decremental(
+        p: f64,
+        total_time: f64,
+        steps: usize,
+        alpha: f64,
+        n: usize,
+    ) -> Result<Self, ScheduleError> {
         check("p", p, p > 0.0, "must be > 0")?;
         check("T", total_time, total_time > 0.0, "must be > 0")?;
         check("N", steps as f64, steps >= 1, "must be >= 1")?;
@@ -181,7 +187,10 @@ mod tests {
         assert!(uniform.dts().iter().all(|&d| (d - 0.2).abs() < 1e-12));
         let blend = Schedule::decremental(1.5, 1.8, 16, 0.3, 16).unwrap();
         assert!((blend.horizon() - 1.8).abs() < 1e-12);
-        assert!(matches!(Schedule::ddp(1.7, f64::NAN, 20, 16), Err(ScheduleError::Param { name: "T", .. })));
+        assert!(matches!(
+            Schedule::ddp(1.7, f64::NAN, 20, 16),
+            Err(ScheduleError::Param { name: "T", .. })
+        ));
         assert!(Schedule::ddp(1.7, 2.0, 0, 16).is_err());
         assert!(Schedule::uniform(-0.1, 5, 4).is_err());
     }

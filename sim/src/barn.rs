@@ -208,7 +208,14 @@ pub fn parse(
             .collect();
         let start = Pose::new(p.start_xy[0], p.start_xy[1], START.yaw);
         let goal = Vec2::new(p.goal_xy[0], p.goal_xy[1]);
-        worlds.push(World::new(id, cylinders, start, goal, p.path_length_m, reference_path));
+        worlds.push(World::new(
+            id,
+            cylinders,
+            start,
+            goal,
+            p.path_length_m,
+            reference_path,
+        ));
     }
     Ok(worlds)
 }
@@ -255,14 +262,20 @@ mod tests {
         let obs = first_lines(OBSTACLES_JSONL, 3);
         let paths = first_lines(PATHS_JSONL, 3);
         let broken = obs.replacen("\"cylinders\":", "\"cylindres\":", 1);
-        let e = parse("o.jsonl", &broken, "p.jsonl", &paths).unwrap_err().to_string();
+        let e = parse("o.jsonl", &broken, "p.jsonl", &paths)
+            .unwrap_err()
+            .to_string();
         assert!(e.starts_with("o.jsonl line 1, world 0:"), "{e}");
         assert!(e.contains("cylindres") || e.contains("cylinders"), "{e}");
         let truncated = format!("{}\n{{\"world\":2,\"n_cyl", first_lines(OBSTACLES_JSONL, 2));
-        let e = parse("o.jsonl", &truncated, "p.jsonl", &paths).unwrap_err().to_string();
+        let e = parse("o.jsonl", &truncated, "p.jsonl", &paths)
+            .unwrap_err()
+            .to_string();
         assert!(e.starts_with("o.jsonl line 3:"), "{e}");
         let nan_len = paths.replacen("\"path_length_m\":13.592298", "\"path_length_m\":-1", 1);
-        let e = parse("o.jsonl", &obs, "p.jsonl", &nan_len).unwrap_err().to_string();
+        let e = parse("o.jsonl", &obs, "p.jsonl", &nan_len)
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("world 0") && e.contains("path_length_m"), "{e}");
     }
 
@@ -272,6 +285,9 @@ mod tests {
         let paths = first_lines(PATHS_JSONL, 2);
         let e = parse("o.jsonl", &obs, "p.jsonl", &paths).unwrap_err().to_string();
         assert_eq!(e, "p.jsonl: world 2: missing, but present in o.jsonl");
-        assert!(world(300).unwrap_err().to_string().contains("world 300 does not exist"));
+        assert!(world(300)
+            .unwrap_err()
+            .to_string()
+            .contains("world 300 does not exist"));
     }
 }

@@ -116,7 +116,7 @@ impl Costmap {
         let fx = ((p.x - self.origin.x) / self.cfg.resolution).floor();
         let fy = ((p.y - self.origin.y) / self.cfg.resolution).floor();
         (fx >= 0.0 && fy >= 0.0 && (fx as usize) < self.nx && (fy as usize) < self.ny)
-            .then(|| (fx as usize, fy as usize))
+            .then_some((fx as usize, fy as usize))
     }
 
     /// Centre of a cell.
@@ -168,7 +168,11 @@ mod tests {
         m.mark(Vec2::new(0.0, 0.0), [hit, Vec2::new(0.05, 9.05)].into_iter());
         let (ix, iy) = m.cell_of(hit).unwrap();
         assert_eq!(m.cost(ix, iy), OBSTACLE);
-        assert_eq!(m.cost(ix + 2, iy), LETHAL, "0.2 m away is inside the inscribed radius");
+        assert_eq!(
+            m.cost(ix + 2, iy),
+            LETHAL,
+            "0.2 m away is inside the inscribed radius"
+        );
         let mid = m.cost(ix + 4, iy);
         assert!(mid > 0 && mid < LETHAL, "0.4 m away is inflated: {mid}");
         assert_eq!(m.cost(ix + 7, iy), 0, "0.7 m away is free");

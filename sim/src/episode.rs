@@ -62,10 +62,10 @@ impl EpisodeConfig {
         if !(self.physics_dt > 0.0 && self.physics_dt <= 0.01) {
             return Err(format!("physics_dt = {} must be in (0, 0.01]", self.physics_dt));
         }
-        if !(self.control_dt >= self.physics_dt) {
+        if self.control_dt.is_nan() || self.control_dt < self.physics_dt {
             return Err(format!("control_dt = {} must be >= physics_dt", self.control_dt));
         }
-        if !(self.timeout_s > 0.0) {
+        if self.timeout_s.is_nan() || self.timeout_s <= 0.0 {
             return Err(format!("timeout_s = {} must be > 0", self.timeout_s));
         }
         if self.replan_every == 0 {
@@ -293,7 +293,11 @@ impl<'w> Episode<'w> {
             status: self.status,
             time_s,
             sim_time_s: self.sim_time,
-            score: barn_score(self.status == Status::Succeeded, self.world.optimal_time_s, time_s),
+            score: barn_score(
+                self.status == Status::Succeeded,
+                self.world.optimal_time_s,
+                time_s,
+            ),
             distance_m: self.distance,
         }
     }
@@ -307,17 +311,20 @@ impl<'w> Episode<'w> {
     /// Scan, mark the map, replan when due, and recompute the local goal.
     fn sense(&mut self) {
         let pose = self.state.pose;
-        self.lidar.scan(self.world, &pose, &mut self.rng, &mut self.ranges);
+        self.lidar
+            .scan(self.world, &pose, &mut self.rng, &mut self.ranges);
         self.lidar.points(&self.ranges, &mut self.points);
         let pts = &self.points;
         self.costmap
             .mark(pose.position(), pts.iter().map(|p| pose.to_world(*p)));
         let due = self.cycles % self.cfg.replan_every as u64 == 0;
         if self.path.is_empty() || due {
-            if self
-                .global
-                .plan(&self.costmap, pose.position(), self.world.goal, &mut self.raw_path)
-            {
+            if self.global.plan(
+                &self.costmap,
+                pose.position(),
+                self.world.goal,
+                &mut self.raw_path,
+            ) {
                 smooth(&self.raw_path, self.cfg.smoothing_window, &mut self.path);
             } else {
                 self.path.clear();
@@ -356,15 +363,31 @@ mod tests {
         let mut c = Vec::new();
         for i in 0..100 {
             let y = -1.0 + 0.15 * i as f64;
-            c.push(Circle { c: Vec2::new(-1.0, y), r: 0.075 });
-            c.push(Circle { c: Vec2::new(1.0, y), r: 0.075 });
+            c.push(Circle {
+                c: Vec2::new(-1.0, y),
+                r: 0.075,
+            });
+            c.push(Circle {
+                c: Vec2::new(1.0, y),
+                r: 0.075,
+            });
         }
         if with_wall {
             for i in 0..14 {
-                c.push(Circle { c: Vec2::new(-1.0 + 0.15 * i as f64, 4.0), r: 0.075 });
+                c.push(Circle {
+                    c: Vec2::new(-1.0 + 0.15 * i as f64, 4.0),
+                    r: 0.075,
+                });
             }
         }
-        World::new(0, c, Pose::new(0.0, 0.0, std::f64::consts::FRAC_PI_2), Vec2::new(0.0, 10.0), 10.0, vec![])
+        World::new(
+            0,
+            c,
+            Pose::new(0.0, 0.0, std::f64::consts::FRAC_PI_2),
+            Vec2::new(0.0, 10.0),
+            10.0,
+            vec![],
+        )
     }
 
     #[test]
@@ -406,7 +429,10 @@ mod tests {
     #[test]
     fn standing_still_times_out_and_clock_waits_for_motion() {
         let w = corridor(false);
-        let cfg = EpisodeConfig { timeout_s: 2.0, ..Default::default() };
+        let cfg = EpisodeConfig {
+            timeout_s: 2.0,
+            ..Default::default()
+        };
         let mut ep = Episode::new(&w, cfg, 1);
         let mut steps = 0;
         while ep.step(Twist::new(0.0, 0.0)) == Status::Running {

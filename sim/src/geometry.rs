@@ -237,24 +237,42 @@ mod tests {
         let f = Footprint::JACKAL;
         let pose = Pose::new(0.0, 0.0, 0.0);
         // Circle of r = 0.075 straight ahead: contact when centre is at 0.254 + 0.075.
-        let touching = Circle { c: Vec2::new(0.329, 0.0), r: 0.075 };
+        let touching = Circle {
+            c: Vec2::new(0.329, 0.0),
+            r: 0.075,
+        };
         assert!(f.clearance_to_circle(&pose, &touching).abs() < 1e-12);
-        let near = Circle { c: Vec2::new(0.3291, 0.0), r: 0.075 };
+        let near = Circle {
+            c: Vec2::new(0.3291, 0.0),
+            r: 0.075,
+        };
         assert!(f.clearance_to_circle(&pose, &near) > 0.0);
-        let into = Circle { c: Vec2::new(0.3289, 0.0), r: 0.075 };
+        let into = Circle {
+            c: Vec2::new(0.3289, 0.0),
+            r: 0.075,
+        };
         assert!(f.clearance_to_circle(&pose, &into) < 0.0);
         // Corner: distance to the corner point (0.254, 0.215).
-        let corner = Circle { c: Vec2::new(0.254 + 0.3, 0.215 + 0.4), r: 0.075 };
+        let corner = Circle {
+            c: Vec2::new(0.254 + 0.3, 0.215 + 0.4),
+            r: 0.075,
+        };
         assert!((f.clearance_to_circle(&pose, &corner) - (0.5 - 0.075)).abs() < 1e-12);
         // Rotated robot: a circle to the side (robot facing +y) hits its long side? no: width.
         let turned = Pose::new(0.0, 0.0, FRAC_PI_2);
-        let side = Circle { c: Vec2::new(0.215 + 0.075 + 0.01, 0.0), r: 0.075 };
+        let side = Circle {
+            c: Vec2::new(0.215 + 0.075 + 0.01, 0.0),
+            r: 0.075,
+        };
         assert!((f.clearance_to_circle(&turned, &side) - 0.01).abs() < 1e-9);
     }
 
     #[test]
     fn ray_hits_circle_at_surface() {
-        let c = Circle { c: Vec2::new(2.0, 0.0), r: 0.5 };
+        let c = Circle {
+            c: Vec2::new(2.0, 0.0),
+            r: 0.5,
+        };
         let hit = ray_circle(Vec2::new(0.0, 0.0), Vec2::new(1.0, 0.0), &c).unwrap();
         assert!((hit - 1.5).abs() < 1e-12);
         assert!(ray_circle(Vec2::new(0.0, 0.0), Vec2::new(-1.0, 0.0), &c).is_none());

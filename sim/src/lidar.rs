@@ -77,7 +77,12 @@ impl Lidar {
             .collect();
         let dirs = angles.iter().map(|a| Vec2::new(a.cos(), a.sin())).collect();
         let noise = (cfg.noise_sigma > 0.0).then(|| Normal::new(0.0, cfg.noise_sigma).expect("sigma >= 0"));
-        Self { cfg, dirs, angles, noise }
+        Self {
+            cfg,
+            dirs,
+            angles,
+            noise,
+        }
     }
 
     /// The configuration.
@@ -98,7 +103,9 @@ impl Lidar {
         let (s, c) = pose.yaw.sin_cos();
         for (r, d) in ranges.iter_mut().zip(&self.dirs) {
             let dw = Vec2::new(c * d.x - s * d.y, s * d.x + c * d.y);
-            let mut range = world.raycast(o, dw, self.cfg.max_range).unwrap_or(self.cfg.max_range);
+            let mut range = world
+                .raycast(o, dw, self.cfg.max_range)
+                .unwrap_or(self.cfg.max_range);
             if let Some(n) = &self.noise {
                 range += n.sample(rng);
             }
@@ -124,12 +131,25 @@ mod tests {
     use rand::SeedableRng;
 
     fn one_cylinder(x: f64, y: f64, r: f64) -> World {
-        World::new(0, vec![Circle { c: Vec2::new(x, y), r }], Pose::default(), Vec2::new(9.0, 0.0), 9.0, vec![])
+        World::new(
+            0,
+            vec![Circle {
+                c: Vec2::new(x, y),
+                r,
+            }],
+            Pose::default(),
+            Vec2::new(9.0, 0.0),
+            9.0,
+            vec![],
+        )
     }
 
     #[test]
     fn ranges_match_hand_geometry() {
-        let cfg = LidarConfig { noise_sigma: 0.0, ..Default::default() };
+        let cfg = LidarConfig {
+            noise_sigma: 0.0,
+            ..Default::default()
+        };
         let lidar = Lidar::new(cfg);
         let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(1);
         let mut ranges = Vec::new();
@@ -152,26 +172,43 @@ mod tests {
         assert_eq!(ranges[0], 30.0);
         assert_eq!(ranges[719], 30.0);
         // The same cylinder seen from a robot facing +y is on its right (negative angles).
-        lidar.scan(&w, &Pose::new(0.0, 0.0, std::f64::consts::FRAC_PI_2), &mut rng, &mut ranges);
-        let k = lidar.angles().iter().position(|&a| a >= -std::f64::consts::FRAC_PI_2).unwrap();
+        lidar.scan(
+            &w,
+            &Pose::new(0.0, 0.0, std::f64::consts::FRAC_PI_2),
+            &mut rng,
+            &mut ranges,
+        );
+        let k = lidar
+            .angles()
+            .iter()
+            .position(|&a| a >= -std::f64::consts::FRAC_PI_2)
+            .unwrap();
         assert!((ranges[k] - 2.5).abs() < 2e-3, "{}", ranges[k]);
         // Points are robot-frame positions of the returns.
         let mut pts = Vec::new();
         lidar.points(&ranges, &mut pts);
-        assert!(pts.iter().all(|p| (p.dist(Vec2::new(0.0, -3.0)) - 0.5).abs() < 1e-6));
+        assert!(pts
+            .iter()
+            .all(|p| (p.dist(Vec2::new(0.0, -3.0)) - 0.5).abs() < 1e-6));
     }
 
     #[test]
     fn min_range_and_noise() {
         let w = one_cylinder(0.12, 0.0, 0.1);
-        let lidar = Lidar::new(LidarConfig { noise_sigma: 0.0, ..Default::default() });
+        let lidar = Lidar::new(LidarConfig {
+            noise_sigma: 0.0,
+            ..Default::default()
+        });
         let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(2);
         let mut ranges = Vec::new();
         lidar.scan(&w, &Pose::default(), &mut rng, &mut ranges);
         assert_eq!(ranges[359], 0.1, "returns closer than min_range are clamped");
 
         let far = one_cylinder(5.0, 0.0, 1.0);
-        let noisy = Lidar::new(LidarConfig { noise_sigma: 0.01, ..Default::default() });
+        let noisy = Lidar::new(LidarConfig {
+            noise_sigma: 0.01,
+            ..Default::default()
+        });
         let mut errs = Vec::new();
         for _ in 0..200 {
             noisy.scan(&far, &Pose::default(), &mut rng, &mut ranges);
@@ -179,6 +216,9 @@ mod tests {
         }
         let mean = errs.iter().sum::<f64>() / errs.len() as f64;
         let sd = (errs.iter().map(|e| (e - mean).powi(2)).sum::<f64>() / errs.len() as f64).sqrt();
-        assert!(mean.abs() < 0.003 && (sd - 0.01).abs() < 0.003, "mean {mean} sd {sd}");
+        assert!(
+            mean.abs() < 0.003 && (sd - 0.01).abs() < 0.003,
+            "mean {mean} sd {sd}"
+        );
     }
 }

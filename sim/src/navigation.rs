@@ -62,7 +62,8 @@ impl GlobalPlanner {
         self.g[start as usize] = 0.0;
         self.parent[start as usize] = u32::MAX;
         self.stamp[start as usize] = self.epoch;
-        self.heap.push(OpenEntry(std::cmp::Reverse((h(start).to_bits(), start))));
+        self.heap
+            .push(OpenEntry(std::cmp::Reverse((h(start).to_bits(), start))));
         let mut found = false;
         while let Some(OpenEntry(std::cmp::Reverse((fbits, c)))) = self.heap.pop() {
             let gc = self.g[c as usize];
@@ -74,7 +75,16 @@ impl GlobalPlanner {
                 break;
             }
             let (cx, cy) = ((c as usize % nx) as i64, (c as usize / nx) as i64);
-            for (dx, dy) in [(1, 0), (-1, 0), (0, 1), (0, -1), (1, 1), (1, -1), (-1, 1), (-1, -1)] {
+            for (dx, dy) in [
+                (1, 0),
+                (-1, 0),
+                (0, 1),
+                (0, -1),
+                (1, 1),
+                (1, -1),
+                (-1, 1),
+                (-1, -1),
+            ] {
                 let (x, y) = (cx + dx, cy + dy);
                 if x < 0 || y < 0 || x >= nx as i64 || y >= ny as i64 {
                     continue;
@@ -83,7 +93,11 @@ impl GlobalPlanner {
                 if cost == OBSTACLE {
                     continue;
                 }
-                let step = if dx != 0 && dy != 0 { std::f32::consts::SQRT_2 } else { 1.0 } * res;
+                let step = if dx != 0 && dy != 0 {
+                    std::f32::consts::SQRT_2
+                } else {
+                    1.0
+                } * res;
                 let penalty = if cost >= LETHAL {
                     LETHAL_PENALTY
                 } else {
@@ -96,7 +110,8 @@ impl GlobalPlanner {
                     self.stamp[nc as usize] = self.epoch;
                     self.g[nc as usize] = ng;
                     self.parent[nc as usize] = c;
-                    self.heap.push(OpenEntry(std::cmp::Reverse(((ng + h(nc)).to_bits(), nc))));
+                    self.heap
+                        .push(OpenEntry(std::cmp::Reverse(((ng + h(nc)).to_bits(), nc))));
                 }
             }
         }
@@ -167,7 +182,10 @@ mod tests {
         assert!(gp.plan(&m, Vec2::new(0.0, 0.0), Vec2::new(0.0, 6.0), &mut path));
         assert_eq!(path[0], Vec2::new(0.0, 0.0));
         assert_eq!(*path.last().unwrap(), Vec2::new(0.0, 6.0));
-        let crossing = path.iter().min_by(|a, b| (a.y - 3.0).abs().total_cmp(&(b.y - 3.0).abs())).unwrap();
+        let crossing = path
+            .iter()
+            .min_by(|a, b| (a.y - 3.0).abs().total_cmp(&(b.y - 3.0).abs()))
+            .unwrap();
         assert!(crossing.x > 1.2, "{crossing:?}");
         // Replanning reuses buffers and gives the same path.
         let mut again = Vec::new();
@@ -185,7 +203,9 @@ mod tests {
         assert!((p.y - 1.25).abs() < 1e-12 && i == 3);
         let (p, i) = point_at_arc_length(&path, 99.0);
         assert_eq!((p, i), (Vec2::new(0.0, 5.0), 11));
-        let zigzag: Vec<Vec2> = (0..9).map(|i| Vec2::new(if i % 2 == 0 { 0.1 } else { -0.1 }, i as f64)).collect();
+        let zigzag: Vec<Vec2> = (0..9)
+            .map(|i| Vec2::new(if i % 2 == 0 { 0.1 } else { -0.1 }, i as f64))
+            .collect();
         let mut s = Vec::new();
         smooth(&zigzag, 5, &mut s);
         assert_eq!(s[0], zigzag[0]);

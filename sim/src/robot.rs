@@ -116,7 +116,11 @@ mod tests {
             p = integrate_arc(p, Twist::new(1.0, 1.0), std::f64::consts::TAU / 628.0);
         }
         assert!((p.x - 1.0).abs() < 1e-9 && (p.y - 2.0).abs() < 1e-9);
-        let straight = integrate_arc(Pose::new(0.0, 0.0, std::f64::consts::FRAC_PI_2), Twist::new(2.0, 0.0), 0.5);
+        let straight = integrate_arc(
+            Pose::new(0.0, 0.0, std::f64::consts::FRAC_PI_2),
+            Twist::new(2.0, 0.0),
+            0.5,
+        );
         assert!(straight.x.abs() < 1e-12 && (straight.y - 1.0).abs() < 1e-12);
     }
 }

@@ -18,10 +18,18 @@ mod tests {
     fn known_values_and_clip_bounds() {
         // World 0: OT = 6.796149 s.
         let ot = 6.796149;
-        assert_eq!(barn_score(true, ot, 10.0), 0.5, "faster than 2 OT is clipped to 0.5");
+        assert_eq!(
+            barn_score(true, ot, 10.0),
+            0.5,
+            "faster than 2 OT is clipped to 0.5"
+        );
         assert!((barn_score(true, ot, 20.0) - ot / 20.0).abs() < 1e-15);
         assert!((barn_score(true, ot, 27.184596) - 0.25).abs() < 1e-12);
-        assert_eq!(barn_score(true, ot, 1000.0), 0.125, "slower than 8 OT is clipped to 1/8");
+        assert_eq!(
+            barn_score(true, ot, 1000.0),
+            0.125,
+            "slower than 8 OT is clipped to 1/8"
+        );
         assert_eq!(barn_score(false, ot, 10.0), 0.0);
     }
 }

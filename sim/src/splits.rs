@@ -49,10 +49,15 @@ impl SplitFile {
         let f: SplitFile = toml::from_str(text).map_err(|e| SplitError::File(e.to_string()))?;
         for (name, ids) in &f.splits {
             if let Some(bad) = ids.iter().find(|&&i| i >= NUM_WORLDS) {
-                return Err(SplitError::File(format!("split `{name}` has world {bad}, beyond {}", NUM_WORLDS - 1)));
+                return Err(SplitError::File(format!(
+                    "split `{name}` has world {bad}, beyond {}",
+                    NUM_WORLDS - 1
+                )));
             }
             if ids.windows(2).any(|w| w[0] >= w[1]) {
-                return Err(SplitError::File(format!("split `{name}` must be sorted without duplicates")));
+                return Err(SplitError::File(format!(
+                    "split `{name}` must be sorted without duplicates"
+                )));
             }
         }
         Ok(f)
@@ -75,7 +80,10 @@ impl SplitFile {
         }
         let bad = |m: &str| SplitError::Bad(spec.to_string(), m.to_string());
         let num = |s: &str| -> Result<usize, SplitError> {
-            let v: usize = s.trim().parse().map_err(|_| bad(&format!("`{s}` is not a world id")))?;
+            let v: usize = s
+                .trim()
+                .parse()
+                .map_err(|_| bad(&format!("`{s}` is not a world id")))?;
             if v > NUM_WORLDS {
                 return Err(bad(&format!("world {v} is beyond {}", NUM_WORLDS - 1)));
             }
@@ -118,7 +126,9 @@ pub fn generate(seed: u64) -> BTreeMap<String, Vec<usize>> {
     }
     let mut train = pool[..75].to_vec();
     train.sort_unstable();
-    let test: Vec<usize> = (0..NUM_WORLDS).filter(|i| train.binary_search(i).is_err()).collect();
+    let test: Vec<usize> = (0..NUM_WORLDS)
+        .filter(|i| train.binary_search(i).is_err())
+        .collect();
     let hardest50 = test[test.len() - 50..].to_vec();
     BTreeMap::from([
         ("train".to_string(), train),
@@ -151,10 +161,17 @@ mod tests {
     #[test]
     fn embedded_file_matches_its_seed_and_sizes() {
         let f = SplitFile::embedded();
-        assert_eq!(f.splits, generate(f.seed), "configs/splits/barn.toml drifted from its seed");
+        assert_eq!(
+            f.splits,
+            generate(f.seed),
+            "configs/splits/barn.toml drifted from its seed"
+        );
         let train = f.select("train").unwrap();
         let test = f.select("test").unwrap();
-        assert_eq!((train.len(), test.len(), f.select("all").unwrap().len()), (75, 225, 300));
+        assert_eq!(
+            (train.len(), test.len(), f.select("all").unwrap().len()),
+            (75, 225, 300)
+        );
         assert!(train.iter().all(|i| (150..300).contains(i)));
         assert!(train.iter().all(|i| test.binary_search(i).is_err()), "disjoint");
         let hard = f.select("hardest50").unwrap();

@@ -239,8 +239,16 @@ impl ObstacleIndex {
         };
         let mut t_max_x = next_boundary(ix, step_x, self.min.x, o.x, d.x);
         let mut t_max_y = next_boundary(iy, step_y, self.min.y, o.y, d.y);
-        let t_delta_x = if d.x.abs() < 1e-12 { f64::INFINITY } else { self.cell / d.x.abs() };
-        let t_delta_y = if d.y.abs() < 1e-12 { f64::INFINITY } else { self.cell / d.y.abs() };
+        let t_delta_x = if d.x.abs() < 1e-12 {
+            f64::INFINITY
+        } else {
+            self.cell / d.x.abs()
+        };
+        let t_delta_y = if d.y.abs() < 1e-12 {
+            f64::INFINITY
+        } else {
+            self.cell / d.y.abs()
+        };
         let mut best = f64::INFINITY;
         loop {
             for &k in self.cell_items(ix as usize, iy as usize) {
@@ -317,7 +325,11 @@ mod tests {
         let f = Footprint::JACKAL;
         let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(4);
         for _ in 0..2000 {
-            let pose = Pose::new(rng.random_range(-6.0..6.0), rng.random_range(-6.0..6.0), rng.random_range(-3.2..3.2));
+            let pose = Pose::new(
+                rng.random_range(-6.0..6.0),
+                rng.random_range(-6.0..6.0),
+                rng.random_range(-3.2..3.2),
+            );
             let brute = w
                 .cylinders
                 .iter()
