@@ -8,7 +8,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use rayon::prelude::*;
 use serde::Serialize;
 
-use planner::{run::run_episode, Dwa, Planner, Schedule};
+use planner::{run::run_episode, ActionSpace, Dwa, Planner, Schedule};
 use sim::{EpisodeResult, Status, World};
 
 use crate::config::EvalConfig;
@@ -24,15 +24,29 @@ pub enum Fidelity {
     Vanilla,
     /// Decremental: p = 1.7, T = 2 s, N = 20, check points decaying as N_t.
     Ddp,
+    /// Adaptive: the schedule chosen by a policy in an ADP action space.
+    Adp,
+}
+
+/// How `--fidelity adp` chooses its schedule.
+#[derive(Clone, Debug, PartialEq)]
+pub struct AdpSetting {
+    /// The action space.
+    pub space: ActionSpace,
+    /// The (constant) normalized action.
+    pub action: Vec<f64>,
 }
 
 impl Fidelity {
-    /// The schedule of this strategy.
-    pub fn schedule(self) -> Schedule {
-        match self {
+    /// The schedule of this strategy (`adp` uses the given setting).
+    pub fn schedule(self, adp: &AdpSetting) -> anyhow::Result<Schedule> {
+        Ok(match self {
             Fidelity::Vanilla => Schedule::vanilla(),
             Fidelity::Ddp => Schedule::ddp_default(),
-        }
+            Fidelity::Adp => adp
+                .space
+                .schedule(&adp.action, planner::schedule::DEFAULT_BOUNDARY_POINTS)?,
+        })
     }
 }
 
@@ -70,6 +84,8 @@ pub struct EvalPlan {
     pub trim: usize,
     /// Base seed.
     pub seed: u64,
+    /// The ADP action space and action for `Fidelity::Adp`.
+    pub adp: AdpSetting,
 }
 
 /// One table row.
@@ -79,6 +95,8 @@ pub struct Row {
     pub planner: PlannerKind,
     /// Fidelity strategy.
     pub fidelity: Fidelity,
+    /// Fidelity as shown in the table (`adp` names its action space).
+    pub fidelity_label: String,
     /// Speed cap (m/s).
     pub max_speed: f64,
     /// Successful runs (%).
@@ -202,7 +220,7 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
                 &worlds[w],
                 cfg.episode,
                 planner.as_mut(),
-                &f.schedule(),
+                &f.schedule(&plan.adp).expect("checked above"),
                 s,
                 seed,
                 |_, _| {},
@@ -251,6 +269,10 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
         rows.push(Row {
             planner: p,
             fidelity: f,
+            fidelity_label: match f {
+                Fidelity::Adp => format!("adp-{}", kebab(&plan.adp.space)),
+                _ => kebab(&f),
+            },
             max_speed: s,
             success_pct,
             avg_time_s,
@@ -262,6 +284,14 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
         });
     }
     Ok(rows)
+}
+
+/// The kebab-case name of a serializable unit enum value.
+fn kebab<T: Serialize>(v: &T) -> String {
+    serde_json::to_value(v)
+        .ok()
+        .and_then(|j| j.as_str().map(str::to_string))
+        .unwrap_or_default()
 }
 
 /// The markdown table of the rows.

@@ -2,6 +2,8 @@
 
 mod config;
 mod eval;
+mod policy;
+mod render;
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -10,7 +12,8 @@ use anyhow::Context;
 use clap::{Parser, Subcommand};
 
 use config::EvalConfig;
-use eval::{EvalPlan, Fidelity, PlannerKind};
+use eval::{AdpSetting, EvalPlan, Fidelity, PlannerKind};
+use planner::ActionSpace;
 use sim::splits::SplitFile;
 use sim::World;
 
@@ -61,6 +64,13 @@ enum Cmd {
         /// Fidelity strategy (or strategies), comma-separated.
         #[arg(long, value_enum, value_delimiter = ',', default_value = "ddp")]
         fidelity: Vec<Fidelity>,
+        /// ADP action space (with --fidelity adp).
+        #[arg(long, default_value = "decremental")]
+        action: ActionSpace,
+        /// ADP policy: a TOML file with a constant normalized `action = [...]` (default: the
+        /// action that reproduces DDP, ADP's initialization).
+        #[arg(long)]
+        policy: Option<PathBuf>,
         /// Speed cap(s) in m/s, comma-separated: one row per value.
         #[arg(long, value_delimiter = ',', default_value = "1.5")]
         max_speed: Vec<f64>,
@@ -82,6 +92,44 @@ enum Cmd {
         /// Also write the rows and per-world results as JSON here.
         #[arg(long)]
         out: Option<PathBuf>,
+        /// Configuration file (default: the embedded configs/eval.toml).
+        #[arg(long)]
+        config: Option<PathBuf>,
+        #[command(flatten)]
+        data: WorldData,
+    },
+    /// Draw one episode: world, trajectory, footprints and fidelity-coloured rollouts.
+    Render {
+        /// World id.
+        #[arg(long)]
+        world: usize,
+        /// Planner.
+        #[arg(long, value_enum, default_value = "dwa")]
+        planner: PlannerKind,
+        /// Fidelity strategy.
+        #[arg(long, value_enum, default_value = "ddp")]
+        fidelity: Fidelity,
+        /// ADP action space (with --fidelity adp).
+        #[arg(long, default_value = "decremental")]
+        action: ActionSpace,
+        /// ADP constant-action policy file (see `adp eval --help`).
+        #[arg(long)]
+        policy: Option<PathBuf>,
+        /// Speed cap (m/s).
+        #[arg(long, default_value_t = 1.5)]
+        max_speed: f64,
+        /// Noise seed.
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        /// Draw the sampled rollouts every this many seconds.
+        #[arg(long, default_value_t = 2.0)]
+        rollouts_every: f64,
+        /// Draw the footprint every this many seconds.
+        #[arg(long, default_value_t = 0.5)]
+        footprint_every: f64,
+        /// Output picture (.png or .svg).
+        #[arg(long)]
+        out: PathBuf,
         /// Configuration file (default: the embedded configs/eval.toml).
         #[arg(long)]
         config: Option<PathBuf>,
@@ -134,6 +182,8 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Cmd::Eval {
             planner,
             fidelity,
+            action,
+            policy,
             max_speed,
             worlds,
             runs,
@@ -150,7 +200,15 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 anyhow::bail!("--runs must be at least 1");
             }
             let all = data.load()?;
+            let adp = AdpSetting {
+                space: action,
+                action: match &policy {
+                    Some(p) => policy::load_constant_action(p, action)?,
+                    None => action.ddp_action(),
+                },
+            };
             let plan = EvalPlan {
+                adp,
                 planners: planner,
                 fidelities: fidelity,
                 speeds: max_speed,
@@ -169,6 +227,53 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 let json = serde_json::to_string_pretty(&rows)?;
                 std::fs::write(&path, json).with_context(|| format!("cannot write {}", path.display()))?;
             }
+            Ok(())
+        }
+        Cmd::Render {
+            world,
+            planner,
+            fidelity,
+            action,
+            policy,
+            max_speed,
+            seed,
+            rollouts_every,
+            footprint_every,
+            out,
+            config,
+            data,
+        } => {
+            let cfg = EvalConfig::load(config.as_deref())?;
+            let all = data.load()?;
+            let w = all
+                .get(world)
+                .with_context(|| format!("world {world} does not exist ({} worlds)", all.len()))?;
+            let adp = AdpSetting {
+                space: action,
+                action: match &policy {
+                    Some(p) => policy::load_constant_action(p, action)?,
+                    None => action.ddp_action(),
+                },
+            };
+            let job = render::RenderJob {
+                world: w,
+                episode: cfg.episode,
+                planner: planner.build(&cfg, seed),
+                schedule: fidelity.schedule(&adp)?,
+                max_speed,
+                seed,
+                rollout_every_s: rollouts_every,
+                footprint_every_s: footprint_every,
+            };
+            let r = render::render(job, &out)?;
+            println!(
+                "world {} {:?}: time {:.2} s, score {:.3}; picture written to {}",
+                r.world,
+                r.status,
+                r.time_s,
+                r.score,
+                out.display()
+            );
             Ok(())
         }
         Cmd::Worlds { cmd } => match cmd {

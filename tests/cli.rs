@@ -140,3 +140,43 @@ fn eval_prints_a_table_and_writes_json() {
     assert_eq!(rows[3]["per_world"][1]["runs"].as_array().unwrap().len(), 3);
     std::fs::remove_dir_all(&dir).ok();
 }
+
+#[test]
+fn render_writes_png_and_svg() {
+    let dir = std::env::temp_dir().join(format!("adp-render-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    for name in ["ep.png", "ep.svg"] {
+        let path = dir.join(name);
+        let o = adp(&[
+            "render",
+            "--world",
+            "3",
+            "--fidelity",
+            "ddp",
+            "--out",
+            path.to_str().unwrap(),
+        ]);
+        assert!(o.status.success(), "{}", stderr(&o));
+        assert!(stdout(&o).contains("picture written"), "{}", stdout(&o));
+        let bytes = std::fs::read(&path).unwrap();
+        if name.ends_with("png") {
+            assert_eq!(&bytes[1..4], b"PNG");
+            // Width and height from the IHDR chunk: 5.5 m x 12.7 m at 90 px/m.
+            let w = u32::from_be_bytes(bytes[16..20].try_into().unwrap());
+            let h = u32::from_be_bytes(bytes[20..24].try_into().unwrap());
+            assert_eq!((w, h), (495, 1143));
+        } else {
+            let text = String::from_utf8(bytes).unwrap();
+            assert!(text.contains("<svg") && text.matches("<circle").count() > 100);
+        }
+    }
+    let o = adp(&[
+        "render",
+        "--world",
+        "3",
+        "--out",
+        dir.join("ep.gif").to_str().unwrap(),
+    ]);
+    one_line_error(&o, "must end in .png or .svg");
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -4,11 +4,13 @@
 //! local path and goal) plus a [`Schedule`] to a velocity command, behind one trait,
 //! [`Planner`]. Schedules come from fixed strategies (vanilla, DDP) or, later, a policy.
 
+pub mod action;
 pub mod dwa;
 pub mod local_map;
 pub mod run;
 pub mod schedule;
 
+pub use action::ActionSpace;
 pub use dwa::{Dwa, DwaConfig};
 pub use schedule::Schedule;
 

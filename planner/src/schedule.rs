@@ -101,6 +101,33 @@ impl Schedule {
         })
     }
 
+    /// A schedule from explicit step lengths and per-step check counts (each count is capped
+    /// at `n`).
+    pub fn from_parts(dts: Vec<f64>, checks: Vec<u16>, n: usize) -> Result<Self, ScheduleError> {
+        check(
+            "steps",
+            dts.len() as f64,
+            !dts.is_empty() && dts.len() == checks.len(),
+            "need one check count per step",
+        )?;
+        for &d in &dts {
+            check("dt", d, d > 0.0, "must be > 0")?;
+        }
+        let checks = checks.into_iter().map(|c| c.min(n as u16)).collect();
+        Ok(Self {
+            dts,
+            checks,
+            boundary_points: n,
+        })
+    }
+
+    /// The same steps and check counts in reverse order.
+    pub fn reversed(mut self) -> Self {
+        self.dts.reverse();
+        self.checks.reverse();
+        self
+    }
+
     /// Step lengths (s).
     pub fn dts(&self) -> &[f64] {
         &self.dts

@@ -1,0 +1,202 @@
+//! `adp render`: a picture of one episode — the world, the driven trajectory, the footprint
+//! at intervals, and at chosen moments the sampled rollouts, each segment coloured by its
+//! step length (short step = dark = high fidelity, long step = light), as in Fig. 2 of the
+//! ADP paper. PNG or SVG by the output's extension.
+
+use std::path::Path;
+
+use anyhow::{bail, Context};
+use plotters::coord::Shift;
+use plotters::prelude::*;
+
+use planner::{run::run_episode, Planner, Schedule};
+use sim::geometry::{Footprint, Pose, Vec2};
+use sim::{EpisodeConfig, EpisodeResult, World};
+
+/// Pixels per metre.
+const SCALE: f64 = 90.0;
+
+/// Rollouts recorded at one moment, in the world frame.
+struct Moment {
+    /// `(start pose, poses, collision_free)` per rollout.
+    rollouts: Vec<(Vec<Pose>, bool)>,
+    origin: Pose,
+    dts: Vec<f64>,
+}
+
+/// What to draw.
+pub struct RenderJob<'a> {
+    /// The world.
+    pub world: &'a World,
+    /// Episode settings.
+    pub episode: EpisodeConfig,
+    /// The planner (fresh).
+    pub planner: Box<dyn Planner>,
+    /// The schedule.
+    pub schedule: Schedule,
+    /// Speed cap (m/s).
+    pub max_speed: f64,
+    /// Noise seed.
+    pub seed: u64,
+    /// Rollouts are drawn every this many seconds of simulated time.
+    pub rollout_every_s: f64,
+    /// Footprints are drawn every this many seconds.
+    pub footprint_every_s: f64,
+}
+
+/// Runs the episode and writes the picture to `out`; returns the episode result.
+pub fn render(mut job: RenderJob<'_>, out: &Path) -> anyhow::Result<EpisodeResult> {
+    let ext = out
+        .extension()
+        .and_then(|e| e.to_str())
+        .unwrap_or("")
+        .to_ascii_lowercase();
+    if ext != "png" && ext != "svg" {
+        bail!("--out {}: the file name must end in .png or .svg", out.display());
+    }
+    if !(job.rollout_every_s > 0.0 && job.footprint_every_s > 0.0) {
+        bail!("--rollouts-every and --footprint-every must be > 0 s");
+    }
+    let dt = job.episode.control_dt;
+    let every = (job.rollout_every_s / dt).round().max(1.0) as u64;
+    let mut trail: Vec<Pose> = Vec::new();
+    let mut moments: Vec<Moment> = Vec::new();
+    let mut cycle = 0u64;
+    let (result, _) = run_episode(
+        job.world,
+        job.episode,
+        job.planner.as_mut(),
+        &job.schedule,
+        job.max_speed,
+        job.seed,
+        |ep, planner| {
+            let pose = ep.state().pose;
+            trail.push(pose);
+            if cycle % every == 0 && cycle > 0 {
+                let r = planner.rollouts();
+                moments.push(Moment {
+                    rollouts: r
+                        .spans
+                        .iter()
+                        .map(|&(a, b, ok)| (r.poses[a..b].iter().map(|p| compose(&pose, p)).collect(), ok))
+                        .collect(),
+                    origin: pose,
+                    dts: r.dts.clone(),
+                });
+            }
+            cycle += 1;
+            // Record during the cycle before each chosen moment.
+            planner.set_recording((cycle + 1) % every == 0 || cycle % every == 0);
+        },
+    );
+    let (w, h) = picture_size();
+    if ext == "png" {
+        let root = BitMapBackend::new(out, (w, h)).into_drawing_area();
+        draw(&root, &job, &trail, &moments)?;
+        root.present()
+            .with_context(|| format!("cannot write {}", out.display()))?;
+    } else {
+        let root = SVGBackend::new(out, (w, h)).into_drawing_area();
+        draw(&root, &job, &trail, &moments)?;
+        root.present()
+            .with_context(|| format!("cannot write {}", out.display()))?;
+    }
+    Ok(result)
+}
+
+/// A pose given in the frame of `base`, expressed in the world frame.
+fn compose(base: &Pose, p: &Pose) -> Pose {
+    let q = base.to_world(Vec2::new(p.x, p.y));
+    Pose::new(q.x, q.y, base.yaw + p.yaw)
+}
+
+/// Drawn region (world frame, m).
+const X0: f64 = -5.0;
+const X1: f64 = 0.5;
+const Y0: f64 = 1.5;
+const Y1: f64 = 14.2;
+
+fn picture_size() -> (u32, u32) {
+    (((X1 - X0) * SCALE) as u32, ((Y1 - Y0) * SCALE) as u32)
+}
+
+/// Colour of a rollout segment by its step length: dark blue for short steps, pale for long.
+fn fidelity_colour(dt: f64) -> RGBColor {
+    let f = ((dt - 0.01) / (0.17 - 0.01)).clamp(0.0, 1.0);
+    let mix = |a: f64, b: f64| (a + (b - a) * f).round() as u8;
+    RGBColor(mix(10.0, 175.0), mix(30.0, 215.0), mix(110.0, 250.0))
+}
+
+fn draw<DB: DrawingBackend>(
+    root: &DrawingArea<DB, Shift>,
+    job: &RenderJob<'_>,
+    trail: &[Pose],
+    moments: &[Moment],
+) -> anyhow::Result<()>
+where
+    DB::ErrorType: 'static,
+{
+    let e = |err: DrawingAreaErrorKind<DB::ErrorType>| anyhow::anyhow!("drawing failed: {err:?}");
+    root.fill(&WHITE).map_err(e)?;
+    let px = |p: Vec2| -> (i32, i32) { (((p.x - X0) * SCALE) as i32, ((Y1 - p.y) * SCALE) as i32) };
+    // Goal region.
+    let goal = px(job.world.goal);
+    let gr = (job.world.goal_radius * SCALE) as i32;
+    root.draw(&Circle::new(goal, gr, RGBColor(200, 240, 200).filled()))
+        .map_err(e)?;
+    root.draw(&Circle::new(goal, gr, RGBColor(40, 140, 40).stroke_width(2)))
+        .map_err(e)?;
+    // Obstacles.
+    for c in &job.world.cylinders {
+        let r = (c.r * SCALE).round() as i32;
+        root.draw(&Circle::new(px(c.c), r, RGBColor(90, 90, 90).filled()))
+            .map_err(e)?;
+    }
+    // Rollouts at the chosen moments, segment by segment.
+    for m in moments {
+        for (poses, ok) in &m.rollouts {
+            let mut prev = m.origin.position();
+            for (k, p) in poses.iter().enumerate() {
+                let colour = if *ok {
+                    fidelity_colour(m.dts.get(k).copied().unwrap_or(0.05))
+                } else {
+                    RGBColor(240, 170, 170)
+                };
+                root.draw(&PathElement::new(
+                    vec![px(prev), px(p.position())],
+                    colour.stroke_width(1),
+                ))
+                .map_err(e)?;
+                prev = p.position();
+            }
+        }
+    }
+    // Footprints at intervals and the driven trajectory.
+    let fp: Footprint = job.episode.robot.footprint;
+    let step = (job.footprint_every_s / job.episode.control_dt).round().max(1.0) as usize;
+    for pose in trail.iter().step_by(step).chain(trail.last()) {
+        let corners = [(1.0, 1.0), (1.0, -1.0), (-1.0, -1.0), (-1.0, 1.0), (1.0, 1.0)]
+            .map(|(sx, sy)| px(pose.to_world(Vec2::new(sx * fp.half_length, sy * fp.half_width))));
+        root.draw(&PathElement::new(
+            corners.to_vec(),
+            RGBColor(230, 120, 20).stroke_width(2),
+        ))
+        .map_err(e)?;
+    }
+    let line: Vec<(i32, i32)> = trail.iter().map(|p| px(p.position())).collect();
+    root.draw(&PathElement::new(line, RGBColor(200, 30, 30).stroke_width(3)))
+        .map_err(e)?;
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn fidelity_colours_darken_with_shorter_steps() {
+        let short = fidelity_colour(0.0123);
+        let long = fidelity_colour(0.167);
+        assert!(short.0 < long.0 && short.1 < long.1 && short.2 < long.2);
+    }
+}
