@@ -3,7 +3,7 @@
 use anyhow::Context;
 use serde::Deserialize;
 
-use planner::DwaConfig;
+use planner::{DwaConfig, LogMppiConfig, MppiConfig};
 use sim::EpisodeConfig;
 
 /// The embedded default.
@@ -17,6 +17,10 @@ pub struct EvalConfig {
     pub episode: EpisodeConfig,
     /// DWA planner.
     pub dwa: DwaConfig,
+    /// MPPI planner.
+    pub mppi: MppiConfig,
+    /// Log-MPPI planner.
+    pub log_mppi: LogMppiConfig,
 }
 
 impl EvalConfig {
@@ -56,6 +60,8 @@ mod tests {
         let cfg = EvalConfig::load(None).unwrap();
         assert_eq!(cfg.episode, EpisodeConfig::default());
         assert_eq!(cfg.dwa, DwaConfig::default());
+        assert_eq!(cfg.mppi, MppiConfig::default());
+        assert_eq!(cfg.log_mppi, LogMppiConfig::default());
     }
 
     #[test]

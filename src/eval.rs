@@ -8,7 +8,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use rayon::prelude::*;
 use serde::Serialize;
 
-use planner::{run::run_episode, ActionSpace, Dwa, Planner, Schedule};
+use planner::{run::run_episode, ActionSpace, Dwa, LogMppi, Mppi, Planner, Schedule};
 use sim::{EpisodeResult, Status, World};
 
 use crate::config::EvalConfig;
@@ -56,13 +56,19 @@ impl Fidelity {
 pub enum PlannerKind {
     /// Dynamic Window Approach.
     Dwa,
+    /// Model Predictive Path Integral control.
+    Mppi,
+    /// MPPI with normal + log-normal mixture sampling (Mohamed et al. 2022).
+    LogMppi,
 }
 
 impl PlannerKind {
     /// A fresh planner for one episode; `seed` drives its sampling.
-    pub fn build(self, cfg: &EvalConfig, _seed: u64) -> Box<dyn Planner> {
+    pub fn build(self, cfg: &EvalConfig, seed: u64) -> Box<dyn Planner> {
         match self {
             PlannerKind::Dwa => Box::new(Dwa::new(cfg.dwa)),
+            PlannerKind::Mppi => Box::new(Mppi::new(cfg.mppi, seed)),
+            PlannerKind::LogMppi => Box::new(LogMppi::new(cfg.log_mppi, seed)),
         }
     }
 }

@@ -287,3 +287,90 @@ impl Planner for Dwa {
         self.evaluated
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::run::run_episode;
+    use crate::Schedule;
+    use sim::geometry::Circle;
+    use sim::{EpisodeConfig, Status, World};
+
+    /// A 3 m wide corridor along +y with one cylinder of radius 0.3 m on the straight route.
+    fn blocked_corridor() -> World {
+        let mut c = Vec::new();
+        for i in 0..110 {
+            let y = -1.0 + 0.15 * i as f64;
+            c.push(Circle {
+                c: Vec2::new(-1.5, y),
+                r: 0.075,
+            });
+            c.push(Circle {
+                c: Vec2::new(1.5, y),
+                r: 0.075,
+            });
+        }
+        c.push(Circle {
+            c: Vec2::new(0.0, 4.0),
+            r: 0.3,
+        });
+        World::new(
+            0,
+            c,
+            Pose::new(0.0, 0.0, std::f64::consts::FRAC_PI_2),
+            Vec2::new(0.0, 10.0),
+            10.0,
+            vec![],
+        )
+    }
+
+    #[test]
+    fn avoids_a_cylinder_on_the_straight_route() {
+        let w = blocked_corridor();
+        for sched in [Schedule::vanilla(), Schedule::ddp_default()] {
+            let mut dwa = Dwa::new(DwaConfig::default());
+            let mut passing_x = None;
+            let (r, _) = run_episode(&w, EpisodeConfig::default(), &mut dwa, &sched, 1.5, 1, |ep, _| {
+                let p = ep.state().pose;
+                if (p.y - 4.0).abs() < 0.1 {
+                    passing_x = Some(p.x);
+                }
+            });
+            assert_eq!(r.status, Status::Succeeded, "{r:?}");
+            let x = passing_x.expect("drove past the cylinder");
+            // Footprint half-width 0.215 + cylinder 0.3: the centre must pass > 0.515 aside.
+            assert!(x.abs() > 0.515, "passed the cylinder at x = {x}");
+        }
+    }
+
+    #[test]
+    fn ddp_checks_fewer_points_than_uniform_at_equal_horizon() {
+        // Same scene, same 2 s horizon and 20 steps: uniform (full checks) vs DDP.
+        let w = sim::barn::world(250).unwrap();
+        let mut ep = sim::Episode::new(w, EpisodeConfig::default(), 1);
+        let mut driver = Dwa::new(DwaConfig::default());
+        let ddp = Schedule::ddp_default();
+        for _ in 0..40 {
+            let cmd = driver.plan(&PlanInput {
+                perception: ep.perception(),
+                schedule: &ddp,
+                max_speed: 1.5,
+            });
+            ep.step(cmd);
+        }
+        let uniform = Schedule::uniform(0.1, 20, ddp.boundary_points()).unwrap();
+        assert!((uniform.horizon() - ddp.horizon()).abs() < 1e-12);
+        let count = |s: &Schedule| {
+            let mut dwa = Dwa::new(DwaConfig::default());
+            dwa.plan(&PlanInput {
+                perception: ep.perception(),
+                schedule: s,
+                max_speed: 1.5,
+            });
+            dwa.evaluated_points()
+        };
+        let (u, d) = (count(&uniform), count(&ddp));
+        eprintln!("collision-check points, one DWA cycle at a 2 s horizon: uniform {u}, DDP {d}");
+        assert!(d < u, "DDP evaluated {d} points, uniform {u}");
+    }
+}

@@ -7,11 +7,15 @@
 pub mod action;
 pub mod dwa;
 pub mod local_map;
+pub mod log_mppi;
+pub mod mppi;
 pub mod run;
 pub mod schedule;
 
 pub use action::ActionSpace;
 pub use dwa::{Dwa, DwaConfig};
+pub use log_mppi::{LogMppi, LogMppiConfig};
+pub use mppi::{Mppi, MppiConfig};
 pub use schedule::Schedule;
 
 use sim::episode::Perception;

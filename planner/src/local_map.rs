@@ -20,6 +20,8 @@ pub struct LocalMap {
     /// Distance (m) from each cell centre to the nearest obstacle cell centre.
     dist: Vec<f32>,
     footprint: Footprint,
+    /// Inscribed and circumscribed radii of the footprint (m), cached for the hot loop.
+    radii: (f64, f64),
     /// `points[m]` = m boundary points spread evenly over the perimeter.
     points: Vec<Vec<Vec2>>,
     /// Half the spacing between neighbouring points of `points[m]` (m).
@@ -41,6 +43,7 @@ impl LocalMap {
             ny: 0,
             dist: Vec::new(),
             footprint,
+            radii: (footprint.inscribed_radius(), footprint.circumscribed_radius()),
             points: Vec::new(),
             half_gap: Vec::new(),
             scratch_f: Vec::new(),
@@ -163,11 +166,11 @@ impl LocalMap {
         let c = pose.position();
         let dc = self.distance(c);
         *evaluated += 1;
-        let inscribed = self.footprint.inscribed_radius();
+        let (inscribed, circumscribed) = self.radii;
         if dc < inscribed {
             return dc - inscribed;
         }
-        let disk = dc - self.footprint.circumscribed_radius();
+        let disk = dc - circumscribed;
         let m = m.min(self.points.len() - 1);
         if disk >= enough || m == 0 {
             return disk;

@@ -1,0 +1,714 @@
+//! Model Predictive Path Integral control (Williams et al.) over a fidelity schedule.
+//!
+//! The planner keeps a nominal control sequence, one (v, w) command per schedule step,
+//! warm-started from the previous cycle: the old sequence is read as piecewise constant in
+//! time and resampled one control period later onto the current schedule's step grid. Each
+//! cycle draws `samples` control sequences, most of them the nominal plus Gaussian noise per
+//! step, a few around braking and a few around constant commands from the dynamic window (so
+//! the warm start cannot trap the search), all clamped to the limits. Every sample is rolled
+//! out over the schedule (the velocity approaching each command at the acceleration limits,
+//! then exact arcs), the footprint is checked after every step with the schedule's check
+//! density, and the rollout is scored on goal progress, distance to the local path, obstacle
+//! clearance, heading and smoothness. A rollout collides when its estimated clearance drops
+//! below the margin, or below the estimate at the robot's own pose at the same check density
+//! when that is lower (the estimate is conservative, so the current, collision-free pose
+//! calibrates it; without this the robot freezes in tight gaps). If every sample collides the
+//! robot stops and turns toward the local goal. The nominal sequence becomes the importance-weighted
+//! mean of the sampled sequences, weights `exp(-(J - J_min) / lambda)`, either over all
+//! samples or (the papers' choice) over the `top_k` cheapest collision-free ones. The command
+//! is the new sequence averaged over the first control period.
+//!
+//! Noise is drawn sequentially from one seeded generator, then the rollouts run in parallel
+//! (rayon) into preallocated per-sample slots, so a seed gives the same commands whatever the
+//! thread layout.
+
+use rand::{Rng, SeedableRng};
+use rand_distr::StandardNormal;
+use rand_pcg::Pcg64Mcg;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use sim::geometry::{wrap_angle, Pose, Vec2};
+use sim::robot::{approach, Twist};
+
+use crate::dwa::distance_to_path;
+use crate::local_map::LocalMap;
+use crate::{PlanInput, Planner, Rollouts};
+
+/// MPPI parameters (defaults used by `adp eval`).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct MppiConfig {
+    /// Control sequences sampled per cycle.
+    pub samples: usize,
+    /// Standard deviation of the per-step linear-velocity noise (m/s).
+    pub sigma_v: f64,
+    /// Standard deviation of the per-step angular-velocity noise (rad/s).
+    pub sigma_w: f64,
+    /// Temperature of the weights `exp(-(J - J_min) / lambda)`; must be > 0.
+    pub lambda: f64,
+    /// Average only the `top_k` cheapest collision-free samples; 0 = all samples.
+    pub top_k: usize,
+    /// Share of the samples drawn around braking (v = 0, w = 0) instead of the nominal.
+    pub brake_fraction: f64,
+    /// Share of the samples drawn around a constant command from the dynamic window.
+    pub explore_fraction: f64,
+    /// Planner's yaw-rate cap (rad/s).
+    pub max_w: f64,
+    /// Linear acceleration assumed in rollouts and the window (m/s^2).
+    pub accel_v: f64,
+    /// Angular acceleration assumed in rollouts and the window (rad/s^2).
+    pub accel_w: f64,
+    /// One control period (s): the warm-start shift, the span the command averages over and
+    /// the time the dynamic window is reachable in.
+    pub control_dt: f64,
+    /// A rollout whose estimated clearance drops below this collides (m). The estimate is
+    /// conservative, more so with fewer check points; when at some check density it is
+    /// already lower at the robot's own (collision-free) pose, the limit for that density
+    /// becomes that estimate: the robot may stay or move away, but not closer.
+    pub margin: f64,
+    /// Clearances above this cost nothing (m).
+    pub clearance_cap: f64,
+    /// Cost of a collision (doubled for one at the start of the rollout).
+    pub collision_cost: f64,
+    /// Weight of the end point's distance to the local goal (per m).
+    pub w_goal: f64,
+    /// Weight of the end point's distance to the local path (per m).
+    pub w_path: f64,
+    /// Weight of the obstacle-proximity cost (0 at the clearance cap, 1 at contact).
+    pub w_obstacle: f64,
+    /// Weight of the end heading's error to the local goal's bearing (per pi rad).
+    pub w_heading: f64,
+    /// Weight of the squared command changes between steps (per (m/s)^2 and (rad/s)^2).
+    pub w_smooth: f64,
+    /// Distance-field cell size (m).
+    pub map_resolution: f64,
+}
+
+impl Default for MppiConfig {
+    fn default() -> Self {
+        Self {
+            samples: 550,
+            sigma_v: 0.1,
+            sigma_w: 0.05,
+            lambda: 1.0,
+            top_k: 10,
+            brake_fraction: 0.05,
+            explore_fraction: 0.2,
+            max_w: 2.0,
+            accel_v: 20.0,
+            accel_w: 25.0,
+            control_dt: 0.05,
+            margin: 0.02,
+            clearance_cap: 0.5,
+            collision_cost: 100.0,
+            w_goal: 4.0,
+            w_path: 4.0,
+            w_obstacle: 2.0,
+            w_heading: 1.0,
+            w_smooth: 0.5,
+            map_resolution: 0.05,
+        }
+    }
+}
+
+/// The MPPI planner. Owns its buffers and its random stream; one per episode.
+#[derive(Clone, Debug)]
+pub struct Mppi {
+    cfg: MppiConfig,
+    rng: Pcg64Mcg,
+    map: LocalMap,
+    /// Nominal sequence, one command per step of `nominal_dts`.
+    nominal: Vec<Twist>,
+    nominal_dts: Vec<f64>,
+    /// Scratch sequence (the shifted or updated nominal).
+    scratch: Vec<Twist>,
+    /// Sampled sequences, `samples x steps`, clamped to the limits.
+    controls: Vec<Twist>,
+    outcomes: Vec<Outcome>,
+    /// Collision threshold per check density (see [`MppiConfig::margin`]).
+    margins: Vec<f64>,
+    order: Vec<usize>,
+    selected_costs: Vec<f64>,
+    weights: Vec<f64>,
+    rollouts: Rollouts,
+    recording: bool,
+    evaluated: u64,
+}
+
+/// What one rollout cost.
+#[derive(Clone, Copy, Debug, Default)]
+struct Outcome {
+    cost: f64,
+    collision_free: bool,
+    evaluated: u64,
+}
+
+/// The cycle's inputs shared by all rollouts.
+struct Scene<'a> {
+    cfg: &'a MppiConfig,
+    map: &'a LocalMap,
+    dts: &'a [f64],
+    checks: &'a [u16],
+    start: Twist,
+    goal: Vec2,
+    path: &'a [Vec2],
+    /// Collision threshold on the estimated clearance (m), per check density.
+    margins: &'a [f64],
+}
+
+impl Mppi {
+    /// An MPPI planner whose sampling is driven by `seed`.
+    pub fn new(cfg: MppiConfig, seed: u64) -> Self {
+        Self {
+            cfg,
+            rng: Pcg64Mcg::seed_from_u64(seed),
+            map: LocalMap::new(
+                sim::Footprint::JACKAL,
+                cfg.map_resolution,
+                crate::schedule::DEFAULT_BOUNDARY_POINTS,
+            ),
+            nominal: Vec::new(),
+            nominal_dts: Vec::new(),
+            scratch: Vec::new(),
+            controls: Vec::new(),
+            outcomes: Vec::new(),
+            margins: Vec::new(),
+            order: Vec::new(),
+            selected_costs: Vec::new(),
+            weights: Vec::new(),
+            rollouts: Rollouts::default(),
+            recording: false,
+            evaluated: 0,
+        }
+    }
+
+    /// Draws every sample's control sequence into `controls` (sequentially, so the stream
+    /// does not depend on threads). Sample 0 is the nominal itself.
+    fn sample(&mut self, start: Twist, max_speed: f64) {
+        let cfg = self.cfg;
+        let steps = self.nominal.len();
+        let n = cfg.samples.max(1);
+        let n_brake = (cfg.brake_fraction * n as f64).round() as usize;
+        let n_explore = (cfg.explore_fraction * n as f64).round() as usize;
+        let v_lo = (start.v - cfg.accel_v * cfg.control_dt).max(0.0);
+        let v_hi = (start.v + cfg.accel_v * cfg.control_dt).min(max_speed).max(v_lo);
+        let w_lo = (start.w - cfg.accel_w * cfg.control_dt).max(-cfg.max_w);
+        let w_hi = (start.w + cfg.accel_w * cfg.control_dt).min(cfg.max_w).max(w_lo);
+        self.controls.clear();
+        for i in 0..n {
+            // The base each sample perturbs: nominal, braking, or a constant window command.
+            let constant = if i == 0 || i > n_brake + n_explore {
+                None
+            } else if i <= n_brake {
+                Some(Twist::default())
+            } else {
+                let a: f64 = self.rng.random();
+                let b: f64 = self.rng.random();
+                Some(Twist::new(v_lo + a * (v_hi - v_lo), w_lo + b * (w_hi - w_lo)))
+            };
+            for k in 0..steps {
+                let base = constant.unwrap_or(self.nominal[k]);
+                let (dv, dw) = if i == 0 {
+                    (0.0, 0.0)
+                } else {
+                    let a: f64 = self.rng.sample(StandardNormal);
+                    let b: f64 = self.rng.sample(StandardNormal);
+                    (cfg.sigma_v * a, cfg.sigma_w * b)
+                };
+                self.controls.push(Twist::new(
+                    (base.v + dv).clamp(0.0, max_speed),
+                    (base.w + dw).clamp(-cfg.max_w, cfg.max_w),
+                ));
+            }
+        }
+    }
+
+    /// Indices (into `outcomes`) of the samples that enter the average, cheapest first, and
+    /// their weights in `weights`. False if no sample qualifies.
+    fn select(&mut self) -> bool {
+        let cfg = self.cfg;
+        self.order.clear();
+        if cfg.top_k == 0 {
+            self.order.extend(0..self.outcomes.len());
+        } else {
+            let outcomes = &self.outcomes;
+            self.order
+                .extend((0..outcomes.len()).filter(|&i| outcomes[i].collision_free));
+            self.order
+                .sort_unstable_by(|&a, &b| outcomes[a].cost.total_cmp(&outcomes[b].cost).then(a.cmp(&b)));
+            self.order.truncate(cfg.top_k);
+        }
+        if !self.outcomes.iter().any(|o| o.collision_free) {
+            return false;
+        }
+        self.selected_costs.clear();
+        self.selected_costs
+            .extend(self.order.iter().map(|&i| self.outcomes[i].cost));
+        mppi_weights(&self.selected_costs, cfg.lambda, &mut self.weights);
+        true
+    }
+}
+
+/// Normalised path-integral weights: `out[i] = exp(-(costs[i] - min) / lambda) / sum`.
+///
+/// Subtracting the minimum keeps the exponentials in range and makes the weights invariant
+/// to adding a constant to every cost. `out` is cleared first; empty costs give no weights.
+pub fn mppi_weights(costs: &[f64], lambda: f64, out: &mut Vec<f64>) {
+    out.clear();
+    let min = costs.iter().copied().fold(f64::INFINITY, f64::min);
+    let lambda = lambda.max(f64::MIN_POSITIVE);
+    out.extend(costs.iter().map(|&j| (-(j - min) / lambda).exp()));
+    // The cheapest sample contributes exp(0) = 1, so the sum is at least 1.
+    let sum: f64 = out.iter().sum();
+    for w in out.iter_mut() {
+        *w /= sum;
+    }
+}
+
+/// Warm start: reads `old` (step `j` lasting `old_dts[j]`) as a piecewise-constant control
+/// signal, delays it by `shift` seconds (time t of the new sequence is time t + shift of the
+/// old one), and samples it at the middle of each step of `new_dts` into `out`. Times past
+/// the old horizon repeat its last command; an empty `old` gives zero commands.
+pub fn shift_sequence(old: &[Twist], old_dts: &[f64], new_dts: &[f64], shift: f64, out: &mut Vec<Twist>) {
+    out.clear();
+    if old.is_empty() || old_dts.len() != old.len() {
+        out.resize(new_dts.len(), Twist::default());
+        return;
+    }
+    let (mut j, mut old_end, mut t) = (0, old_dts[0], 0.0);
+    for &dt in new_dts {
+        let q = t + 0.5 * dt + shift;
+        while j + 1 < old.len() && q >= old_end {
+            j += 1;
+            old_end += old_dts[j];
+        }
+        out.push(old[j]);
+        t += dt;
+    }
+}
+
+/// Mean of the piecewise-constant sequence `seq` (step `k` lasting `dts[k]`) over the first
+/// `span` seconds (the last command continues past the horizon).
+pub fn average_over(seq: &[Twist], dts: &[f64], span: f64) -> Twist {
+    let (mut v, mut w, mut t) = (0.0, 0.0, 0.0);
+    for (u, &dt) in seq.iter().zip(dts) {
+        let d = dt.min(span - t);
+        if d <= 0.0 {
+            break;
+        }
+        v += u.v * d;
+        w += u.w * d;
+        t += d;
+    }
+    if let Some(last) = seq.last() {
+        if t < span {
+            v += last.v * (span - t);
+            w += last.w * (span - t);
+            t = span;
+        }
+    }
+    if t > 0.0 {
+        Twist::new(v / t, w / t)
+    } else {
+        Twist::default()
+    }
+}
+
+/// The rollout model: a unicycle whose velocity approaches each step's command at the
+/// acceleration limits, then moves on the exact arc of that velocity for the step (robot
+/// frame, starting at the origin).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Unicycle {
+    /// Forward position (m).
+    pub(crate) x: f64,
+    /// Leftward position (m).
+    pub(crate) y: f64,
+    /// Heading, not wrapped (rad).
+    pub(crate) yaw: f64,
+    sin: f64,
+    cos: f64,
+    /// Current velocity.
+    vel: Twist,
+}
+
+impl Unicycle {
+    /// At the origin, heading +x, moving with `vel`.
+    pub(crate) fn new(vel: Twist) -> Self {
+        Self {
+            x: 0.0,
+            y: 0.0,
+            yaw: 0.0,
+            sin: 0.0,
+            cos: 1.0,
+            vel,
+        }
+    }
+
+    /// Applies `cmd` for `dt` seconds under the acceleration limits.
+    pub(crate) fn step(&mut self, cmd: Twist, dt: f64, accel_v: f64, accel_w: f64) {
+        let v = approach(self.vel.v, cmd.v, accel_v * dt);
+        let w = approach(self.vel.w, cmd.w, accel_w * dt);
+        self.vel = Twist::new(v, w);
+        self.yaw += w * dt;
+        let (s1, c1) = self.yaw.sin_cos();
+        if (w * dt).abs() > 1e-9 {
+            self.x += v / w * (s1 - self.sin);
+            self.y -= v / w * (c1 - self.cos);
+        } else {
+            self.x += v * dt * self.cos;
+            self.y += v * dt * self.sin;
+        }
+        (self.sin, self.cos) = (s1, c1);
+    }
+
+    /// The pose (heading not wrapped).
+    pub(crate) fn pose(&self) -> Pose {
+        Pose::new(self.x, self.y, self.yaw)
+    }
+}
+
+/// Rolls `controls` out from the robot (origin, velocity `scene.start`) and scores it;
+/// records the poses when `record` is given.
+fn rollout(scene: &Scene<'_>, controls: &[Twist], mut record: Option<&mut Rollouts>) -> Outcome {
+    let cfg = scene.cfg;
+    let mut robot = Unicycle::new(scene.start);
+    let mut prev = scene.start;
+    let (mut min_clear, mut smooth, mut evaluated) = (cfg.clearance_cap, 0.0, 0u64);
+    let (mut t, mut hit) = (0.0, None);
+    if let Some(r) = record.as_deref_mut() {
+        r.begin();
+    }
+    for (k, (&cmd, &dt)) in controls.iter().zip(scene.dts).enumerate() {
+        smooth += (cmd.v - prev.v).powi(2) + (cmd.w - prev.w).powi(2);
+        prev = cmd;
+        robot.step(cmd, dt, cfg.accel_v, cfg.accel_w);
+        t += dt;
+        let pose = robot.pose();
+        if let Some(r) = record.as_deref_mut() {
+            r.push(Pose::new(pose.x, pose.y, wrap_angle(pose.yaw)));
+        }
+        let clear =
+            scene
+                .map
+                .footprint_clearance(&pose, scene.checks[k] as usize, cfg.clearance_cap, &mut evaluated);
+        let m = (scene.checks[k] as usize).min(scene.margins.len() - 1);
+        if clear < scene.margins[m] {
+            hit = Some(t);
+            break;
+        }
+        min_clear = min_clear.min(clear);
+    }
+    if let Some(r) = record {
+        r.end(hit.is_none());
+    }
+    let end = Vec2::new(robot.x, robot.y);
+    let to_goal = scene.goal - end;
+    let heading = if to_goal.norm() > 0.3 {
+        wrap_angle(to_goal.y.atan2(to_goal.x) - robot.yaw).abs() / std::f64::consts::PI
+    } else {
+        0.0
+    };
+    let mut cost = cfg.w_goal * to_goal.norm()
+        + cfg.w_path * distance_to_path(scene.path, end, scene.goal)
+        + cfg.w_obstacle * (cfg.clearance_cap - min_clear) / cfg.clearance_cap
+        + cfg.w_heading * heading
+        + cfg.w_smooth * smooth;
+    if let Some(t_hit) = hit {
+        let horizon: f64 = scene.dts.iter().sum();
+        cost += cfg.collision_cost * (2.0 - t_hit / horizon.max(1e-9));
+    }
+    Outcome {
+        cost,
+        collision_free: hit.is_none(),
+        evaluated,
+    }
+}
+
+impl Planner for Mppi {
+    fn name(&self) -> &'static str {
+        "mppi"
+    }
+
+    fn plan(&mut self, input: &PlanInput<'_>) -> Twist {
+        let cfg = self.cfg;
+        let per = &input.perception;
+        let sched = input.schedule;
+        let steps = sched.len();
+        self.map.set_boundary_points(sched.boundary_points());
+        let reach = input.max_speed * sched.horizon()
+            + self.map.footprint().circumscribed_radius()
+            + cfg.clearance_cap;
+        self.map.build(per.points, 1.0, reach);
+
+        // Warm start: the last nominal, one control period later, on this schedule's grid.
+        shift_sequence(
+            &self.nominal,
+            &self.nominal_dts,
+            sched.dts(),
+            cfg.control_dt,
+            &mut self.scratch,
+        );
+        std::mem::swap(&mut self.nominal, &mut self.scratch);
+        self.nominal_dts.clear();
+        self.nominal_dts.extend_from_slice(sched.dts());
+
+        let start = per.vel;
+        self.margins.clear();
+        for m in 0..=self.map.boundary_points() {
+            let here =
+                self.map
+                    .footprint_clearance(&Pose::default(), m, cfg.clearance_cap, &mut self.evaluated);
+            self.margins.push(cfg.margin.min(here));
+        }
+        self.sample(start, input.max_speed);
+        let n = self.controls.len() / steps.max(1);
+        self.outcomes.resize(n, Outcome::default());
+        let scene = Scene {
+            cfg: &self.cfg,
+            map: &self.map,
+            dts: sched.dts(),
+            checks: sched.checks(),
+            start,
+            goal: per.local_goal,
+            path: per.local_path,
+            margins: &self.margins,
+        };
+        self.controls
+            .par_chunks(steps.max(1))
+            .zip(self.outcomes.par_iter_mut())
+            .with_min_len(16)
+            .for_each(|(u, out)| *out = rollout(&scene, u, None));
+        self.evaluated += self.outcomes.iter().map(|o| o.evaluated).sum::<u64>();
+        if self.recording {
+            self.rollouts.clear(sched.dts());
+            for u in self.controls.chunks(steps.max(1)) {
+                rollout(&scene, u, Some(&mut self.rollouts));
+            }
+        }
+
+        if !self.select() {
+            // Every sample collides: stop, turn toward the local goal, and restart the
+            // search from turning in place.
+            let bearing = per.local_goal.y.atan2(per.local_goal.x);
+            let cmd = Twist::new(0.0, bearing.clamp(-1.0, 1.0));
+            self.nominal.iter_mut().for_each(|u| *u = cmd);
+            return cmd;
+        }
+        self.scratch.clear();
+        self.scratch.resize(steps, Twist::default());
+        for (&i, &wt) in self.order.iter().zip(&self.weights) {
+            let seq = &self.controls[i * steps..(i + 1) * steps];
+            for (acc, u) in self.scratch.iter_mut().zip(seq) {
+                acc.v += wt * u.v;
+                acc.w += wt * u.w;
+            }
+        }
+        std::mem::swap(&mut self.nominal, &mut self.scratch);
+        let cmd = average_over(&self.nominal, sched.dts(), cfg.control_dt);
+        Twist::new(
+            cmd.v.clamp(0.0, input.max_speed),
+            cmd.w.clamp(-cfg.max_w, cfg.max_w),
+        )
+    }
+
+    fn rollouts(&self) -> &Rollouts {
+        &self.rollouts
+    }
+
+    fn set_recording(&mut self, on: bool) {
+        self.recording = on;
+    }
+
+    fn evaluated_points(&self) -> u64 {
+        self.evaluated
+    }
+}
+
+#[cfg(test)]
+pub(crate) mod tests {
+    use super::*;
+    use crate::run::run_episode;
+    use crate::Schedule;
+    use sim::geometry::Circle;
+    use sim::{EpisodeConfig, Status, World};
+
+    #[test]
+    fn weights_sum_to_one_and_ignore_a_constant_offset() {
+        let costs = [3.0, 1.5, 7.25, 1.5, 40.0, 2.0];
+        let mut w = Vec::new();
+        mppi_weights(&costs, 1.0, &mut w);
+        assert_eq!(w.len(), costs.len());
+        assert!((w.iter().sum::<f64>() - 1.0).abs() < 1e-12);
+        // Cheaper is heavier; equal costs weigh the same.
+        assert!(w[1] > w[5] && w[5] > w[0] && w[0] > w[2] && w[2] > w[4]);
+        assert_eq!(w[1], w[3]);
+        assert!((w[0] / w[1] - (-1.5f64).exp()).abs() < 1e-12);
+        let mut shifted = Vec::new();
+        let offset: Vec<f64> = costs.iter().map(|c| c + 1234.5).collect();
+        mppi_weights(&offset, 1.0, &mut shifted);
+        for (a, b) in w.iter().zip(&shifted) {
+            assert!((a - b).abs() < 1e-12, "{a} vs {b}");
+        }
+        // A lower temperature concentrates the weight on the cheapest samples.
+        mppi_weights(&costs, 0.1, &mut shifted);
+        assert!(shifted[1] > w[1] && (shifted.iter().sum::<f64>() - 1.0).abs() < 1e-12);
+        mppi_weights(&[], 1.0, &mut shifted);
+        assert!(shifted.is_empty());
+    }
+
+    #[test]
+    fn warm_start_shift_resamples_in_time() {
+        let seq: Vec<Twist> = (0..20).map(|k| Twist::new(k as f64, -(k as f64))).collect();
+        let vanilla = Schedule::vanilla();
+        let mut out = Vec::new();
+        // Uniform grid: one control period drops the first step and repeats the last.
+        shift_sequence(&seq, vanilla.dts(), vanilla.dts(), 0.05, &mut out);
+        let expect: Vec<Twist> = (1..20).chain([19]).map(|k| seq[k]).collect();
+        assert_eq!(out, expect);
+        // No shift on the same grid is the identity.
+        shift_sequence(&seq, vanilla.dts(), vanilla.dts(), 0.0, &mut out);
+        assert_eq!(out, seq);
+        // Onto the DDP grid: each new step takes the old step covering its middle + 0.05 s.
+        let ddp = Schedule::ddp_default();
+        shift_sequence(&seq, vanilla.dts(), ddp.dts(), 0.05, &mut out);
+        let mut t = 0.0;
+        for (k, &dt) in ddp.dts().iter().enumerate() {
+            let q = t + 0.5 * dt + 0.05;
+            let j = ((q / 0.05).floor() as usize).min(19);
+            assert_eq!(out[k], seq[j], "step {k} at {q}");
+            t += dt;
+        }
+        // Back from DDP onto vanilla: vanilla step k (middle 0.05k + 0.025) reads the DDP
+        // step covering 0.05(k + 1) + 0.025.
+        let ddp_seq: Vec<Twist> = (0..20).map(|k| Twist::new(k as f64, 0.0)).collect();
+        shift_sequence(&ddp_seq, ddp.dts(), vanilla.dts(), 0.05, &mut out);
+        let ends: Vec<f64> = ddp
+            .dts()
+            .iter()
+            .scan(0.0, |s, d| {
+                *s += d;
+                Some(*s)
+            })
+            .collect();
+        for (k, u) in out.iter().enumerate() {
+            let q = 0.05 * (k + 1) as f64 + 0.025;
+            let j = ends.iter().position(|&e| q < e).unwrap_or(19);
+            assert_eq!(u.v, j as f64, "step {k}");
+        }
+        // Cold start: zeros.
+        shift_sequence(&[], &[], ddp.dts(), 0.05, &mut out);
+        assert!(out.len() == 20 && out.iter().all(|u| *u == Twist::default()));
+        // The command averages the first control period.
+        let avg = average_over(&ddp_seq, ddp.dts(), 0.05);
+        let d = ddp.dts();
+        let expect_v = (d[1] * 1.0 + (0.05 - d[0] - d[1]) * 2.0) / 0.05;
+        assert!((avg.v - expect_v).abs() < 1e-12, "{avg:?} vs {expect_v}");
+    }
+
+    /// A 3 m wide corridor along +y with one cylinder in the middle of the straight route.
+    pub(crate) fn corridor_with_cylinder() -> (World, Circle) {
+        let mut c = Vec::new();
+        for i in 0..100 {
+            let y = -1.0 + 0.15 * i as f64;
+            c.push(Circle {
+                c: Vec2::new(-1.5, y),
+                r: 0.075,
+            });
+            c.push(Circle {
+                c: Vec2::new(1.5, y),
+                r: 0.075,
+            });
+        }
+        let block = Circle {
+            c: Vec2::new(0.0, 4.0),
+            r: 0.35,
+        };
+        c.push(block);
+        let start = Pose::new(0.0, 0.0, std::f64::consts::FRAC_PI_2);
+        (World::new(0, c, start, Vec2::new(0.0, 10.0), 10.0, vec![]), block)
+    }
+
+    /// Runs `planner` through [`corridor_with_cylinder`]; returns the status and the
+    /// closest approach of the robot centre to the cylinder's centre.
+    pub(crate) fn drive_around(planner: &mut dyn Planner, schedule: &Schedule) -> (Status, f64) {
+        let (world, block) = corridor_with_cylinder();
+        let mut closest = f64::INFINITY;
+        let (res, _) = run_episode(
+            &world,
+            EpisodeConfig::default(),
+            planner,
+            schedule,
+            1.5,
+            3,
+            |ep, _| {
+                closest = closest.min(ep.state().pose.position().dist(block.c));
+            },
+        );
+        (res.status, closest)
+    }
+
+    /// The first `n` commands of `planner` in [`corridor_with_cylinder`].
+    pub(crate) fn commands(planner: &mut dyn Planner, schedule: &Schedule, n: usize) -> Vec<Twist> {
+        let (world, _) = corridor_with_cylinder();
+        let mut ep = sim::Episode::new(&world, EpisodeConfig::default(), 3);
+        let mut out = Vec::new();
+        for _ in 0..n {
+            let cmd = planner.plan(&PlanInput {
+                perception: ep.perception(),
+                schedule,
+                max_speed: 1.5,
+            });
+            out.push(cmd);
+            ep.step(cmd);
+        }
+        out
+    }
+
+    #[test]
+    fn avoids_a_cylinder_on_the_straight_route() {
+        for schedule in [Schedule::vanilla(), Schedule::ddp_default()] {
+            let mut mppi = Mppi::new(MppiConfig::default(), 11);
+            let (status, closest) = drive_around(&mut mppi, &schedule);
+            assert_eq!(status, Status::Succeeded);
+            // The centre stayed further from the cylinder than its radius plus half the robot.
+            assert!(closest > 0.35 + 0.215, "closest approach {closest}");
+            assert!(mppi.evaluated_points() > 0);
+        }
+    }
+
+    #[test]
+    fn same_seed_same_commands() {
+        let sched = Schedule::ddp_default();
+        let a = commands(&mut Mppi::new(MppiConfig::default(), 5), &sched, 40);
+        let b = commands(&mut Mppi::new(MppiConfig::default(), 5), &sched, 40);
+        let c = commands(&mut Mppi::new(MppiConfig::default(), 6), &sched, 40);
+        assert_eq!(a, b);
+        assert_ne!(a, c);
+        assert!(a.iter().any(|u| u.v > 0.5), "it drives");
+    }
+
+    #[test]
+    fn recording_stores_every_sample() {
+        let (world, _) = corridor_with_cylinder();
+        let ep = sim::Episode::new(&world, EpisodeConfig::default(), 3);
+        let sched = Schedule::vanilla();
+        let cfg = MppiConfig {
+            samples: 50,
+            ..Default::default()
+        };
+        let mut mppi = Mppi::new(cfg, 1);
+        mppi.set_recording(true);
+        mppi.plan(&PlanInput {
+            perception: ep.perception(),
+            schedule: &sched,
+            max_speed: 1.5,
+        });
+        let r = mppi.rollouts();
+        assert_eq!(r.spans.len(), 50);
+        assert_eq!(r.dts, sched.dts());
+        assert!(r.spans.iter().all(|s| s.1 - s.0 <= 20 && s.1 > s.0));
+        let evaluated = mppi.evaluated_points();
+        // Recording does not count its re-evaluation.
+        assert!(evaluated > 0 && evaluated <= 50 * sched.points_per_rollout() as u64);
+    }
+}
