@@ -3,7 +3,7 @@
 use anyhow::Context;
 use serde::Deserialize;
 
-use planner::{DwaConfig, LogMppiConfig, MppiConfig};
+use planner::{DwaConfig, LogMppiConfig, MppiConfig, SystemConfig};
 use sim::EpisodeConfig;
 
 /// The embedded default.
@@ -21,6 +21,8 @@ pub struct EvalConfig {
     pub mppi: MppiConfig,
     /// Log-MPPI planner.
     pub log_mppi: LogMppiConfig,
+    /// The standalone navigation system.
+    pub system: SystemConfig,
 }
 
 impl EvalConfig {
@@ -62,6 +64,7 @@ mod tests {
         assert_eq!(cfg.dwa, DwaConfig::default());
         assert_eq!(cfg.mppi, MppiConfig::default());
         assert_eq!(cfg.log_mppi, LogMppiConfig::default());
+        assert_eq!(cfg.system, SystemConfig::default());
     }
 
     #[test]

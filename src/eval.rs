@@ -8,7 +8,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use rayon::prelude::*;
 use serde::Serialize;
 
-use planner::{run::run_episode, ActionSpace, Dwa, LogMppi, Mppi, Planner, Schedule};
+use planner::{run::run_episode, ActionSpace, Dwa, LogMppi, Mppi, NavSystem, Planner, Schedule};
 use sim::{EpisodeResult, Status, World};
 
 use crate::config::EvalConfig;
@@ -60,6 +60,8 @@ pub enum PlannerKind {
     Mppi,
     /// MPPI with normal + log-normal mixture sampling (Mohamed et al. 2022).
     LogMppi,
+    /// The standalone DDP/ADP navigation system (modes, recovery).
+    System,
 }
 
 impl PlannerKind {
@@ -69,6 +71,7 @@ impl PlannerKind {
             PlannerKind::Dwa => Box::new(Dwa::new(cfg.dwa)),
             PlannerKind::Mppi => Box::new(Mppi::new(cfg.mppi, seed)),
             PlannerKind::LogMppi => Box::new(LogMppi::new(cfg.log_mppi, seed)),
+            PlannerKind::System => Box::new(NavSystem::new(cfg.system, seed)),
         }
     }
 }

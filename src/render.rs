@@ -72,7 +72,7 @@ pub fn render(mut job: RenderJob<'_>, out: &Path) -> anyhow::Result<EpisodeResul
         |ep, planner| {
             let pose = ep.state().pose;
             trail.push(pose);
-            if cycle % every == 0 && cycle > 0 {
+            if cycle > 0 && cycle.is_multiple_of(every) {
                 let r = planner.rollouts();
                 moments.push(Moment {
                     rollouts: r
@@ -85,8 +85,8 @@ pub fn render(mut job: RenderJob<'_>, out: &Path) -> anyhow::Result<EpisodeResul
                 });
             }
             cycle += 1;
-            // Record during the cycle before each chosen moment.
-            planner.set_recording((cycle + 1) % every == 0 || cycle % every == 0);
+            // Record only during the planning call of each chosen moment.
+            planner.set_recording(cycle.is_multiple_of(every));
         },
     );
     let (w, h) = picture_size();

@@ -1,9 +1,13 @@
-//! Planner benchmarks: one DWA planning cycle under vanilla and DDP schedules, and one full
+//! Planner benchmarks: one planning cycle of every planner under vanilla and DDP schedules
+//! (DESIGN §8: DWA-DDP <= 0.5 ms, MPPI-550 <= 2 ms), and one full
 //! simulated second (20 cycles of scan + map + plan + physics). Run with
 //! `cargo bench -p adp-planner`.
 
 use criterion::{black_box, criterion_group, criterion_main, Criterion};
-use planner::{Dwa, DwaConfig, PlanInput, Planner, Schedule};
+use planner::{
+    Dwa, DwaConfig, LogMppi, LogMppiConfig, Mppi, MppiConfig, NavSystem, PlanInput, Planner, Schedule,
+    SystemConfig,
+};
 use sim::{Episode, EpisodeConfig};
 
 /// An episode on a hard world, advanced into the obstacle field with DWA-DDP.
@@ -22,20 +26,29 @@ fn warm_episode(world: &sim::World) -> Episode<'_> {
     ep
 }
 
-fn dwa_cycle(c: &mut Criterion) {
+fn planning_cycles(c: &mut Criterion) {
     let world = sim::barn::world(250).expect("embedded world");
     let ep = warm_episode(world);
-    for (name, sched) in [("vanilla", Schedule::vanilla()), ("ddp", Schedule::ddp_default())] {
-        let mut dwa = Dwa::new(DwaConfig::default());
-        c.bench_function(&format!("dwa-{name} planning cycle (20x20 samples)"), |b| {
-            b.iter(|| {
-                black_box(dwa.plan(&PlanInput {
-                    perception: ep.perception(),
-                    schedule: &sched,
-                    max_speed: 1.5,
-                }))
-            })
-        });
+    type Make = fn() -> Box<dyn Planner>;
+    let planners: [(&str, Make); 4] = [
+        ("dwa", || Box::new(Dwa::new(DwaConfig::default()))),
+        ("mppi", || Box::new(Mppi::new(MppiConfig::default(), 1))),
+        ("log-mppi", || Box::new(LogMppi::new(LogMppiConfig::default(), 1))),
+        ("system", || Box::new(NavSystem::new(SystemConfig::default(), 1))),
+    ];
+    for (planner, make) in planners {
+        for (fidelity, sched) in [("vanilla", Schedule::vanilla()), ("ddp", Schedule::ddp_default())] {
+            let mut p = make();
+            c.bench_function(&format!("{planner}-{fidelity} planning cycle"), |b| {
+                b.iter(|| {
+                    black_box(p.plan(&PlanInput {
+                        perception: ep.perception(),
+                        schedule: &sched,
+                        max_speed: 1.5,
+                    }))
+                })
+            });
+        }
     }
 }
 
@@ -62,5 +75,5 @@ fn simulated_second(c: &mut Criterion) {
     });
 }
 
-criterion_group!(benches, dwa_cycle, simulated_second);
+criterion_group!(benches, planning_cycles, simulated_second);
 criterion_main!(benches);

@@ -11,12 +11,14 @@ pub mod log_mppi;
 pub mod mppi;
 pub mod run;
 pub mod schedule;
+pub mod system;
 
 pub use action::ActionSpace;
 pub use dwa::{Dwa, DwaConfig};
 pub use log_mppi::{LogMppi, LogMppiConfig};
 pub use mppi::{Mppi, MppiConfig};
 pub use schedule::Schedule;
+pub use system::{Mode, ModeMachine, NavSystem, SystemConfig};
 
 use sim::episode::Perception;
 use sim::geometry::Pose;

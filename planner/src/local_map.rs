@@ -144,8 +144,9 @@ impl LocalMap {
         (ix < self.nx && iy < self.ny).then_some(iy * self.nx + ix)
     }
 
-    /// Distance from `p` (robot frame) to the nearest obstacle point, as a conservative
-    /// estimate (the cell-centre distance minus half a cell), or [`FAR`] outside the field.
+    /// Distance from `p` (robot frame) to the nearest obstacle point, estimated as the
+    /// cell-centre distance minus half a cell (within about +0.036 / -0.1 m of the exact
+    /// value), or [`FAR`] outside the field.
     pub fn distance(&self, p: Vec2) -> f64 {
         match self.index(p) {
             Some(i) => (self.dist[i] as f64 - 0.5 * self.res).max(0.0),
@@ -157,9 +158,9 @@ impl LocalMap {
     /// the obstacles, checking the centre and `m` boundary points; adds the number of points
     /// evaluated to `evaluated`.
     ///
-    /// The estimate is a lower bound: the larger of the circumscribed-disk bound (centre
-    /// distance minus the circumscribed radius) and the boundary bound (smallest point
-    /// distance minus half the gap between points). More points = tighter bound. An obstacle
+    /// The estimate is a lower bound up to the field's discretisation: the larger of the
+    /// circumscribed-disk bound (centre distance minus the circumscribed radius) and the
+    /// boundary bound (smallest point distance minus half the gap between points). More points = tighter bound. An obstacle
     /// within the inscribed radius of the centre gives a negative value. When the disk bound
     /// already exceeds `enough`, the boundary points are skipped.
     pub fn footprint_clearance(&self, pose: &Pose, m: usize, enough: f64, evaluated: &mut u64) -> f64 {

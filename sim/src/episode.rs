@@ -317,7 +317,7 @@ impl<'w> Episode<'w> {
         let pts = &self.points;
         self.costmap
             .mark(pose.position(), pts.iter().map(|p| pose.to_world(*p)));
-        let due = self.cycles % self.cfg.replan_every as u64 == 0;
+        let due = self.cycles.is_multiple_of(self.cfg.replan_every as u64);
         if self.path.is_empty() || due {
             if self.global.plan(
                 &self.costmap,

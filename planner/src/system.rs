@@ -1,0 +1,1497 @@
+//! The standalone DDP/ADP navigation system: a noisy sampling planner inside a mode state
+//! machine (normal, low-speed, brake, recovery with rotate-in-place and back-up).
+//!
+//! Each sampling cycle draws about 550 nominal commands around the dynamic window (a grid,
+//! copies of the previous solution as a warm start, and mode-specific extras), perturbs every
+//! rollout step with Gaussian noise, rolls the perturbed controls out over the schedule's
+//! time grid with the acceleration limits, checks the footprint after every step with the
+//! schedule's check density, scores goal distance, heading, obstacle proximity and (at low
+//! speed) free space, and averages the controls of the ten cheapest collision-free samples
+//! (weights `exp(-(J_k - J_min) / lambda) ((10 - k) / 10)^2`, each sample's controls
+//! weighted by `dt_j / T`). With a fixed DDP schedule this is "DDP"; with a schedule chosen
+//! by a policy every 0.25 s it is "ADP".
+//!
+//! The mode machine ([`ModeMachine`]) follows the authors' `velocityCallback`
+//! (adp-code-notes §4.4-4.5) and keeps time by counting planning cycles. Where their code
+//! relied on details this simulator lacks, the behaviour is kept and the mechanism adapted:
+//!
+//! - the clearance bound of each rollout step is the larger of its scheduled check and the
+//!   previous step's bound minus how far the footprint moved, starting from an exact check
+//!   of the current pose against the scan; slow rollouts keep the precision of their dense
+//!   early checks instead of failing at their coarse late ones;
+//! - in low-speed and recovery modes a rollout may stop (the robot brakes within
+//!   centimetres at 20 m/s^2) before its first failed check once it has driven clear for
+//!   `low_min_safe_time`; it then averages over the time it drives;
+//! - the slow recovery motions (rotate in place, back up) are checked exactly against the
+//!   scan points near the robot, plus remembered points in the lidar's blind sector behind
+//!   it (dead-reckoned from the measured velocity);
+//! - the front clearance that triggers the back-up is the free distance ahead of the bumper
+//!   within the robot's width, so narrow gaps beside the robot do not trigger it; after
+//!   backing up the robot turns toward the local path before driving on;
+//! - brake commands a stop: the simulated controller decelerates at 20 m/s^2, so the
+//!   authors' negative brake commands would drive backwards blind.
+
+use rand::{Rng, SeedableRng};
+use rand_distr::StandardNormal;
+use rand_pcg::Pcg64Mcg;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use sim::episode::Perception;
+use sim::geometry::{wrap_angle, Pose, Vec2};
+use sim::navigation::point_at_arc_length;
+use sim::robot::{approach, integrate_arc, Twist};
+
+use crate::local_map::{LocalMap, FAR};
+use crate::{PlanInput, Planner, Rollouts};
+
+/// Navigation-system parameters (defaults used by `adp eval`).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SystemConfig {
+    /// Linear-velocity grid points across the dynamic window.
+    pub v_samples: usize,
+    /// Angular-velocity grid points across the dynamic window.
+    pub w_samples: usize,
+    /// Samples whose nominal command is the previous solution (warm start).
+    pub warm_samples: usize,
+    /// Samples per mode-specific extra command (low-speed creep, recovery creep and turns).
+    pub extra_samples: usize,
+    /// Standard deviation of the per-step noise on the linear velocity (m/s).
+    pub noise_v: f64,
+    /// Standard deviation of the per-step noise on the angular velocity (rad/s).
+    pub noise_w: f64,
+    /// Number of cheapest collision-free samples averaged.
+    pub top_k: usize,
+    /// Temperature of the cost weights of the averaged samples.
+    pub lambda: f64,
+    /// Linear acceleration assumed in rollouts and the window (m/s^2).
+    pub accel_v: f64,
+    /// Angular acceleration assumed in rollouts and the window (rad/s^2).
+    pub accel_w: f64,
+    /// The window spans what is reachable in this time (s): one control period.
+    pub window_dt: f64,
+    /// One planning cycle (s): the mode machine's clock advances this much per call.
+    pub control_dt: f64,
+    /// Speed cap of low-speed and recovery modes, as a fraction of the run's cap.
+    pub low_speed_scale: f64,
+    /// Yaw-rate caps in normal mode (rad/s): slow and gentle, moderate, fast.
+    pub normal_max_w: [f64; 3],
+    /// Yaw-rate caps in low-speed and recovery modes (rad/s): slow and gentle, moderate, fast.
+    pub low_max_w: [f64; 3],
+    /// Normal -> low-speed when the speed stays below `enter_low_frac * cap + enter_low_offset`.
+    pub enter_low_frac: f64,
+    /// See `enter_low_frac` (m/s).
+    pub enter_low_offset: f64,
+    /// Low-speed -> normal when the speed stays at or above
+    /// `enter_normal_frac * low-speed cap + enter_normal_offset`.
+    pub enter_normal_frac: f64,
+    /// See `enter_normal_frac` (m/s).
+    pub enter_normal_offset: f64,
+    /// Low-speed -> brake when the speed stays below this (m/s).
+    pub min_speed: f64,
+    /// How long a speed condition must hold before the mode changes (s).
+    pub mode_wait: f64,
+    /// Brake -> recovery once the measured speed is at most this (m/s).
+    pub stopped_speed: f64,
+    /// Front clearance = free distance ahead of the bumper within the footprint's width plus
+    /// this much either side (m).
+    pub front_side_margin: f64,
+    /// Recovery -> back-up when the front clearance is at most this (m).
+    pub front_blocked: f64,
+    /// Back-up -> rotate (toward the local path) when the front clearance is at least this (m).
+    pub front_clear: f64,
+    /// Back-up speed (m/s, positive).
+    pub backup_speed: f64,
+    /// Shortest back-up (s).
+    pub backup_min_time: f64,
+    /// Longest back-up (s): the lidar does not see behind the robot.
+    pub backup_max_time: f64,
+    /// Smallest yaw rate of rotate-in-place (rad/s).
+    pub rotate_min_w: f64,
+    /// Largest yaw rate of rotate-in-place (rad/s).
+    pub rotate_max_w: f64,
+    /// Rotate -> low-speed when the heading error to the local path is at most this (rad).
+    pub rotate_tolerance: f64,
+    /// Successful recovery cycles per recovery level before returning to low-speed.
+    pub recovery_successes: u32,
+    /// Largest recovery level (the required successes grow with each recovery).
+    pub recovery_max_level: u32,
+    /// Speed of the low-speed mode's creep samples (m/s).
+    pub low_creep_v: f64,
+    /// Speed of the recovery mode's straight creep samples (m/s).
+    pub recovery_creep_v: f64,
+    /// Speed of the recovery mode's turning samples (m/s).
+    pub recovery_turn_v: f64,
+    /// Yaw rate of the recovery mode's turning samples (rad/s, both signs).
+    pub recovery_turn_w: f64,
+    /// Weight of the distance to the local goal (normal mode).
+    pub normal_goal: f64,
+    /// Weight of the obstacle-proximity cost (normal mode).
+    pub normal_obstacle: f64,
+    /// Weight of the heading error to the local goal (normal mode).
+    pub normal_heading: f64,
+    /// Weight of the lack of free space ahead (normal mode).
+    pub normal_space: f64,
+    /// Weight of the distance to the local goal (low-speed and recovery).
+    pub low_goal: f64,
+    /// Weight of the obstacle-proximity cost (low-speed and recovery).
+    pub low_obstacle: f64,
+    /// Weight of the heading error to the local goal (low-speed and recovery).
+    pub low_heading: f64,
+    /// Weight of the lack of free space ahead (low-speed and recovery).
+    pub low_space: f64,
+    /// Smallest estimated clearance of a feasible rollout in normal mode (m).
+    pub normal_margin: f64,
+    /// Smallest estimated clearance of a feasible rollout in the other modes, and smallest
+    /// exact clearance of the rotate-in-place and back-up motions (m).
+    pub low_margin: f64,
+    /// Shortest travel over the horizon of a feasible rollout in normal mode (m).
+    pub normal_min_travel: f64,
+    /// Shortest travel over the horizon of a feasible rollout in low-speed mode (m).
+    pub low_min_travel: f64,
+    /// Shortest travel over the horizon of a feasible rollout in recovery mode (m).
+    pub recovery_min_travel: f64,
+    /// Low-speed and recovery local goal: as far along the local path as the speed cap
+    /// reaches over the horizon, plus this (m).
+    pub low_goal_offset: f64,
+    /// In low-speed and recovery modes a rollout may stop before its first failed check
+    /// if it has driven collision-free for at least this long (s).
+    pub low_min_safe_time: f64,
+    /// Clearances above this cost nothing (m).
+    pub clearance_cap: f64,
+    /// Free space ahead beyond this costs nothing (m).
+    pub space_cap: f64,
+    /// The free space is the least of three rays: ahead and this far either side (degrees).
+    pub space_half_angle_deg: f64,
+    /// The averaged command must stay collision-free over this much of the rollout (s).
+    pub verify_time: f64,
+    /// Distance-field cell size (m).
+    pub map_resolution: f64,
+}
+
+impl Default for SystemConfig {
+    fn default() -> Self {
+        Self {
+            v_samples: 22,
+            w_samples: 24,
+            warm_samples: 22,
+            extra_samples: 25,
+            noise_v: 0.05,
+            noise_w: 0.05,
+            top_k: 10,
+            lambda: 1.0,
+            accel_v: 20.0,
+            accel_w: 25.0,
+            window_dt: 0.05,
+            control_dt: 0.05,
+            low_speed_scale: 0.5,
+            normal_max_w: [2.0, 1.5, 1.0],
+            low_max_w: [2.5, 2.0, 1.5],
+            enter_low_frac: 0.5,
+            enter_low_offset: 0.1,
+            enter_normal_frac: 0.8,
+            enter_normal_offset: 0.1,
+            min_speed: 0.2,
+            mode_wait: 0.5,
+            stopped_speed: 0.1,
+            front_side_margin: 0.05,
+            front_blocked: 0.1,
+            front_clear: 0.2,
+            backup_speed: 0.1,
+            backup_min_time: 1.0,
+            backup_max_time: 2.0,
+            rotate_min_w: 0.5,
+            rotate_max_w: 1.0,
+            rotate_tolerance: 0.2,
+            recovery_successes: 5,
+            recovery_max_level: 4,
+            low_creep_v: 0.2,
+            recovery_creep_v: 0.05,
+            recovery_turn_v: 0.02,
+            recovery_turn_w: 0.5,
+            normal_goal: 0.9,
+            normal_obstacle: 0.3,
+            normal_heading: 0.2,
+            normal_space: 0.0,
+            low_goal: 0.8,
+            low_obstacle: 0.2,
+            low_heading: 0.1,
+            low_space: 0.2,
+            normal_margin: 0.05,
+            low_margin: 0.01,
+            normal_min_travel: 0.3,
+            low_min_travel: 0.1,
+            recovery_min_travel: 0.02,
+            low_goal_offset: 0.25,
+            low_min_safe_time: 0.5,
+            clearance_cap: 0.3,
+            space_cap: 2.0,
+            space_half_angle_deg: 45.0,
+            verify_time: 0.5,
+            map_resolution: 0.05,
+        }
+    }
+}
+
+/// The driving mode of the navigation system.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Mode {
+    /// Full speed cap; sampling with the normal costs.
+    Normal,
+    /// Half the speed cap, wider yaw-rate caps, a closer local goal and a free-space cost.
+    LowSpeed,
+    /// Stopping before recovery.
+    Brake,
+    /// Sampling with slow creeping and turning candidates.
+    Recovery,
+    /// Recovery: rotating in place toward the local path.
+    Rotate,
+    /// Recovery: backing up slowly while the front is blocked, then rotating.
+    Backup,
+}
+
+/// What the mode machine observes at the start of a cycle.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ModeObservation {
+    /// Measured forward speed (m/s).
+    pub speed: f64,
+    /// The run's speed cap (m/s).
+    pub max_speed: f64,
+    /// Free distance ahead of the bumper, within the robot's width plus a side margin (m).
+    pub front_clearance: f64,
+    /// Heading error to the mean bearing of the local path (rad).
+    pub heading_error: f64,
+}
+
+/// The mode state machine. Pure: it sees measured speeds, the front clearance, the heading
+/// error and whether the current mode's action was possible, and keeps time by counting
+/// cycles of `control_dt` seconds.
+#[derive(Clone, Debug)]
+pub struct ModeMachine {
+    cfg: SystemConfig,
+    mode: Mode,
+    /// Cycles since entering the current mode.
+    mode_cycles: u32,
+    /// Cycles the current mode's "too slow" condition has held.
+    slow_cycles: u32,
+    /// Cycles the low-speed mode's "fast again" condition has held.
+    fast_cycles: u32,
+    /// Successful recovery cycles since entering recovery.
+    successes: u32,
+    /// Recovery level: `level * recovery_successes` successes end a recovery.
+    level: u32,
+}
+
+/// Scan points this close to the robot centre are checked exactly by the recovery
+/// motions (m): the circumscribed radius plus a back-up step, with room to spare.
+const NEAR_RANGE: f64 = 1.0;
+
+/// Half-angle of the sector behind the robot that the lidar (270 degrees) does not see, with
+/// a margin (rad): remembered points there stand in for the missing returns.
+const BLIND_HALF_ANGLE: f64 = 50.0 * std::f64::consts::PI / 180.0;
+
+/// Tolerance on accumulated cycle times (s).
+const TIME_EPS: f64 = 1e-9;
+
+impl ModeMachine {
+    /// A machine in normal mode.
+    pub fn new(cfg: SystemConfig) -> Self {
+        Self {
+            cfg,
+            mode: Mode::Normal,
+            mode_cycles: 0,
+            slow_cycles: 0,
+            fast_cycles: 0,
+            successes: 0,
+            level: 1,
+        }
+    }
+
+    /// The current mode.
+    pub fn mode(&self) -> Mode {
+        self.mode
+    }
+
+    fn held(&self, cycles: u32) -> f64 {
+        cycles as f64 * self.cfg.control_dt
+    }
+
+    fn enter(&mut self, mode: Mode) -> Mode {
+        self.mode = mode;
+        self.mode_cycles = 0;
+        self.slow_cycles = 0;
+        self.fast_cycles = 0;
+        match mode {
+            Mode::Normal => self.level = 1,
+            Mode::Recovery => self.successes = 0,
+            _ => {}
+        }
+        mode
+    }
+
+    /// Advances the clock by one cycle and applies the speed, front and heading rules:
+    /// normal -> low-speed after `mode_wait` below `enter_low_frac * cap + enter_low_offset`;
+    /// low-speed -> normal after `mode_wait` at or above `enter_normal_frac * low cap +
+    /// enter_normal_offset` (the low-speed cap: the full cap's threshold is unreachable
+    /// there); low-speed -> brake after more than `mode_wait` below `min_speed`; brake ->
+    /// recovery once stopped; recovery -> back-up when the front is blocked; back-up ->
+    /// rotate once the front is clear (after `backup_min_time`, at most `backup_max_time`);
+    /// rotate -> low-speed when facing the local path.
+    pub fn update(&mut self, obs: &ModeObservation) -> Mode {
+        let c = self.cfg;
+        let v = obs.speed;
+        self.mode_cycles += 1;
+        match self.mode {
+            Mode::Normal => {
+                if v < c.enter_low_frac * obs.max_speed + c.enter_low_offset {
+                    self.slow_cycles += 1;
+                    if self.held(self.slow_cycles) >= c.mode_wait - TIME_EPS {
+                        return self.enter(Mode::LowSpeed);
+                    }
+                } else {
+                    self.slow_cycles = 0;
+                }
+            }
+            Mode::LowSpeed => {
+                let cap = c.low_speed_scale * obs.max_speed;
+                if v >= c.enter_normal_frac * cap + c.enter_normal_offset {
+                    self.fast_cycles += 1;
+                    if self.held(self.fast_cycles) >= c.mode_wait - TIME_EPS {
+                        return self.enter(Mode::Normal);
+                    }
+                } else {
+                    self.fast_cycles = 0;
+                }
+                if v < c.min_speed {
+                    self.slow_cycles += 1;
+                    if self.held(self.slow_cycles) > c.mode_wait + TIME_EPS {
+                        return self.enter(Mode::Brake);
+                    }
+                } else {
+                    self.slow_cycles = 0;
+                }
+            }
+            Mode::Brake => {
+                if v.abs() <= c.stopped_speed {
+                    return self.enter(Mode::Recovery);
+                }
+            }
+            Mode::Recovery => {
+                if obs.front_clearance <= c.front_blocked {
+                    return self.enter(Mode::Backup);
+                }
+            }
+            Mode::Backup => {
+                let held = self.held(self.mode_cycles);
+                if (obs.front_clearance >= c.front_clear && held >= c.backup_min_time - TIME_EPS)
+                    || held >= c.backup_max_time - TIME_EPS
+                {
+                    return self.enter(Mode::Rotate);
+                }
+            }
+            Mode::Rotate => {
+                if obs.heading_error.abs() <= c.rotate_tolerance {
+                    return self.enter(Mode::LowSpeed);
+                }
+            }
+        }
+        self.mode
+    }
+
+    /// Reports whether the current mode's action was possible this cycle (a collision-free
+    /// sample, a clear rotation or back-up) and applies the outcome rules: a successful
+    /// recovery returns to low-speed after `level * recovery_successes` cycles (the level
+    /// grows with each recovery up to `recovery_max_level` and resets in normal mode); a
+    /// failure degrades normal -> low-speed -> brake, and cycles recovery -> rotate ->
+    /// back-up -> recovery.
+    pub fn report(&mut self, ok: bool) -> Mode {
+        match (self.mode, ok) {
+            (Mode::Recovery, true) => {
+                self.successes += 1;
+                if self.successes >= self.cfg.recovery_successes * self.level {
+                    self.level = (self.level + 1).min(self.cfg.recovery_max_level.max(1));
+                    return self.enter(Mode::LowSpeed);
+                }
+            }
+            (Mode::Normal, false) => return self.enter(Mode::LowSpeed),
+            (Mode::LowSpeed, false) => return self.enter(Mode::Brake),
+            (Mode::Recovery, false) => return self.enter(Mode::Rotate),
+            (Mode::Rotate, false) => return self.enter(Mode::Backup),
+            (Mode::Backup, false) => return self.enter(Mode::Recovery),
+            _ => {}
+        }
+        self.mode
+    }
+}
+
+/// Normalized weights of the `costs` of the top samples, sorted ascending:
+/// `exp(-(J_k - J_min) / lambda) * ((top_k - k) / top_k)^2` for rank `k`, summing to one.
+pub fn top_weights(costs: &[f64], top_k: usize, lambda: f64, out: &mut Vec<f64>) {
+    out.clear();
+    let Some(&j_min) = costs.first() else {
+        return;
+    };
+    let k_f = top_k.max(costs.len()) as f64;
+    let lambda = lambda.max(1e-9);
+    out.extend(costs.iter().enumerate().map(|(k, &j)| {
+        let rank = (k_f - k as f64) / k_f;
+        (-(j - j_min) / lambda).exp() * rank * rank
+    }));
+    let sum: f64 = out.iter().sum();
+    for w in out.iter_mut() {
+        *w /= sum;
+    }
+}
+
+/// Yaw-rate cap of a mode from `caps` (slow and gentle, moderate, fast) given the mode's
+/// speed cap and the measured velocity.
+fn yaw_rate_cap(caps: [f64; 3], v_cap: f64, vel: Twist) -> f64 {
+    let (v, w) = (vel.v.abs(), vel.w.abs());
+    if w <= 1.0 && v <= v_cap / 3.0 {
+        caps[0]
+    } else if w <= 2.0 && v <= 2.0 * v_cap / 3.0 {
+        caps[1]
+    } else {
+        caps[2]
+    }
+}
+
+/// Free distance ahead of the front of `fp` within its width plus `side` either side;
+/// [`FAR`] when nothing is there.
+fn front_clearance(points: &[Vec2], fp: &sim::Footprint, side: f64) -> f64 {
+    points
+        .iter()
+        .filter(|p| p.x > 0.0 && p.y.abs() <= fp.half_width + side)
+        .map(|p| p.x - fp.half_length)
+        .fold(FAR, f64::min)
+}
+
+/// Bearing of the local path: the direction of the mean of the unit vectors to its points
+/// beyond `near`, or the bearing of `fallback` when there are none.
+fn path_bearing(path: &[Vec2], near: f64, fallback: Vec2) -> f64 {
+    let mut acc = Vec2::default();
+    for p in path {
+        let n = p.norm();
+        if n > near {
+            acc = acc + *p * (1.0 / n);
+        }
+    }
+    if acc.norm() > 1e-9 {
+        acc.y.atan2(acc.x)
+    } else {
+        fallback.y.atan2(fallback.x)
+    }
+}
+
+/// Free length along the ray from `from` in direction `dir` before a robot-wide corridor
+/// (`half_width` either side) meets an obstacle, up to `cap` (sphere tracing on the field).
+fn free_length(map: &LocalMap, from: Vec2, dir: Vec2, half_width: f64, cap: f64) -> f64 {
+    let mut s = 0.0;
+    for _ in 0..24 {
+        if s >= cap {
+            return cap;
+        }
+        let d = map.distance(from + dir * s) - half_width;
+        if d <= 0.0 {
+            return s;
+        }
+        s += d.max(0.05);
+    }
+    s.min(cap)
+}
+
+/// A lower bound on the clearance at `pose`, reached from `prev` whose bound is known: the
+/// larger of the check with `m` boundary points and the previous bound minus how far any
+/// point of the footprint can have moved (centre displacement plus circumscribed radius
+/// times rotation). Slow rollouts thus keep the bound of their dense early checks; the check
+/// is skipped when the inherited bound already reaches `enough`.
+fn chained_clearance(
+    map: &LocalMap,
+    (prev, prev_clear): (&Pose, f64),
+    pose: &Pose,
+    m: usize,
+    enough: f64,
+    evaluated: &mut u64,
+) -> f64 {
+    let moved = pose.position().dist(prev.position())
+        + map.footprint().circumscribed_radius() * wrap_angle(pose.yaw - prev.yaw).abs();
+    let inherited = prev_clear - moved;
+    if inherited >= enough {
+        return inherited;
+    }
+    map.footprint_clearance(pose, m, enough, evaluated).max(inherited)
+}
+
+/// Per-mode sampling parameters, derived from the config each cycle.
+#[derive(Clone, Copy, Debug)]
+struct ModeParams {
+    v_cap: f64,
+    w_caps: [f64; 3],
+    goal: f64,
+    obstacle: f64,
+    heading: f64,
+    space: f64,
+    margin: f64,
+    min_travel: f64,
+    /// Shortest collision-free prefix of a rollout that stops early; `None`: no early stop.
+    min_safe_time: Option<f64>,
+}
+
+/// One sample's evaluation (reused across cycles).
+#[derive(Clone, Debug, Default)]
+struct SampleEval {
+    feasible: bool,
+    goal: f64,
+    heading: f64,
+    obstacle: f64,
+    space: f64,
+    cost: f64,
+    /// Steps driven: the rollout stops (and stays) after this many steps.
+    driven: usize,
+    evaluated: u64,
+    poses: Vec<Pose>,
+}
+
+/// Everything a rollout needs, shared read-only by the parallel evaluation.
+struct RolloutCtx<'a> {
+    map: &'a LocalMap,
+    dts: &'a [f64],
+    checks: &'a [u16],
+    start: Twist,
+    accel_v: f64,
+    accel_w: f64,
+    margin: f64,
+    min_travel: f64,
+    min_safe_time: Option<f64>,
+    clearance_cap: f64,
+    /// Clearance bound of the robot's current pose (full check).
+    start_clear: f64,
+    goal: Vec2,
+    quarter: usize,
+    space_dirs: Option<[(f64, f64); 3]>,
+    space_cap: f64,
+    half_width: f64,
+    record: bool,
+}
+
+/// Rolls `controls` out from the robot's pose and scores the rollout into `e`.
+///
+/// A rollout is infeasible when a check fails, unless early stops are allowed and it has
+/// driven collision-free for `min_safe_time`: then it stops at its last clear pose (the
+/// acceleration limits stop the robot within a few centimetres) and stays there.
+fn evaluate(ctx: &RolloutCtx<'_>, controls: &[Twist], e: &mut SampleEval) {
+    e.poses.clear();
+    e.evaluated = 0;
+    e.feasible = false;
+    e.driven = controls.len();
+    let (mut vel, mut pose) = (ctx.start, Pose::default());
+    let (mut travel, mut obstacle, mut time) = (0.0, 0.0, 0.0);
+    let (mut goal, mut heading, mut space, mut n_q) = (0.0, 0.0, 0.0, 0usize);
+    let mut last_clear = ctx.start_clear;
+    for (k, (&dt, u)) in ctx.dts.iter().zip(controls).enumerate() {
+        if k < e.driven {
+            let before = (vel, pose);
+            vel.v = approach(vel.v, u.v, ctx.accel_v * dt);
+            vel.w = approach(vel.w, u.w, ctx.accel_w * dt);
+            pose = integrate_arc(pose, vel, dt);
+            let clear = chained_clearance(
+                ctx.map,
+                (&before.1, last_clear),
+                &pose,
+                ctx.checks[k] as usize,
+                ctx.clearance_cap,
+                &mut e.evaluated,
+            );
+            if clear < ctx.margin {
+                match ctx.min_safe_time {
+                    Some(t) if time >= t => {
+                        e.driven = k;
+                        (vel, pose) = before;
+                    }
+                    _ => {
+                        if ctx.record {
+                            e.poses.push(pose);
+                        }
+                        return;
+                    }
+                }
+            } else {
+                travel += vel.v.abs() * dt;
+                last_clear = clear;
+            }
+        }
+        time += dt;
+        if ctx.record {
+            e.poses.push(pose);
+        }
+        let x = (ctx.clearance_cap - last_clear).max(0.0) / ctx.clearance_cap;
+        obstacle += dt * x * x;
+        if k >= ctx.quarter {
+            let p = pose.position();
+            let to_goal = ctx.goal - p;
+            goal += to_goal.norm();
+            heading += wrap_angle(to_goal.y.atan2(to_goal.x) - pose.yaw).abs();
+            if let Some(dirs) = ctx.space_dirs {
+                let (s, c) = pose.yaw.sin_cos();
+                let free = dirs
+                    .iter()
+                    .map(|&(ds, dc)| {
+                        let dir = Vec2::new(c * dc - s * ds, s * dc + c * ds);
+                        free_length(ctx.map, p, dir, ctx.half_width, ctx.space_cap)
+                    })
+                    .fold(ctx.space_cap, f64::min);
+                space += (ctx.space_cap - free) / ctx.space_cap;
+            }
+            n_q += 1;
+        }
+    }
+    if travel < ctx.min_travel {
+        return;
+    }
+    let n_q = n_q.max(1) as f64;
+    e.feasible = true;
+    e.goal = goal / n_q;
+    e.heading = heading / n_q;
+    e.space = space / n_q;
+    e.obstacle = obstacle / time.max(1e-9);
+}
+
+/// The standalone navigation system. Owns its buffers; one per episode (`Send`).
+#[derive(Clone, Debug)]
+pub struct NavSystem {
+    cfg: SystemConfig,
+    map: LocalMap,
+    rng: Pcg64Mcg,
+    machine: ModeMachine,
+    /// Nominal command of every sample.
+    nominal: Vec<Twist>,
+    /// Perturbed per-step controls, sample after sample.
+    controls: Vec<Twist>,
+    evals: Vec<SampleEval>,
+    order: Vec<usize>,
+    top_costs: Vec<f64>,
+    weights: Vec<f64>,
+    /// The last command (the warm start).
+    prev: Twist,
+    /// Direction of the current rotation in place (+1 left, -1 right, 0 none yet).
+    rotate_dir: f64,
+    /// The current rotation has already reversed once.
+    rotate_flipped: bool,
+    /// Clearance bound of the robot's current pose (all boundary points checked).
+    start_clear: f64,
+    /// Scan points within [`NEAR_RANGE`] of the robot, and remembered points in the
+    /// lidar's blind sector behind it.
+    near: Vec<Vec2>,
+    /// The scan plus the remembered blind-sector points: what the distance field is built on.
+    obstacles: Vec<Vec2>,
+    /// Remembered blind-sector points (robot frame of this cycle).
+    memory: Vec<Vec2>,
+    /// Scratch for moving the memory into the new robot frame.
+    scratch: Vec<Vec2>,
+    /// Measured velocity of the previous cycle (dead reckoning of the memory).
+    last_vel: Twist,
+    rollouts: Rollouts,
+    recording: bool,
+    evaluated: u64,
+}
+
+impl NavSystem {
+    /// A navigation system whose sampling noise is drawn from `seed`.
+    pub fn new(cfg: SystemConfig, seed: u64) -> Self {
+        Self {
+            cfg,
+            map: LocalMap::new(
+                sim::Footprint::JACKAL,
+                cfg.map_resolution,
+                crate::schedule::DEFAULT_BOUNDARY_POINTS,
+            ),
+            rng: Pcg64Mcg::seed_from_u64(seed),
+            machine: ModeMachine::new(cfg),
+            nominal: Vec::new(),
+            controls: Vec::new(),
+            evals: Vec::new(),
+            order: Vec::new(),
+            top_costs: Vec::new(),
+            weights: Vec::new(),
+            prev: Twist::default(),
+            rotate_dir: 0.0,
+            rotate_flipped: false,
+            start_clear: 0.0,
+            near: Vec::new(),
+            obstacles: Vec::new(),
+            memory: Vec::new(),
+            scratch: Vec::new(),
+            last_vel: Twist::default(),
+            rollouts: Rollouts::default(),
+            recording: false,
+            evaluated: 0,
+        }
+    }
+
+    /// The current mode.
+    pub fn mode(&self) -> Mode {
+        self.machine.mode()
+    }
+
+    fn params(&self, mode: Mode, max_speed: f64) -> ModeParams {
+        let c = &self.cfg;
+        match mode {
+            Mode::Normal => ModeParams {
+                v_cap: max_speed,
+                w_caps: c.normal_max_w,
+                goal: c.normal_goal,
+                obstacle: c.normal_obstacle,
+                heading: c.normal_heading,
+                space: c.normal_space,
+                margin: c.normal_margin,
+                min_travel: c.normal_min_travel,
+                min_safe_time: None,
+            },
+            _ => ModeParams {
+                v_cap: c.low_speed_scale * max_speed,
+                w_caps: c.low_max_w,
+                goal: c.low_goal,
+                obstacle: c.low_obstacle,
+                heading: c.low_heading,
+                space: c.low_space,
+                margin: c.low_margin,
+                min_travel: if mode == Mode::Recovery {
+                    c.recovery_min_travel
+                } else {
+                    c.low_min_travel
+                },
+                min_safe_time: Some(c.low_min_safe_time),
+            },
+        }
+    }
+
+    /// Dead-reckons the remembered points into this cycle's robot frame (the mean measured
+    /// velocity over one control period), keeps those now in the lidar's blind sector behind
+    /// the robot, and gathers the obstacle points of this cycle.
+    fn remember(&mut self, per: &Perception<'_>) {
+        let mean = Twist::new(
+            0.5 * (self.last_vel.v + per.vel.v),
+            0.5 * (self.last_vel.w + per.vel.w),
+        );
+        self.last_vel = per.vel;
+        let moved = integrate_arc(Pose::default(), mean, self.cfg.control_dt);
+        let tan_blind = BLIND_HALF_ANGLE.tan();
+        self.scratch.clear();
+        self.scratch.extend(
+            self.memory
+                .iter()
+                .map(|p| moved.to_local(*p))
+                .filter(|q| q.x < 0.0 && q.y.abs() <= -q.x * tan_blind && q.norm() < NEAR_RANGE),
+        );
+        std::mem::swap(&mut self.memory, &mut self.scratch);
+        self.near.clear();
+        self.near
+            .extend(per.points.iter().filter(|p| p.norm() < NEAR_RANGE));
+        self.memory.extend_from_slice(&self.near);
+        self.near.extend(
+            self.memory
+                .iter()
+                .filter(|q| q.x < 0.0 && q.y.abs() <= -q.x * tan_blind),
+        );
+        self.obstacles.clear();
+        self.obstacles.extend_from_slice(per.points);
+        self.obstacles.extend(
+            self.memory
+                .iter()
+                .filter(|q| q.x < 0.0 && q.y.abs() <= -q.x * tan_blind),
+        );
+    }
+
+    /// True when the footprint stays clear (by `margin`) of every nearby scan point at
+    /// every pose of `poses`: an exact check for the slow recovery motions (counted as one
+    /// evaluated point per pose).
+    fn clear_at(&mut self, poses: impl Iterator<Item = Pose>, margin: f64) -> bool {
+        for pose in poses {
+            self.evaluated += 1;
+            if self.exact_clearance(&pose) < margin {
+                return false;
+            }
+        }
+        true
+    }
+
+    /// Exact clearance between the footprint at `pose` and the scan points within
+    /// [`NEAR_RANGE`] (a lower bound on what lies farther when none is that close).
+    fn exact_clearance(&self, pose: &Pose) -> f64 {
+        let fp = self.map.footprint();
+        let far = NEAR_RANGE - pose.position().norm() - fp.circumscribed_radius();
+        self.near
+            .iter()
+            .map(|p| fp.signed_distance_local(pose.to_local(*p)))
+            .fold(far, f64::min)
+    }
+
+    /// Rotate in place toward `heading_error`, or the other way round if that side is
+    /// blocked; a rotation keeps its direction until that direction is blocked.
+    fn rotate(&mut self, heading_error: f64) -> Option<Twist> {
+        let w = heading_error
+            .abs()
+            .clamp(self.cfg.rotate_min_w, self.cfg.rotate_max_w);
+        let first = if self.rotate_dir != 0.0 {
+            self.rotate_dir
+        } else if heading_error >= 0.0 {
+            1.0
+        } else {
+            -1.0
+        };
+        let margin = self.cfg.low_margin;
+        for dir in [first, -first] {
+            if self.clear_at(
+                (1..=3).map(|i| Pose::new(0.0, 0.0, dir * 0.05 * i as f64)),
+                margin,
+            ) {
+                if self.rotate_dir != 0.0 && dir != self.rotate_dir {
+                    // Blocked on both sides of the reachable arc: give up rotating.
+                    if self.rotate_flipped {
+                        break;
+                    }
+                    self.rotate_flipped = true;
+                }
+                self.rotate_dir = dir;
+                return Some(Twist::new(0.0, dir * w));
+            }
+        }
+        None
+    }
+
+    /// Back up straight if the (partly unseen) space behind looks clear.
+    fn backup(&mut self) -> Option<Twist> {
+        let margin = self.cfg.low_margin;
+        self.clear_at((1..=3).map(|i| Pose::new(-0.05 * i as f64, 0.0, 0.0)), margin)
+            .then(|| Twist::new(-self.cfg.backup_speed, 0.0))
+    }
+
+    /// One sampling cycle in `mode`; `None` when no sample is collision-free.
+    fn sample(&mut self, input: &PlanInput<'_>, mode: Mode) -> Option<Twist> {
+        let cfg = self.cfg;
+        let per = &input.perception;
+        let sched = input.schedule;
+        let dts = sched.dts();
+        let steps = dts.len();
+        let horizon = sched.horizon();
+        let mp = self.params(mode, input.max_speed);
+
+        let (v0, w0) = (per.vel.v, per.vel.w);
+        let w_max = yaw_rate_cap(mp.w_caps, mp.v_cap, per.vel);
+        let v_lo = (v0 - cfg.accel_v * cfg.window_dt).max(0.0);
+        let v_hi = (v0 + cfg.accel_v * cfg.window_dt).min(mp.v_cap).max(v_lo);
+        let w_lo = (w0 - cfg.accel_w * cfg.window_dt).max(-w_max);
+        let w_hi = (w0 + cfg.accel_w * cfg.window_dt).min(w_max).max(w_lo);
+        let clamp_window = |t: Twist| Twist::new(t.v.clamp(v_lo, v_hi), t.w.clamp(w_lo, w_hi));
+
+        // Nominal commands: the grid, the warm start, the mode's extras.
+        self.nominal.clear();
+        let (nv, nw) = (cfg.v_samples.max(1), cfg.w_samples.max(1));
+        let grid = |lo: f64, hi: f64, n: usize, i: usize| {
+            if n <= 1 {
+                0.5 * (lo + hi)
+            } else {
+                lo + (hi - lo) * i as f64 / (n - 1) as f64
+            }
+        };
+        for i in 0..nv {
+            for j in 0..nw {
+                self.nominal
+                    .push(Twist::new(grid(v_lo, v_hi, nv, i), grid(w_lo, w_hi, nw, j)));
+            }
+        }
+        let warm = clamp_window(self.prev);
+        self.nominal.extend(std::iter::repeat_n(warm, cfg.warm_samples));
+        let extras: &[Twist] = match mode {
+            Mode::LowSpeed => &[Twist::new(cfg.low_creep_v, 0.0)],
+            Mode::Recovery => &[
+                Twist::new(cfg.recovery_creep_v, 0.0),
+                Twist::new(cfg.recovery_turn_v, -cfg.recovery_turn_w),
+                Twist::new(cfg.recovery_turn_v, cfg.recovery_turn_w),
+            ],
+            _ => &[],
+        };
+        for &x in extras {
+            self.nominal
+                .extend(std::iter::repeat_n(clamp_window(x), cfg.extra_samples));
+        }
+        let n = self.nominal.len();
+        if self.recording {
+            self.rollouts.clear(dts);
+        }
+
+        // Per-step noise, drawn sequentially so the result does not depend on threads.
+        let v_top = mp.v_cap.max(v_hi);
+        self.controls.clear();
+        for nom in &self.nominal {
+            for _ in 0..steps {
+                let ev: f64 = self.rng.sample(StandardNormal);
+                let ew: f64 = self.rng.sample(StandardNormal);
+                self.controls.push(Twist::new(
+                    (nom.v + cfg.noise_v * ev).clamp(0.0, v_top),
+                    (nom.w + cfg.noise_w * ew).clamp(-w_max, w_max),
+                ));
+            }
+        }
+
+        // The local goal: the episode's in normal mode, a closer one along the path otherwise.
+        let goal = if mode == Mode::Normal || per.local_path.len() < 2 {
+            per.local_goal
+        } else {
+            point_at_arc_length(per.local_path, mp.v_cap * horizon + cfg.low_goal_offset).0
+        };
+        let fp = *self.map.footprint();
+        let quarter = steps - (steps / 4).max(1);
+        let space_dirs = (mp.space > 0.0).then(|| {
+            let a = cfg.space_half_angle_deg.to_radians();
+            [(0.0, 1.0), a.sin_cos(), (-a).sin_cos()]
+        });
+        if self.evals.len() < n {
+            self.evals.resize_with(n, SampleEval::default);
+        }
+        let start_clear = self.start_clear;
+        let ctx = RolloutCtx {
+            map: &self.map,
+            dts,
+            checks: sched.checks(),
+            start: per.vel,
+            accel_v: cfg.accel_v,
+            accel_w: cfg.accel_w,
+            margin: mp.margin,
+            min_travel: mp.min_travel,
+            min_safe_time: mp.min_safe_time,
+            clearance_cap: cfg.clearance_cap,
+            start_clear,
+            goal,
+            quarter,
+            space_dirs,
+            space_cap: cfg.space_cap,
+            half_width: fp.half_width,
+            record: self.recording,
+        };
+        let controls = &self.controls;
+        self.evals[..n]
+            .par_iter_mut()
+            .enumerate()
+            .with_min_len(32)
+            .for_each(|(i, e)| evaluate(&ctx, &controls[i * steps..(i + 1) * steps], e));
+        let evals = &mut self.evals[..n];
+        self.evaluated += evals.iter().map(|e| e.evaluated).sum::<u64>();
+        if self.recording {
+            for e in evals.iter() {
+                self.rollouts.begin();
+                for p in &e.poses {
+                    self.rollouts.push(*p);
+                }
+                self.rollouts.end(e.feasible);
+            }
+        }
+
+        // Costs: goal and heading normalized over the feasible samples, the rest in [0, 1].
+        let span = |f: fn(&SampleEval) -> f64, es: &[SampleEval]| {
+            let (lo, hi) = es
+                .iter()
+                .filter(|e| e.feasible)
+                .map(f)
+                .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), x| {
+                    (a.min(x), b.max(x))
+                });
+            (lo, if hi - lo > 1e-9 { hi - lo } else { 1.0 })
+        };
+        let (g_lo, g_span) = span(|e| e.goal, evals);
+        let (h_lo, h_span) = span(|e| e.heading, evals);
+        self.order.clear();
+        for (i, e) in evals.iter_mut().enumerate() {
+            if e.feasible {
+                e.cost = mp.goal * (e.goal - g_lo) / g_span
+                    + mp.heading * (e.heading - h_lo) / h_span
+                    + mp.obstacle * e.obstacle
+                    + mp.space * e.space;
+                self.order.push(i);
+            }
+        }
+        if self.order.is_empty() {
+            return None;
+        }
+        let evals = &self.evals[..n];
+        let by_cost = |a: &usize, b: &usize| evals[*a].cost.total_cmp(&evals[*b].cost).then(a.cmp(b));
+        let k = cfg.top_k.max(1).min(self.order.len());
+        if self.order.len() > k {
+            self.order.select_nth_unstable_by(k - 1, by_cost);
+            self.order.truncate(k);
+        }
+        self.order.sort_unstable_by(by_cost);
+        self.top_costs.clear();
+        self.top_costs.extend(self.order.iter().map(|&i| evals[i].cost));
+        top_weights(&self.top_costs, cfg.top_k, cfg.lambda, &mut self.weights);
+
+        // Each sample's controls averaged over the schedule, step j weighing dt_j / T with T
+        // the horizon (or, for a rollout that stops early, the time it drives).
+        let mean_control = |i: usize| {
+            let mut acc = Twist::default();
+            let mut time = 0.0;
+            let driven = evals[i].driven;
+            for (u, &dt) in controls[i * steps..i * steps + driven].iter().zip(dts) {
+                acc.v += u.v * dt;
+                acc.w += u.w * dt;
+                time += dt;
+            }
+            if time > 0.0 {
+                Twist::new(acc.v / time, acc.w / time)
+            } else {
+                Twist::default()
+            }
+        };
+        let mut cmd = Twist::default();
+        for (&i, &w) in self.order.iter().zip(&self.weights) {
+            let m = mean_control(i);
+            cmd.v += w * m.v;
+            cmd.w += w * m.w;
+        }
+        let best = self.order[0];
+        let candidates = [cmd, mean_control(best)];
+        let first = self.controls[best * steps];
+        for c in candidates {
+            let c = Twist::new(c.v.clamp(0.0, v_top), c.w.clamp(-w_max, w_max));
+            if self.verify(c, per.vel, dts, sched.checks(), mp.margin) {
+                return Some(c);
+            }
+        }
+        Some(first)
+    }
+
+    /// True when the constant command `cmd` stays collision-free over the first
+    /// `verify_time` seconds of the schedule.
+    fn verify(&mut self, cmd: Twist, start: Twist, dts: &[f64], checks: &[u16], margin: f64) -> bool {
+        let (mut vel, mut pose, mut t) = (start, Pose::default(), 0.0);
+        let mut clear = self.start_clear;
+        for (&dt, &m) in dts.iter().zip(checks) {
+            if t >= self.cfg.verify_time {
+                break;
+            }
+            let before = pose;
+            vel.v = approach(vel.v, cmd.v, self.cfg.accel_v * dt);
+            vel.w = approach(vel.w, cmd.w, self.cfg.accel_w * dt);
+            pose = integrate_arc(pose, vel, dt);
+            t += dt;
+            clear = chained_clearance(
+                &self.map,
+                (&before, clear),
+                &pose,
+                m as usize,
+                self.cfg.clearance_cap,
+                &mut self.evaluated,
+            );
+            if clear < margin {
+                return false;
+            }
+        }
+        true
+    }
+}
+
+impl Planner for NavSystem {
+    fn name(&self) -> &'static str {
+        "system"
+    }
+
+    fn plan(&mut self, input: &PlanInput<'_>) -> Twist {
+        let cfg = self.cfg;
+        let per = &input.perception;
+        let sched = input.schedule;
+        self.remember(per);
+        self.map.set_boundary_points(sched.boundary_points());
+        let reach = input.max_speed * sched.horizon()
+            + self.map.footprint().circumscribed_radius()
+            + cfg.clearance_cap;
+        self.map.build(&self.obstacles, NEAR_RANGE, reach);
+        if self.recording {
+            self.rollouts.clear(sched.dts());
+        }
+        self.start_clear = self.exact_clearance(&Pose::default());
+        self.evaluated += 1;
+
+        let heading_error = path_bearing(per.local_path, 0.3, per.local_goal);
+        let obs = ModeObservation {
+            speed: per.vel.v,
+            max_speed: input.max_speed,
+            front_clearance: front_clearance(per.points, self.map.footprint(), cfg.front_side_margin),
+            heading_error,
+        };
+        if self.machine.update(&obs) != Mode::Rotate {
+            self.rotate_dir = 0.0;
+            self.rotate_flipped = false;
+        }
+        // Try the mode's action; on failure the machine moves on and the next mode acts.
+        let mut cmd = Twist::default();
+        for _ in 0..3 {
+            let mode = self.machine.mode();
+            let action = match mode {
+                Mode::Normal | Mode::LowSpeed | Mode::Recovery => self.sample(input, mode),
+                Mode::Brake => Some(Twist::default()),
+                Mode::Rotate => self.rotate(heading_error),
+                Mode::Backup => self.backup(),
+            };
+            self.machine.report(action.is_some());
+            if let Some(a) = action {
+                cmd = a;
+                break;
+            }
+        }
+        self.prev = cmd;
+        cmd
+    }
+
+    fn rollouts(&self) -> &Rollouts {
+        &self.rollouts
+    }
+
+    fn set_recording(&mut self, on: bool) {
+        self.recording = on;
+    }
+
+    fn evaluated_points(&self) -> u64 {
+        self.evaluated
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::run::run_episode;
+    use crate::Schedule;
+    use sim::episode::{Episode, EpisodeConfig, Status};
+    use sim::geometry::Circle;
+    use sim::World;
+
+    fn machine() -> ModeMachine {
+        ModeMachine::new(SystemConfig::default())
+    }
+
+    fn at(speed: f64) -> ModeObservation {
+        ModeObservation {
+            speed,
+            max_speed: 1.5,
+            front_clearance: 5.0,
+            heading_error: 1.0,
+        }
+    }
+
+    /// Feeds one cycle per speed; returns the mode after each.
+    fn drive(m: &mut ModeMachine, speeds: &[f64]) -> Vec<Mode> {
+        speeds.iter().map(|&v| m.update(&at(v))).collect()
+    }
+
+    /// Normal -> low-speed -> brake -> recovery, standing still.
+    fn into_recovery(m: &mut ModeMachine) {
+        drive(m, &[0.0; 10]);
+        assert_eq!(m.mode(), Mode::LowSpeed);
+        drive(m, &[0.0; 11]);
+        assert_eq!(m.mode(), Mode::Brake);
+        assert_eq!(m.update(&at(0.0)), Mode::Recovery);
+    }
+
+    #[test]
+    fn normal_to_low_speed_after_half_a_second_below_threshold() {
+        // Threshold 0.5 * 1.5 + 0.1 = 0.85 m/s; 10 cycles of 0.05 s = 0.5 s.
+        let mut m = machine();
+        let modes = drive(&mut m, &[0.84; 10]);
+        assert!(modes[..9].iter().all(|&x| x == Mode::Normal));
+        assert_eq!(modes[9], Mode::LowSpeed);
+        // An interruption restarts the clock.
+        let mut m = machine();
+        drive(&mut m, &[0.8; 9]);
+        drive(&mut m, &[0.86]);
+        assert!(drive(&mut m, &[0.8; 9]).iter().all(|&x| x == Mode::Normal));
+        assert_eq!(m.update(&at(0.8)), Mode::LowSpeed);
+    }
+
+    #[test]
+    fn low_speed_to_normal_after_half_a_second_fast() {
+        // Low-speed cap 0.75 m/s: threshold 0.8 * 0.75 + 0.1 = 0.7 m/s.
+        let mut m = machine();
+        drive(&mut m, &[0.5; 10]);
+        assert_eq!(m.mode(), Mode::LowSpeed);
+        assert!(drive(&mut m, &[0.69; 30]).iter().all(|&x| x == Mode::LowSpeed));
+        let modes = drive(&mut m, &[0.71; 10]);
+        assert!(modes[..9].iter().all(|&x| x == Mode::LowSpeed));
+        assert_eq!(modes[9], Mode::Normal);
+    }
+
+    #[test]
+    fn low_speed_to_brake_after_more_than_half_a_second_below_min_speed_then_recovery() {
+        let mut m = machine();
+        drive(&mut m, &[0.5; 10]);
+        // Exactly 0.5 s below 0.2 m/s is not enough; the 11th cycle is.
+        let modes = drive(&mut m, &[0.19; 11]);
+        assert!(modes[..10].iter().all(|&x| x == Mode::LowSpeed));
+        assert_eq!(modes[10], Mode::Brake);
+        // Brake until stopped.
+        assert_eq!(m.update(&at(0.15)), Mode::Brake);
+        assert_eq!(m.update(&at(0.05)), Mode::Recovery);
+    }
+
+    #[test]
+    fn recovery_returns_to_low_speed_after_successes_and_needs_more_each_time() {
+        let mut m = machine();
+        into_recovery(&mut m);
+        for _ in 0..4 {
+            assert_eq!(m.report(true), Mode::Recovery);
+        }
+        assert_eq!(m.report(true), Mode::LowSpeed);
+        // Second recovery: level 2, ten successes.
+        drive(&mut m, &[0.0; 11]);
+        assert_eq!(m.update(&at(0.0)), Mode::Recovery);
+        for _ in 0..9 {
+            assert_eq!(m.report(true), Mode::Recovery);
+        }
+        assert_eq!(m.report(true), Mode::LowSpeed);
+        // Back in normal mode the level resets to one.
+        drive(&mut m, &[0.75; 10]);
+        assert_eq!(m.mode(), Mode::Normal);
+        into_recovery(&mut m);
+        for _ in 0..4 {
+            m.report(true);
+        }
+        assert_eq!(m.report(true), Mode::LowSpeed);
+    }
+
+    #[test]
+    fn recovery_backs_up_when_blocked_then_rotates_toward_the_path() {
+        let mut m = machine();
+        into_recovery(&mut m);
+        let blocked = |front| ModeObservation {
+            front_clearance: front,
+            ..at(0.0)
+        };
+        assert_eq!(m.update(&blocked(0.05)), Mode::Backup);
+        // At least one second (20 cycles) of backing up, then until the front is clear.
+        for _ in 0..19 {
+            assert_eq!(m.update(&blocked(0.25)), Mode::Backup);
+        }
+        assert_eq!(m.update(&blocked(0.15)), Mode::Backup, "hysteresis");
+        assert_eq!(m.update(&blocked(0.25)), Mode::Rotate);
+        // Rotate until facing the local path, then low-speed.
+        let facing = |err| ModeObservation {
+            heading_error: err,
+            ..at(0.0)
+        };
+        assert_eq!(m.update(&facing(-0.6)), Mode::Rotate);
+        assert_eq!(m.update(&facing(0.3)), Mode::Rotate);
+        assert_eq!(m.update(&facing(-0.15)), Mode::LowSpeed);
+        // A back-up that never clears the front ends after two seconds.
+        let mut m = machine();
+        into_recovery(&mut m);
+        let modes: Vec<Mode> = (0..41).map(|_| m.update(&blocked(0.0))).collect();
+        assert!(modes[..40].iter().all(|&x| x == Mode::Backup));
+        assert_eq!(modes[40], Mode::Rotate);
+    }
+
+    #[test]
+    fn failures_degrade_and_cycle_through_the_recovery_behaviours() {
+        let mut m = machine();
+        assert_eq!(m.report(true), Mode::Normal);
+        assert_eq!(m.report(false), Mode::LowSpeed, "nothing feasible at full speed");
+        assert_eq!(m.report(false), Mode::Brake, "nothing feasible at low speed");
+        let mut m = machine();
+        into_recovery(&mut m);
+        assert_eq!(m.report(false), Mode::Rotate, "recovery sampling failed");
+        assert_eq!(m.report(true), Mode::Rotate);
+        assert_eq!(m.report(false), Mode::Backup, "rotation blocked");
+        assert_eq!(m.report(false), Mode::Recovery, "back-up blocked");
+    }
+
+    #[test]
+    fn top_weights_sum_to_one_and_ignore_a_constant_shift() {
+        let costs = [0.10, 0.12, 0.3, 0.31, 0.5, 0.9, 1.0, 1.2, 1.25, 2.0];
+        let mut w = Vec::new();
+        top_weights(&costs, 10, 1.0, &mut w);
+        assert!((w.iter().sum::<f64>() - 1.0).abs() < 1e-12);
+        assert!(
+            w.windows(2).all(|p| p[1] < p[0]),
+            "cheaper and better ranked weigh more"
+        );
+        let shifted: Vec<f64> = costs.iter().map(|c| c + 37.5).collect();
+        let mut w2 = Vec::new();
+        top_weights(&shifted, 10, 1.0, &mut w2);
+        for (a, b) in w.iter().zip(&w2) {
+            assert!((a - b).abs() < 1e-12);
+        }
+        // Equal costs: pure rank weights ((10 - k) / 10)^2, normalized.
+        top_weights(&[1.0; 10], 10, 1.0, &mut w);
+        let total: f64 = (1..=10).map(|k| (k * k) as f64).sum();
+        assert!((w[0] - 100.0 / total).abs() < 1e-12 && (w[9] - 1.0 / total).abs() < 1e-12);
+        // Fewer feasible samples than ten still sum to one.
+        top_weights(&[0.2, 0.4], 10, 1.0, &mut w);
+        assert!((w.iter().sum::<f64>() - 1.0).abs() < 1e-12);
+    }
+
+    fn corridor_with_cylinder() -> World {
+        // Walls of cylinders 2 m apart along +y, and a 0.25 m cylinder on the centre line.
+        let mut c = Vec::new();
+        for i in 0..100 {
+            let y = -1.0 + 0.15 * i as f64;
+            c.push(Circle {
+                c: Vec2::new(-1.0, y),
+                r: 0.075,
+            });
+            c.push(Circle {
+                c: Vec2::new(1.0, y),
+                r: 0.075,
+            });
+        }
+        c.push(Circle {
+            c: Vec2::new(0.0, 4.0),
+            r: 0.25,
+        });
+        World::new(
+            0,
+            c,
+            Pose::new(0.0, 0.0, std::f64::consts::FRAC_PI_2),
+            Vec2::new(0.0, 10.0),
+            10.0,
+            vec![],
+        )
+    }
+
+    #[test]
+    fn drives_around_a_cylinder_on_the_straight_route() {
+        let world = corridor_with_cylinder();
+        let mut sys = NavSystem::new(SystemConfig::default(), 3);
+        let mut beside: f64 = 0.0;
+        let (res, cycles) = run_episode(
+            &world,
+            EpisodeConfig::default(),
+            &mut sys,
+            &Schedule::ddp_default(),
+            1.5,
+            3,
+            |ep, _| {
+                let p = ep.state().pose;
+                if (p.y - 4.0).abs() < 0.3 {
+                    beside = beside.max(p.x.abs());
+                }
+            },
+        );
+        assert_eq!(res.status, Status::Succeeded, "{res:?}");
+        // Passing beside the cylinder needs |x| >= 0.25 + 0.215 (its radius + half width).
+        assert!(beside > 0.465, "went around: |x| = {beside}");
+        assert!(sys.evaluated_points() > cycles);
+    }
+
+    #[test]
+    fn follows_a_schedule_that_changes_every_quarter_second() {
+        // ADP: the policy picks a new (p, T, N, alpha) every 5 cycles.
+        let world = corridor_with_cylinder();
+        let schedules = [
+            Schedule::decremental(1.0, 1.6, 15, 0.6, 20).unwrap(),
+            Schedule::decremental(1.7, 2.2, 22, 0.0, 20).unwrap(),
+            Schedule::decremental(1.4, 1.9, 18, 0.3, 20).unwrap(),
+        ];
+        let mut ep = Episode::new(&world, EpisodeConfig::default(), 5);
+        let mut sys = NavSystem::new(SystemConfig::default(), 5);
+        let mut cycle = 0;
+        while ep.status() == Status::Running {
+            let sched = &schedules[(cycle / 5) % schedules.len()];
+            let cmd = sys.plan(&PlanInput {
+                perception: ep.perception(),
+                schedule: sched,
+                max_speed: 1.5,
+            });
+            ep.step(cmd);
+            cycle += 1;
+        }
+        assert_eq!(ep.status(), Status::Succeeded, "{:?}", ep.result());
+    }
+
+    /// Commands of the first `n` cycles on a BARN world.
+    fn commands(seed: u64, n: usize, record: bool) -> (Vec<Twist>, u64, usize) {
+        let world = sim::barn::world(120).unwrap();
+        let mut ep = Episode::new(world, EpisodeConfig::default(), 1);
+        let mut sys = NavSystem::new(SystemConfig::default(), seed);
+        sys.set_recording(record);
+        let sched = Schedule::ddp_default();
+        let mut out = Vec::new();
+        let mut spans = 0;
+        for _ in 0..n {
+            let cmd = sys.plan(&PlanInput {
+                perception: ep.perception(),
+                schedule: &sched,
+                max_speed: 1.5,
+            });
+            spans = spans.max(sys.rollouts().spans.len());
+            out.push(cmd);
+            if ep.step(cmd) != Status::Running {
+                break;
+            }
+        }
+        (out, sys.evaluated_points(), spans)
+    }
+
+    #[test]
+    fn same_seed_same_commands() {
+        let (a, pa, _) = commands(7, 60, false);
+        let (b, pb, spans) = commands(7, 60, true);
+        assert_eq!(a, b, "recording does not change the plan");
+        assert_eq!(pa, pb);
+        assert!(spans >= 550, "one recorded rollout per sample: {spans}");
+        let (c, _, _) = commands(8, 60, false);
+        assert_ne!(a, c, "the noise comes from the seed");
+    }
+
+    #[test]
+    fn previous_solution_is_among_the_samples() {
+        let world = sim::barn::world(120).unwrap();
+        let ep = Episode::new(world, EpisodeConfig::default(), 1);
+        let cfg = SystemConfig::default();
+        let mut sys = NavSystem::new(cfg, 1);
+        let sched = Schedule::ddp_default();
+        let input = PlanInput {
+            perception: ep.perception(),
+            schedule: &sched,
+            max_speed: 1.5,
+        };
+        let first = sys.plan(&input);
+        sys.plan(&input);
+        let grid = cfg.v_samples * cfg.w_samples;
+        // The robot has not moved: the window is the same, and the first command lies in it.
+        assert!(sys.nominal[grid..grid + cfg.warm_samples]
+            .iter()
+            .all(|&t| t == first));
+        assert!(first.v > 0.0);
+    }
+
+    /// One planning cycle in release mode:
+    /// `cargo test --release -p adp-planner system_cycle_timing -- --ignored --nocapture`.
+    #[test]
+    #[ignore]
+    fn system_cycle_timing() {
+        let world = sim::barn::world(250).unwrap();
+        for (name, sched) in [("vanilla", Schedule::vanilla()), ("ddp", Schedule::ddp_default())] {
+            let mut ep = Episode::new(world, EpisodeConfig::default(), 3);
+            let mut sys = NavSystem::new(SystemConfig::default(), 3);
+            let mut times = Vec::new();
+            for _ in 0..200 {
+                let input = PlanInput {
+                    perception: ep.perception(),
+                    schedule: &sched,
+                    max_speed: 1.5,
+                };
+                let t = std::time::Instant::now();
+                let cmd = sys.plan(&input);
+                times.push(t.elapsed().as_secs_f64() * 1e3);
+                if ep.step(cmd) != Status::Running {
+                    break;
+                }
+            }
+            times.sort_by(f64::total_cmp);
+            println!(
+                "system-{name}: {} cycles, median {:.3} ms, p90 {:.3} ms, {} rayon threads",
+                times.len(),
+                times[times.len() / 2],
+                times[times.len() * 9 / 10],
+                rayon::current_num_threads()
+            );
+        }
+    }
+}
