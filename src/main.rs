@@ -2,6 +2,7 @@
 
 mod config;
 mod eval;
+mod export;
 mod policy;
 mod render;
 
@@ -135,6 +136,18 @@ enum Cmd {
         config: Option<PathBuf>,
         #[command(flatten)]
         data: WorldData,
+    },
+    /// Export a checkpoint's policy: policy.onnx, policy.safetensors and policy.json.
+    Export {
+        /// Checkpoint directory written by the learner (verified before use).
+        #[arg(long)]
+        checkpoint: PathBuf,
+        /// Output directory (created if needed; existing policy files are replaced).
+        #[arg(long)]
+        out: PathBuf,
+        /// Action space the run trained in.
+        #[arg(long, default_value = "decremental")]
+        action: ActionSpace,
     },
     /// List or inspect worlds and splits.
     Worlds {
@@ -276,6 +289,11 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             );
             Ok(())
         }
+        Cmd::Export {
+            checkpoint,
+            out,
+            action,
+        } => export::run(&checkpoint, &out, action),
         Cmd::Worlds { cmd } => match cmd {
             WorldsCmd::List { split } => {
                 for id in SplitFile::embedded().select(&split)? {

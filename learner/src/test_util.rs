@@ -1,0 +1,61 @@
+//! Helpers shared by the unit tests.
+
+use burn::module::{Module, ModuleVisitor, Param};
+use burn::tensor::Tensor;
+use rand::Rng;
+use rand_pcg::Pcg64Mcg;
+
+use crate::batch::Batch;
+use crate::config::Td3Config;
+
+/// Every float parameter of a module, in visiting order.
+pub(crate) fn params<M: Module>(module: &M) -> Vec<f32> {
+    struct Collect(Vec<f32>);
+    impl ModuleVisitor for Collect {
+        fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+            self.0
+                .extend(param.val().into_data().try_into_vec::<f32>().unwrap());
+        }
+    }
+    let mut c = Collect(Vec::new());
+    module.visit(&mut c);
+    c.0
+}
+
+/// Small networks on a 3-D observation and a 1-D action, fast enough for many updates.
+pub(crate) fn tiny_config() -> Td3Config {
+    Td3Config {
+        obs_dim: 3,
+        act_dim: 1,
+        laser_dim: 0,
+        actor_hidden: vec![64, 64],
+        critic_hidden: vec![64, 64],
+        actor_lr: 1e-3,
+        critic_lr: 1e-3,
+        batch_size: 64,
+        replay_capacity: 8192,
+        seed: 7,
+        ..Td3Config::default()
+    }
+}
+
+/// A batch of uniform random values (every 5th row terminal), for mechanics tests.
+pub(crate) fn random_batch(config: &Td3Config, rows: usize, rng: &mut Pcg64Mcg) -> Batch {
+    let mut b = Batch::new(config.obs_dim, config.act_dim);
+    let mut uniform = |n: usize| -> Vec<f32> { (0..n).map(|_| rng.random_range(-1.0..=1.0)).collect() };
+    b.obs = uniform(rows * config.obs_dim);
+    b.next_obs = uniform(rows * config.obs_dim);
+    b.action = uniform(rows * config.act_dim);
+    b.reward = uniform(rows);
+    b.discount = vec![config.gamma.powi(6) as f32; rows];
+    b.done = (0..rows).map(|i| f32::from(u8::from(i % 5 == 0))).collect();
+    b
+}
+
+/// A fresh, empty directory under the system temp dir, unique per test and process.
+pub(crate) fn temp_dir(name: &str) -> std::path::PathBuf {
+    let dir = std::env::temp_dir().join(format!("adp-learner-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}

@@ -1,0 +1,24 @@
+//! `adp export`: write a checkpoint's policy as ONNX, safetensors and a JSON card (the work is
+//! done by `adp_learner::export`; this prints what was written).
+
+use std::path::Path;
+
+use adp_learner::export::{export_checkpoint, space_name};
+use planner::ActionSpace;
+
+/// Export the policy of the checkpoint directory `checkpoint`, trained in `space`, into `out`.
+pub fn run(checkpoint: &Path, out: &Path, space: ActionSpace) -> anyhow::Result<()> {
+    let summary = export_checkpoint(checkpoint, out, space)?;
+    let source = &summary.card.source;
+    println!(
+        "exported run {} at update {} (policy version {}, {} action space):",
+        source.run_id,
+        source.updates,
+        source.policy_version,
+        space_name(space)
+    );
+    for (path, bytes) in &summary.files {
+        println!("  {} ({bytes} bytes)", path.display());
+    }
+    Ok(())
+}
