@@ -7,6 +7,9 @@
 //!   states ([`crate::adam::Adam::to_safetensors`]; version 1 stored burn's optimizer records);
 //! - `state.json`: the update counter, the target-noise RNG and the caller's [`RunState`]
 //!   (rate limiter, sampling RNG, policy version, free-form service state);
+//! - `replay.bin`, only when saved with [`save_with_replay`]: the replay buffer
+//!   ([`ReplayBuffer::write_snapshot`]; about 300 MB for a full 200K buffer), read back with
+//!   [`load_replay`];
 //! - `manifest.json`: format name and version, run id, step counters, the full config, and the
 //!   size and SHA-256 of every file above;
 //! - `COMPLETE`: written last; holds the SHA-256 of `manifest.json`.
@@ -34,6 +37,7 @@ use thiserror::Error;
 use crate::adam::Adam;
 use crate::config::{ConfigError, Td3Config};
 use crate::rate::RateLimiter;
+use crate::replay::ReplayBuffer;
 use crate::td3::Td3;
 
 /// The `format` field of every manifest.
@@ -45,6 +49,8 @@ pub const COMPLETE: &str = "COMPLETE";
 /// Name of the manifest file.
 pub const MANIFEST: &str = "manifest.json";
 const STATE: &str = "state.json";
+/// Name of the optional replay-buffer file.
+pub const REPLAY: &str = "replay.bin";
 
 /// The run-level state a checkpoint carries besides the networks: everything the service needs
 /// to continue the same run. Plain data.
@@ -226,6 +232,25 @@ fn module_bytes<M: Module>(module: M, file: &str) -> Result<Vec<u8>, CheckpointE
 /// Write `td3` and `run` as a checkpoint directory `dir` (which must not exist; its parent
 /// must). Atomic as described in the module docs. Returns the manifest written.
 pub fn save(dir: &Path, td3: &Td3, run: &RunState) -> Result<Manifest, CheckpointError> {
+    save_impl(dir, td3, run, None)
+}
+
+/// [`save`], plus the replay buffer as `replay.bin` (read it back with [`load_replay`]).
+pub fn save_with_replay(
+    dir: &Path,
+    td3: &Td3,
+    run: &RunState,
+    replay: &ReplayBuffer,
+) -> Result<Manifest, CheckpointError> {
+    save_impl(dir, td3, run, Some(replay))
+}
+
+fn save_impl(
+    dir: &Path,
+    td3: &Td3,
+    run: &RunState,
+    replay: Option<&ReplayBuffer>,
+) -> Result<Manifest, CheckpointError> {
     if dir.exists() {
         return Err(CheckpointError::Exists(dir.to_path_buf()));
     }
@@ -257,6 +282,9 @@ pub fn save(dir: &Path, td3: &Td3, run: &RunState) -> Result<Manifest, Checkpoin
         ),
     ];
     let mut files = BTreeMap::new();
+    if let Some(replay) = replay {
+        files.insert(REPLAY.to_string(), write_replay(&tmp.join(REPLAY), replay)?);
+    }
     for (file, data) in &contents {
         write_synced(&tmp.join(file), data)?;
         files.insert(
@@ -288,6 +316,41 @@ pub fn save(dir: &Path, td3: &Td3, run: &RunState) -> Result<Manifest, Checkpoin
     write_synced(&dir.join(COMPLETE), sha256_hex(&manifest_json).as_bytes())?;
     sync_dir(dir)?;
     Ok(manifest)
+}
+
+/// Stream the replay snapshot into `path` (no in-memory copy), hashing as it goes.
+fn write_replay(path: &Path, replay: &ReplayBuffer) -> Result<FileEntry, CheckpointError> {
+    struct Hashing<W> {
+        out: W,
+        sha: Sha256,
+        bytes: u64,
+    }
+    impl<W: Write> Write for Hashing<W> {
+        fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+            let n = self.out.write(buf)?;
+            self.sha.update(&buf[..n]);
+            self.bytes += n as u64;
+            Ok(n)
+        }
+        fn flush(&mut self) -> std::io::Result<()> {
+            self.out.flush()
+        }
+    }
+    let file = File::create(path).map_err(io("create", path))?;
+    let mut out = Hashing {
+        out: std::io::BufWriter::with_capacity(1 << 20, file),
+        sha: Sha256::new(),
+        bytes: 0,
+    };
+    replay.write_snapshot(&mut out).map_err(io("write", path))?;
+    out.flush().map_err(io("write", path))?;
+    let Hashing { out, sha, bytes } = out;
+    let file = out.into_inner().map_err(|e| io("write", path)(e.into_error()))?;
+    file.sync_all().map_err(io("fsync", path))?;
+    Ok(FileEntry {
+        bytes,
+        sha256: sha.finalize().iter().map(|b| format!("{b:02x}")).collect(),
+    })
 }
 
 fn optimizer_bytes(optimizer: &Adam, file: &str) -> Result<Vec<u8>, CheckpointError> {
@@ -333,6 +396,9 @@ pub fn read_manifest(dir: &Path) -> Result<Manifest, CheckpointError> {
     let manifest: Manifest = serde_json::from_value(header).map_err(|e| parse_err(&path, e))?;
     let mut expected_files: Vec<&str> = MODULES.to_vec();
     expected_files.push(STATE);
+    if manifest.files.contains_key(REPLAY) {
+        expected_files.push(REPLAY);
+    }
     expected_files.sort_unstable();
     if !manifest
         .files
@@ -415,6 +481,19 @@ pub fn load(dir: &Path, device: &Device) -> Result<(Td3, RunState), CheckpointEr
     td3.updates = state.updates;
     td3.noise_rng = state.noise_rng;
     Ok((td3, state.run))
+}
+
+/// The replay buffer of checkpoint `dir`, verified like every other file, or `None` when the
+/// checkpoint was saved without one ([`save`] rather than [`save_with_replay`]).
+pub fn load_replay(dir: &Path) -> Result<Option<ReplayBuffer>, CheckpointError> {
+    let manifest = read_manifest(dir)?;
+    if !manifest.files.contains_key(REPLAY) {
+        return Ok(None);
+    }
+    let data = read_verified(dir, &manifest, REPLAY)?;
+    ReplayBuffer::read_snapshot(&data, &manifest.config)
+        .map(Some)
+        .map_err(|e| parse_err(&dir.join(REPLAY), e))
 }
 
 #[cfg(test)]
@@ -582,6 +661,109 @@ mod tests {
             .filter(|e| e.file_name().to_string_lossy().contains(".tmp-"))
             .collect();
         assert!(leftovers.is_empty());
+        std::fs::remove_dir_all(&root).unwrap();
+    }
+
+    /// A partly wrapped buffer with interleaved open and ended episodes survives a checkpoint:
+    /// after loading, the same pushes and the same sampling RNG give the same batches.
+    #[test]
+    fn replay_buffer_round_trip_continues_identically() {
+        use crate::batch::Batch;
+        use crate::replay::{Step, StepEnd};
+        use rand::Rng;
+
+        let config = Td3Config {
+            replay_capacity: 97,
+            ..tiny_config()
+        };
+        let mut rng = seeded_rng(4, 4);
+        let steps = |n: usize, rng: &mut Pcg64Mcg| -> Vec<(u64, Vec<f32>, f32, u8)> {
+            (0..n)
+                .map(|_| {
+                    let obs = (0..3).map(|_| rng.random_range(-1.0..=1.0)).collect();
+                    (
+                        rng.random_range(0..4u64),
+                        obs,
+                        rng.random_range(-1.0..1.0f32),
+                        rng.random_range(0..10u8),
+                    )
+                })
+                .collect()
+        };
+        let push_all = |buffer: &mut ReplayBuffer, steps: &[(u64, Vec<f32>, f32, u8)]| {
+            for (episode, obs, reward, end) in steps {
+                let end = match end {
+                    0 => StepEnd::Terminal,
+                    1 => StepEnd::Truncated { final_obs: obs },
+                    _ => StepEnd::Continue,
+                };
+                let step = Step {
+                    obs,
+                    action: &[*reward],
+                    reward: *reward,
+                    end,
+                };
+                buffer.push(*episode, &step).unwrap();
+            }
+        };
+        let mut buffer = ReplayBuffer::new(&config);
+        push_all(&mut buffer, &steps(150, &mut rng));
+        assert!(buffer.total_inserted() > 97 && buffer.open_episodes() > 0);
+
+        let td3 = Td3::new(config.clone(), &Device::flex()).unwrap();
+        let root = temp_dir("replay");
+        let with = root.join("with");
+        let manifest = save_with_replay(&with, &td3, &run_state(&config), &buffer).unwrap();
+        assert!(manifest.files[REPLAY].bytes > 97 * 16);
+        let mut loaded = load_replay(&with).unwrap().expect("a replay buffer");
+        assert_eq!(
+            (
+                loaded.len(),
+                loaded.ready_len(),
+                loaded.open_episodes(),
+                loaded.total_inserted()
+            ),
+            (
+                buffer.len(),
+                buffer.ready_len(),
+                buffer.open_episodes(),
+                buffer.total_inserted()
+            )
+        );
+        load(&with, &Device::flex()).unwrap();
+
+        let more = steps(60, &mut rng);
+        push_all(&mut buffer, &more);
+        push_all(&mut loaded, &more);
+        let (mut a, mut b) = (Batch::new(3, 1), Batch::new(3, 1));
+        let (mut rng_a, mut rng_b) = (seeded_rng(8, 2), seeded_rng(8, 2));
+        for _ in 0..5 {
+            buffer.sample(32, &mut rng_a, &mut a).unwrap();
+            loaded.sample(32, &mut rng_b, &mut b).unwrap();
+            assert_eq!(a, b);
+        }
+
+        // Without a buffer there is none to load; a damaged buffer is refused by name.
+        let without = root.join("without");
+        save(&without, &td3, &run_state(&config)).unwrap();
+        assert!(load_replay(&without).unwrap().is_none());
+        let mut data = std::fs::read(with.join(REPLAY)).unwrap();
+        let last = data.len() - 1;
+        data[last] ^= 1;
+        std::fs::write(with.join(REPLAY), data).unwrap();
+        let err = load_replay(&with).expect_err("a damaged buffer").to_string();
+        assert!(err.contains("replay.bin") && err.contains("SHA-256"), "{err}");
+        // A buffer only loads into a run with the same replay settings.
+        let mut snapshot = Vec::new();
+        buffer.write_snapshot(&mut snapshot).unwrap();
+        let other = Td3Config {
+            replay_capacity: 98,
+            ..config.clone()
+        };
+        let err = ReplayBuffer::read_snapshot(&snapshot, &other).unwrap_err();
+        assert!(err.contains("replay_capacity = 97"), "{err}");
+        let err = ReplayBuffer::read_snapshot(&snapshot[..snapshot.len() - 1], &config).unwrap_err();
+        assert!(err.contains("runs past the end"), "{err}");
         std::fs::remove_dir_all(&root).unwrap();
     }
 }

@@ -34,6 +34,8 @@ use thiserror::Error;
 use crate::batch::Batch;
 use crate::config::Td3Config;
 
+mod snapshot;
+
 /// Identifies one episode in progress, e.g. `(actor id << 32) | episode counter`. Steps pushed
 /// with the same id are consecutive steps of one episode until it ends; after the end, the
 /// same id starts a new episode.
@@ -982,5 +984,19 @@ mod tests {
             times[100]
         );
         assert!(after - before < 800_000_000);
+
+        // The checkpoint form of the full buffer (`checkpoint::save_with_replay`).
+        let t = std::time::Instant::now();
+        let mut snapshot = Vec::with_capacity(buf.storage_bytes() + 4096);
+        buf.write_snapshot(&mut snapshot).unwrap();
+        let write_s = t.elapsed().as_secs_f64();
+        let t = std::time::Instant::now();
+        let back = ReplayBuffer::read_snapshot(&snapshot, &config).unwrap();
+        let read_s = t.elapsed().as_secs_f64();
+        assert_eq!((back.len(), back.ready_len()), (buf.len(), buf.ready_len()));
+        println!(
+            "replay snapshot: {:.1} MB, written to memory in {write_s:.2} s, read back in {read_s:.2} s",
+            snapshot.len() as f64 / 1e6
+        );
     }
 }
