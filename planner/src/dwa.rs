@@ -151,11 +151,8 @@ impl Planner for Dwa {
         let per = &input.perception;
         let sched = input.schedule;
         let steps = sched.len();
-        self.map.set_boundary_points(sched.boundary_points());
-        let reach = input.max_speed * sched.horizon()
-            + self.map.footprint().circumscribed_radius()
-            + cfg.clearance_cap;
-        self.map.build(per.points, 1.0, reach);
+        self.map
+            .prepare(per.points, sched, input.max_speed, 1.0, cfg.clearance_cap);
 
         let v0 = per.vel.v;
         let w0 = per.vel.w;

@@ -7,6 +7,8 @@
 
 use sim::geometry::{Footprint, Pose, Vec2};
 
+use crate::Schedule;
+
 /// Distance reported for space outside the field (m).
 pub const FAR: f64 = 10.0;
 
@@ -81,6 +83,15 @@ impl LocalMap {
                 }
             })
             .collect();
+    }
+
+    /// Prepares the field for one planning cycle: check sets for the schedule's density, and
+    /// the distance field over everything a rollout at `max_speed` can reach (horizon x speed
+    /// + circumscribed radius + `margin` ahead and sideways, `back` behind).
+    pub fn prepare(&mut self, points: &[Vec2], schedule: &Schedule, max_speed: f64, back: f64, margin: f64) {
+        self.set_boundary_points(schedule.boundary_points());
+        let reach = max_speed * schedule.horizon() + self.radii.1 + margin;
+        self.build(points, back, reach);
     }
 
     /// Rebuilds the field from obstacle `points` (robot frame) over the box

@@ -434,11 +434,8 @@ impl Planner for Mppi {
         let per = &input.perception;
         let sched = input.schedule;
         let steps = sched.len();
-        self.map.set_boundary_points(sched.boundary_points());
-        let reach = input.max_speed * sched.horizon()
-            + self.map.footprint().circumscribed_radius()
-            + cfg.clearance_cap;
-        self.map.build(per.points, 1.0, reach);
+        self.map
+            .prepare(per.points, sched, input.max_speed, 1.0, cfg.clearance_cap);
 
         // Warm start: the last nominal, one control period later, on this schedule's grid.
         shift_sequence(

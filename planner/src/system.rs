@@ -1100,11 +1100,13 @@ impl Planner for NavSystem {
         let per = &input.perception;
         let sched = input.schedule;
         self.remember(per);
-        self.map.set_boundary_points(sched.boundary_points());
-        let reach = input.max_speed * sched.horizon()
-            + self.map.footprint().circumscribed_radius()
-            + cfg.clearance_cap;
-        self.map.build(&self.obstacles, NEAR_RANGE, reach);
+        self.map.prepare(
+            &self.obstacles,
+            sched,
+            input.max_speed,
+            NEAR_RANGE,
+            cfg.clearance_cap,
+        );
         if self.recording {
             self.rollouts.clear(sched.dts());
         }
