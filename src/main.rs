@@ -5,6 +5,7 @@ mod eval;
 mod export;
 mod policy;
 mod render;
+mod train;
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -149,6 +150,76 @@ enum Cmd {
         #[arg(long, default_value = "decremental")]
         action: ActionSpace,
     },
+    /// Train an ADP policy on this machine: a learner and N sandboxed actor processes.
+    Train {
+        /// Run configuration (default: the embedded configs/local.toml).
+        #[arg(long)]
+        config: Option<PathBuf>,
+        /// Total agent steps of the run (overrides [run] steps).
+        #[arg(long)]
+        steps: Option<u64>,
+        /// Actor processes (overrides [run] actors; 0 = one per core).
+        #[arg(long)]
+        actors: Option<u32>,
+        /// Run directory (default: runs/<name>).
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Continue the run in --out from its newest valid checkpoint up to --steps.
+        #[arg(long)]
+        resume: bool,
+    },
+    /// The learner half of a distributed run: gRPC control and data planes, shared memory,
+    /// replay, TD3, checkpoints.
+    Learner {
+        /// Run configuration (default: the embedded configs/local.toml).
+        #[arg(long)]
+        config: Option<PathBuf>,
+        /// Total agent steps of the run (overrides [run] steps).
+        #[arg(long)]
+        steps: Option<u64>,
+        /// Run directory (default: runs/<name>).
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Address to listen on (overrides [service] listen), e.g. 0.0.0.0:50051.
+        #[arg(long)]
+        listen: Option<String>,
+        /// The run's token file (mode 0600; default: <out>/token, created if missing).
+        #[arg(long)]
+        token_file: Option<PathBuf>,
+        /// Continue the run in --out from its newest valid checkpoint.
+        #[arg(long)]
+        resume: bool,
+    },
+    /// The actor half of a distributed run: connects to a learner and runs assignments.
+    Actor {
+        /// The learner's host:port.
+        #[arg(long)]
+        learner: String,
+        /// The run's token file (mode 0600).
+        #[arg(long)]
+        token_file: PathBuf,
+        /// This actor's rank (default: $SLURM_PROCID, else 0); seeds derive from it.
+        #[arg(long)]
+        rank: Option<u32>,
+        /// Data plane: auto (shared memory when the learner is on this host), grpc or shm.
+        #[arg(long, default_value = "auto")]
+        data_plane: actor::run::PlaneChoice,
+        /// CA certificate of the learner (PEM); enables TLS.
+        #[arg(long)]
+        tls_ca: Option<PathBuf>,
+        /// Server name in the learner's certificate (default: the host of --learner).
+        #[arg(long, requires = "tls_ca")]
+        tls_domain: Option<String>,
+        /// Client certificate for mutual TLS (PEM).
+        #[arg(long, requires_all = ["tls_ca", "tls_key"])]
+        tls_cert: Option<PathBuf>,
+        /// Client key for mutual TLS (PEM).
+        #[arg(long, requires_all = ["tls_ca", "tls_cert"])]
+        tls_key: Option<PathBuf>,
+        /// Give up after the learner has been unreachable this many seconds.
+        #[arg(long, default_value_t = 600)]
+        give_up_after: u64,
+    },
     /// List or inspect worlds and splits.
     Worlds {
         #[command(subcommand)]
@@ -192,6 +263,61 @@ fn main() -> ExitCode {
 
 fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.cmd {
+        Cmd::Train {
+            config,
+            steps,
+            actors,
+            out,
+            resume,
+        } => train::train(
+            config.as_deref(),
+            &train::Overrides {
+                steps,
+                actors,
+                out,
+                listen: None,
+            },
+            resume,
+        ),
+        Cmd::Learner {
+            config,
+            steps,
+            out,
+            listen,
+            token_file,
+            resume,
+        } => train::learner(
+            config.as_deref(),
+            &train::Overrides {
+                steps,
+                actors: None,
+                out,
+                listen,
+            },
+            resume,
+            token_file.as_deref(),
+        ),
+        Cmd::Actor {
+            learner,
+            token_file,
+            rank,
+            data_plane,
+            tls_ca,
+            tls_domain,
+            tls_cert,
+            tls_key,
+            give_up_after,
+        } => train::actor(train::ActorArgs {
+            learner,
+            token_file,
+            rank,
+            data_plane,
+            tls_ca,
+            tls_domain,
+            tls_cert,
+            tls_key,
+            give_up_after_s: give_up_after,
+        }),
         Cmd::Eval {
             planner,
             fidelity,

@@ -107,6 +107,25 @@ impl Actor {
         &self.layers
     }
 
+    /// Layer sizes, input first (`[obs_dim, hidden..., act_dim]`), and every parameter as one
+    /// flat vector: per layer the weight `[in][out]` row-major (burn's layout, `y = x W + b`),
+    /// then the bias. This is the layout actors load (`actor::policy::MlpPolicy::from_flat`)
+    /// and that policy snapshots carry.
+    pub fn flat_weights(&self) -> (Vec<usize>, Vec<f32>) {
+        let mut dims = vec![self.obs_dim()];
+        let mut flat = Vec::new();
+        for layer in &self.layers {
+            let [_, fan_out] = layer.weight.dims();
+            dims.push(fan_out);
+            flat.extend(tensor_values(layer.weight.val()));
+            match &layer.bias {
+                Some(b) => flat.extend(tensor_values(b.val())),
+                None => flat.extend(std::iter::repeat_n(0.0, fan_out)),
+            }
+        }
+        (dims, flat)
+    }
+
     /// The device holding the weights (autodiff for a learner's online actor, plain for a
     /// snapshot).
     pub fn device(&self) -> Device {
@@ -292,4 +311,10 @@ impl Critic {
         }
         critic
     }
+}
+
+fn tensor_values<const D: usize>(t: Tensor<D>) -> Vec<f32> {
+    t.into_data()
+        .try_to_vec::<f32>()
+        .expect("network parameters are f32")
 }

@@ -1,0 +1,29 @@
+//! The actor side of ADP training: the RL environment and CPU inference of the policy.
+//!
+//! * [`env::AdpEnv`] wraps one BARN [`sim::Episode`] and one [`planner::Planner`]. Every
+//!   agent step (0.25 s: five 0.05 s planner cycles) the agent's normalized action becomes
+//!   the planner's rollout schedule through an [`planner::ActionSpace`]; the step returns the
+//!   reward (progress, step and obstacle penalties, collision / timeout / success terms) and
+//!   whether the episode ended as a true terminal or was truncated by a time limit.
+//! * [`observation`] defines the observation vector (720 encoded lidar ranges, the previous
+//!   action, velocity, local and global goal): the layout the exported policy card documents.
+//! * [`reward`] holds the scan-dependent reward term as pure functions.
+//! * [`policy::MlpPolicy`] evaluates the actor network (ReLU hidden layers, tanh output) from
+//!   the flat weight vector the learner publishes, without allocating per call;
+//!   [`exploration::Exploration`] adds seeded Gaussian noise for data collection.
+//!
+//! Everything here is pure and deterministic given seeds and actions: no I/O, no clocks.
+
+#![warn(missing_docs)]
+
+pub mod env;
+pub mod exploration;
+pub mod observation;
+pub mod policy;
+pub mod reward;
+pub mod run;
+
+pub use env::{AdpEnv, End, EnvConfig, EnvError, EnvResult, StepOutcome};
+pub use exploration::Exploration;
+pub use observation::{obs_dim, LASER_BEAMS};
+pub use policy::{param_count, MlpPolicy, PolicyError, Scratch};

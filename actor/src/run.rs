@@ -1,0 +1,498 @@
+//! The actor process loop: register with the learner, take an assignment, wait for its policy
+//! version, run the episodes with the run's planner and fidelity action space, stream every step,
+//! report each episode, idle until the next cycle, repeat.
+//!
+//! The loop is written against [`StepSink`] and [`PolicySource`] only, so the same code runs
+//! over shared memory (learner on this host) and gRPC (learner elsewhere). The control plane is
+//! always gRPC. A lost learner (unreachable, or restarted: a new incarnation) ends the session;
+//! the actor registers again with exponential back-off and never sends data of an old session
+//! to a new learner.
+//!
+//! Every random stream is seeded from the assignment's per-episode seed, which the scheduler
+//! derives from (run seed, actor rank, episode counter): the simulator noise and the planner's
+//! sampling from the seed itself, exploration noise from a mix of it.
+
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use planner::{ActionSpace, Planner};
+use proto::checksum::step_checksum;
+use proto::grpc::{ControlClient, GrpcPolicySource, GrpcStepSink, LearnerAddress};
+use proto::pb;
+use proto::plane::{LeaseHeader, PlaneError, PolicySource, StepSink};
+use proto::shm::{ShmConfig, ShmPolicySource, ShmStepSink};
+use proto::StepView;
+use sim::episode::{EpisodeConfig, Status};
+
+use crate::env::{AdpEnv, End, EnvConfig};
+use crate::exploration::Exploration;
+use crate::policy::{MlpPolicy, Scratch};
+
+/// Which data plane the actor uses for steps and policies.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PlaneChoice {
+    /// Shared memory when the learner offers it on this host, gRPC otherwise.
+    Auto,
+    /// Always gRPC.
+    Grpc,
+    /// Shared memory; an error when the learner does not offer it on this host.
+    Shm,
+}
+
+impl std::str::FromStr for PlaneChoice {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "auto" => Ok(Self::Auto),
+            "grpc" => Ok(Self::Grpc),
+            "shm" => Ok(Self::Shm),
+            _ => Err(format!("unknown data plane `{s}` (expected auto, grpc or shm)")),
+        }
+    }
+}
+
+/// Builds the run's planner for one episode from its name and seed.
+pub type PlannerFactory = dyn Fn(&str, u64) -> Result<Box<dyn Planner>, String> + Sync;
+
+/// What the actor process needs.
+pub struct ActorSetup<'a> {
+    /// The learner's address, token and TLS.
+    pub learner: LearnerAddress,
+    /// This actor's rank (seeds derive from it).
+    pub rank: u32,
+    /// Data plane choice.
+    pub plane: PlaneChoice,
+    /// Simulator settings.
+    pub episode: EpisodeConfig,
+    /// The run's planner by name.
+    pub make_planner: &'a PlannerFactory,
+    /// Give up (exit with an error) after the learner has been unreachable this long.
+    pub give_up_after: Duration,
+}
+
+/// Why a session ended.
+enum SessionEnd {
+    /// The learner said the run is over.
+    Shutdown,
+    /// Register again (the learner restarted, or the connection broke).
+    Reconnect(String),
+}
+
+fn status_text(s: &tonic::Status) -> String {
+    format!("{:?}: {}", s.code(), s.message())
+}
+
+/// Runs the actor until the learner says the run is over (`Ok`) or it has been unreachable for
+/// `give_up_after` (`Err`).
+pub fn run(setup: &ActorSetup<'_>) -> Result<(), String> {
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(1)
+        .enable_all()
+        .thread_name("adp-actor-io")
+        .build()
+        .map_err(|e| format!("cannot start the tokio runtime: {e}"))?;
+    let mut wait = Duration::from_millis(200);
+    let mut down_since: Option<Instant> = None;
+    loop {
+        let why = match session(&rt, setup, &mut down_since) {
+            Ok(SessionEnd::Shutdown) => return Ok(()),
+            Ok(SessionEnd::Reconnect(why)) => why,
+            Err(e) => e,
+        };
+        let since = *down_since.get_or_insert_with(Instant::now);
+        if since.elapsed() > setup.give_up_after {
+            return Err(format!(
+                "actor rank {}: learner at {} unreachable for {:?}: {why}",
+                setup.rank,
+                setup.learner.addr,
+                since.elapsed()
+            ));
+        }
+        eprintln!("actor {}: {why}; reconnecting in {wait:?}", setup.rank);
+        std::thread::sleep(wait);
+        wait = (wait * 2).min(Duration::from_secs(5));
+    }
+}
+
+/// Flags the heartbeat task shares with the episode loop.
+#[derive(Default)]
+struct Flags {
+    lease: AtomicU64,
+    lease_lost: AtomicBool,
+    shutdown: AtomicBool,
+    gone: AtomicBool,
+}
+
+struct Planes {
+    sink: Box<dyn StepSink>,
+    policies: Box<dyn PolicySource>,
+}
+
+fn open_planes(
+    rt: &tokio::runtime::Runtime,
+    setup: &ActorSetup<'_>,
+    spec: &pb::RunSpec,
+    data: proto::grpc::DataClient,
+    run: &pb::RunRef,
+    actor_id: u64,
+) -> Result<Planes, String> {
+    let shm = spec
+        .data_plane
+        .strip_prefix("shm:")
+        .and_then(|s| s.rsplit_once('@'))
+        .filter(|(_, host)| *host == proto::hostname())
+        .map(|(prefix, _)| prefix.to_owned());
+    match (setup.plane, shm) {
+        (PlaneChoice::Shm, None) => Err(format!(
+            "--data-plane shm: the learner offers `{}`, not shared memory on this host ({})",
+            spec.data_plane,
+            proto::hostname()
+        )),
+        (PlaneChoice::Auto | PlaneChoice::Shm, Some(prefix)) => {
+            let cfg = ShmConfig {
+                service_prefix: prefix,
+                ..ShmConfig::default()
+            };
+            let node = format!("adp-actor-{}-{}", setup.rank, std::process::id());
+            Ok(Planes {
+                sink: Box::new(ShmStepSink::open(&cfg, &node).map_err(|e| e.to_string())?),
+                policies: Box::new(ShmPolicySource::open(&cfg, &node).map_err(|e| e.to_string())?),
+            })
+        }
+        _ => Ok(Planes {
+            sink: Box::new(GrpcStepSink::new(
+                rt.handle().clone(),
+                data.clone(),
+                &run.run_id,
+                run.incarnation,
+            )),
+            policies: Box::new(GrpcPolicySource::start(
+                rt.handle(),
+                data,
+                &run.run_id,
+                run.incarnation,
+                actor_id,
+            )),
+        }),
+    }
+}
+
+fn session(
+    rt: &tokio::runtime::Runtime,
+    setup: &ActorSetup<'_>,
+    down_since: &mut Option<Instant>,
+) -> Result<SessionEnd, String> {
+    let (mut control, data) = rt.block_on(setup.learner.connect()).map_err(|e| e.to_string())?;
+    let reply = rt
+        .block_on(control.register(pb::RegisterRequest {
+            rank: setup.rank,
+            host: proto::hostname(),
+            pid: std::process::id(),
+            run_id: String::new(),
+        }))
+        .map_err(|s| format!("register: {}", status_text(&s)))?
+        .into_inner();
+    *down_since = None;
+    let run = reply.run.ok_or("register: the reply names no run")?;
+    let spec = reply.spec.ok_or("register: the reply has no run spec")?;
+    let actor_id = reply.actor_id;
+    let space: ActionSpace = spec.action_space.parse()?;
+    let env_cfg: EnvConfig =
+        toml::from_str(&spec.env_toml).map_err(|e| format!("the learner's environment settings: {e}"))?;
+    let dims: Vec<usize> = spec.policy_dims.iter().map(|&d| d as usize).collect();
+    let mut planes = open_planes(rt, setup, &spec, data, &run, actor_id)?;
+    eprintln!(
+        "actor {}: registered as {actor_id} with run {} ({}, {} steps over {})",
+        setup.rank,
+        run.run_id,
+        spec.planner,
+        spec.action_space,
+        if spec.data_plane == "grpc" || setup.plane == PlaneChoice::Grpc {
+            "grpc"
+        } else {
+            "shm"
+        }
+    );
+    let flags = Arc::new(Flags::default());
+    let heartbeat = rt.spawn(heartbeats(
+        control.clone(),
+        run.clone(),
+        actor_id,
+        Duration::from_millis(u64::from(spec.heartbeat_ms.max(10))),
+        flags.clone(),
+    ));
+    let _stop_heartbeats = AbortOnDrop(heartbeat);
+    let mut policy: Option<(u64, f64, MlpPolicy)> = None;
+    let ctx = EpisodeCtx {
+        setup,
+        spec: &spec,
+        space,
+        env_cfg: &env_cfg,
+        flags: &flags,
+    };
+    loop {
+        if flags.shutdown.load(Ordering::Acquire) {
+            return Ok(SessionEnd::Shutdown);
+        }
+        if flags.gone.load(Ordering::Acquire) {
+            return Ok(SessionEnd::Reconnect(
+                "the learner no longer knows this session".into(),
+            ));
+        }
+        let reply = rt.block_on(control.next_assignment(pb::AssignmentRequest {
+            run: Some(run.clone()),
+            actor_id,
+        }));
+        let decision = match reply {
+            Ok(r) => r.into_inner().decision,
+            Err(s) => {
+                return Ok(SessionEnd::Reconnect(format!(
+                    "next assignment: {}",
+                    status_text(&s)
+                )))
+            }
+        };
+        let a = match decision {
+            Some(pb::assignment_reply::Decision::Shutdown(_)) => return Ok(SessionEnd::Shutdown),
+            Some(pb::assignment_reply::Decision::IdleMs(ms)) => {
+                std::thread::sleep(Duration::from_millis(u64::from(ms.max(1))));
+                continue;
+            }
+            Some(pb::assignment_reply::Decision::Assign(a)) => a,
+            None => return Ok(SessionEnd::Reconnect("empty assignment reply".into())),
+        };
+        flags.lease.store(a.lease_id, Ordering::Release);
+        flags.lease_lost.store(false, Ordering::Release);
+        // Wait for the assignment's policy version.
+        loop {
+            match planes.policies.poll(policy.as_ref().map(|p| p.0)) {
+                Ok(Some(update)) => {
+                    let net = MlpPolicy::from_flat(&dims, update.weights)
+                        .map_err(|e| format!("policy version {}: {e}", update.version))?;
+                    policy = Some((update.version, update.exploration_sigma, net));
+                }
+                Ok(None) => {}
+                Err(e) => return Ok(SessionEnd::Reconnect(e.to_string())),
+            }
+            if policy.as_ref().is_some_and(|p| p.0 >= a.policy_version) {
+                break;
+            }
+            if flags.lease_lost.load(Ordering::Acquire) || flags.gone.load(Ordering::Acquire) {
+                break;
+            }
+            std::thread::sleep(Duration::from_millis(2));
+        }
+        let Some((version, sigma, net)) = policy.as_ref() else {
+            continue;
+        };
+        let header = LeaseHeader {
+            incarnation: run.incarnation,
+            actor_id,
+            lease_id: a.lease_id,
+        };
+        for i in 0..a.episodes {
+            if flags.lease_lost.load(Ordering::Acquire) {
+                break;
+            }
+            let seed = a.seeds.get(i as usize).copied().unwrap_or(a.lease_id);
+            let episode_id = a.first_episode_id + u64::from(i);
+            let outcome = match ctx.episode(
+                &a,
+                episode_id,
+                seed,
+                (*version, *sigma, net),
+                &header,
+                planes.sink.as_mut(),
+            ) {
+                Ok(o) => o,
+                Err(EpisodeError::Plane(e)) => return Ok(SessionEnd::Reconnect(e.to_string())),
+                Err(EpisodeError::LeaseLost) => break,
+                Err(EpisodeError::Fatal(e)) => return Err(e),
+            };
+            if let Err(e) = planes.sink.flush() {
+                return Ok(SessionEnd::Reconnect(e.to_string()));
+            }
+            let report = pb::EpisodeReport {
+                run: Some(run.clone()),
+                actor_id,
+                lease_id: a.lease_id,
+                last_of_assignment: i + 1 == a.episodes,
+                policy_version: *version,
+                ..outcome
+            };
+            if let Err(s) = rt.block_on(control.report_episode(report)) {
+                if s.code() == tonic::Code::NotFound {
+                    // The lease expired meanwhile: the world was dealt again.
+                    break;
+                }
+                return Ok(SessionEnd::Reconnect(format!(
+                    "episode report: {}",
+                    status_text(&s)
+                )));
+            }
+        }
+        // The lease stays in the heartbeats until the learner has received all its steps and
+        // finished it (steps may still wait in the learner's queue behind its rate limiter).
+    }
+}
+
+/// Aborts a tokio task when dropped.
+struct AbortOnDrop(tokio::task::JoinHandle<()>);
+
+impl Drop for AbortOnDrop {
+    fn drop(&mut self) {
+        self.0.abort();
+    }
+}
+
+async fn heartbeats(
+    mut control: ControlClient,
+    run: pb::RunRef,
+    actor_id: u64,
+    every: Duration,
+    flags: Arc<Flags>,
+) {
+    let mut tick = tokio::time::interval(every);
+    loop {
+        tick.tick().await;
+        let lease_id = flags.lease.load(Ordering::Acquire);
+        match control
+            .heartbeat(pb::HeartbeatRequest {
+                run: Some(run.clone()),
+                actor_id,
+                lease_id,
+            })
+            .await
+        {
+            Ok(r) => {
+                let r = r.into_inner();
+                // An invalid lease is either lost (expired: drop the assignment) or finished by
+                // the learner once all its steps landed; either way stop heartbeating it.
+                if !r.lease_valid
+                    && lease_id != 0
+                    && flags
+                        .lease
+                        .compare_exchange(lease_id, 0, Ordering::AcqRel, Ordering::Acquire)
+                        .is_ok()
+                {
+                    flags.lease_lost.store(true, Ordering::Release);
+                }
+                if r.shutdown {
+                    flags.shutdown.store(true, Ordering::Release);
+                }
+            }
+            Err(s) if matches!(s.code(), tonic::Code::FailedPrecondition | tonic::Code::NotFound) => {
+                flags.gone.store(true, Ordering::Release);
+                flags.lease_lost.store(true, Ordering::Release);
+            }
+            // Transient failures: the lease keeps running until its TTL; data-plane errors
+            // notice a dead learner sooner.
+            Err(_) => {}
+        }
+    }
+}
+
+enum EpisodeError {
+    Plane(PlaneError),
+    LeaseLost,
+    Fatal(String),
+}
+
+/// What every episode of a session shares.
+struct EpisodeCtx<'a> {
+    setup: &'a ActorSetup<'a>,
+    spec: &'a pb::RunSpec,
+    space: ActionSpace,
+    env_cfg: &'a EnvConfig,
+    flags: &'a Flags,
+}
+
+/// Mixes an episode seed into the exploration stream's seed (splitmix64 finalizer).
+fn exploration_seed(seed: u64) -> u64 {
+    let mut z = seed ^ 0x9e37_79b9_7f4a_7c15;
+    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+    z ^ (z >> 31)
+}
+
+impl EpisodeCtx<'_> {
+    /// Runs one episode, streaming its steps; returns the report's outcome fields.
+    fn episode(
+        &self,
+        a: &pb::Assignment,
+        episode_id: u64,
+        seed: u64,
+        (version, sigma, net): (u64, f64, &MlpPolicy),
+        header: &LeaseHeader,
+        sink: &mut dyn StepSink,
+    ) -> Result<pb::EpisodeReport, EpisodeError> {
+        let world = sim::barn::world(a.world as usize).map_err(|e| EpisodeError::Fatal(e.to_string()))?;
+        let planner = (self.setup.make_planner)(&self.spec.planner, seed).map_err(EpisodeError::Fatal)?;
+        let mut env = AdpEnv::new(
+            world,
+            self.setup.episode,
+            planner,
+            self.space,
+            self.spec.max_speed,
+            *self.env_cfg,
+            seed,
+        )
+        .map_err(|e| EpisodeError::Fatal(e.to_string()))?;
+        let n = env.obs_dim();
+        let (mut obs, mut next) = (vec![0.0f32; n], vec![0.0f32; n]);
+        let mut action = vec![0.0f32; self.space.dim()];
+        let mut scratch = Scratch::default();
+        let mut exploration = Exploration::new(sigma, exploration_seed(seed));
+        let mut checksum = 0u64;
+        let mut index = 0u32;
+        env.observation(&mut obs);
+        loop {
+            if self.flags.lease_lost.load(Ordering::Acquire) {
+                return Err(EpisodeError::LeaseLost);
+            }
+            net.act(&obs, &mut action, &mut scratch);
+            exploration.perturb(&mut action);
+            let out = env
+                .step(&action)
+                .map_err(|e| EpisodeError::Fatal(e.to_string()))?;
+            env.observation(&mut next);
+            let truncated = out.end == End::Truncated;
+            let step = StepView {
+                episode_id,
+                step_index: index,
+                policy_version: version,
+                obs: &obs,
+                action: &action,
+                reward: out.reward,
+                terminal: out.end == End::Terminal,
+                truncated,
+                final_obs: if truncated { &next } else { &[] },
+            };
+            sink.send(header, &step).map_err(EpisodeError::Plane)?;
+            checksum = checksum.wrapping_add(step_checksum(&step));
+            index += 1;
+            if out.end != End::Continue {
+                break;
+            }
+            std::mem::swap(&mut obs, &mut next);
+        }
+        let r = env.result();
+        let outcome = match r.episode.status {
+            Status::Succeeded => pb::Outcome::Success,
+            Status::Collided => pb::Outcome::Collision,
+            _ => pb::Outcome::Timeout,
+        };
+        Ok(pb::EpisodeReport {
+            episode_id,
+            world: a.world,
+            outcome: outcome as i32,
+            time_s: r.episode.time_s,
+            score: r.episode.score,
+            episode_return: r.episode_return,
+            steps: index,
+            steps_checksum: checksum,
+            ..Default::default()
+        })
+    }
+}

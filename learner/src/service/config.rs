@@ -1,0 +1,96 @@
+//! Settings of the learner process (the `[service]` table of a run config).
+
+use std::path::PathBuf;
+
+use planner::ActionSpace;
+use proto::auth::TlsFiles;
+use serde::{Deserialize, Serialize};
+
+use crate::config::Td3Config;
+
+/// How the learner process serves actors. Every field has a default; unknown keys are refused.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ServiceConfig {
+    /// Address the gRPC server (control plane, and the data plane across nodes) binds.
+    /// Port 0 picks a free port; the bound address is written to `learner.addr` in the run
+    /// directory.
+    pub listen: String,
+    /// Offer the iceoryx2 shared-memory data plane to actors on this host (they still use gRPC
+    /// for the control plane). Actors on other hosts always stream steps over gRPC.
+    pub shared_memory: bool,
+    /// How often actors send a heartbeat (ms).
+    pub heartbeat_ms: u32,
+    /// A lease expires this long (ms) after the last heartbeat; its world is dealt again and
+    /// its late data refused.
+    pub lease_ttl_ms: u32,
+    /// Episodes per assignment (the ADP cycle runs two).
+    pub episodes_per_assignment: u32,
+    /// An idle actor asks for work again after this long (ms).
+    pub idle_retry_ms: u32,
+    /// Seconds between periodic checkpoints (a checkpoint is also written on SIGTERM/SIGINT
+    /// and at the end of the budget).
+    pub checkpoint_every_s: f64,
+    /// Checkpoints kept (newest first); older ones are deleted.
+    pub keep_checkpoints: usize,
+    /// Include the replay buffer in checkpoints (up to ~310 MB at 200K steps), so a resumed run
+    /// continues with the same data; without it a resumed run refills the buffer.
+    pub checkpoint_replay: bool,
+    /// Seconds between writes of `status.json` and TensorBoard service scalars.
+    pub status_every_s: f64,
+    /// Fit the actor to the DDP schedule before training (the ADP paper's initialization).
+    pub ddp_init: bool,
+    /// TLS for the gRPC server (`cert` and `key`; with `ca`, clients must present certificates).
+    pub tls: Option<TlsFiles>,
+}
+
+impl Default for ServiceConfig {
+    fn default() -> Self {
+        Self {
+            listen: "127.0.0.1:0".into(),
+            shared_memory: true,
+            heartbeat_ms: 1000,
+            lease_ttl_ms: 15_000,
+            episodes_per_assignment: 2,
+            idle_retry_ms: 100,
+            checkpoint_every_s: 600.0,
+            keep_checkpoints: 3,
+            checkpoint_replay: true,
+            status_every_s: 1.0,
+            ddp_init: true,
+            tls: None,
+        }
+    }
+}
+
+/// Everything a learner process needs to start one run.
+#[derive(Debug, Clone)]
+pub struct LearnerOptions {
+    /// The run directory (`runs/<name>`): checkpoints, TensorBoard, status, address file.
+    pub run_dir: PathBuf,
+    /// The run id used when the run starts fresh (a resumed run keeps its own).
+    pub run_id: String,
+    /// TD3 hyper-parameters (their `obs_dim`/`act_dim` must fit `space`).
+    pub td3: Td3Config,
+    /// Service settings.
+    pub service: ServiceConfig,
+    /// The planner actors run (`dwa`, `mppi`, `log-mppi`, `system`).
+    pub planner: String,
+    /// The planner's speed cap (m/s).
+    pub max_speed: f64,
+    /// The ADP action space.
+    pub space: ActionSpace,
+    /// The actors' environment settings as TOML (sent to actors unchanged).
+    pub env_toml: String,
+    /// The training worlds (BARN indices).
+    pub worlds: Vec<usize>,
+    /// Total agent steps of the run; the learner stops assigning work once they are stored and
+    /// finishes the updates they call for.
+    pub budget_steps: u64,
+    /// The run's secret token (every gRPC call must carry it).
+    pub token: String,
+    /// Continue from the newest valid checkpoint in `run_dir/checkpoints` (an error if none).
+    pub resume: bool,
+    /// Stop the process gracefully (final checkpoint) on SIGINT/SIGTERM.
+    pub handle_signals: bool,
+}

@@ -1,0 +1,180 @@
+//! The gRPC control plane: register, next assignment, heartbeat, episode report, shutdown.
+
+use std::sync::Arc;
+
+use proto::pb::{self, control_server::Control};
+use proto::validate::Refusal;
+use scheduler::{Decision, RegistryError};
+use tonic::{Request, Response, Status};
+
+use super::core::Shared;
+
+/// The `adp.v1.Control` service over the learner's shared state.
+pub struct ControlService {
+    pub(super) shared: Arc<Shared>,
+}
+
+/// The gRPC status for a refusal: stale runs are FAILED_PRECONDITION (the actor registers
+/// again), everything else INVALID_ARGUMENT or NOT_FOUND.
+pub fn refusal_status(why: &Refusal) -> Status {
+    match why {
+        Refusal::WrongRun { .. } | Refusal::StaleIncarnation { .. } => {
+            Status::failed_precondition(why.to_string())
+        }
+        Refusal::UnknownActor(..) | Refusal::Lease(..) => Status::not_found(why.to_string()),
+        Refusal::Unauthenticated(_) => Status::unauthenticated(why.to_string()),
+        _ => Status::invalid_argument(why.to_string()),
+    }
+}
+
+impl ControlService {
+    fn check_run(&self, run: &Option<pb::RunRef>) -> Result<(), Status> {
+        let run = run.clone().unwrap_or_default();
+        self.shared
+            .validator
+            .check_run(&run.run_id, run.incarnation)
+            .map_err(|why| {
+                self.shared.refuse(&why, 1);
+                refusal_status(&why)
+            })
+    }
+
+    fn run_ref(&self) -> pb::RunRef {
+        pb::RunRef {
+            run_id: self.shared.validator.run_id.clone(),
+            incarnation: self.shared.validator.incarnation,
+        }
+    }
+}
+
+fn registry_status(e: RegistryError) -> Status {
+    match e {
+        RegistryError::UnknownActor { .. } | RegistryError::RetiredActor { .. } => {
+            Status::not_found(e.to_string())
+        }
+        _ => Status::failed_precondition(e.to_string()),
+    }
+}
+
+#[tonic::async_trait]
+impl Control for ControlService {
+    async fn register(
+        &self,
+        request: Request<pb::RegisterRequest>,
+    ) -> Result<Response<pb::RegisterReply>, Status> {
+        let r = request.into_inner();
+        if !r.run_id.is_empty() && r.run_id != self.shared.validator.run_id {
+            let why = Refusal::WrongRun {
+                expected: self.shared.validator.run_id.clone(),
+                got: r.run_id,
+            };
+            self.shared.refuse(&why, 1);
+            return Err(refusal_status(&why));
+        }
+        let now = self.shared.now_ms();
+        let actor_id = self
+            .shared
+            .lock()
+            .registry
+            .register(r.rank, r.host.clone(), r.pid, now);
+        eprintln!(
+            "learner: actor {actor_id} registered (rank {}, {} pid {})",
+            r.rank, r.host, r.pid
+        );
+        Ok(Response::new(pb::RegisterReply {
+            actor_id,
+            run: Some(self.run_ref()),
+            spec: Some(self.shared.spec.clone()),
+        }))
+    }
+
+    async fn next_assignment(
+        &self,
+        request: Request<pb::AssignmentRequest>,
+    ) -> Result<Response<pb::AssignmentReply>, Status> {
+        let r = request.into_inner();
+        self.check_run(&r.run)?;
+        let now = self.shared.now_ms();
+        let mut core = self.shared.lock();
+        let decision = if core.stopping {
+            pb::assignment_reply::Decision::Shutdown(true)
+        } else {
+            let version = core.policy_version;
+            match core
+                .registry
+                .next_assignment(r.actor_id, now, version)
+                .map_err(registry_status)?
+            {
+                Decision::Idle => pb::assignment_reply::Decision::IdleMs(self.shared.idle_retry_ms),
+                // The actor already works on (or has finished) this lease and its last steps are
+                // still landing: not a lost reply, so do not hand the same episodes out again.
+                Decision::Assign(a) if core.lease_started(a.lease_id) => {
+                    pb::assignment_reply::Decision::IdleMs(self.shared.idle_retry_ms)
+                }
+                Decision::Assign(a) => {
+                    let first = Shared::open_lease(&mut core, a.lease_id, r.actor_id, a.episodes);
+                    pb::assignment_reply::Decision::Assign(pb::Assignment {
+                        lease_id: a.lease_id,
+                        world: a.world as u32,
+                        episodes: a.episodes,
+                        cycle: a.cycle,
+                        // Policy version k is published when cycle k starts; the actor waits for it.
+                        policy_version: a.cycle,
+                        seeds: a.seeds,
+                        first_episode_id: first,
+                    })
+                }
+            }
+        };
+        drop(core);
+        self.shared.wake.notify_all();
+        Ok(Response::new(pb::AssignmentReply {
+            decision: Some(decision),
+        }))
+    }
+
+    async fn heartbeat(
+        &self,
+        request: Request<pb::HeartbeatRequest>,
+    ) -> Result<Response<pb::HeartbeatReply>, Status> {
+        let r = request.into_inner();
+        self.check_run(&r.run)?;
+        let now = self.shared.now_ms();
+        let mut core = self.shared.lock();
+        let lease = (r.lease_id != 0).then_some(r.lease_id);
+        let lease_valid = match core.registry.heartbeat(r.actor_id, lease, now) {
+            Ok(()) => true,
+            Err(e @ (RegistryError::UnknownActor { .. } | RegistryError::RetiredActor { .. })) => {
+                return Err(registry_status(e))
+            }
+            Err(_) => false,
+        };
+        Ok(Response::new(pb::HeartbeatReply {
+            lease_valid,
+            shutdown: core.stopping,
+        }))
+    }
+
+    async fn report_episode(&self, request: Request<pb::EpisodeReport>) -> Result<Response<pb::Ack>, Status> {
+        let r = request.into_inner();
+        match self.shared.report(&r) {
+            Ok(()) => Ok(Response::new(pb::Ack {
+                accepted: 1,
+                refused: 0,
+                reason: String::new(),
+            })),
+            Err(why) => {
+                self.shared.refuse(&why, 1);
+                Err(refusal_status(&why))
+            }
+        }
+    }
+
+    async fn shutdown(&self, request: Request<pb::ShutdownRequest>) -> Result<Response<pb::Ack>, Status> {
+        let r = request.into_inner();
+        self.check_run(&r.run)?;
+        eprintln!("learner: shutdown requested over gRPC");
+        self.shared.request_stop(true);
+        Ok(Response::new(pb::Ack::default()))
+    }
+}

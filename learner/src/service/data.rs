@@ -1,0 +1,153 @@
+//! The data planes on the learner side: the gRPC `Data` service (client-streamed step batches,
+//! server-streamed policy versions) and the shared-memory intake thread. Both hand every record
+//! to [`Shared::ingest`], which validates it before anything reaches the buffer.
+
+use std::cell::RefCell;
+use std::pin::Pin;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::Duration;
+
+use proto::grpc::{for_each_step, DecodeScratch};
+use proto::pb::{self, data_server::Data};
+use proto::plane::LeaseHeader;
+use proto::shm::{ShmConfig, ShmStepSource};
+use proto::validate::Refusal;
+use proto::StepView;
+use tokio::sync::watch;
+use tokio_stream::{Stream, StreamExt};
+use tonic::{Request, Response, Status, Streaming};
+
+use super::control::refusal_status;
+use super::core::Shared;
+
+thread_local! {
+    static SCRATCH: RefCell<DecodeScratch> = RefCell::new(DecodeScratch::default());
+}
+
+/// Validates and stores one batch; returns (accepted, refused, first reason).
+fn ingest_batch(shared: &Shared, batch: &pb::StepBatch) -> (u64, u64, String) {
+    let n = batch.steps.len() as u64;
+    let run = batch.run.clone().unwrap_or_default();
+    if let Err(why) = shared.validator.check_run(&run.run_id, run.incarnation) {
+        shared.refuse(&why, n);
+        return (0, n, why.to_string());
+    }
+    let header = LeaseHeader {
+        incarnation: run.incarnation,
+        actor_id: batch.actor_id,
+        lease_id: batch.lease_id,
+    };
+    let (mut accepted, mut refused, mut reason) = (0, 0, String::new());
+    SCRATCH.with_borrow_mut(|scratch| {
+        for_each_step(batch, scratch, |decoded| {
+            let result = match decoded {
+                Ok(view) => shared.ingest(&header, &view),
+                Err(ragged) => {
+                    let why = Refusal::from(ragged);
+                    shared.refuse(&why, 1);
+                    Err(why)
+                }
+            };
+            match result {
+                Ok(()) => accepted += 1,
+                Err(why) => {
+                    if refused == 0 {
+                        reason = why.to_string();
+                    }
+                    refused += 1;
+                }
+            }
+        })
+    });
+    (accepted, refused, reason)
+}
+
+/// The `adp.v1.Data` service.
+pub struct DataService {
+    pub(super) shared: Arc<Shared>,
+    pub(super) policy: watch::Receiver<Arc<pb::PolicySnapshot>>,
+}
+
+type PolicyStream = Pin<Box<dyn Stream<Item = Result<pb::PolicySnapshot, Status>> + Send>>;
+
+#[tonic::async_trait]
+impl Data for DataService {
+    async fn push_steps(
+        &self,
+        request: Request<Streaming<pb::StepBatch>>,
+    ) -> Result<Response<pb::Ack>, Status> {
+        let mut stream = request.into_inner();
+        let mut ack = pb::Ack::default();
+        while let Some(batch) = stream.message().await? {
+            let shared = self.shared.clone();
+            let (a, r, reason) = tokio::task::spawn_blocking(move || ingest_batch(&shared, &batch))
+                .await
+                .map_err(|e| Status::internal(format!("step intake failed: {e}")))?;
+            ack.accepted += a;
+            if r > 0 && ack.refused == 0 {
+                ack.reason = reason;
+            }
+            ack.refused += r;
+        }
+        Ok(Response::new(ack))
+    }
+
+    type WatchPolicyStream = PolicyStream;
+
+    async fn watch_policy(
+        &self,
+        request: Request<pb::PolicyRequest>,
+    ) -> Result<Response<PolicyStream>, Status> {
+        let r = request.into_inner();
+        let run = r.run.unwrap_or_default();
+        if let Err(why) = self.shared.validator.check_run(&run.run_id, run.incarnation) {
+            self.shared.refuse(&why, 1);
+            return Err(refusal_status(&why));
+        }
+        let have = r.have_version;
+        let stream = tokio_stream::wrappers::WatchStream::new(self.policy.clone())
+            .filter(move |p| p.version > have || have == 0)
+            .map(|p| Ok(pb::PolicySnapshot::clone(&p)));
+        Ok(Response::new(Box::pin(stream)))
+    }
+}
+
+/// Drains the shared-memory step service into [`Shared::ingest`] until `stop` is set.
+pub fn shm_intake(shared: Arc<Shared>, cfg: ShmConfig, stop: Arc<AtomicBool>) {
+    let mut source = match ShmStepSource::open(&cfg) {
+        Ok(s) => s,
+        Err(e) => {
+            eprintln!("learner: shared-memory data plane unavailable ({e}); actors must use gRPC");
+            return;
+        }
+    };
+    // The slots live in memory the actor can still write: copy each record before validating
+    // it, so what is checked is what is stored.
+    let (mut obs, mut action, mut final_obs) = (Vec::new(), Vec::new(), Vec::new());
+    while !stop.load(Ordering::Acquire) {
+        let drained = source.drain(256, |header, view| {
+            obs.clear();
+            obs.extend_from_slice(view.obs);
+            action.clear();
+            action.extend_from_slice(view.action);
+            final_obs.clear();
+            final_obs.extend_from_slice(view.final_obs);
+            let copy = StepView {
+                obs: &obs,
+                action: &action,
+                final_obs: &final_obs,
+                ..*view
+            };
+            let _ = shared.ingest(header, &copy);
+        });
+        match drained {
+            Ok(0) => std::thread::sleep(Duration::from_millis(1)),
+            Ok(_) => {}
+            Err(e) => {
+                eprintln!("learner: shared-memory receive failed: {e}");
+                std::thread::sleep(Duration::from_millis(100));
+            }
+        }
+    }
+}

@@ -1,0 +1,399 @@
+//! The learner process (`adp learner`, and the learner half of `adp train`): hosts the gRPC
+//! control plane and both data planes, the replay buffer and TD3, publishes a new policy
+//! version at each scheduler cycle, checkpoints on a timer, on SIGTERM/SIGINT and at the end,
+//! and resumes from the newest valid checkpoint of its run directory.
+//!
+//! Threads: a tokio runtime (gRPC server, lease expiry, signals), one shared-memory intake
+//! thread, and the training thread ([`trainer`]) which owns the networks. They share
+//! [`core::Shared`].
+
+mod config;
+mod control;
+pub mod core;
+mod data;
+pub mod status;
+mod trainer;
+
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::thread::JoinHandle;
+use std::time::Duration;
+
+use proto::pb;
+use proto::shm::ShmConfig;
+use proto::validate::{Spaces, Validator};
+use scheduler::{Registry, RegistryConfig, RegistrySnapshot};
+use tokio::sync::watch;
+
+pub use config::{LearnerOptions, ServiceConfig};
+pub use status::{read_status, Status, STATUS_FILE};
+pub use trainer::TrainSummary;
+
+use self::core::{Core, Shared, Totals};
+use crate::checkpoint;
+use crate::ddp_init::FitOptions;
+use crate::export::space_name;
+use crate::rate::RateLimiter;
+use crate::replay::ReplayBuffer;
+use crate::td3::{seeded_rng, Td3};
+use crate::tensorboard::EventWriter;
+use crate::Device;
+
+/// File in the run directory holding the learner's bound `host:port`.
+pub const ADDR_FILE: &str = "learner.addr";
+
+/// A running learner. Dropping it without [`Learner::wait`] aborts the process's threads at
+/// exit; call `wait`.
+pub struct Learner {
+    shared: Arc<Shared>,
+    runtime: tokio::runtime::Runtime,
+    addr: SocketAddr,
+    trainer: JoinHandle<Result<TrainSummary, String>>,
+    intake: Option<JoinHandle<()>>,
+    intake_stop: Arc<AtomicBool>,
+    server_stop: watch::Sender<bool>,
+    server: tokio::task::JoinHandle<Result<(), tonic::transport::Error>>,
+    heartbeat_ms: u32,
+}
+
+fn fresh_incarnation() -> u64 {
+    let mut raw = [0u8; 8];
+    let random =
+        std::fs::File::open("/dev/urandom").and_then(|mut f| std::io::Read::read_exact(&mut f, &mut raw));
+    let nanos = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_nanos() as u64);
+    match random {
+        Ok(()) => u64::from_le_bytes(raw) | 1,
+        Err(_) => (nanos ^ (u64::from(std::process::id()) << 32)) | 1,
+    }
+}
+
+/// Writes `text` to `path` atomically.
+fn write_atomic(path: &Path, text: &str) -> Result<(), String> {
+    let tmp = path.with_extension("tmp");
+    std::fs::write(&tmp, text)
+        .and_then(|_| std::fs::rename(&tmp, path))
+        .map_err(|e| format!("cannot write {}: {e}", path.display()))
+}
+
+impl Learner {
+    /// Prepares the run (fresh or resumed), binds the server and starts every thread. Returns
+    /// once actors can connect (the bound address is in [`Learner::addr`] and `learner.addr`).
+    pub fn start(opts: LearnerOptions) -> Result<Self, String> {
+        let run_dir = opts.run_dir.clone();
+        std::fs::create_dir_all(&run_dir).map_err(|e| format!("cannot create {}: {e}", run_dir.display()))?;
+        let svc = opts.service.clone();
+        if svc.heartbeat_ms == 0 || svc.lease_ttl_ms <= svc.heartbeat_ms {
+            return Err(format!(
+                "[service] lease_ttl_ms ({}) must exceed heartbeat_ms ({}) > 0",
+                svc.lease_ttl_ms, svc.heartbeat_ms
+            ));
+        }
+        let registry_cfg = RegistryConfig {
+            lease_ttl_ms: u64::from(svc.lease_ttl_ms),
+            episodes_per_assignment: svc.episodes_per_assignment,
+            run_seed: opts.td3.seed,
+        };
+        let newest = trainer::newest_checkpoint(&run_dir)?;
+        let (td3, run_id, rate, sampler_rng, policy_version, registry, totals, replay) = match (opts.resume, newest) {
+            (true, None) => {
+                return Err(format!(
+                    "--resume: no valid checkpoint under {}",
+                    run_dir.join("checkpoints").display()
+                ))
+            }
+            (false, Some(c)) => {
+                return Err(format!(
+                    "{} already holds a run (checkpoint {}); pass --resume to continue it or choose another --out",
+                    run_dir.display(),
+                    c.display()
+                ))
+            }
+            (true, Some(ckpt)) => {
+                let (td3, state) = checkpoint::load(&ckpt, &Device::flex()).map_err(|e| e.to_string())?;
+                let replay = checkpoint::load_replay(&ckpt)
+                    .map_err(|e| e.to_string())?
+                    .unwrap_or_else(|| ReplayBuffer::new(td3.config()));
+                let snapshot: RegistrySnapshot = serde_json::from_value(state.extra["registry"].clone())
+                    .map_err(|e| format!("{}: registry state: {e}", ckpt.display()))?;
+                let totals: Totals = serde_json::from_value(state.extra["totals"].clone())
+                    .map_err(|e| format!("{}: counters: {e}", ckpt.display()))?;
+                let registry = Registry::restore(registry_cfg, snapshot).map_err(|e| e.to_string())?;
+                eprintln!(
+                    "learner: resuming run {} from {} ({} steps, {} updates)",
+                    state.run_id,
+                    ckpt.display(),
+                    state.rate.inserts(),
+                    state.rate.updates()
+                );
+                (
+                    td3,
+                    state.run_id,
+                    state.rate,
+                    state.sampler_rng,
+                    state.policy_version,
+                    registry,
+                    totals,
+                    replay,
+                )
+            }
+            (false, None) => {
+                let mut td3 = Td3::new(opts.td3.clone(), &Device::flex()).map_err(|e| e.to_string())?;
+                if svc.ddp_init {
+                    let target: Vec<f32> = opts.space.ddp_action().iter().map(|&a| a as f32).collect();
+                    let report = td3
+                        .init_actor_to_action(&target, &FitOptions::default())
+                        .map_err(|e| format!("DDP initialization: {e}"))?;
+                    eprintln!("learner: actor initialized to the DDP schedule ({report:?})");
+                }
+                let registry = Registry::new(registry_cfg, opts.worlds.clone()).map_err(|e| e.to_string())?;
+                let cfg = td3.config().clone();
+                (
+                    td3,
+                    opts.run_id.clone(),
+                    RateLimiter::new(&cfg),
+                    seeded_rng(cfg.seed, 4),
+                    0,
+                    registry,
+                    Totals::default(),
+                    ReplayBuffer::new(&cfg),
+                )
+            }
+        };
+        let cfg = td3.config().clone();
+        if cfg.obs_dim != actor_obs_dim(opts.space) || cfg.act_dim != opts.space.dim() {
+            return Err(format!(
+                "[td3] obs_dim {} / act_dim {} do not fit the {} action space ({} / {})",
+                cfg.obs_dim,
+                cfg.act_dim,
+                space_name(opts.space),
+                actor_obs_dim(opts.space),
+                opts.space.dim()
+            ));
+        }
+        let incarnation = fresh_incarnation();
+        let validator = Validator {
+            run_id: run_id.clone(),
+            incarnation,
+            spaces: Spaces {
+                obs_dim: cfg.obs_dim,
+                act_dim: cfg.act_dim,
+                laser_dim: cfg.laser_dim,
+            },
+        };
+        let shm = svc.shared_memory.then(|| ShmConfig {
+            service_prefix: format!("adp/{run_id}/{incarnation:016x}"),
+            ..ShmConfig::default()
+        });
+        let (dims, _) = td3.policy().flat_weights();
+        let spec = pb::RunSpec {
+            obs_dim: cfg.obs_dim as u32,
+            act_dim: cfg.act_dim as u32,
+            action_space: space_name(opts.space),
+            planner: opts.planner.clone(),
+            max_speed: opts.max_speed,
+            run_seed: cfg.seed,
+            policy_dims: dims.iter().map(|&d| d as u32).collect(),
+            data_plane: match &shm {
+                Some(s) => format!("shm:{}@{}", s.service_prefix, proto::hostname()),
+                None => "grpc".into(),
+            },
+            heartbeat_ms: svc.heartbeat_ms,
+            lease_ttl_ms: svc.lease_ttl_ms,
+            env_toml: opts.env_toml.clone(),
+        };
+        let mut core = Core::new(registry, replay, rate, totals, policy_version);
+        core.drop_all_leases();
+        let shared = Arc::new(Shared::new(
+            validator,
+            spec,
+            core,
+            opts.budget_steps,
+            svc.episodes_per_assignment,
+            svc.idle_retry_ms,
+        ));
+        let tensorboard_dir = run_dir.join("tensorboard");
+        let inserts = shared.lock().rate.inserts();
+        let tensorboard = if opts.resume {
+            EventWriter::resume(&tensorboard_dir, inserts)
+        } else {
+            EventWriter::create(&tensorboard_dir)
+        }
+        .map_err(|e| e.to_string())?;
+
+        let runtime = tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(2)
+            .enable_all()
+            .thread_name("adp-learner-io")
+            .build()
+            .map_err(|e| format!("cannot start the tokio runtime: {e}"))?;
+        let listener = runtime
+            .block_on(tokio::net::TcpListener::bind(&svc.listen))
+            .map_err(|e| format!("cannot listen on {}: {e}", svc.listen))?;
+        let addr = listener.local_addr().map_err(|e| e.to_string())?;
+        let (policy_tx, policy_rx) = watch::channel(Arc::new(pb::PolicySnapshot::default()));
+        let auth = proto::auth::ServerAuth::new(&opts.token, shared.refusals.clone());
+        let mut builder = tonic::transport::Server::builder();
+        if let Some(tls) = &svc.tls {
+            builder = builder
+                .tls_config(tls.server_config().map_err(|e| e.to_string())?)
+                .map_err(|e| format!("TLS: {e}"))?;
+        }
+        let control = tonic::service::interceptor::InterceptedService::new(
+            pb::control_server::ControlServer::new(control::ControlService {
+                shared: shared.clone(),
+            }),
+            auth.clone(),
+        );
+        let data = tonic::service::interceptor::InterceptedService::new(
+            pb::data_server::DataServer::new(data::DataService {
+                shared: shared.clone(),
+                policy: policy_rx,
+            })
+            .max_decoding_message_size(proto::grpc::MAX_MESSAGE_BYTES)
+            .max_encoding_message_size(proto::grpc::MAX_MESSAGE_BYTES),
+            auth,
+        );
+        let (server_stop, mut stop_rx) = watch::channel(false);
+        let router = builder.add_service(control).add_service(data);
+        let server = runtime.spawn(router.serve_with_incoming_shutdown(
+            tokio_stream::wrappers::TcpListenerStream::new(listener),
+            async move {
+                let _ = stop_rx.wait_for(|s| *s).await;
+            },
+        ));
+        write_atomic(&run_dir.join(ADDR_FILE), &format!("{addr}\n"))?;
+
+        // Lease expiry.
+        let ticker = shared.clone();
+        runtime.spawn(async move {
+            let mut every = tokio::time::interval(Duration::from_millis(100));
+            loop {
+                every.tick().await;
+                ticker.expire_leases();
+            }
+        });
+        if opts.handle_signals {
+            let s = shared.clone();
+            runtime.spawn(async move {
+                use tokio::signal::unix::{signal, SignalKind};
+                let (Ok(mut term), Ok(mut int)) =
+                    (signal(SignalKind::terminate()), signal(SignalKind::interrupt()))
+                else {
+                    eprintln!("learner: cannot install signal handlers");
+                    return;
+                };
+                tokio::select! {
+                    _ = term.recv() => eprintln!("learner: SIGTERM: checkpointing and stopping"),
+                    _ = int.recv() => eprintln!("learner: SIGINT: checkpointing and stopping"),
+                }
+                s.request_stop(true);
+            });
+        }
+        let intake_stop = Arc::new(AtomicBool::new(false));
+        let intake = match &shm {
+            Some(cfg) => {
+                let (s, c, stop) = (shared.clone(), cfg.clone(), intake_stop.clone());
+                Some(
+                    std::thread::Builder::new()
+                        .name("adp-shm-intake".into())
+                        .spawn(move || data::shm_intake(s, c, stop))
+                        .map_err(|e| e.to_string())?,
+                )
+            }
+            None => None,
+        };
+        let trainer = trainer::Trainer {
+            shared: shared.clone(),
+            td3,
+            sampler_rng,
+            run_dir: run_dir.clone(),
+            service: svc.clone(),
+            space: opts.space,
+            policy_tx,
+            shm,
+            tensorboard,
+        };
+        let trainer = std::thread::Builder::new()
+            .name("adp-train".into())
+            .spawn(move || trainer.run())
+            .map_err(|e| e.to_string())?;
+        eprintln!("learner: run {run_id} (incarnation {incarnation:016x}) serving on {addr}");
+        Ok(Self {
+            shared,
+            runtime,
+            addr,
+            trainer,
+            intake,
+            intake_stop,
+            server_stop,
+            server,
+            heartbeat_ms: svc.heartbeat_ms,
+        })
+    }
+
+    /// The bound gRPC address.
+    pub fn addr(&self) -> SocketAddr {
+        self.addr
+    }
+
+    /// The run id.
+    pub fn run_id(&self) -> &str {
+        &self.shared.validator.run_id
+    }
+
+    /// Current counters.
+    pub fn status(&self) -> Status {
+        let core = self.shared.lock();
+        Status::collect(&self.shared, &core, 0.0, 0.0, 0.0, 0.0)
+    }
+
+    /// Whether the training thread has stopped.
+    pub fn finished(&self) -> bool {
+        self.trainer.is_finished()
+    }
+
+    /// Asks for a graceful stop: no more assignments, a final checkpoint, no further updates.
+    pub fn request_stop(&self) {
+        self.shared.request_stop(true);
+    }
+
+    /// Waits for the training thread (budget reached or stop requested), tells actors to shut
+    /// down, stops the planes and returns the summary.
+    pub fn wait(self) -> Result<TrainSummary, String> {
+        let summary = self
+            .trainer
+            .join()
+            .map_err(|_| "the training thread panicked".to_string())?;
+        self.shared.finished.store(true, Ordering::Release);
+        self.shared.request_stop(false);
+        // Let actors hear `shutdown` on their next heartbeat before the server goes away.
+        std::thread::sleep(Duration::from_millis(u64::from(self.heartbeat_ms) * 2));
+        self.intake_stop.store(true, Ordering::Release);
+        if let Some(t) = self.intake {
+            let _ = t.join();
+        }
+        let _ = self.server_stop.send(true);
+        let _ = self
+            .runtime
+            .block_on(async { tokio::time::timeout(Duration::from_secs(5), self.server).await });
+        self.runtime.shutdown_timeout(Duration::from_secs(1));
+        summary
+    }
+}
+
+/// The observation size actors produce for `space` (720 laser, previous action, 6 state values).
+pub fn actor_obs_dim(space: planner::ActionSpace) -> usize {
+    crate::export::observation_layout(space).dim
+}
+
+/// Reads the learner address a running learner wrote into `run_dir`.
+pub fn read_addr(run_dir: &Path) -> Result<String, String> {
+    let p: PathBuf = run_dir.join(ADDR_FILE);
+    std::fs::read_to_string(&p)
+        .map(|s| s.trim().to_owned())
+        .map_err(|e| format!("cannot read {}: {e}", p.display()))
+}

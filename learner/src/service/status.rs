@@ -1,0 +1,160 @@
+//! `status.json`: what the learner is doing, rewritten atomically every status period, for the
+//! progress bar of `adp train`, for tests and for people watching a cluster job.
+
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+
+use super::core::{Core, Shared};
+
+/// Name of the status file in the run directory.
+pub const STATUS_FILE: &str = "status.json";
+
+/// A snapshot of the learner's counters. Plain data.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct Status {
+    /// The run.
+    pub run_id: String,
+    /// This learner process.
+    pub incarnation: u64,
+    /// Agent steps stored.
+    pub inserts: u64,
+    /// The run's step budget.
+    pub budget: u64,
+    /// Gradient updates done.
+    pub updates: u64,
+    /// Newest published policy version.
+    pub policy_version: u64,
+    /// Scheduler cycle.
+    pub cycle: u64,
+    /// Occupied replay slots.
+    pub replay_len: usize,
+    /// Agent steps stored per second since the last status.
+    pub inserts_per_s: f64,
+    /// Updates per second since the last status.
+    pub updates_per_s: f64,
+    /// Mean policy-version lag of the steps stored since the last status.
+    pub policy_lag: f64,
+    /// Exploration sigma of the current inserts.
+    pub exploration_sigma: f64,
+    /// Live actors.
+    pub live_actors: usize,
+    /// Leases open.
+    pub open_leases: usize,
+    /// Step records stored in total.
+    pub steps_received: u64,
+    /// Episodes reported.
+    pub episodes: u64,
+    /// Episodes whose received steps matched the actor's count and checksum.
+    pub episodes_verified: u64,
+    /// Episodes whose received steps did not match.
+    pub episodes_mismatched: u64,
+    /// Episodes abandoned by expired leases.
+    pub episodes_abandoned: u64,
+    /// Leases that expired.
+    pub leases_expired: u64,
+    /// Success rate of the recent episodes.
+    pub success_rate: Option<f64>,
+    /// Mean return of the recent episodes.
+    pub mean_return: Option<f64>,
+    /// Mean BARN score of the recent episodes.
+    pub mean_score: Option<f64>,
+    /// Refused records by reason.
+    pub refused: Vec<(String, u64)>,
+    /// Episodes completed per training world `(world, episodes)`.
+    pub world_episodes: Vec<(usize, u64)>,
+    /// The training thread has stopped (final checkpoint written).
+    pub finished: bool,
+}
+
+impl Status {
+    /// Collects the counters (call with the core locked).
+    pub fn collect(
+        shared: &Shared,
+        core: &Core,
+        inserts_per_s: f64,
+        updates_per_s: f64,
+        policy_lag: f64,
+        exploration_sigma: f64,
+    ) -> Self {
+        let reg = core.registry.status();
+        let t = &core.totals;
+        let means = t.recent_means();
+        Self {
+            run_id: shared.validator.run_id.clone(),
+            incarnation: shared.validator.incarnation,
+            inserts: core.rate.inserts(),
+            budget: shared.budget,
+            updates: core.rate.updates(),
+            policy_version: core.policy_version,
+            cycle: reg.cycle,
+            replay_len: core.replay.len(),
+            inserts_per_s,
+            updates_per_s,
+            policy_lag,
+            exploration_sigma,
+            live_actors: reg.live_actors,
+            open_leases: core.open_leases(),
+            steps_received: t.steps_received,
+            episodes: t.episodes_reported,
+            episodes_verified: t.episodes_verified,
+            episodes_mismatched: t.episodes_mismatched,
+            episodes_abandoned: t.episodes_abandoned,
+            leases_expired: t.leases_expired,
+            success_rate: means.map(|m| m.0),
+            mean_return: means.map(|m| m.1),
+            mean_score: means.map(|m| m.2),
+            refused: shared
+                .refusals
+                .snapshot()
+                .into_iter()
+                .map(|(k, v)| (k.to_owned(), v))
+                .collect(),
+            world_episodes: reg.worlds.iter().map(|w| (w.world, w.completed)).collect(),
+            finished: super::core::is_set(&shared.finished),
+        }
+    }
+
+    /// The TensorBoard scalars of this status (tag, value).
+    pub fn scalars(&self) -> Vec<(&'static str, f64)> {
+        let mut v = vec![
+            ("service/updates_per_s", self.updates_per_s),
+            ("service/inserts_per_s", self.inserts_per_s),
+            ("service/replay_size", self.replay_len as f64),
+            ("service/policy_version", self.policy_version as f64),
+            ("service/policy_lag", self.policy_lag),
+            ("service/live_actors", self.live_actors as f64),
+            (
+                "service/refused",
+                self.refused.iter().map(|r| r.1).sum::<u64>() as f64,
+            ),
+            ("service/leases_expired", self.leases_expired as f64),
+            ("train/exploration_sigma", self.exploration_sigma),
+            ("train/updates", self.updates as f64),
+        ];
+        if let (Some(s), Some(r), Some(b)) = (self.success_rate, self.mean_return, self.mean_score) {
+            v.extend([
+                ("episode/success_rate", s),
+                ("episode/return", r),
+                ("episode/barn_score", b),
+            ]);
+        }
+        v
+    }
+}
+
+/// Writes `status` to `run_dir/status.json` atomically (temporary file + rename).
+pub fn write_status(run_dir: &Path, status: &Status) -> Result<(), String> {
+    let tmp = run_dir.join(format!(".{STATUS_FILE}.tmp"));
+    let text = serde_json::to_string_pretty(status).expect("status serializes");
+    std::fs::write(&tmp, text)
+        .and_then(|_| std::fs::rename(&tmp, run_dir.join(STATUS_FILE)))
+        .map_err(|e| format!("cannot write {}: {e}", run_dir.join(STATUS_FILE).display()))
+}
+
+/// Reads `run_dir/status.json`.
+pub fn read_status(run_dir: &Path) -> Result<Status, String> {
+    let p = run_dir.join(STATUS_FILE);
+    let text = std::fs::read_to_string(&p).map_err(|e| format!("cannot read {}: {e}", p.display()))?;
+    serde_json::from_str(&text).map_err(|e| format!("{}: {e}", p.display()))
+}

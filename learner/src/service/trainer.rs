@@ -1,0 +1,259 @@
+//! The training thread: TD3 updates under the rate limiter, policy publishing at each new
+//! cycle, TensorBoard and `status.json`, periodic and final checkpoints, and the final export.
+//!
+//! It owns the [`Td3`] state; everything else it reaches through [`Shared`].
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use planner::ActionSpace;
+use proto::pb;
+use proto::shm::{ShmConfig, ShmPolicyPublisher};
+use rand_pcg::Pcg64Mcg;
+use tokio::sync::watch;
+
+use super::core::Shared;
+use super::status::{write_status, Status};
+use super::ServiceConfig;
+use crate::batch::Batch;
+use crate::checkpoint::{self, RunState};
+use crate::exploration::ExplorationSchedule;
+use crate::export::export_checkpoint;
+use crate::retention;
+use crate::td3::Td3;
+use crate::tensorboard::EventWriter;
+
+/// What the training thread needs besides the shared state.
+pub struct Trainer {
+    pub(super) shared: Arc<Shared>,
+    pub(super) td3: Td3,
+    pub(super) sampler_rng: Pcg64Mcg,
+    pub(super) run_dir: PathBuf,
+    pub(super) service: ServiceConfig,
+    pub(super) space: ActionSpace,
+    pub(super) policy_tx: watch::Sender<Arc<pb::PolicySnapshot>>,
+    pub(super) shm: Option<ShmConfig>,
+    pub(super) tensorboard: EventWriter,
+}
+
+/// How the training thread ended.
+#[derive(Debug, Clone)]
+pub struct TrainSummary {
+    /// Agent steps stored in total.
+    pub inserts: u64,
+    /// Gradient updates in total.
+    pub updates: u64,
+    /// The final checkpoint.
+    pub checkpoint: PathBuf,
+    /// The export directory, when the export succeeded.
+    pub export: Option<PathBuf>,
+    /// Whether the budget was reached (false after a stop request).
+    pub completed: bool,
+}
+
+/// Rates between two status points.
+struct Meter {
+    at: Instant,
+    inserts: u64,
+    updates: u64,
+}
+
+impl Trainer {
+    /// Runs until the budget is stored and trained on, or a stop is requested; then writes the
+    /// final checkpoint and export.
+    pub fn run(mut self) -> Result<TrainSummary, String> {
+        let mut shm_pub = match &self.shm {
+            Some(cfg) => match ShmPolicyPublisher::open(cfg) {
+                Ok(p) => Some(p),
+                Err(e) => {
+                    eprintln!("learner: cannot publish policies over shared memory ({e}); gRPC only");
+                    None
+                }
+            },
+            None => None,
+        };
+        let exploration = ExplorationSchedule::new(self.td3.config());
+        let cfg = self.td3.config().clone();
+        let mut batch = Batch::new(cfg.obs_dim, cfg.act_dim);
+        let mut published: Option<u64> = None;
+        let mut last_checkpoint = Instant::now();
+        let status_every = Duration::from_secs_f64(self.service.status_every_s);
+        let mut last_status = Instant::now() - status_every;
+        let start = {
+            let core = self.shared.lock();
+            (core.rate.inserts(), core.rate.updates())
+        };
+        let mut meter = Meter {
+            at: Instant::now(),
+            inserts: start.0,
+            updates: start.1,
+        };
+        let completed;
+        loop {
+            // Decide under the lock; act outside it.
+            let core = self.shared.lock();
+            let cycle = core.registry.cycle();
+            let publish = published.is_none_or(|v| cycle > v);
+            let can_update = core.rate.updates_allowed() > 0 && core.replay.ready_len() > 0 && !core.abort;
+            let owed = core.rate.target_updates().floor() as u64 > core.rate.updates();
+            let done = core.abort || (core.stopping && !owed && core.rate.inserts() >= self.shared.budget);
+            if done {
+                completed = !core.abort;
+                break;
+            }
+            if publish {
+                let version = cycle.max(core.policy_version);
+                let sigma = exploration.sigma(core.rate.inserts());
+                drop(core);
+                let (_, weights) = self.td3.policy().flat_weights();
+                if let Some(p) = shm_pub.as_mut() {
+                    if let Err(e) = p.publish(version, sigma, &weights) {
+                        eprintln!("learner: shared-memory policy publish failed: {e}");
+                    }
+                }
+                let snapshot = pb::PolicySnapshot {
+                    version,
+                    exploration_sigma: sigma,
+                    weights: proto::floats::encode(&weights).into(),
+                };
+                self.policy_tx.send_replace(Arc::new(snapshot));
+                self.shared.lock().policy_version = version;
+                published = Some(version);
+                self.shared.wake.notify_all();
+                continue;
+            }
+            if can_update {
+                let sampled = core
+                    .replay
+                    .sample(cfg.batch_size, &mut self.sampler_rng, &mut batch);
+                drop(core);
+                sampled.map_err(|e| format!("sampling the replay buffer: {e}"))?;
+                let stats = self.td3.update(&batch).map_err(|e| format!("TD3 update: {e}"))?;
+                let (inserts, updates) = {
+                    let mut core = self.shared.lock();
+                    core.rate.record_updates(1);
+                    (core.rate.inserts(), core.rate.updates())
+                };
+                self.shared.wake.notify_all();
+                if updates.is_multiple_of(10) {
+                    let _ = self.tensorboard.update_stats(inserts, &stats);
+                }
+            } else {
+                let _ = self
+                    .shared
+                    .wake
+                    .wait_timeout(core, Duration::from_millis(20))
+                    .expect("learner state lock poisoned");
+            }
+            if last_status.elapsed() >= status_every {
+                last_status = Instant::now();
+                self.report(&mut meter, &exploration);
+            }
+            if last_checkpoint.elapsed().as_secs_f64() >= self.service.checkpoint_every_s {
+                last_checkpoint = Instant::now();
+                if let Err(e) = self.checkpoint() {
+                    eprintln!("learner: periodic checkpoint failed (the run goes on): {e}");
+                }
+            }
+        }
+        self.report(&mut meter, &exploration);
+        let checkpoint = self.checkpoint()?;
+        let (inserts, updates) = {
+            let core = self.shared.lock();
+            (core.rate.inserts(), core.rate.updates())
+        };
+        let export_dir = self.run_dir.join("export");
+        let export = match export_checkpoint(&checkpoint, &export_dir, self.space) {
+            Ok(_) => Some(export_dir),
+            Err(e) => {
+                eprintln!("learner: export failed: {e}");
+                None
+            }
+        };
+        let _ = self.tensorboard.flush();
+        Ok(TrainSummary {
+            inserts,
+            updates,
+            checkpoint,
+            export,
+            completed,
+        })
+    }
+
+    /// Writes `status.json` and the service scalars to TensorBoard.
+    fn report(&mut self, meter: &mut Meter, exploration: &ExplorationSchedule) {
+        let mut core = self.shared.lock();
+        let dt = meter.at.elapsed().as_secs_f64().max(1e-9);
+        let (inserts, updates) = (core.rate.inserts(), core.rate.updates());
+        let lag = if core.lag.1 > 0 {
+            core.lag.0 as f64 / core.lag.1 as f64
+        } else {
+            0.0
+        };
+        core.lag = (0, 0);
+        let status = Status::collect(
+            &self.shared,
+            &core,
+            (inserts - meter.inserts) as f64 / dt,
+            (updates - meter.updates) as f64 / dt,
+            lag,
+            exploration.sigma(inserts),
+        );
+        drop(core);
+        *meter = Meter {
+            at: Instant::now(),
+            inserts,
+            updates,
+        };
+        if let Err(e) = write_status(&self.run_dir, &status) {
+            eprintln!("learner: {e}");
+        }
+        let _ = self.tensorboard.scalars(inserts, &status.scalars());
+        let _ = self.tensorboard.flush();
+    }
+
+    /// Writes a checkpoint of the whole run (networks, optimizers, RNGs, rate limiter, registry,
+    /// counters, and the replay buffer when configured) and prunes old ones.
+    fn checkpoint(&mut self) -> Result<PathBuf, String> {
+        let root = self.run_dir.join("checkpoints");
+        let core = self.shared.lock();
+        let name = format!("ckpt-{:012}-{:012}", core.rate.inserts(), core.rate.updates());
+        let dir = root.join(&name);
+        let run = RunState {
+            run_id: self.shared.validator.run_id.clone(),
+            rate: core.rate.clone(),
+            sampler_rng: self.sampler_rng.clone(),
+            policy_version: core.policy_version,
+            extra: serde_json::json!({
+                "registry": core.registry.snapshot(),
+                "totals": core.totals,
+            }),
+        };
+        if dir.join(checkpoint::MANIFEST).exists() {
+            return Ok(dir);
+        }
+        std::fs::create_dir_all(&root).map_err(|e| format!("cannot create {}: {e}", root.display()))?;
+        let saved = if self.service.checkpoint_replay {
+            checkpoint::save_with_replay(&dir, &self.td3, &run, &core.replay)
+        } else {
+            checkpoint::save(&dir, &self.td3, &run)
+        };
+        drop(core);
+        saved.map_err(|e| format!("checkpoint {}: {e}", dir.display()))?;
+        eprintln!("learner: checkpoint {}", dir.display());
+        if let Err(e) = retention::prune(&root, self.service.keep_checkpoints.max(1), &[]) {
+            eprintln!("learner: pruning old checkpoints: {e}");
+        }
+        Ok(dir)
+    }
+}
+
+/// The checkpoint directory a run resumes from, if any.
+pub fn newest_checkpoint(run_dir: &Path) -> Result<Option<PathBuf>, String> {
+    let root = run_dir.join("checkpoints");
+    if !root.exists() {
+        return Ok(None);
+    }
+    retention::latest(&root).map_err(|e| e.to_string())
+}

@@ -1,0 +1,359 @@
+//! The gRPC side: connecting to the learner (token, optional TLS), the actor-side gRPC data
+//! plane ([`GrpcStepSink`], [`GrpcPolicySource`]) and decoding received step batches
+//! ([`for_each_step`]).
+//!
+//! The actor loop is synchronous; these types bridge to a tokio runtime whose [`Handle`] they
+//! are given (the runtime must have at least one worker thread running while they are used).
+
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use thiserror::Error;
+use tokio::runtime::Handle;
+use tokio::sync::mpsc;
+use tokio::task::JoinHandle;
+use tokio_stream::wrappers::ReceiverStream;
+use tonic::service::interceptor::InterceptedService;
+use tonic::transport::{Channel, Endpoint};
+
+use crate::auth::{AuthError, ClientAuth, TlsFiles};
+use crate::floats::{self, RaggedBytes};
+use crate::pb;
+use crate::plane::{LeaseHeader, PlaneError, PolicySource, PolicyUpdate, StepSink};
+use crate::validate::StepView;
+
+/// Largest gRPC message either side accepts (a policy snapshot is about 2.5 MB; a step batch of
+/// 64 records about 190 KB).
+pub const MAX_MESSAGE_BYTES: usize = 64 << 20;
+
+/// Step records per `StepBatch` message.
+pub const BATCH_RECORDS: usize = 64;
+
+/// The control-plane client with the token interceptor.
+pub type ControlClient = pb::control_client::ControlClient<InterceptedService<Channel, ClientAuth>>;
+/// The data-plane client with the token interceptor.
+pub type DataClient = pb::data_client::DataClient<InterceptedService<Channel, ClientAuth>>;
+
+/// Where and how to reach the learner.
+#[derive(Debug, Clone, Default)]
+pub struct LearnerAddress {
+    /// `host:port`.
+    pub addr: String,
+    /// The run's token (sent on every call).
+    pub token: Option<String>,
+    /// TLS; plain HTTP/2 when `None`.
+    pub tls: Option<TlsFiles>,
+}
+
+/// Why the learner could not be reached.
+#[derive(Debug, Error)]
+pub enum ConnectError {
+    /// The address is not `host:port`.
+    #[error("learner address `{addr}`: {reason}")]
+    Address {
+        /// The address.
+        addr: String,
+        /// What is wrong.
+        reason: String,
+    },
+    /// TLS files could not be used.
+    #[error(transparent)]
+    Tls(#[from] AuthError),
+    /// The connection failed.
+    #[error("cannot connect to the learner at {addr}: {source}")]
+    Transport {
+        /// The address.
+        addr: String,
+        /// tonic's error.
+        source: tonic::transport::Error,
+    },
+}
+
+impl LearnerAddress {
+    /// Opens one HTTP/2 channel (shared by the control and data clients).
+    pub async fn connect(&self) -> Result<(ControlClient, DataClient), ConnectError> {
+        let host = self
+            .addr
+            .rsplit_once(':')
+            .map(|(h, _)| h.trim_matches(['[', ']']))
+            .filter(|h| !h.is_empty())
+            .ok_or_else(|| ConnectError::Address {
+                addr: self.addr.clone(),
+                reason: "expected host:port".into(),
+            })?;
+        let scheme = if self.tls.is_some() { "https" } else { "http" };
+        let mut ep = Endpoint::from_shared(format!("{scheme}://{}", self.addr))
+            .map_err(|e| ConnectError::Address {
+                addr: self.addr.clone(),
+                reason: e.to_string(),
+            })?
+            .connect_timeout(Duration::from_secs(5))
+            .tcp_nodelay(true)
+            .http2_keep_alive_interval(Duration::from_secs(10))
+            .keep_alive_timeout(Duration::from_secs(20));
+        if let Some(tls) = &self.tls {
+            ep = ep
+                .tls_config(tls.client_config(host)?)
+                .map_err(|source| ConnectError::Transport {
+                    addr: self.addr.clone(),
+                    source,
+                })?;
+        }
+        let channel = ep.connect().await.map_err(|source| ConnectError::Transport {
+            addr: self.addr.clone(),
+            source,
+        })?;
+        let auth = ClientAuth::new(self.token.as_deref());
+        let control = pb::control_client::ControlClient::with_interceptor(channel.clone(), auth.clone())
+            .max_decoding_message_size(MAX_MESSAGE_BYTES);
+        let data = pb::data_client::DataClient::with_interceptor(channel, auth)
+            .max_decoding_message_size(MAX_MESSAGE_BYTES)
+            .max_encoding_message_size(MAX_MESSAGE_BYTES);
+        Ok((control, data))
+    }
+}
+
+/// Reusable buffers for decoding step records. Not shared between threads.
+#[derive(Debug, Default)]
+pub struct DecodeScratch {
+    obs: Vec<f32>,
+    action: Vec<f32>,
+    final_obs: Vec<f32>,
+}
+
+/// Decodes every record of `batch` into `scratch` and hands it to `f` as a [`StepView`]; a
+/// record whose bytes are ragged is handed to `f` as the error instead. No allocation once the
+/// scratch buffers have grown.
+pub fn for_each_step(
+    batch: &pb::StepBatch,
+    scratch: &mut DecodeScratch,
+    mut f: impl FnMut(Result<StepView<'_>, RaggedBytes>),
+) {
+    for rec in &batch.steps {
+        let decoded = floats::decode_into("obs", &rec.obs, &mut scratch.obs)
+            .and_then(|_| floats::decode_into("action", &rec.action, &mut scratch.action))
+            .and_then(|_| floats::decode_into("final_obs", &rec.final_obs, &mut scratch.final_obs));
+        f(decoded.map(|_| StepView {
+            episode_id: rec.episode_id,
+            step_index: rec.step_index,
+            policy_version: rec.policy_version,
+            obs: &scratch.obs,
+            action: &scratch.action,
+            reward: rec.reward,
+            terminal: rec.terminal,
+            truncated: rec.truncated,
+            final_obs: &scratch.final_obs,
+        }));
+    }
+}
+
+/// Encodes one step as a record.
+pub fn encode_step(step: &StepView<'_>) -> pb::StepRecord {
+    pb::StepRecord {
+        episode_id: step.episode_id,
+        step_index: step.step_index,
+        policy_version: step.policy_version,
+        obs: floats::encode(step.obs).into(),
+        action: floats::encode(step.action).into(),
+        reward: step.reward,
+        terminal: step.terminal,
+        truncated: step.truncated,
+        final_obs: floats::encode(step.final_obs).into(),
+    }
+}
+
+/// One open `PushSteps` client stream.
+struct OpenStream {
+    tx: mpsc::Sender<pb::StepBatch>,
+    call: JoinHandle<Result<tonic::Response<pb::Ack>, tonic::Status>>,
+    sent: u64,
+}
+
+/// The actor side of the gRPC data plane: records are batched ([`BATCH_RECORDS`] per message)
+/// onto one client stream per flush interval; [`StepSink::flush`] closes the stream and waits
+/// for the learner's acknowledgement, so after it returns every record was received and
+/// accounted for (accepted or refused). `Send`, not `Sync`.
+pub struct GrpcStepSink {
+    handle: Handle,
+    client: DataClient,
+    run: pb::RunRef,
+    batch: pb::StepBatch,
+    stream: Option<OpenStream>,
+}
+
+fn disconnected(detail: impl ToString) -> PlaneError {
+    PlaneError::Disconnected {
+        plane: "grpc",
+        detail: detail.to_string(),
+    }
+}
+
+impl GrpcStepSink {
+    /// A sink for run `run_id` / `incarnation` over `client`, driving its calls on `handle`.
+    pub fn new(handle: Handle, client: DataClient, run_id: &str, incarnation: u64) -> Self {
+        Self {
+            handle,
+            client,
+            run: pb::RunRef {
+                run_id: run_id.to_owned(),
+                incarnation,
+            },
+            batch: pb::StepBatch::default(),
+            stream: None,
+        }
+    }
+
+    fn push_batch(&mut self) -> Result<(), PlaneError> {
+        if self.batch.steps.is_empty() {
+            return Ok(());
+        }
+        let batch = std::mem::take(&mut self.batch);
+        let n = batch.steps.len() as u64;
+        let stream = match &mut self.stream {
+            Some(s) => s,
+            None => {
+                let (tx, rx) = mpsc::channel(4);
+                let mut client = self.client.clone();
+                let call = self
+                    .handle
+                    .spawn(async move { client.push_steps(ReceiverStream::new(rx)).await });
+                self.stream.insert(OpenStream { tx, call, sent: 0 })
+            }
+        };
+        if stream.tx.blocking_send(batch).is_err() {
+            // The call ended early: the learner refused the stream or went away. Its status says why.
+            let s = self.stream.take().expect("stream is open");
+            return Err(match self.handle.block_on(s.call) {
+                Ok(Err(status)) => disconnected(status.message()),
+                Ok(Ok(_)) => disconnected("the learner closed the step stream"),
+                Err(e) => disconnected(e),
+            });
+        }
+        stream.sent += n;
+        Ok(())
+    }
+}
+
+impl StepSink for GrpcStepSink {
+    fn send(&mut self, header: &LeaseHeader, step: &StepView<'_>) -> Result<(), PlaneError> {
+        let same = self.batch.actor_id == header.actor_id
+            && self.batch.lease_id == header.lease_id
+            && self.run.incarnation == header.incarnation;
+        if !same || self.batch.steps.len() >= BATCH_RECORDS {
+            self.push_batch()?;
+        }
+        if self.batch.steps.is_empty() {
+            self.run.incarnation = header.incarnation;
+            self.batch.run = Some(self.run.clone());
+            self.batch.actor_id = header.actor_id;
+            self.batch.lease_id = header.lease_id;
+        }
+        self.batch.steps.push(encode_step(step));
+        Ok(())
+    }
+
+    fn flush(&mut self) -> Result<(), PlaneError> {
+        self.push_batch()?;
+        let Some(OpenStream { tx, call, sent }) = self.stream.take() else {
+            return Ok(());
+        };
+        drop(tx);
+        let ack = match self.handle.block_on(call) {
+            Ok(Ok(r)) => r.into_inner(),
+            Ok(Err(status)) => return Err(disconnected(status.message())),
+            Err(e) => return Err(disconnected(e)),
+        };
+        if ack.refused > 0 || ack.accepted != sent {
+            return Err(PlaneError::Refused {
+                refused: ack.refused,
+                sent,
+                reason: ack.reason,
+            });
+        }
+        Ok(())
+    }
+}
+
+/// The actor side of gRPC policy delivery: a background `WatchPolicy` stream keeps the newest
+/// version; [`PolicySource::poll`] takes it. A broken stream is reported once by `poll` as
+/// [`PlaneError::Disconnected`]. `Send`, not `Sync`.
+pub struct GrpcPolicySource {
+    latest: Arc<Mutex<Latest>>,
+    task: JoinHandle<()>,
+}
+
+#[derive(Default)]
+struct Latest {
+    policy: Option<PolicyUpdate>,
+    error: Option<String>,
+}
+
+impl GrpcPolicySource {
+    /// Starts watching policies of run `run_id` / `incarnation` for `actor_id` on `handle`.
+    pub fn start(
+        handle: &Handle,
+        mut client: DataClient,
+        run_id: &str,
+        incarnation: u64,
+        actor_id: u64,
+    ) -> Self {
+        let latest = Arc::new(Mutex::new(Latest::default()));
+        let shared = latest.clone();
+        let request = pb::PolicyRequest {
+            run: Some(pb::RunRef {
+                run_id: run_id.to_owned(),
+                incarnation,
+            }),
+            actor_id,
+            have_version: 0,
+        };
+        let task = handle.spawn(async move {
+            let fail = |e: String| shared.lock().expect("policy slot").error = Some(e);
+            let mut stream = match client.watch_policy(request).await {
+                Ok(r) => r.into_inner(),
+                Err(status) => return fail(status.message().to_owned()),
+            };
+            loop {
+                match stream.message().await {
+                    Ok(Some(snap)) => {
+                        let mut weights = Vec::new();
+                        if let Err(e) = floats::decode_into("weights", &snap.weights, &mut weights) {
+                            return fail(e.to_string());
+                        }
+                        shared.lock().expect("policy slot").policy = Some(PolicyUpdate {
+                            version: snap.version,
+                            exploration_sigma: snap.exploration_sigma,
+                            weights,
+                        });
+                    }
+                    Ok(None) => return fail("the learner ended the policy stream".into()),
+                    Err(status) => return fail(status.message().to_owned()),
+                }
+            }
+        });
+        Self { latest, task }
+    }
+}
+
+impl Drop for GrpcPolicySource {
+    fn drop(&mut self) {
+        self.task.abort();
+    }
+}
+
+impl PolicySource for GrpcPolicySource {
+    fn poll(&mut self, have: Option<u64>) -> Result<Option<PolicyUpdate>, PlaneError> {
+        let mut l = self.latest.lock().expect("policy slot");
+        let newer = l
+            .policy
+            .as_ref()
+            .is_some_and(|p| have.is_none_or(|h| p.version > h));
+        if newer {
+            return Ok(l.policy.take());
+        }
+        match l.error.take() {
+            Some(e) => Err(disconnected(e)),
+            None => Ok(None),
+        }
+    }
+}

@@ -1,0 +1,88 @@
+//! The actor-side interface of a data plane: where step records go and where policies come
+//! from. The actor loop is written against these two traits only, so the same code runs over
+//! shared memory ([`crate::shm`]) on one node and over gRPC ([`crate::grpc`]) across nodes.
+
+use thiserror::Error;
+
+use crate::validate::StepView;
+
+/// Who sends a step record: the lease it is delivered under. Plain data.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct LeaseHeader {
+    /// The learner incarnation the actor registered with.
+    pub incarnation: u64,
+    /// The actor.
+    pub actor_id: u64,
+    /// The lease of the assignment the step belongs to.
+    pub lease_id: u64,
+}
+
+/// A policy version as an actor receives it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PolicyUpdate {
+    /// The version.
+    pub version: u64,
+    /// Exploration noise sigma that goes with it.
+    pub exploration_sigma: f64,
+    /// Flat network weights (layout of `actor::policy::MlpPolicy::from_flat`).
+    pub weights: Vec<f32>,
+}
+
+/// A data-plane failure on the actor side. The actor reconnects (with back-off) after any of
+/// them.
+#[derive(Debug, Error)]
+pub enum PlaneError {
+    /// The learner is gone or unreachable.
+    #[error("learner unreachable over {plane}: {detail}")]
+    Disconnected {
+        /// `grpc` or `shm`.
+        plane: &'static str,
+        /// What failed.
+        detail: String,
+    },
+    /// The learner refused records (counted there too).
+    #[error("learner refused {refused} of {sent} step records: {reason}")]
+    Refused {
+        /// Records refused.
+        refused: u64,
+        /// Records sent.
+        sent: u64,
+        /// The learner's first reason.
+        reason: String,
+    },
+    /// A record does not fit the plane (e.g. longer than a shared-memory slot).
+    #[error("step record does not fit the {plane} plane: {detail}")]
+    TooLarge {
+        /// `grpc` or `shm`.
+        plane: &'static str,
+        /// Sizes.
+        detail: String,
+    },
+    /// Setting the plane up failed.
+    #[error("cannot open the {plane} data plane: {detail}")]
+    Setup {
+        /// `grpc` or `shm`.
+        plane: &'static str,
+        /// What failed.
+        detail: String,
+    },
+}
+
+/// Where an actor's step records go. Not shared between threads (`Send` only).
+pub trait StepSink: Send {
+    /// Sends one step under `header`. May block while the learner applies back-pressure (its
+    /// rate limiter); never drops a record silently.
+    fn send(&mut self, header: &LeaseHeader, step: &StepView<'_>) -> Result<(), PlaneError>;
+
+    /// Returns once every record sent so far has been handed to the learner (gRPC: the stream
+    /// was closed and acknowledged; shared memory: delivered into the learner's queue). Call it
+    /// at the end of an assignment, before the final episode report.
+    fn flush(&mut self) -> Result<(), PlaneError>;
+}
+
+/// Where an actor gets policy versions from. Not shared between threads (`Send` only).
+pub trait PolicySource: Send {
+    /// The newest policy version newer than `have` (`None` = any), if one is available now.
+    /// Does not wait for a new version.
+    fn poll(&mut self, have: Option<u64>) -> Result<Option<PolicyUpdate>, PlaneError>;
+}

@@ -1,0 +1,429 @@
+//! The one validation layer of both data planes.
+//!
+//! Every step record, whether it came through gRPC or shared memory, passes
+//! [`Validator::check_run`], the learner's [`Admission`] (actor registered, lease valid) and
+//! [`Validator::check_step`] (shapes match the run's spaces, values finite, laser and action in
+//! range, a coherent episode end) before anything of it reaches the replay buffer. A refused
+//! record is counted by reason in [`RefusalCounts`] and logged by the caller with the
+//! [`Refusal`]'s message.
+
+use std::fmt;
+use std::sync::atomic::{AtomicU64, Ordering};
+
+use thiserror::Error;
+
+use crate::floats::RaggedBytes;
+
+/// The shapes of a run's observations and actions.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Spaces {
+    /// Observation length.
+    pub obs_dim: usize,
+    /// Action length.
+    pub act_dim: usize,
+    /// How many leading observation values are laser ranges in [-1, 1].
+    pub laser_dim: usize,
+}
+
+/// One agent step, borrowed from whichever plane carried it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StepView<'a> {
+    /// The episode (from the actor's assignment).
+    pub episode_id: u64,
+    /// Position of the step in its episode, from 0.
+    pub step_index: u32,
+    /// The policy version that chose the action.
+    pub policy_version: u64,
+    /// `s_t`.
+    pub obs: &'a [f32],
+    /// `a_t`, normalized.
+    pub action: &'a [f32],
+    /// `r_t`.
+    pub reward: f32,
+    /// A true end of the episode (collision, success).
+    pub terminal: bool,
+    /// A time-limit end; `final_obs` then holds `s_{t+1}`.
+    pub truncated: bool,
+    /// `s_{t+1}` for a truncated step, empty otherwise.
+    pub final_obs: &'a [f32],
+}
+
+/// Why a message was refused. The message names the field, index or identifier at fault.
+#[derive(Debug, Clone, PartialEq, Error)]
+pub enum Refusal {
+    /// No or a wrong secret token.
+    #[error("unauthenticated: {0}")]
+    Unauthenticated(String),
+    /// The message belongs to another run.
+    #[error("wrong run: message for run `{got}`, this learner serves `{expected}`")]
+    WrongRun {
+        /// The run of this learner.
+        expected: String,
+        /// The run named by the message.
+        got: String,
+    },
+    /// The message was made for an earlier learner process of this run (register again).
+    #[error("stale incarnation {got} (the learner restarted; current incarnation is {current})")]
+    StaleIncarnation {
+        /// The current incarnation.
+        current: u64,
+        /// The incarnation named by the message.
+        got: u64,
+    },
+    /// The actor id is not registered (or was retired).
+    #[error("actor {0}: {1}")]
+    UnknownActor(u64, String),
+    /// The lease is unknown, expired, finished or another actor's.
+    #[error("lease {0}: {1}")]
+    Lease(u64, String),
+    /// The episode id or step index does not fit the lease or the episode so far.
+    #[error("episode {0}: {1}")]
+    Episode(u64, String),
+    /// A vector has the wrong length.
+    #[error("field `{field}` has {got} values, expected {expected}")]
+    Shape {
+        /// The field.
+        field: &'static str,
+        /// Its length.
+        got: usize,
+        /// The run's length.
+        expected: usize,
+    },
+    /// A value is NaN or infinite.
+    #[error("field `{field}`[{index}] is not finite ({value})")]
+    NotFinite {
+        /// The field.
+        field: &'static str,
+        /// The first bad index.
+        index: usize,
+        /// The value.
+        value: f32,
+    },
+    /// A value is outside its range.
+    #[error("field `{field}`[{index}] = {value} is outside [-1, 1]")]
+    OutOfRange {
+        /// The field.
+        field: &'static str,
+        /// The first bad index.
+        index: usize,
+        /// The value.
+        value: f32,
+    },
+    /// `terminal` and `truncated` together, or `final_obs` without `truncated`.
+    #[error("incoherent episode end: {0}")]
+    BadEnd(&'static str),
+    /// A bytes field that is not a whole number of f32.
+    #[error("{0}")]
+    Malformed(#[from] RaggedBytes),
+}
+
+/// The counting category of a [`Refusal`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[repr(usize)]
+pub enum RefusalKind {
+    /// [`Refusal::Unauthenticated`].
+    Unauthenticated,
+    /// [`Refusal::WrongRun`] and [`Refusal::StaleIncarnation`].
+    Run,
+    /// [`Refusal::UnknownActor`].
+    Actor,
+    /// [`Refusal::Lease`].
+    Lease,
+    /// [`Refusal::Episode`].
+    Episode,
+    /// [`Refusal::Shape`] and [`Refusal::Malformed`].
+    Shape,
+    /// [`Refusal::NotFinite`].
+    NotFinite,
+    /// [`Refusal::OutOfRange`] and [`Refusal::BadEnd`].
+    Range,
+}
+
+impl RefusalKind {
+    /// Every kind, in counter order.
+    pub const ALL: [RefusalKind; 8] = [
+        Self::Unauthenticated,
+        Self::Run,
+        Self::Actor,
+        Self::Lease,
+        Self::Episode,
+        Self::Shape,
+        Self::NotFinite,
+        Self::Range,
+    ];
+
+    /// A stable snake-case name (status files, TensorBoard tags).
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Unauthenticated => "unauthenticated",
+            Self::Run => "wrong_run",
+            Self::Actor => "unknown_actor",
+            Self::Lease => "invalid_lease",
+            Self::Episode => "bad_episode",
+            Self::Shape => "bad_shape",
+            Self::NotFinite => "not_finite",
+            Self::Range => "out_of_range",
+        }
+    }
+}
+
+impl fmt::Display for RefusalKind {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl Refusal {
+    /// The counting category.
+    pub fn kind(&self) -> RefusalKind {
+        match self {
+            Self::Unauthenticated(_) => RefusalKind::Unauthenticated,
+            Self::WrongRun { .. } | Self::StaleIncarnation { .. } => RefusalKind::Run,
+            Self::UnknownActor(..) => RefusalKind::Actor,
+            Self::Lease(..) => RefusalKind::Lease,
+            Self::Episode(..) => RefusalKind::Episode,
+            Self::Shape { .. } | Self::Malformed(_) => RefusalKind::Shape,
+            Self::NotFinite { .. } => RefusalKind::NotFinite,
+            Self::OutOfRange { .. } | Self::BadEnd(_) => RefusalKind::Range,
+        }
+    }
+}
+
+/// Refused records per [`RefusalKind`]. Lock-free; share it by reference or `Arc` between the
+/// planes' threads.
+#[derive(Debug, Default)]
+pub struct RefusalCounts {
+    counts: [AtomicU64; RefusalKind::ALL.len()],
+}
+
+impl RefusalCounts {
+    /// Counts `n` records refused for `why`.
+    pub fn record(&self, why: &Refusal, n: u64) {
+        self.counts[why.kind() as usize].fetch_add(n, Ordering::Relaxed);
+    }
+
+    /// The count of one kind.
+    pub fn get(&self, kind: RefusalKind) -> u64 {
+        self.counts[kind as usize].load(Ordering::Relaxed)
+    }
+
+    /// All records refused.
+    pub fn total(&self) -> u64 {
+        RefusalKind::ALL.iter().map(|k| self.get(*k)).sum()
+    }
+
+    /// `(name, count)` of every kind.
+    pub fn snapshot(&self) -> Vec<(&'static str, u64)> {
+        RefusalKind::ALL
+            .iter()
+            .map(|k| (k.name(), self.get(*k)))
+            .collect()
+    }
+}
+
+/// The learner's registry seen by the validation layer: whether an actor and its lease may
+/// deliver data now. Implementations are called from the planes' threads concurrently.
+pub trait Admission: Send + Sync {
+    /// `Ok` when `actor_id` is registered and `lease_id` is its valid lease; the
+    /// [`Refusal::UnknownActor`] or [`Refusal::Lease`] otherwise.
+    fn admit(&self, actor_id: u64, lease_id: u64) -> Result<(), Refusal>;
+}
+
+/// The run identity and spaces every record is checked against. Plain data (`Send + Sync`).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Validator {
+    /// The run id.
+    pub run_id: String,
+    /// The current learner incarnation.
+    pub incarnation: u64,
+    /// The run's spaces.
+    pub spaces: Spaces,
+}
+
+impl Validator {
+    /// Checks that a message names this run and the current incarnation.
+    pub fn check_run(&self, run_id: &str, incarnation: u64) -> Result<(), Refusal> {
+        if run_id != self.run_id {
+            return Err(Refusal::WrongRun {
+                expected: self.run_id.clone(),
+                got: run_id.to_owned(),
+            });
+        }
+        if incarnation != self.incarnation {
+            return Err(Refusal::StaleIncarnation {
+                current: self.incarnation,
+                got: incarnation,
+            });
+        }
+        Ok(())
+    }
+
+    /// Checks one step's shapes, values and end flags against the run's spaces.
+    pub fn check_step(&self, step: &StepView<'_>) -> Result<(), Refusal> {
+        let s = &self.spaces;
+        check_obs("obs", step.obs, s)?;
+        check_len("action", step.action.len(), s.act_dim)?;
+        check_finite("action", step.action)?;
+        check_unit("action", step.action)?;
+        check_finite("reward", &[step.reward])?;
+        match (step.terminal, step.truncated) {
+            (true, true) => return Err(Refusal::BadEnd("both `terminal` and `truncated` are set")),
+            (_, true) => check_obs("final_obs", step.final_obs, s)?,
+            (_, false) if !step.final_obs.is_empty() => {
+                return Err(Refusal::BadEnd(
+                    "`final_obs` given for a step that is not truncated",
+                ))
+            }
+            _ => {}
+        }
+        Ok(())
+    }
+}
+
+fn check_len(field: &'static str, got: usize, expected: usize) -> Result<(), Refusal> {
+    if got == expected {
+        Ok(())
+    } else {
+        Err(Refusal::Shape { field, got, expected })
+    }
+}
+
+fn check_finite(field: &'static str, values: &[f32]) -> Result<(), Refusal> {
+    match values.iter().position(|v| !v.is_finite()) {
+        None => Ok(()),
+        Some(index) => Err(Refusal::NotFinite {
+            field,
+            index,
+            value: values[index],
+        }),
+    }
+}
+
+fn check_unit(field: &'static str, values: &[f32]) -> Result<(), Refusal> {
+    match values.iter().position(|v| !(-1.0..=1.0).contains(v)) {
+        None => Ok(()),
+        Some(index) => Err(Refusal::OutOfRange {
+            field,
+            index,
+            value: values[index],
+        }),
+    }
+}
+
+fn check_obs(field: &'static str, obs: &[f32], s: &Spaces) -> Result<(), Refusal> {
+    check_len(field, obs.len(), s.obs_dim)?;
+    check_finite(field, obs)?;
+    check_unit(field, &obs[..s.laser_dim])
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn validator() -> Validator {
+        Validator {
+            run_id: "run-a".into(),
+            incarnation: 7,
+            spaces: Spaces {
+                obs_dim: 6,
+                act_dim: 2,
+                laser_dim: 4,
+            },
+        }
+    }
+
+    fn step<'a>(obs: &'a [f32], action: &'a [f32]) -> StepView<'a> {
+        StepView {
+            episode_id: 1,
+            step_index: 0,
+            policy_version: 0,
+            obs,
+            action,
+            reward: -0.5,
+            terminal: false,
+            truncated: false,
+            final_obs: &[],
+        }
+    }
+
+    const OBS: [f32; 6] = [0.1, -1.0, 1.0, 0.0, 5.0, -3.0];
+
+    #[test]
+    fn accepts_a_good_step_and_a_truncated_one() {
+        let v = validator();
+        v.check_step(&step(&OBS, &[0.5, -1.0])).unwrap();
+        let mut s = step(&OBS, &[0.5, -1.0]);
+        s.truncated = true;
+        s.final_obs = &OBS;
+        v.check_step(&s).unwrap();
+    }
+
+    #[test]
+    fn refuses_each_defect_with_a_message_naming_it() {
+        let v = validator();
+        let cases: Vec<(StepView<'_>, RefusalKind, &str)> = vec![
+            (
+                step(&OBS[..5], &[0.0, 0.0]),
+                RefusalKind::Shape,
+                "`obs` has 5 values, expected 6",
+            ),
+            (step(&OBS, &[0.0]), RefusalKind::Shape, "`action` has 1 values"),
+            (
+                step(&[0.1, f32::NAN, 0.0, 0.0, 0.0, 0.0], &[0.0, 0.0]),
+                RefusalKind::NotFinite,
+                "`obs`[1] is not finite",
+            ),
+            (step(&OBS, &[0.0, 1.5]), RefusalKind::Range, "`action`[1] = 1.5"),
+            (
+                step(&[0.1, 0.0, 0.0, -1.2, 9.0, 9.0], &[0.0, 0.0]),
+                RefusalKind::Range,
+                "`obs`[3] = -1.2",
+            ),
+        ];
+        let counts = RefusalCounts::default();
+        for (s, kind, text) in cases {
+            let e = v.check_step(&s).unwrap_err();
+            assert_eq!(e.kind(), kind, "{e}");
+            assert!(e.to_string().contains(text), "{e}");
+            counts.record(&e, 1);
+        }
+        let mut s = step(&OBS, &[0.0, 0.0]);
+        s.reward = f32::INFINITY;
+        assert!(v.check_step(&s).unwrap_err().to_string().contains("`reward`"));
+        s.reward = 0.0;
+        s.terminal = true;
+        s.truncated = true;
+        s.final_obs = &OBS;
+        assert_eq!(v.check_step(&s).unwrap_err().kind(), RefusalKind::Range);
+        s.truncated = false;
+        assert!(v
+            .check_step(&s)
+            .unwrap_err()
+            .to_string()
+            .contains("not truncated"));
+        s.terminal = false;
+        s.truncated = true;
+        s.final_obs = &OBS[..2];
+        assert!(v
+            .check_step(&s)
+            .unwrap_err()
+            .to_string()
+            .contains("`final_obs` has 2"));
+        assert_eq!(counts.get(RefusalKind::Shape), 2);
+        assert_eq!(counts.total(), 5);
+    }
+
+    #[test]
+    fn run_and_incarnation_must_be_current() {
+        let v = validator();
+        v.check_run("run-a", 7).unwrap();
+        let e = v.check_run("run-b", 7).unwrap_err();
+        assert!(
+            e.to_string().contains("`run-b`") && e.to_string().contains("`run-a`"),
+            "{e}"
+        );
+        let e = v.check_run("run-a", 6).unwrap_err();
+        assert_eq!(e.kind(), RefusalKind::Run);
+        assert!(e.to_string().contains("stale incarnation 6"), "{e}");
+    }
+}

@@ -1,0 +1,977 @@
+//! The actor registry: registrations, leases and cycles. Pure logic; time is a monotonic
+//! millisecond clock supplied by the caller (`now_ms`).
+//!
+//! # Cycles
+//! The registry counts cycles from 0. In a cycle each actor gets at most one assignment; an
+//! actor that finished (or lost) its assignment of the current cycle gets [`Decision::Idle`]
+//! until the cycle advances. The cycle advances when at least one actor had an assignment in
+//! it and none of those assignments is still open (each was finished or its lease expired): a
+//! barrier over the actors that are working. An actor that registers mid-cycle gets an
+//! assignment of the current cycle at once. Every `&mut` method first expires overdue leases
+//! and then checks the barrier, so the cycle can advance inside any of them.
+//!
+//! # Leases
+//! An assignment opens a lease that is valid while `now_ms < deadline_ms`; the deadline starts
+//! at `now_ms + lease_ttl_ms` and [`Registry::heartbeat`] with the lease id moves it to
+//! `now_ms + lease_ttl_ms`. An overdue lease expires: its world goes back to the dealer (dealt
+//! again first) and an [`Expired`] record is queued for the next [`Registry::tick`]. Data under
+//! a lease is accepted ([`Registry::check_lease`]) only while the lease is open: after
+//! [`Registry::finish`] or expiry it is refused, so an actor must send all of its data before
+//! it calls `finish`. An actor not heard from (any call naming it) for `lease_ttl_ms` counts as
+//! dead until it calls again.
+//!
+//! # Checkpoints
+//! [`Registry::snapshot`] keeps what must survive a restart: the dealer counts, the cycle
+//! counter, the id counters and the per-rank episode counters. Actors and leases do not
+//! survive: [`Registry::restore`] starts without them (actors register again) and with every
+//! in-flight assignment returned to the dealer, so those worlds are dealt first.
+
+use std::collections::BTreeMap;
+
+use serde::{Deserialize, Serialize};
+
+use crate::assignment::{ActorId, Assignment, Decision, Expired};
+use crate::dealer::{Dealer, DealerError, WorldCount};
+use crate::seed::episode_seed;
+
+/// How many finished or expired leases are remembered to tell "expired" and "already
+/// finished" apart from "unknown" in errors; older ones are reported as unknown.
+const CLOSED_LEASES_REMEMBERED: usize = 4096;
+
+/// Registry settings.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct RegistryConfig {
+    /// Lease (and liveness) time-to-live in milliseconds; positive.
+    pub lease_ttl_ms: u64,
+    /// Episodes per assignment; positive (default 2).
+    pub episodes_per_assignment: u32,
+    /// The run seed: episode seeds and the dealer's tie-break order derive from it.
+    pub run_seed: u64,
+}
+
+impl Default for RegistryConfig {
+    /// A 30 s lease, 2 episodes per assignment, run seed 0.
+    fn default() -> Self {
+        Self {
+            lease_ttl_ms: 30_000,
+            episodes_per_assignment: 2,
+            run_seed: 0,
+        }
+    }
+}
+
+/// Why a registry operation was refused. Every variant names the actor and lease concerned.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum RegistryError {
+    /// The actor id was never registered.
+    #[error("actor {actor} is not registered")]
+    UnknownActor {
+        /// The actor id given.
+        actor: ActorId,
+    },
+    /// The actor id was replaced by a newer registration of the same rank.
+    #[error("actor {actor} is retired: its rank registered again under a new id")]
+    RetiredActor {
+        /// The actor id given.
+        actor: ActorId,
+    },
+    /// The lease id was never issued, or it closed too long ago to be remembered.
+    #[error("actor {actor}: lease {lease} is unknown")]
+    UnknownLease {
+        /// The actor id given.
+        actor: ActorId,
+        /// The lease id given.
+        lease: u64,
+    },
+    /// The lease expired (no heartbeat within the TTL, or its actor re-registered).
+    #[error("actor {actor}: lease {lease} expired; its world was dealt again")]
+    ExpiredLease {
+        /// The actor id given.
+        actor: ActorId,
+        /// The lease id given.
+        lease: u64,
+    },
+    /// The lease was issued to a different actor.
+    #[error("actor {actor}: lease {lease} belongs to actor {owner}")]
+    LeaseOfOtherActor {
+        /// The actor id given.
+        actor: ActorId,
+        /// The lease id given.
+        lease: u64,
+        /// The actor the lease was issued to.
+        owner: ActorId,
+    },
+    /// The lease was already finished: no more data or `finish` is accepted under it.
+    #[error("actor {actor}: lease {lease} is already finished")]
+    AlreadyFinished {
+        /// The actor id given.
+        actor: ActorId,
+        /// The lease id given.
+        lease: u64,
+    },
+    /// More episodes were reported under the lease than it assigned.
+    #[error("actor {actor}: lease {lease} assigned {episodes} episodes, and all were already reported")]
+    EpisodeOverflow {
+        /// The actor id given.
+        actor: ActorId,
+        /// The lease id given.
+        lease: u64,
+        /// The episodes of the assignment.
+        episodes: u32,
+    },
+    /// The configuration is unusable.
+    #[error("invalid registry configuration: {0}")]
+    InvalidConfig(String),
+    /// The list of worlds is unusable.
+    #[error("invalid world list: {0}")]
+    Worlds(#[from] DealerError),
+}
+
+/// A registered actor, as listed by [`Registry::actors`].
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ActorInfo {
+    /// The actor id.
+    pub id: ActorId,
+    /// The actor's rank.
+    pub rank: u32,
+    /// The host it registered from.
+    pub host: String,
+    /// Its process id on that host.
+    pub pid: u32,
+    /// Whether it was heard from within the TTL (as of the last `&mut` call).
+    pub live: bool,
+    /// Its open lease, if any.
+    pub lease: Option<u64>,
+    /// When it was last heard from.
+    pub last_seen_ms: u64,
+}
+
+/// Counters for a status display, from [`Registry::status`].
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct RegistryStatus {
+    /// The current cycle; also the number of cycles completed, since cycles count from 0 and
+    /// advance only by completing.
+    pub cycle: u64,
+    /// Actors heard from within the TTL.
+    pub live_actors: usize,
+    /// Live actors without an open lease.
+    pub idle_actors: usize,
+    /// Open leases.
+    pub open_leases: usize,
+    /// Leases that expired since the run started.
+    pub expired_leases_total: u64,
+    /// Assignments made since the run started.
+    pub assignments_total: u64,
+    /// Episodes reported through [`Registry::episode_done`] since the run started.
+    pub episodes_reported_total: u64,
+    /// Per-world assignment counts from the dealer.
+    pub worlds: Vec<WorldCount>,
+}
+
+/// What of a registry survives a checkpoint; see the module documentation.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct RegistrySnapshot {
+    dealer: Dealer,
+    cycle: u64,
+    next_actor_id: ActorId,
+    next_lease_id: u64,
+    rank_episodes: BTreeMap<u32, u64>,
+    expired_leases_total: u64,
+    assignments_total: u64,
+    episodes_reported_total: u64,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Liveness {
+    Live,
+    Dead,
+    Retired,
+}
+
+#[derive(Debug, Clone)]
+struct ActorRecord {
+    rank: u32,
+    host: String,
+    pid: u32,
+    last_seen_ms: u64,
+    liveness: Liveness,
+    lease: Option<u64>,
+}
+
+#[derive(Debug, Clone)]
+struct OpenLease {
+    assignment: Assignment,
+    episodes_reported: u32,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Closure {
+    Finished,
+    Expired,
+}
+
+/// An actor's part in the current cycle.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Turn {
+    Working,
+    Done,
+}
+
+/// Actors, leases and cycles (see the module documentation).
+///
+/// Plain data: `Send` and `Sync`, mutated through `&mut self`; a server shares it behind a
+/// mutex. Times are milliseconds of one monotonic clock chosen by the caller.
+#[derive(Debug, Clone)]
+pub struct Registry {
+    config: RegistryConfig,
+    dealer: Dealer,
+    cycle: u64,
+    next_actor_id: ActorId,
+    next_lease_id: u64,
+    actors: BTreeMap<ActorId, ActorRecord>,
+    /// Per rank: the current actor id and the episodes issued to the rank so far.
+    ranks: BTreeMap<u32, (Option<ActorId>, u64)>,
+    open: BTreeMap<u64, OpenLease>,
+    closed: BTreeMap<u64, (ActorId, Closure)>,
+    turns: BTreeMap<ActorId, Turn>,
+    expired_queue: Vec<Expired>,
+    expired_leases_total: u64,
+    assignments_total: u64,
+    episodes_reported_total: u64,
+}
+
+impl Registry {
+    /// An empty registry at cycle 0 dealing `worlds` (non-empty, no duplicates).
+    pub fn new(config: RegistryConfig, worlds: Vec<usize>) -> Result<Self, RegistryError> {
+        let dealer = Dealer::new(worlds, config.run_seed)?;
+        Self::restore(
+            config,
+            RegistrySnapshot {
+                dealer,
+                cycle: 0,
+                next_actor_id: 0,
+                // Lease 0 means "no lease" on the wire (idle heartbeats).
+                next_lease_id: 1,
+                rank_episodes: BTreeMap::new(),
+                expired_leases_total: 0,
+                assignments_total: 0,
+                episodes_reported_total: 0,
+            },
+        )
+    }
+
+    /// A registry continuing from `snapshot` without actors or leases (see the module
+    /// documentation); `config` may differ from the original run's (e.g. another TTL).
+    pub fn restore(config: RegistryConfig, snapshot: RegistrySnapshot) -> Result<Self, RegistryError> {
+        if config.lease_ttl_ms == 0 {
+            return Err(RegistryError::InvalidConfig(
+                "lease_ttl_ms must be positive".into(),
+            ));
+        }
+        if config.episodes_per_assignment == 0 {
+            return Err(RegistryError::InvalidConfig(
+                "episodes_per_assignment must be positive".into(),
+            ));
+        }
+        let mut dealer = snapshot.dealer;
+        dealer.release_all_in_flight();
+        Ok(Self {
+            config,
+            dealer,
+            cycle: snapshot.cycle,
+            next_actor_id: snapshot.next_actor_id,
+            next_lease_id: snapshot.next_lease_id,
+            actors: BTreeMap::new(),
+            ranks: snapshot
+                .rank_episodes
+                .into_iter()
+                .map(|(rank, issued)| (rank, (None, issued)))
+                .collect(),
+            open: BTreeMap::new(),
+            closed: BTreeMap::new(),
+            turns: BTreeMap::new(),
+            expired_queue: Vec::new(),
+            expired_leases_total: snapshot.expired_leases_total,
+            assignments_total: snapshot.assignments_total,
+            episodes_reported_total: snapshot.episodes_reported_total,
+        })
+    }
+
+    /// The state to checkpoint; in-flight assignments are recorded as released.
+    pub fn snapshot(&self) -> RegistrySnapshot {
+        let mut dealer = self.dealer.clone();
+        dealer.release_all_in_flight();
+        RegistrySnapshot {
+            dealer,
+            cycle: self.cycle,
+            next_actor_id: self.next_actor_id,
+            next_lease_id: self.next_lease_id,
+            rank_episodes: self
+                .ranks
+                .iter()
+                .map(|(&rank, &(_, issued))| (rank, issued))
+                .collect(),
+            expired_leases_total: self.expired_leases_total,
+            assignments_total: self.assignments_total,
+            episodes_reported_total: self.episodes_reported_total,
+        }
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &RegistryConfig {
+        &self.config
+    }
+
+    /// The current cycle (0-based); equal to the number of cycles completed.
+    pub fn cycle(&self) -> u64 {
+        self.cycle
+    }
+
+    /// Registers actor `rank` running as process `pid` on `host` and returns its new id. If
+    /// the rank was registered before, its previous id is retired: its open lease expires at
+    /// once (reported by the next [`Registry::tick`]) and calls with it are refused. The rank's
+    /// episode counter continues, so its seeds never repeat.
+    pub fn register(&mut self, rank: u32, host: String, pid: u32, now_ms: u64) -> ActorId {
+        self.settle(now_ms);
+        let id = self.next_actor_id;
+        self.next_actor_id += 1;
+        let slot = self.ranks.entry(rank).or_insert((None, 0));
+        if let Some(old) = slot.0.replace(id) {
+            let record = self.actors.get_mut(&old).expect("a rank's actor is registered");
+            record.liveness = Liveness::Retired;
+            if let Some(lease) = record.lease {
+                self.expire(lease);
+            }
+        }
+        self.actors.insert(
+            id,
+            ActorRecord {
+                rank,
+                host,
+                pid,
+                last_seen_ms: now_ms,
+                liveness: Liveness::Live,
+                lease: None,
+            },
+        );
+        self.advance_if_done();
+        id
+    }
+
+    /// The actor's next assignment: a new one (in the current cycle, at `policy_version`) if it
+    /// has not had one this cycle, [`Decision::Idle`] if it finished or lost it; an actor
+    /// that still holds an open lease gets that assignment again (e.g. the reply was lost).
+    pub fn next_assignment(
+        &mut self,
+        actor: ActorId,
+        now_ms: u64,
+        policy_version: u64,
+    ) -> Result<Decision, RegistryError> {
+        self.settle(now_ms);
+        let (lease, rank) = self
+            .touch(actor, now_ms)
+            .map(|record| (record.lease, record.rank))?;
+        if let Some(lease) = lease {
+            return Ok(Decision::Assign(self.open[&lease].assignment.clone()));
+        }
+        if self.turns.contains_key(&actor) {
+            return Ok(Decision::Idle);
+        }
+        let world = self.dealer.deal();
+        let lease_id = self.next_lease_id;
+        self.next_lease_id += 1;
+        let episodes = self.config.episodes_per_assignment;
+        let issued = &mut self
+            .ranks
+            .get_mut(&rank)
+            .expect("a registered rank has a record")
+            .1;
+        let seeds = (*issued..*issued + u64::from(episodes))
+            .map(|counter| episode_seed(self.config.run_seed, rank, counter))
+            .collect();
+        *issued += u64::from(episodes);
+        let assignment = Assignment {
+            lease_id,
+            actor,
+            world,
+            episodes,
+            cycle: self.cycle,
+            policy_version,
+            seeds,
+            deadline_ms: now_ms.saturating_add(self.config.lease_ttl_ms),
+        };
+        self.open.insert(
+            lease_id,
+            OpenLease {
+                assignment: assignment.clone(),
+                episodes_reported: 0,
+            },
+        );
+        self.actors.get_mut(&actor).expect("touched above").lease = Some(lease_id);
+        self.turns.insert(actor, Turn::Working);
+        self.assignments_total += 1;
+        Ok(Decision::Assign(assignment))
+    }
+
+    /// Marks the actor alive and, with `Some(lease_id)`, extends that lease to
+    /// `now_ms + lease_ttl_ms`. With `None` an open lease of the actor is not extended.
+    pub fn heartbeat(
+        &mut self,
+        actor: ActorId,
+        lease_id: Option<u64>,
+        now_ms: u64,
+    ) -> Result<(), RegistryError> {
+        self.settle(now_ms);
+        self.touch(actor, now_ms)?;
+        if let Some(lease) = lease_id {
+            self.open_lease(actor, lease)?;
+            let deadline = now_ms.saturating_add(self.config.lease_ttl_ms);
+            self.open
+                .get_mut(&lease)
+                .expect("checked open")
+                .assignment
+                .deadline_ms = deadline;
+        }
+        Ok(())
+    }
+
+    /// Counts one reported episode under the lease; refused unless the lease is open, and
+    /// beyond the assignment's number of episodes.
+    pub fn episode_done(&mut self, actor: ActorId, lease_id: u64, now_ms: u64) -> Result<(), RegistryError> {
+        self.settle(now_ms);
+        self.touch(actor, now_ms)?;
+        self.open_lease(actor, lease_id)?;
+        let open = self.open.get_mut(&lease_id).expect("checked open");
+        if open.episodes_reported >= open.assignment.episodes {
+            return Err(RegistryError::EpisodeOverflow {
+                actor,
+                lease: lease_id,
+                episodes: open.assignment.episodes,
+            });
+        }
+        open.episodes_reported += 1;
+        self.episodes_reported_total += 1;
+        Ok(())
+    }
+
+    /// Closes the lease as finished: its world counts as completed, the actor idles until the
+    /// cycle advances, and no more data is accepted under the lease.
+    pub fn finish(&mut self, actor: ActorId, lease_id: u64, now_ms: u64) -> Result<(), RegistryError> {
+        self.settle(now_ms);
+        self.touch(actor, now_ms)?;
+        self.open_lease(actor, lease_id)?;
+        let open = self.open.remove(&lease_id).expect("checked open");
+        self.dealer
+            .complete(open.assignment.world)
+            .expect("an open lease holds an in-flight world");
+        self.close(lease_id, actor, Closure::Finished);
+        self.actors.get_mut(&actor).expect("touched above").lease = None;
+        self.turns.insert(actor, Turn::Done);
+        self.advance_if_done();
+        Ok(())
+    }
+
+    /// Whether data sent by `actor` under `lease_id` may be accepted at `now_ms`: the actor is
+    /// current and the lease is its own, open, and not past its deadline (even if no `&mut`
+    /// call has expired it yet). Data for finished leases is refused.
+    pub fn check_lease(&self, actor: ActorId, lease_id: u64, now_ms: u64) -> Result<(), RegistryError> {
+        self.record(actor)?;
+        let open = self.open_lease(actor, lease_id)?;
+        if now_ms >= open.assignment.deadline_ms {
+            return Err(RegistryError::ExpiredLease {
+                actor,
+                lease: lease_id,
+            });
+        }
+        Ok(())
+    }
+
+    /// Expires overdue leases, marks silent actors dead, advances the cycle if its barrier is
+    /// met, and returns every lease expired since the previous `tick` (including those expired
+    /// by other calls or by re-registration), oldest first.
+    pub fn tick(&mut self, now_ms: u64) -> Vec<Expired> {
+        self.settle(now_ms);
+        std::mem::take(&mut self.expired_queue)
+    }
+
+    /// The registered, non-retired actors, by id.
+    pub fn actors(&self) -> Vec<ActorInfo> {
+        self.actors
+            .iter()
+            .filter(|(_, record)| record.liveness != Liveness::Retired)
+            .map(|(&id, record)| ActorInfo {
+                id,
+                rank: record.rank,
+                host: record.host.clone(),
+                pid: record.pid,
+                live: record.liveness == Liveness::Live,
+                lease: record.lease,
+                last_seen_ms: record.last_seen_ms,
+            })
+            .collect()
+    }
+
+    /// Counters as of the last `&mut` call.
+    pub fn status(&self) -> RegistryStatus {
+        let live = self
+            .actors
+            .values()
+            .filter(|record| record.liveness == Liveness::Live);
+        RegistryStatus {
+            cycle: self.cycle,
+            live_actors: live.clone().count(),
+            idle_actors: live.filter(|record| record.lease.is_none()).count(),
+            open_leases: self.open.len(),
+            expired_leases_total: self.expired_leases_total,
+            assignments_total: self.assignments_total,
+            episodes_reported_total: self.episodes_reported_total,
+            worlds: self.dealer.counts(),
+        }
+    }
+
+    /// Expires overdue leases, marks silent actors dead and advances the cycle if due.
+    fn settle(&mut self, now_ms: u64) {
+        let overdue: Vec<u64> = self
+            .open
+            .iter()
+            .filter(|(_, open)| now_ms >= open.assignment.deadline_ms)
+            .map(|(&lease, _)| lease)
+            .collect();
+        for lease in overdue {
+            self.expire(lease);
+        }
+        let ttl = self.config.lease_ttl_ms;
+        for record in self.actors.values_mut() {
+            if record.liveness == Liveness::Live && now_ms >= record.last_seen_ms.saturating_add(ttl) {
+                record.liveness = Liveness::Dead;
+            }
+        }
+        self.advance_if_done();
+    }
+
+    /// Expires the open lease `lease`.
+    fn expire(&mut self, lease: u64) {
+        let open = self.open.remove(&lease).expect("expiring an open lease");
+        let Assignment { actor, world, .. } = open.assignment;
+        self.dealer
+            .release(world)
+            .expect("an open lease holds an in-flight world");
+        self.close(lease, actor, Closure::Expired);
+        self.actors
+            .get_mut(&actor)
+            .expect("a lease's actor is registered")
+            .lease = None;
+        self.turns.insert(actor, Turn::Done);
+        self.expired_leases_total += 1;
+        self.expired_queue.push(Expired {
+            actor,
+            lease_id: lease,
+            world,
+        });
+    }
+
+    fn close(&mut self, lease: u64, actor: ActorId, closure: Closure) {
+        self.closed.insert(lease, (actor, closure));
+        if self.closed.len() > CLOSED_LEASES_REMEMBERED {
+            self.closed.pop_first();
+        }
+    }
+
+    /// Advances the cycle when someone worked in it and nobody is still working.
+    fn advance_if_done(&mut self) {
+        if !self.turns.is_empty() && self.turns.values().all(|&turn| turn == Turn::Done) {
+            self.turns.clear();
+            self.cycle += 1;
+        }
+    }
+
+    fn record(&self, actor: ActorId) -> Result<&ActorRecord, RegistryError> {
+        match self.actors.get(&actor) {
+            None => Err(RegistryError::UnknownActor { actor }),
+            Some(record) if record.liveness == Liveness::Retired => {
+                Err(RegistryError::RetiredActor { actor })
+            }
+            Some(record) => Ok(record),
+        }
+    }
+
+    /// Checks that the actor is current and marks it alive at `now_ms`.
+    fn touch(&mut self, actor: ActorId, now_ms: u64) -> Result<&ActorRecord, RegistryError> {
+        self.record(actor)?;
+        let record = self.actors.get_mut(&actor).expect("checked above");
+        record.last_seen_ms = now_ms;
+        record.liveness = Liveness::Live;
+        Ok(record)
+    }
+
+    /// The open lease `lease` of `actor`, or why it is not one.
+    fn open_lease(&self, actor: ActorId, lease: u64) -> Result<&OpenLease, RegistryError> {
+        if let Some(open) = self.open.get(&lease) {
+            let owner = open.assignment.actor;
+            return if owner == actor {
+                Ok(open)
+            } else {
+                Err(RegistryError::LeaseOfOtherActor { actor, lease, owner })
+            };
+        }
+        match self.closed.get(&lease) {
+            None => Err(RegistryError::UnknownLease { actor, lease }),
+            Some(&(owner, _)) if owner != actor => {
+                Err(RegistryError::LeaseOfOtherActor { actor, lease, owner })
+            }
+            Some((_, Closure::Finished)) => Err(RegistryError::AlreadyFinished { actor, lease }),
+            Some((_, Closure::Expired)) => Err(RegistryError::ExpiredLease { actor, lease }),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::collections::HashSet;
+
+    const TTL: u64 = 1_000;
+
+    fn registry(worlds: usize, run_seed: u64) -> Registry {
+        let config = RegistryConfig {
+            lease_ttl_ms: TTL,
+            episodes_per_assignment: 2,
+            run_seed,
+        };
+        Registry::new(config, (0..worlds).map(|w| w * 10).collect()).unwrap()
+    }
+
+    fn assign(registry: &mut Registry, actor: ActorId, now_ms: u64) -> Assignment {
+        match registry.next_assignment(actor, now_ms, 0).unwrap() {
+            Decision::Assign(assignment) => assignment,
+            Decision::Idle => panic!("actor {actor} is idle at {now_ms} ms"),
+        }
+    }
+
+    fn is_idle(registry: &mut Registry, actor: ActorId, now_ms: u64) -> bool {
+        registry.next_assignment(actor, now_ms, 0).unwrap() == Decision::Idle
+    }
+
+    #[test]
+    fn rejects_bad_configuration_and_worlds() {
+        let zero_ttl = RegistryConfig {
+            lease_ttl_ms: 0,
+            ..RegistryConfig::default()
+        };
+        assert!(matches!(
+            Registry::new(zero_ttl, vec![1]),
+            Err(RegistryError::InvalidConfig(_))
+        ));
+        let zero_episodes = RegistryConfig {
+            episodes_per_assignment: 0,
+            ..RegistryConfig::default()
+        };
+        assert!(matches!(
+            Registry::new(zero_episodes, vec![1]),
+            Err(RegistryError::InvalidConfig(_))
+        ));
+        let error = Registry::new(RegistryConfig::default(), vec![]).unwrap_err();
+        assert_eq!(error, RegistryError::Worlds(DealerError::NoWorlds));
+    }
+
+    #[test]
+    fn worlds_stay_fair_over_many_cycles() {
+        let mut registry = registry(7, 1);
+        let actors: Vec<ActorId> = (0..3)
+            .map(|rank| registry.register(rank, "h".into(), rank, 0))
+            .collect();
+        let mut now = 0;
+        for cycle in 0..70 {
+            let leases: Vec<Assignment> = actors.iter().map(|&a| assign(&mut registry, a, now)).collect();
+            assert!(leases.iter().all(|lease| lease.cycle == cycle));
+            for lease in leases {
+                now += 5;
+                registry.finish(lease.actor, lease.lease_id, now).unwrap();
+            }
+            let counts: Vec<u64> = registry.status().worlds.iter().map(|c| c.completed).collect();
+            assert!(
+                counts.iter().max().unwrap() - counts.iter().min().unwrap() <= 1,
+                "{counts:?}"
+            );
+        }
+        let status = registry.status();
+        assert_eq!(status.cycle, 70);
+        assert_eq!(status.assignments_total, 210);
+        assert_eq!(status.worlds.iter().map(|c| c.completed).sum::<u64>(), 210);
+        assert_eq!(
+            (status.open_leases, status.idle_actors, status.live_actors),
+            (0, 3, 3)
+        );
+    }
+
+    #[test]
+    fn finished_actor_idles_until_the_cycle_barrier_and_late_joiner_starts_at_once() {
+        let mut registry = registry(5, 2);
+        let a = registry.register(0, "h".into(), 1, 0);
+        let b = registry.register(1, "h".into(), 2, 0);
+        let lease_a = assign(&mut registry, a, 0);
+        let lease_b = assign(&mut registry, b, 0);
+        registry.finish(a, lease_a.lease_id, 10).unwrap();
+        assert!(is_idle(&mut registry, a, 20));
+        assert_eq!(registry.cycle(), 0);
+        let c = registry.register(2, "h".into(), 3, 30);
+        let lease_c = assign(&mut registry, c, 30);
+        assert_eq!(lease_c.cycle, 0);
+        registry.finish(b, lease_b.lease_id, 40).unwrap();
+        assert!(is_idle(&mut registry, a, 50), "c is still working in cycle 0");
+        assert!(is_idle(&mut registry, b, 50));
+        registry.finish(c, lease_c.lease_id, 60).unwrap();
+        assert_eq!(registry.cycle(), 1);
+        assert_eq!(assign(&mut registry, a, 70).cycle, 1);
+    }
+
+    #[test]
+    fn expired_lease_returns_its_world_and_refuses_late_data() {
+        let mut registry = registry(6, 3);
+        let a = registry.register(0, "h".into(), 1, 0);
+        let b = registry.register(1, "h".into(), 2, 0);
+        let lease = assign(&mut registry, a, 0);
+        registry.heartbeat(b, None, 900).unwrap();
+        assert!(registry.tick(TTL - 1).is_empty());
+        registry.check_lease(a, lease.lease_id, TTL - 1).unwrap();
+        let error = registry.check_lease(a, lease.lease_id, TTL).unwrap_err();
+        assert!(error.to_string().contains("expired"), "{error}");
+        let expired = registry.tick(TTL);
+        assert_eq!(
+            expired,
+            vec![Expired {
+                actor: a,
+                lease_id: lease.lease_id,
+                world: lease.world
+            }]
+        );
+        let error = registry.check_lease(a, lease.lease_id, TTL + 1).unwrap_err();
+        assert_eq!(
+            error,
+            RegistryError::ExpiredLease {
+                actor: a,
+                lease: lease.lease_id
+            }
+        );
+        assert!(error.to_string().contains("expired"));
+        let status = registry.status();
+        assert_eq!(
+            (status.expired_leases_total, status.live_actors),
+            (1, 1),
+            "a is dead, b alive"
+        );
+        assert_eq!(registry.finish(a, lease.lease_id, TTL + 1), Err(error));
+        assert_eq!(
+            assign(&mut registry, b, TTL + 2).world,
+            lease.world,
+            "released world is dealt first"
+        );
+    }
+
+    #[test]
+    fn lost_lease_counts_for_the_barrier() {
+        let mut registry = registry(3, 4);
+        let a = registry.register(0, "h".into(), 1, 0);
+        let lease = assign(&mut registry, a, 0);
+        assert_eq!(registry.tick(TTL).len(), 1);
+        assert_eq!(
+            registry.cycle(),
+            1,
+            "the only worker lost its lease: the cycle is over"
+        );
+        let again = assign(&mut registry, a, TTL + 1);
+        assert_eq!((again.world, again.cycle), (lease.world, 1));
+    }
+
+    #[test]
+    fn heartbeats_extend_leases_and_check_ownership() {
+        let mut registry = registry(4, 5);
+        let a = registry.register(0, "h".into(), 1, 0);
+        let b = registry.register(1, "h".into(), 2, 0);
+        let lease = assign(&mut registry, a, 0);
+        registry.heartbeat(a, Some(lease.lease_id), 900).unwrap();
+        registry.heartbeat(b, None, 900).unwrap();
+        assert!(registry.tick(1_500).is_empty());
+        registry.check_lease(a, lease.lease_id, 1_899).unwrap();
+        assert_eq!(
+            registry.heartbeat(b, Some(lease.lease_id), 1_000),
+            Err(RegistryError::LeaseOfOtherActor {
+                actor: b,
+                lease: lease.lease_id,
+                owner: a
+            })
+        );
+        assert_eq!(
+            registry.heartbeat(a, Some(99), 1_000),
+            Err(RegistryError::UnknownLease { actor: a, lease: 99 })
+        );
+        assert_eq!(
+            registry.heartbeat(77, None, 1_000),
+            Err(RegistryError::UnknownActor { actor: 77 })
+        );
+        assert_eq!(registry.tick(1_900).len(), 1);
+        assert_eq!(
+            registry.heartbeat(a, Some(lease.lease_id), 1_901),
+            Err(RegistryError::ExpiredLease {
+                actor: a,
+                lease: lease.lease_id
+            })
+        );
+    }
+
+    #[test]
+    fn finished_lease_refuses_data_and_a_second_finish() {
+        let mut registry = registry(4, 6);
+        let a = registry.register(0, "h".into(), 1, 0);
+        let lease = assign(&mut registry, a, 0);
+        registry.episode_done(a, lease.lease_id, 1).unwrap();
+        registry.episode_done(a, lease.lease_id, 2).unwrap();
+        assert_eq!(
+            registry.episode_done(a, lease.lease_id, 3),
+            Err(RegistryError::EpisodeOverflow {
+                actor: a,
+                lease: lease.lease_id,
+                episodes: 2
+            })
+        );
+        registry.finish(a, lease.lease_id, 4).unwrap();
+        let finished = RegistryError::AlreadyFinished {
+            actor: a,
+            lease: lease.lease_id,
+        };
+        assert_eq!(registry.check_lease(a, lease.lease_id, 5), Err(finished.clone()));
+        assert_eq!(registry.finish(a, lease.lease_id, 5), Err(finished));
+        assert_eq!(registry.status().episodes_reported_total, 2);
+    }
+
+    #[test]
+    fn asking_again_with_an_open_lease_returns_the_same_assignment() {
+        let mut registry = registry(4, 7);
+        let a = registry.register(0, "h".into(), 1, 0);
+        let first = assign(&mut registry, a, 0);
+        registry.heartbeat(a, Some(first.lease_id), 500).unwrap();
+        let again = assign(&mut registry, a, 600);
+        assert_eq!(
+            again,
+            Assignment {
+                deadline_ms: 1_500,
+                ..first
+            }
+        );
+        assert_eq!(registry.status().assignments_total, 1);
+    }
+
+    #[test]
+    fn re_registration_retires_the_old_id_and_continues_seeds() {
+        let mut registry = registry(5, 8);
+        let old = registry.register(4, "h".into(), 100, 0);
+        let other = registry.register(5, "h".into(), 101, 0);
+        let lease_other = assign(&mut registry, other, 0);
+        let lease = assign(&mut registry, old, 0);
+        let new = registry.register(4, "h".into(), 200, 10);
+        assert_ne!(new, old);
+        assert_eq!(
+            registry.tick(10),
+            vec![Expired {
+                actor: old,
+                lease_id: lease.lease_id,
+                world: lease.world
+            }]
+        );
+        assert_eq!(
+            registry.next_assignment(old, 11, 0),
+            Err(RegistryError::RetiredActor { actor: old })
+        );
+        assert_eq!(
+            registry.check_lease(old, lease.lease_id, 11),
+            Err(RegistryError::RetiredActor { actor: old })
+        );
+        let fresh = assign(&mut registry, new, 11);
+        assert_eq!(
+            (fresh.cycle, fresh.world),
+            (0, lease.world),
+            "same cycle, released world first"
+        );
+        assert!(fresh.seeds.iter().all(|seed| !lease.seeds.contains(seed)));
+        assert_eq!(fresh.seeds[0], episode_seed(8, 4, 2));
+        registry.finish(other, lease_other.lease_id, 12).unwrap();
+        assert_eq!(registry.cycle(), 0, "the new registration still works in cycle 0");
+        assert_eq!(
+            registry
+                .actors()
+                .iter()
+                .map(|info| (info.id, info.pid))
+                .collect::<Vec<_>>(),
+            [(other, 101), (new, 200)]
+        );
+    }
+
+    #[test]
+    fn seeds_are_reproducible_and_distinct() {
+        let run = |run_seed| {
+            let mut registry = registry(9, run_seed);
+            let actors: Vec<ActorId> = (0..4)
+                .map(|rank| registry.register(rank, "h".into(), rank, 0))
+                .collect();
+            let mut seeds = Vec::new();
+            for step in 0..25 {
+                for &actor in &actors {
+                    let lease = assign(&mut registry, actor, step);
+                    seeds.extend(lease.seeds.iter().copied());
+                    registry.finish(actor, lease.lease_id, step).unwrap();
+                }
+            }
+            seeds
+        };
+        let seeds = run(11);
+        assert_eq!(seeds.len(), 200);
+        assert_eq!(seeds.iter().collect::<HashSet<_>>().len(), 200);
+        assert_eq!(seeds, run(11));
+        assert_ne!(seeds, run(12));
+    }
+
+    #[test]
+    fn silent_actor_is_dead_until_it_calls_again() {
+        let mut registry = registry(2, 9);
+        let a = registry.register(0, "h".into(), 1, 0);
+        registry.tick(TTL);
+        assert_eq!(registry.status().live_actors, 0);
+        assert!(!registry.actors()[0].live);
+        registry.heartbeat(a, None, TTL + 1).unwrap();
+        assert_eq!(
+            (registry.status().live_actors, registry.status().idle_actors),
+            (1, 1)
+        );
+    }
+
+    #[test]
+    fn restore_drops_actors_and_leases_but_keeps_counts() {
+        let mut registry = registry(4, 10);
+        let a = registry.register(0, "h".into(), 1, 0);
+        let done = assign(&mut registry, a, 0);
+        registry.finish(a, done.lease_id, 1).unwrap();
+        let open = assign(&mut registry, a, 2);
+        let json = serde_json::to_string(&registry.snapshot()).unwrap();
+        let snapshot: RegistrySnapshot = serde_json::from_str(&json).unwrap();
+        let mut restored = Registry::restore(*registry.config(), snapshot).unwrap();
+        assert_eq!(restored.cycle(), 1);
+        assert!(restored.actors().is_empty());
+        assert_eq!(
+            restored.check_lease(a, open.lease_id, 3),
+            Err(RegistryError::UnknownActor { actor: a })
+        );
+        let b = restored.register(0, "h".into(), 2, 3);
+        assert!(b > a, "ids are not reused");
+        let next = assign(&mut restored, b, 3);
+        assert!(next.lease_id > open.lease_id, "lease ids are not reused");
+        assert_eq!(next.world, open.world, "the in-flight world is dealt first");
+        assert_eq!(
+            next.seeds[0],
+            episode_seed(10, 0, 4),
+            "rank 0's episode counter continues"
+        );
+        let status = restored.status();
+        assert_eq!(status.assignments_total, 3);
+        assert_eq!(status.worlds.iter().map(|c| c.completed).sum::<u64>(), 1);
+    }
+}

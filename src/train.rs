@@ -1,0 +1,413 @@
+//! `adp train`, `adp learner` and `adp actor`: the training service's command-line halves.
+//!
+//! `train` runs a learner in this process and N sandboxed actor processes (this executable's
+//! `actor` subcommand) under the local supervisor; `learner` and `actor` are the two halves for
+//! clusters and hand-made multi-host runs.
+
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use anyhow::{bail, Context};
+use serde::{Deserialize, Serialize};
+
+use actor::run::{ActorSetup, PlaneChoice};
+use actor::EnvConfig;
+use adp_learner::service::{Learner, LearnerOptions, ServiceConfig, TrainSummary};
+use adp_learner::Td3Config;
+use planner::ActionSpace;
+use proto::auth::{create_token_file, read_token_file, TlsFiles};
+use proto::grpc::LearnerAddress;
+use scheduler::{
+    BackoffPolicy, BwrapMode, Sandbox, SandboxConfig, Supervisor, SupervisorConfig, SupervisorEvent,
+};
+
+use crate::config::{one_line, EvalConfig};
+use crate::eval::PlannerKind;
+
+/// The embedded default of `configs/local.toml`.
+const LOCAL_TOML: &str = include_str!("../configs/local.toml");
+
+/// `[run]`: what to train.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct RunSection {
+    /// Run name (run directory `runs/<name>`).
+    pub name: String,
+    /// Agent-step budget.
+    pub steps: u64,
+    /// Actor processes (0 = one per core).
+    pub actors: u32,
+    /// Training worlds (split name, range or list).
+    pub worlds: String,
+    /// Planner the actors drive.
+    pub planner: String,
+    /// ADP action space.
+    pub action_space: String,
+    /// The planner's speed cap (m/s).
+    pub max_speed: f64,
+}
+
+impl Default for RunSection {
+    fn default() -> Self {
+        Self {
+            name: "local".into(),
+            steps: 12_000,
+            actors: 0,
+            worlds: "train".into(),
+            planner: "dwa".into(),
+            action_space: "decremental".into(),
+            max_speed: 1.5,
+        }
+    }
+}
+
+/// `[sandbox]`: limits of the actor processes.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SandboxSection {
+    /// `auto`, `off` or `required`.
+    pub bwrap: String,
+    /// Address-space limit per actor (MiB, 0 = inherited).
+    pub address_space_mb: u64,
+    /// Open-file limit per actor (0 = inherited).
+    pub open_files: u64,
+}
+
+impl Default for SandboxSection {
+    fn default() -> Self {
+        Self {
+            bwrap: "auto".into(),
+            address_space_mb: 4096,
+            open_files: 1024,
+        }
+    }
+}
+
+/// A training run's configuration (`configs/local.toml`).
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct TrainConfig {
+    /// What to train.
+    pub run: RunSection,
+    /// The actors' environment.
+    pub env: EnvConfig,
+    /// TD3.
+    pub td3: Td3Config,
+    /// The learner process.
+    pub service: ServiceConfig,
+    /// The actor sandbox.
+    pub sandbox: SandboxSection,
+}
+
+impl TrainConfig {
+    /// Reads `path`, or the embedded `configs/local.toml` when `None`, and checks it.
+    pub fn load(path: Option<&Path>) -> anyhow::Result<Self> {
+        let (name, text) = match path {
+            Some(p) => (
+                p.display().to_string(),
+                std::fs::read_to_string(p).with_context(|| format!("cannot read config {}", p.display()))?,
+            ),
+            None => ("configs/local.toml (embedded)".into(), LOCAL_TOML.to_owned()),
+        };
+        let cfg: Self =
+            toml::from_str(&text).map_err(|e| anyhow::anyhow!("{name}: {}", one_line(&e.to_string())))?;
+        cfg.td3.validate().with_context(|| format!("{name}: [td3]"))?;
+        cfg.env
+            .validate()
+            .map_err(|e| anyhow::anyhow!("{name}: [env]: {e}"))?;
+        cfg.space()
+            .with_context(|| format!("{name}: [run] action_space"))?;
+        cfg.planner_kind()
+            .with_context(|| format!("{name}: [run] planner"))?;
+        cfg.bwrap().with_context(|| format!("{name}: [sandbox] bwrap"))?;
+        if !(cfg.run.max_speed.is_finite() && cfg.run.max_speed > 0.0) {
+            bail!("{name}: [run] max_speed = {} must be positive", cfg.run.max_speed);
+        }
+        Ok(cfg)
+    }
+
+    fn space(&self) -> anyhow::Result<ActionSpace> {
+        self.run
+            .action_space
+            .parse()
+            .map_err(|e: String| anyhow::anyhow!(e))
+    }
+
+    fn planner_kind(&self) -> anyhow::Result<PlannerKind> {
+        planner_kind(&self.run.planner)
+    }
+
+    fn bwrap(&self) -> anyhow::Result<BwrapMode> {
+        match self.sandbox.bwrap.as_str() {
+            "auto" => Ok(BwrapMode::Auto),
+            "off" => Ok(BwrapMode::Off),
+            "required" => Ok(BwrapMode::Required),
+            other => bail!("unknown value `{other}` (expected auto, off or required)"),
+        }
+    }
+
+    /// The learner options of this config for `run_dir`.
+    fn learner_options(&self, run_dir: &Path, token: String, resume: bool) -> anyhow::Result<LearnerOptions> {
+        let worlds = sim::splits::SplitFile::embedded()
+            .select(&self.run.worlds)
+            .map_err(|e| anyhow::anyhow!("[run] worlds = {:?}: {e}", self.run.worlds))?;
+        Ok(LearnerOptions {
+            run_dir: run_dir.to_owned(),
+            run_id: run_id(&self.run.name),
+            td3: self.td3.clone(),
+            service: self.service.clone(),
+            planner: self.run.planner.clone(),
+            max_speed: self.run.max_speed,
+            space: self.space()?,
+            env_toml: toml::to_string(&self.env).expect("EnvConfig serializes"),
+            worlds,
+            budget_steps: self.run.steps,
+            token,
+            resume,
+            handle_signals: true,
+        })
+    }
+}
+
+fn planner_kind(name: &str) -> anyhow::Result<PlannerKind> {
+    <PlannerKind as clap::ValueEnum>::from_str(name, false)
+        .map_err(|_| anyhow::anyhow!("unknown planner `{name}` (expected dwa, mppi, log-mppi or system)"))
+}
+
+/// A run id: the name plus the start time, unique per fresh run.
+fn run_id(name: &str) -> String {
+    let secs = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_secs());
+    format!("{name}-{secs}-{}", std::process::id())
+}
+
+/// The run directory's token: created (mode 0600) on a fresh run, read on a resumed one.
+fn run_token(run_dir: &Path) -> anyhow::Result<(PathBuf, String)> {
+    std::fs::create_dir_all(run_dir).with_context(|| format!("cannot create {}", run_dir.display()))?;
+    let path = run_dir.join("token");
+    let token = if path.exists() {
+        read_token_file(&path)?
+    } else {
+        create_token_file(&path)?
+    };
+    Ok((path, token))
+}
+
+/// Command-line overrides of a config.
+pub struct Overrides {
+    /// `--steps`.
+    pub steps: Option<u64>,
+    /// `--actors`.
+    pub actors: Option<u32>,
+    /// `--out`.
+    pub out: Option<PathBuf>,
+    /// `--listen` (learner only).
+    pub listen: Option<String>,
+}
+
+fn prepare(config: Option<&Path>, o: &Overrides, resume: bool) -> anyhow::Result<(TrainConfig, PathBuf)> {
+    let mut cfg = TrainConfig::load(config)?;
+    if let Some(s) = o.steps {
+        cfg.run.steps = s;
+    }
+    if let Some(a) = o.actors {
+        cfg.run.actors = a;
+    }
+    if let Some(l) = &o.listen {
+        cfg.service.listen = l.clone();
+    }
+    let out = o
+        .out
+        .clone()
+        .unwrap_or_else(|| PathBuf::from("runs").join(&cfg.run.name));
+    if resume && !out.is_dir() {
+        bail!("--resume: run directory {} does not exist", out.display());
+    }
+    std::fs::create_dir_all(&out).with_context(|| format!("cannot create {}", out.display()))?;
+    let copy = out.join("config.toml");
+    let text = toml::to_string_pretty(&cfg).expect("config serializes");
+    std::fs::write(&copy, text).with_context(|| format!("cannot write {}", copy.display()))?;
+    Ok((cfg, out))
+}
+
+fn print_summary(s: &TrainSummary, out: &Path, space: &str) {
+    eprintln!(
+        "{} after {} agent steps and {} updates; checkpoint {}",
+        if s.completed { "finished" } else { "stopped" },
+        s.inserts,
+        s.updates,
+        s.checkpoint.display()
+    );
+    if let Some(e) = &s.export {
+        eprintln!(
+            "exported policy: {}\nevaluate it: adp eval --fidelity adp --action {space} --policy {}",
+            e.display(),
+            e.join("policy.json").display()
+        );
+    }
+    if !s.completed {
+        eprintln!("continue with: adp train --out {} --resume", out.display());
+    }
+}
+
+/// `adp train`.
+pub fn train(config: Option<&Path>, o: &Overrides, resume: bool) -> anyhow::Result<()> {
+    let (cfg, out) = prepare(config, o, resume)?;
+    let (token_path, token) = run_token(&out)?;
+    let actors = match cfg.run.actors {
+        0 => std::thread::available_parallelism().map_or(2, |n| n.get() as u32),
+        n => n,
+    };
+    let learner = Learner::start(cfg.learner_options(&out, token, resume)?).map_err(anyhow::Error::msg)?;
+    let exe = std::env::current_exe().context("cannot find this executable to start actors")?;
+    let sandbox = Sandbox::new(SandboxConfig {
+        bwrap: cfg.bwrap()?,
+        address_space_bytes: cfg.sandbox.address_space_mb << 20,
+        open_files: cfg.sandbox.open_files,
+        private_network: false,
+        writable_dirs: vec![PathBuf::from("/dev/shm"), PathBuf::from("/tmp")],
+    })?;
+    let args = vec![
+        "actor".to_string(),
+        "--learner".into(),
+        learner.addr().to_string(),
+        "--token-file".into(),
+        token_path.display().to_string(),
+    ];
+    let mut supervisor = Supervisor::start(
+        SupervisorConfig {
+            program: exe,
+            args,
+            actors,
+            backoff: BackoffPolicy::default(),
+        },
+        sandbox,
+        |rank| (vec!["--rank".into(), rank.to_string()], vec![]),
+        Instant::now(),
+    )?;
+    eprintln!(
+        "adp train: run {} in {} with {actors} actor(s) ({:?}); Ctrl-C stops with a checkpoint",
+        learner.run_id(),
+        out.display(),
+        supervisor.bwrap_status()
+    );
+    let bar = indicatif::ProgressBar::new(cfg.run.steps);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template(
+            "{elapsed_precise} [{bar:30}] {pos}/{len} steps ({per_sec}) {msg}",
+        )
+        .expect("valid template")
+        .progress_chars("=> "),
+    );
+    let mut last = (Instant::now(), 0u64);
+    let mut updates_per_s = 0.0;
+    while !learner.finished() {
+        std::thread::sleep(Duration::from_millis(250));
+        for event in supervisor.poll(Instant::now()) {
+            bar.println(format!("supervisor: {}", describe(&event)));
+        }
+        let s = learner.status();
+        let dt = last.0.elapsed().as_secs_f64();
+        if dt >= 2.0 {
+            updates_per_s = (s.updates - last.1) as f64 / dt;
+            last = (Instant::now(), s.updates);
+        }
+        bar.set_position(s.inserts.min(cfg.run.steps));
+        bar.set_message(format!(
+            "| {} episodes, success {} | {:.1} updates/s | policy v{} | {} actors",
+            s.episodes,
+            s.success_rate
+                .map_or("-".into(), |r| format!("{:.0}%", r * 100.0)),
+            updates_per_s,
+            s.policy_version,
+            s.live_actors
+        ));
+    }
+    bar.finish();
+    let summary = learner.wait().map_err(anyhow::Error::msg)?;
+    supervisor.shutdown(Duration::from_secs(3));
+    print_summary(&summary, &out, &cfg.run.action_space);
+    Ok(())
+}
+
+fn describe(e: &SupervisorEvent) -> String {
+    format!("{e:?}")
+}
+
+/// `adp learner`.
+pub fn learner(
+    config: Option<&Path>,
+    o: &Overrides,
+    resume: bool,
+    token_file: Option<&Path>,
+) -> anyhow::Result<()> {
+    let (cfg, out) = prepare(config, o, resume)?;
+    let token = match token_file {
+        Some(p) => read_token_file(p)?,
+        None => run_token(&out)?.1,
+    };
+    let learner = Learner::start(cfg.learner_options(&out, token, resume)?).map_err(anyhow::Error::msg)?;
+    let summary = learner.wait().map_err(anyhow::Error::msg)?;
+    print_summary(&summary, &out, &cfg.run.action_space);
+    Ok(())
+}
+
+/// Options of `adp actor`.
+pub struct ActorArgs {
+    /// `host:port` of the learner.
+    pub learner: String,
+    /// The run's token file.
+    pub token_file: PathBuf,
+    /// Rank (default: `SLURM_PROCID`, else 0).
+    pub rank: Option<u32>,
+    /// Data plane.
+    pub data_plane: PlaneChoice,
+    /// TLS CA (enables TLS).
+    pub tls_ca: Option<PathBuf>,
+    /// TLS server name.
+    pub tls_domain: Option<String>,
+    /// Client certificate and key (mutual TLS).
+    pub tls_cert: Option<PathBuf>,
+    /// Client key.
+    pub tls_key: Option<PathBuf>,
+    /// Seconds without the learner before giving up.
+    pub give_up_after_s: u64,
+}
+
+/// `adp actor`.
+pub fn actor(a: ActorArgs) -> anyhow::Result<()> {
+    let token = read_token_file(&a.token_file)?;
+    let rank = match a.rank {
+        Some(r) => r,
+        None => std::env::var("SLURM_PROCID")
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(0),
+    };
+    let eval_cfg = EvalConfig::load(None)?;
+    let factory = move |name: &str, seed: u64| -> Result<Box<dyn planner::Planner>, String> {
+        Ok(planner_kind(name)
+            .map_err(|e| e.to_string())?
+            .build(&eval_cfg, seed))
+    };
+    let tls = a.tls_ca.is_some().then(|| TlsFiles {
+        cert: a.tls_cert.clone(),
+        key: a.tls_key.clone(),
+        ca: a.tls_ca.clone(),
+        domain: a.tls_domain.clone(),
+    });
+    let setup = ActorSetup {
+        learner: LearnerAddress {
+            addr: a.learner.clone(),
+            token: Some(token),
+            tls,
+        },
+        rank,
+        plane: a.data_plane,
+        episode: EvalConfig::load(None)?.episode,
+        make_planner: &factory,
+        give_up_after: Duration::from_secs(a.give_up_after_s),
+    };
+    actor::run::run(&setup).map_err(anyhow::Error::msg)
+}

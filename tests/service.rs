@@ -1,0 +1,298 @@
+//! Multi-process tests of the training service: `adp train` over shared memory with 16 actors
+//! and a resume; `adp learner` + `adp actor` over gRPC with an actor killed mid-episode, and
+//! refused requests (no token, NaN, wrong length).
+//!
+//! Waits are bounded by a watchdog (a number of polls); nothing asserts a duration.
+
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::Duration;
+
+use adp_learner::service::{read_status, Status};
+use proto::grpc::LearnerAddress;
+use proto::pb;
+
+fn adp() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_adp"))
+}
+
+fn fresh_dir(name: &str) -> PathBuf {
+    let d = Path::new(env!("CARGO_TARGET_TMPDIR")).join(name);
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// Polls `cond` every 100 ms; panics with `what` after `polls` polls (a watchdog against
+/// deadlocks, not a timing assertion).
+fn wait_for(what: &str, polls: u32, mut cond: impl FnMut() -> bool) {
+    for _ in 0..polls {
+        if cond() {
+            return;
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    panic!("watchdog: gave up waiting for {what}");
+}
+
+fn status(dir: &Path) -> Option<Status> {
+    read_status(dir).ok()
+}
+
+fn refused(s: &Status, kind: &str) -> u64 {
+    s.refused.iter().find(|(k, _)| k == kind).map_or(0, |r| r.1)
+}
+
+/// A config with a short warm-up and fast leases, for tests.
+fn test_config(dir: &Path, shared_memory: bool) -> PathBuf {
+    let text = format!(
+        "[td3]\nwarmup_steps = 128\nrate_tolerance = 64.0\n\n[service]\nshared_memory = {shared_memory}\n\
+         heartbeat_ms = 200\nlease_ttl_ms = 2000\nstatus_every_s = 0.2\ncheckpoint_replay = true\n"
+    );
+    let p = dir.join("test.toml");
+    std::fs::write(&p, text).unwrap();
+    p
+}
+
+#[test]
+fn local_training_over_shared_memory_is_lossless_and_resumes() {
+    let dir = fresh_dir("train-shm");
+    let run = dir.join("run");
+    let cfg = test_config(&dir, true);
+    let out = adp()
+        .args(["train", "--config"])
+        .arg(&cfg)
+        .args(["--steps", "600", "--actors", "6", "--out"])
+        .arg(&run)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    let s = read_status(&run).unwrap();
+    assert!(s.inserts >= 600, "{s:?}");
+    assert_eq!(s.steps_received, s.inserts);
+    assert!(s.episodes_verified > 0, "{s:?}");
+    assert_eq!(s.episodes_mismatched, 0, "{s:?}");
+    assert_eq!(s.refused.iter().map(|r| r.1).sum::<u64>(), 0, "{s:?}");
+    assert_eq!(
+        err.matches("registered as").count(),
+        16,
+        "every actor registered once: {err}"
+    );
+    assert!(err.contains("steps over shm"), "{err}");
+    assert!(run.join("export/policy.onnx").is_file());
+    assert!(!adp_learner::tensorboard::event_files(&run.join("tensorboard"))
+        .unwrap()
+        .is_empty());
+    let first = s.clone();
+
+    // A fresh start in the same directory is refused; --resume continues the same run.
+    let again = adp()
+        .args(["train", "--config"])
+        .arg(&cfg)
+        .args(["--steps", "900", "--actors", "2", "--out"])
+        .arg(&run)
+        .output()
+        .unwrap();
+    assert!(!again.status.success());
+    assert!(String::from_utf8_lossy(&again.stderr).contains("--resume"));
+    let out = adp()
+        .args(["train", "--config"])
+        .arg(&cfg)
+        .args(["--steps", "900", "--actors", "2", "--resume", "--out"])
+        .arg(&run)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    assert!(err.contains(&format!("resuming run {}", first.run_id)), "{err}");
+    let s = read_status(&run).unwrap();
+    assert_eq!(s.run_id, first.run_id);
+    assert!(s.inserts >= 900 && s.updates > first.updates, "{s:?}");
+    assert_eq!(s.episodes_mismatched, 0);
+}
+
+#[test]
+fn sixteen_actors_over_grpc_deliver_every_step_exactly_once() {
+    let dir = fresh_dir("train-grpc16");
+    let run = dir.join("run");
+    let cfg = test_config(&dir, false);
+    let out = adp()
+        .args(["train", "--config"])
+        .arg(&cfg)
+        .args(["--steps", "600", "--actors", "16", "--out"])
+        .arg(&run)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    assert_eq!(err.matches("steps over grpc").count(), 16, "{err}");
+    let s = read_status(&run).unwrap();
+    assert_eq!(s.steps_received, s.inserts);
+    assert!(s.episodes_verified >= 16, "{s:?}");
+    assert_eq!(s.episodes_mismatched, 0, "{s:?}");
+    assert_eq!(s.refused.iter().map(|r| r.1).sum::<u64>(), 0, "{s:?}");
+}
+
+fn spawn_actor(addr: &str, token: &Path, rank: u32) -> Child {
+    adp()
+        .args([
+            "actor",
+            "--learner",
+            addr,
+            "--data-plane",
+            "grpc",
+            "--rank",
+            &rank.to_string(),
+            "--token-file",
+        ])
+        .arg(token)
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap()
+}
+
+fn bad_step(obs: Vec<f32>) -> pb::StepRecord {
+    pb::StepRecord {
+        episode_id: 0,
+        step_index: 0,
+        policy_version: 0,
+        obs: proto::floats::encode(&obs).into(),
+        action: proto::floats::encode(&[0.0; 4]).into(),
+        reward: 0.0,
+        terminal: false,
+        truncated: false,
+        final_obs: Vec::new().into(),
+    }
+}
+
+#[test]
+fn grpc_learner_survives_a_killed_actor_and_refuses_bad_requests() {
+    let dir = fresh_dir("learner-grpc");
+    let run = dir.join("run");
+    let cfg = test_config(&dir, false);
+    let mut learner = adp()
+        .args(["learner", "--config"])
+        .arg(&cfg)
+        .args(["--steps", "100000", "--listen", "127.0.0.1:0", "--out"])
+        .arg(&run)
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    wait_for("learner.addr", 600, || run.join("learner.addr").is_file());
+    let addr = adp_learner::service::read_addr(&run).unwrap();
+    let token_file = run.join("token");
+    let mut actors: Vec<Child> = (0..3).map(|r| spawn_actor(&addr, &token_file, r)).collect();
+    wait_for("steps from the actors", 1200, || {
+        status(&run).is_some_and(|s| s.steps_received >= 200 && s.episodes_verified >= 1)
+    });
+
+    // kill -9 one actor mid-episode: its lease expires, the world is dealt again, the episode
+    // is abandoned (not terminal), and the learner keeps training.
+    actors[2].kill().unwrap();
+    actors[2].wait().unwrap();
+    wait_for("the killed actor's lease to expire", 600, || {
+        status(&run).is_some_and(|s| s.leases_expired >= 1)
+    });
+    let before = status(&run).unwrap();
+    wait_for("training to go on", 600, || {
+        status(&run).is_some_and(|s| s.steps_received > before.steps_received + 50)
+    });
+
+    // Bad requests are refused and counted.
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    let token = proto::auth::read_token_file(&token_file).unwrap();
+    rt.block_on(async {
+        let no_token = LearnerAddress {
+            addr: addr.clone(),
+            token: None,
+            tls: None,
+        };
+        let (mut control, _) = no_token.connect().await.unwrap();
+        let e = control
+            .register(pb::RegisterRequest::default())
+            .await
+            .unwrap_err();
+        assert_eq!(e.code(), tonic::Code::Unauthenticated);
+
+        let with_token = LearnerAddress {
+            addr: addr.clone(),
+            token: Some(token),
+            tls: None,
+        };
+        let (mut control, mut data) = with_token.connect().await.unwrap();
+        let reg = control
+            .register(pb::RegisterRequest {
+                rank: 99,
+                ..Default::default()
+            })
+            .await
+            .unwrap()
+            .into_inner();
+        let run_ref = reg.run.unwrap();
+        let lease = loop {
+            let r = control
+                .next_assignment(pb::AssignmentRequest {
+                    run: Some(run_ref.clone()),
+                    actor_id: reg.actor_id,
+                })
+                .await
+                .unwrap()
+                .into_inner();
+            match r.decision {
+                Some(pb::assignment_reply::Decision::Assign(a)) => break a,
+                _ => tokio::time::sleep(Duration::from_millis(100)).await,
+            }
+        };
+        let mut nan = vec![0.5f32; 730];
+        nan[3] = f32::NAN;
+        let batch = pb::StepBatch {
+            run: Some(run_ref.clone()),
+            actor_id: reg.actor_id,
+            lease_id: lease.lease_id,
+            steps: vec![
+                pb::StepRecord {
+                    episode_id: lease.first_episode_id,
+                    ..bad_step(nan)
+                },
+                pb::StepRecord {
+                    episode_id: lease.first_episode_id,
+                    ..bad_step(vec![0.5; 729])
+                },
+            ],
+        };
+        let ack = data
+            .push_steps(tokio_stream::iter(vec![batch]))
+            .await
+            .unwrap()
+            .into_inner();
+        assert_eq!((ack.accepted, ack.refused), (0, 2), "{ack:?}");
+        assert!(ack.reason.contains("not finite"), "{}", ack.reason);
+    });
+    wait_for("refusals in status.json", 100, || {
+        status(&run).is_some_and(|s| {
+            refused(&s, "unauthenticated") >= 1
+                && refused(&s, "not_finite") == 1
+                && refused(&s, "bad_shape") == 1
+        })
+    });
+
+    // Stop the learner with SIGTERM: it checkpoints and exits cleanly; actors exit 0 on shutdown.
+    // SAFETY: kill(2) on a child's pid has no memory-safety preconditions.
+    assert_eq!(unsafe { libc::kill(learner.id() as i32, libc::SIGTERM) }, 0);
+    let code = learner.wait().unwrap();
+    assert!(code.success(), "{code:?}");
+    let s = read_status(&run).unwrap();
+    assert_eq!(s.episodes_mismatched, 0, "{s:?}");
+    // An episode the killed actor left open is abandoned (its tail never sampled, never marked
+    // terminal); it may also have died between episodes.
+    assert!(s.episodes_abandoned <= s.leases_expired, "{s:?}");
+    assert!(adp_learner::retention::latest(&run.join("checkpoints"))
+        .unwrap()
+        .is_some());
+    for mut a in actors.drain(..2) {
+        let _ = a.kill();
+        let _ = a.wait();
+    }
+}
