@@ -51,7 +51,7 @@ impl Default for RunSection {
     fn default() -> Self {
         Self {
             name: "local".into(),
-            steps: 12_000,
+            steps: 40_000,
             actors: 0,
             worlds: "train".into(),
             planner: "dwa".into(),
@@ -241,9 +241,8 @@ fn print_summary(s: &TrainSummary, out: &Path, space: &str) {
     );
     if let Some(e) = &s.export {
         eprintln!(
-            "exported policy: {}\nevaluate it: adp eval --fidelity adp --action {space} --policy {}",
-            e.display(),
-            e.join("policy.json").display()
+            "exported policy ({space} action space): {} (policy.onnx, policy.safetensors, policy.json)",
+            e.display()
         );
     }
     if !s.completed {
