@@ -17,7 +17,9 @@ pub struct ServiceConfig {
     /// directory.
     pub listen: String,
     /// Offer the iceoryx2 shared-memory data plane to actors on this host (they still use gRPC
-    /// for the control plane). Actors on other hosts always stream steps over gRPC.
+    /// for the control plane). Actors on other hosts always stream steps over gRPC. Off by
+    /// default: under load, leases of shared-memory actors were seen to expire while their
+    /// steps waited in the learner's queue (an open bug).
     pub shared_memory: bool,
     /// How often actors send a heartbeat (ms).
     pub heartbeat_ms: u32,
@@ -48,7 +50,7 @@ impl Default for ServiceConfig {
     fn default() -> Self {
         Self {
             listen: "127.0.0.1:0".into(),
-            shared_memory: true,
+            shared_memory: false,
             heartbeat_ms: 1000,
             lease_ttl_ms: 15_000,
             episodes_per_assignment: 2,
