@@ -86,32 +86,7 @@ fn local_training_over_shared_memory_is_lossless_and_resumes() {
     assert!(!adp_learner::tensorboard::event_files(&run.join("tensorboard"))
         .unwrap()
         .is_empty());
-    let first = s.clone();
-
-    // A fresh start in the same directory is refused; --resume continues the same run.
-    let again = adp()
-        .args(["train", "--config"])
-        .arg(&cfg)
-        .args(["--steps", "900", "--actors", "2", "--out"])
-        .arg(&run)
-        .output()
-        .unwrap();
-    assert!(!again.status.success());
-    assert!(String::from_utf8_lossy(&again.stderr).contains("--resume"));
-    let out = adp()
-        .args(["train", "--config"])
-        .arg(&cfg)
-        .args(["--steps", "900", "--actors", "2", "--resume", "--out"])
-        .arg(&run)
-        .output()
-        .unwrap();
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success(), "{err}");
-    assert!(err.contains(&format!("resuming run {}", first.run_id)), "{err}");
-    let s = read_status(&run).unwrap();
-    assert_eq!(s.run_id, first.run_id);
-    assert!(s.inserts >= 900 && s.updates > first.updates, "{s:?}");
-    assert_eq!(s.episodes_mismatched, 0);
+    assert_resumes(&cfg, &run, &s);
 }
 
 #[test]
@@ -139,33 +114,34 @@ fn sixteen_actors_over_grpc_deliver_every_step_exactly_once() {
         .unwrap()
         .is_empty());
 
-    // A fresh start in the same directory is refused; --resume continues the same run.
+    assert_resumes(&cfg, &run, &s);
+}
+
+/// A fresh start in `run` is refused; `--resume` continues the same run past `first`.
+fn assert_resumes(cfg: &Path, run: &Path, first: &Status) {
     let again = adp()
         .args(["train", "--config"])
-        .arg(&cfg)
+        .arg(cfg)
         .args(["--steps", "900", "--actors", "2", "--out"])
-        .arg(&run)
+        .arg(run)
         .output()
         .unwrap();
     assert!(!again.status.success());
     assert!(String::from_utf8_lossy(&again.stderr).contains("--resume"));
     let out = adp()
         .args(["train", "--config"])
-        .arg(&cfg)
+        .arg(cfg)
         .args(["--steps", "900", "--actors", "2", "--resume", "--out"])
-        .arg(&run)
+        .arg(run)
         .output()
         .unwrap();
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{err}");
-    assert!(err.contains(&format!("resuming run {}", s.run_id)), "{err}");
-    let resumed = read_status(&run).unwrap();
-    assert_eq!(resumed.run_id, s.run_id);
-    assert!(
-        resumed.inserts >= 900 && resumed.updates > s.updates,
-        "{resumed:?}"
-    );
-    assert_eq!(resumed.episodes_mismatched, 0);
+    assert!(err.contains(&format!("resuming run {}", first.run_id)), "{err}");
+    let s = read_status(run).unwrap();
+    assert_eq!(s.run_id, first.run_id);
+    assert!(s.inserts >= 900 && s.updates > first.updates, "{s:?}");
+    assert_eq!(s.episodes_mismatched, 0);
 }
 
 fn spawn_actor(addr: &str, token: &Path, rank: u32) -> Child {
