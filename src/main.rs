@@ -5,6 +5,7 @@ mod eval;
 mod export;
 mod policy;
 mod render;
+mod slurm;
 mod train;
 
 use std::path::PathBuf;
@@ -198,9 +199,12 @@ enum Cmd {
         /// The run's token file (mode 0600).
         #[arg(long)]
         token_file: PathBuf,
-        /// This actor's rank (default: $SLURM_PROCID, else 0); seeds derive from it.
+        /// This actor's rank (default: --rank-offset + $SLURM_PROCID); seeds derive from it.
         #[arg(long)]
         rank: Option<u32>,
+        /// Added to $SLURM_PROCID to make the rank (for a second `srun` step of actors).
+        #[arg(long, default_value_t = 0, conflicts_with = "rank")]
+        rank_offset: u32,
         /// Data plane: auto (shared memory when the learner is on this host), grpc or shm.
         #[arg(long, default_value = "auto")]
         data_plane: actor::run::PlaneChoice,
@@ -219,6 +223,37 @@ enum Cmd {
         /// Give up after the learner has been unreachable this many seconds.
         #[arg(long, default_value_t = 600)]
         give_up_after: u64,
+    },
+    /// Print the sbatch script of a cluster training job (learner on the first node, actors on
+    /// every node, requeue resumes the run).
+    Slurm {
+        /// Run configuration with a [slurm] table (default: the embedded configs/slurm.toml).
+        #[arg(long)]
+        config: Option<PathBuf>,
+        /// Nodes (overrides [slurm] nodes).
+        #[arg(long)]
+        nodes: Option<u32>,
+        /// Actor tasks per node (overrides [slurm] actors_per_node).
+        #[arg(long)]
+        actors_per_node: Option<u32>,
+        /// Time limit [D-]HH:MM:SS (overrides [slurm] time).
+        #[arg(long)]
+        time: Option<String>,
+        /// Partition (overrides [slurm] partition).
+        #[arg(long)]
+        partition: Option<String>,
+        /// Account (overrides [slurm] account).
+        #[arg(long)]
+        account: Option<String>,
+        /// Total agent steps (overrides [run] steps).
+        #[arg(long)]
+        steps: Option<u64>,
+        /// Run directory (default: runs/<name>; made absolute; its logs/ is created now).
+        #[arg(long)]
+        run_dir: Option<PathBuf>,
+        /// The adp executable on the compute nodes (default: [slurm] adp, else this one).
+        #[arg(long)]
+        adp: Option<PathBuf>,
     },
     /// List or inspect worlds and splits.
     Worlds {
@@ -301,6 +336,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             learner,
             token_file,
             rank,
+            rank_offset,
             data_plane,
             tls_ca,
             tls_domain,
@@ -311,6 +347,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             learner,
             token_file,
             rank,
+            rank_offset,
             data_plane,
             tls_ca,
             tls_domain,
@@ -318,6 +355,31 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             tls_key,
             give_up_after_s: give_up_after,
         }),
+        Cmd::Slurm {
+            config,
+            nodes,
+            actors_per_node,
+            time,
+            partition,
+            account,
+            steps,
+            run_dir,
+            adp,
+        } => {
+            let o = slurm::SlurmOverrides {
+                nodes,
+                actors_per_node,
+                time,
+                partition,
+                account,
+                steps,
+            };
+            print!(
+                "{}",
+                slurm::generate(config.as_deref(), &o, run_dir.as_deref(), adp.as_deref())?
+            );
+            Ok(())
+        }
         Cmd::Eval {
             planner,
             fidelity,

@@ -23,6 +23,7 @@ use scheduler::{
 
 use crate::config::{one_line, EvalConfig};
 use crate::eval::PlannerKind;
+use crate::slurm::SlurmSection;
 
 /// The embedded default of `configs/local.toml`.
 const LOCAL_TOML: &str = include_str!("../configs/local.toml");
@@ -97,20 +98,26 @@ pub struct TrainConfig {
     pub service: ServiceConfig,
     /// The actor sandbox.
     pub sandbox: SandboxSection,
+    /// The shape of a cluster job (`adp slurm`; ignored by `adp train`).
+    pub slurm: SlurmSection,
 }
 
 impl TrainConfig {
     /// Reads `path`, or the embedded `configs/local.toml` when `None`, and checks it.
     pub fn load(path: Option<&Path>) -> anyhow::Result<Self> {
-        let (name, text) = match path {
-            Some(p) => (
-                p.display().to_string(),
-                std::fs::read_to_string(p).with_context(|| format!("cannot read config {}", p.display()))?,
+        match path {
+            Some(p) => Self::parse(
+                &p.display().to_string(),
+                &std::fs::read_to_string(p).with_context(|| format!("cannot read config {}", p.display()))?,
             ),
-            None => ("configs/local.toml (embedded)".into(), LOCAL_TOML.to_owned()),
-        };
+            None => Self::parse("configs/local.toml (embedded)", LOCAL_TOML),
+        }
+    }
+
+    /// Parses and checks the TOML `text`; errors are one line and start with `name`.
+    pub fn parse(name: &str, text: &str) -> anyhow::Result<Self> {
         let cfg: Self =
-            toml::from_str(&text).map_err(|e| anyhow::anyhow!("{name}: {}", one_line(&e.to_string())))?;
+            toml::from_str(text).map_err(|e| anyhow::anyhow!("{name}: {}", one_line(&e.to_string())))?;
         cfg.td3.validate().with_context(|| format!("{name}: [td3]"))?;
         cfg.env
             .validate()
@@ -231,7 +238,8 @@ fn prepare(config: Option<&Path>, o: &Overrides, resume: bool) -> anyhow::Result
     Ok((cfg, out))
 }
 
-fn print_summary(s: &TrainSummary, out: &Path, space: &str) {
+/// Prints how the run ended; `command` (`train` or `learner`) is how to continue it.
+fn print_summary(s: &TrainSummary, out: &Path, space: &str, command: &str) {
     eprintln!(
         "{} after {} agent steps and {} updates; checkpoint {}",
         if s.completed { "finished" } else { "stopped" },
@@ -246,7 +254,7 @@ fn print_summary(s: &TrainSummary, out: &Path, space: &str) {
         );
     }
     if !s.completed {
-        eprintln!("continue with: adp train --out {} --resume", out.display());
+        eprintln!("continue with: adp {command} --out {} --resume", out.display());
     }
 }
 
@@ -326,7 +334,7 @@ pub fn train(config: Option<&Path>, o: &Overrides, resume: bool) -> anyhow::Resu
     bar.finish();
     let summary = learner.wait().map_err(anyhow::Error::msg)?;
     supervisor.shutdown(Duration::from_secs(3));
-    print_summary(&summary, &out, &cfg.run.action_space);
+    print_summary(&summary, &out, &cfg.run.action_space, "train");
     Ok(())
 }
 
@@ -348,7 +356,7 @@ pub fn learner(
     };
     let learner = Learner::start(cfg.learner_options(&out, token, resume)?).map_err(anyhow::Error::msg)?;
     let summary = learner.wait().map_err(anyhow::Error::msg)?;
-    print_summary(&summary, &out, &cfg.run.action_space);
+    print_summary(&summary, &out, &cfg.run.action_space, "learner");
     Ok(())
 }
 
@@ -358,8 +366,10 @@ pub struct ActorArgs {
     pub learner: String,
     /// The run's token file.
     pub token_file: PathBuf,
-    /// Rank (default: `SLURM_PROCID`, else 0).
+    /// Rank (default: `rank_offset + SLURM_PROCID`, else `rank_offset`).
     pub rank: Option<u32>,
+    /// Added to `SLURM_PROCID` when `rank` is not given.
+    pub rank_offset: u32,
     /// Data plane.
     pub data_plane: PlaneChoice,
     /// TLS CA (enables TLS).
@@ -379,10 +389,17 @@ pub fn actor(a: ActorArgs) -> anyhow::Result<()> {
     let token = read_token_file(&a.token_file)?;
     let rank = match a.rank {
         Some(r) => r,
-        None => std::env::var("SLURM_PROCID")
-            .ok()
-            .and_then(|v| v.parse().ok())
-            .unwrap_or(0),
+        None => {
+            let procid: u32 = match std::env::var("SLURM_PROCID") {
+                Ok(v) => v
+                    .parse()
+                    .map_err(|_| anyhow::anyhow!("SLURM_PROCID = {v:?} is not a task number"))?,
+                Err(_) => 0,
+            };
+            a.rank_offset
+                .checked_add(procid)
+                .context("--rank-offset + SLURM_PROCID overflows")?
+        }
     };
     let eval_cfg = EvalConfig::load(None)?;
     let factory = move |name: &str, seed: u64| -> Result<Box<dyn planner::Planner>, String> {

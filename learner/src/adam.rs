@@ -39,6 +39,8 @@ pub struct Adam {
     steps: u64,
     /// `(m, v)` per float parameter, in visiting order; empty until the first step.
     moments: Vec<(Vec<f32>, Vec<f32>)>,
+    /// L2 norm of the gradient of the last step, over every parameter it moved.
+    last_grad_norm: f32,
 }
 
 impl Adam {
@@ -48,7 +50,15 @@ impl Adam {
             epsilon,
             steps: 0,
             moments: Vec::new(),
+            last_grad_norm: 0.0,
         }
+    }
+
+    /// The L2 norm of the whole gradient (all parameters together) of the last [`Adam::step`],
+    /// for monitoring; 0 before the first step. Computed in the fused loop from per-chunk
+    /// partial sums added in a fixed order, so it is deterministic.
+    pub fn last_grad_norm(&self) -> f32 {
+        self.last_grad_norm
     }
 
     /// Steps taken so far.
@@ -73,13 +83,17 @@ impl Adam {
             factor: bias_correction2_sqrt / (1.0 - BETA_1.powi(t)),
             eps: 0.0,
             index: 0,
+            grad_square_sum: 0.0,
         };
         mapper.eps = mapper.adam.epsilon * bias_correction2_sqrt;
-        module.map(&mut mapper)
+        let module = module.map(&mut mapper);
+        let norm = mapper.grad_square_sum.sqrt() as f32;
+        self.last_grad_norm = norm;
+        module
     }
 
     /// The state as a safetensors file: `m.{i}` and `v.{i}` (float32, flat) per parameter, the
-    /// step count and epsilon in the metadata.
+    /// step count, epsilon and the last gradient norm in the metadata.
     pub fn to_safetensors(&self) -> Result<Vec<u8>, safetensors::SafeTensorError> {
         let bytes: Vec<(String, Vec<u8>)> = self
             .moments
@@ -100,6 +114,7 @@ impl Adam {
             ("steps".to_string(), self.steps.to_string()),
             ("epsilon".to_string(), self.epsilon.to_string()),
             ("parameters".to_string(), self.moments.len().to_string()),
+            ("last_grad_norm".to_string(), self.last_grad_norm.to_string()),
         ]);
         safetensors::serialize(views, Some(metadata))
     }
@@ -151,10 +166,16 @@ impl Adam {
                 }
             })
             .collect::<Result<_, String>>()?;
+        // Written since the gradient norm was added; older checkpoints lack it.
+        let last_grad_norm = match metadata.get("last_grad_norm") {
+            Some(v) => v.parse().map_err(|_| parse_err("last_grad_norm", v))?,
+            None => 0.0,
+        };
         Ok(Self {
             epsilon,
             steps,
             moments,
+            last_grad_norm,
         })
     }
 }
@@ -174,6 +195,8 @@ struct StepMapper<'a> {
     eps: f32,
     /// Position of the next float parameter in visiting order.
     index: usize,
+    /// Sum of the squared gradient elements seen so far.
+    grad_square_sum: f64,
 }
 
 impl ModuleMapper for StepMapper<'_> {
@@ -202,17 +225,24 @@ impl ModuleMapper for StepMapper<'_> {
             "Adam state of parameter {index} belongs to another module"
         );
         let (lr, factor, eps) = (self.lr, self.factor, self.eps);
-        p.par_chunks_mut(CHUNK)
+        // Each chunk returns its sum of g^2; the partial sums are added in chunk order.
+        let partial: Vec<f64> = p
+            .par_chunks_mut(CHUNK)
             .zip(m.par_chunks_mut(CHUNK))
             .zip(v.par_chunks_mut(CHUNK))
             .zip(g.par_chunks(CHUNK))
-            .for_each(|(((p, m), v), g)| {
+            .map(|(((p, m), v), g)| {
+                let mut squares = 0.0f64;
                 for (((p, m), v), &g) in p.iter_mut().zip(m.iter_mut()).zip(v.iter_mut()).zip(g) {
                     *m = *m * BETA_1 + g * (1.0 - BETA_1);
                     *v = *v * BETA_2 + g * g * (1.0 - BETA_2);
                     *p -= (*m * factor) / (v.sqrt() + eps) * lr;
+                    squares += f64::from(g) * f64::from(g);
                 }
-            });
+                squares
+            })
+            .collect();
+        self.grad_square_sum += partial.iter().sum::<f64>();
         let updated = Tensor::<D>::from_inner(Tensor::from_data(TensorData::new(p, shape), &device));
         let updated = if require_grad {
             updated.require_grad()
@@ -275,6 +305,31 @@ mod tests {
         }
         // Parameters stay trainable.
         let _ = loss_grads(&ours, &batches[0]);
+    }
+
+    /// The reported gradient norm is that of the gradient the first step saw (its first moment
+    /// is `(1 - beta1) g`), over all parameters together.
+    #[test]
+    fn reports_the_gradient_norm_of_the_last_step() {
+        let device = Device::flex().autodiff();
+        let actor = Actor::new(5, &[64, 32], 3, &device, &mut Pcg64Mcg::new(7));
+        let mut adam = Adam::new(1e-8);
+        assert_eq!(adam.last_grad_norm(), 0.0);
+        let obs: Vec<f32> = (0..50).map(|i| ((i * 37 % 11) as f32 - 5.0) / 5.0).collect();
+        let _ = adam.step(1e-3, actor.clone(), loss_grads(&actor, &obs));
+        let from_moments: f64 = adam
+            .moments
+            .iter()
+            .flat_map(|(m, _)| m.iter())
+            .map(|&m| (f64::from(m) / f64::from(1.0 - BETA_1)).powi(2))
+            .sum::<f64>()
+            .sqrt();
+        let norm = f64::from(adam.last_grad_norm());
+        assert!(norm > 1e-4, "{norm}");
+        assert!(
+            (norm - from_moments).abs() <= 1e-4 * from_moments,
+            "{norm} vs {from_moments}"
+        );
     }
 
     #[test]

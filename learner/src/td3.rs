@@ -44,6 +44,10 @@ pub struct UpdateStats {
     pub target_mean: f32,
     /// `-mean Q1(s, pi(s))` before the actor step, on actor-update iterations only.
     pub actor_loss: Option<f32>,
+    /// L2 norm of the gradient of both critics' losses (all their parameters together).
+    pub critic_grad_norm: f32,
+    /// L2 norm of the actor's gradient, on actor-update iterations only.
+    pub actor_grad_norm: Option<f32>,
 }
 
 /// The learner's TD3 state: online actor and twin critics (on the autodiff device), their
@@ -177,9 +181,11 @@ impl Td3 {
         );
         self.critic = TwinCritic { q1, q2 };
         self.updates += 1;
+        let critic_grad_norm = opt1.last_grad_norm().hypot(opt2.last_grad_norm());
 
         // 4. Delayed actor step and target updates. The critic's weights get no gradient here.
         let mut actor_loss = None;
+        let mut actor_grad_norm = None;
         if self.updates.is_multiple_of(c.policy_delay) {
             let obs = tensor2(&batch.obs, batch.len(), c.obs_dim, &self.device);
             let q1_frozen = self.critic.q1.clone().no_grad();
@@ -190,6 +196,7 @@ impl Td3 {
             let grads = GradientsParams::from_grads(loss.backward(), &self.actor);
             self.actor = self.actor_opt.step(c.actor_lr, self.actor.clone(), grads);
             actor_loss = Some(loss.into_scalar::<f32>());
+            actor_grad_norm = Some(self.actor_opt.last_grad_norm());
 
             let tau = c.tau;
             let (actor_target, critic_target) = (self.actor_target.clone(), self.critic_target.clone());
@@ -205,6 +212,8 @@ impl Td3 {
             q1_mean,
             target_mean: y.mean().into_scalar::<f32>(),
             actor_loss,
+            critic_grad_norm,
+            actor_grad_norm,
         })
     }
 

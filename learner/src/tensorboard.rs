@@ -253,16 +253,20 @@ impl EventWriter {
         self.scalars(step, &[(tag, value)])
     }
 
-    /// Log what one TD3 update measured, under `loss/critic`, `q/q1_mean`, `q/target_mean` and
-    /// (on actor updates) `loss/actor`.
+    /// Log what one TD3 update measured, under `loss/critic`, `q/q1_mean`, `q/target_mean`,
+    /// `grad_norm/critic` and (on actor updates) `loss/actor` and `grad_norm/actor`.
     pub fn update_stats(&mut self, step: u64, stats: &UpdateStats) -> Result<(), TensorBoardError> {
         let mut values = vec![
             ("loss/critic", f64::from(stats.critic_loss)),
             ("q/q1_mean", f64::from(stats.q1_mean)),
             ("q/target_mean", f64::from(stats.target_mean)),
+            ("grad_norm/critic", f64::from(stats.critic_grad_norm)),
         ];
         if let Some(actor) = stats.actor_loss {
             values.push(("loss/actor", f64::from(actor)));
+        }
+        if let Some(norm) = stats.actor_grad_norm {
+            values.push(("grad_norm/actor", f64::from(norm)));
         }
         self.scalars(step, &values)
     }
@@ -395,6 +399,8 @@ mod tests {
                     q1_mean: -3.25,
                     target_mean: -3.0,
                     actor_loss: Some(3.5),
+                    critic_grad_norm: 2.0,
+                    actor_grad_norm: Some(0.25),
                 },
             )
             .unwrap();
@@ -433,7 +439,9 @@ mod tests {
                         ("loss/critic".into(), 0.5),
                         ("q/q1_mean".into(), -3.25),
                         ("q/target_mean".into(), -3.0),
+                        ("grad_norm/critic".into(), 2.0),
                         ("loss/actor".into(), 3.5),
+                        ("grad_norm/actor".into(), 0.25),
                     ],
                 },
                 other => panic!("{other:?}"),

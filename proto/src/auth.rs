@@ -23,14 +23,14 @@ use crate::validate::{Refusal, RefusalCounts};
 #[derive(Debug, Error)]
 pub enum AuthError {
     /// The file could not be read or written.
-    #[error("token/TLS file {path}: cannot {op}: {source}")]
+    #[error("token/TLS file {path}: cannot {op}: {err}")]
     Io {
         /// The file.
         path: PathBuf,
         /// What was attempted.
         op: &'static str,
-        /// The I/O error.
-        source: std::io::Error,
+        /// The I/O error (in the message, so it is not a separate `source`).
+        err: std::io::Error,
     },
     /// The token file may be read by group or others.
     #[error("token file {path} has mode {mode:o}; it must be readable by its owner only (chmod 600)")]
@@ -51,10 +51,10 @@ pub enum AuthError {
 }
 
 fn io_err<'a>(path: &'a Path, op: &'static str) -> impl FnOnce(std::io::Error) -> AuthError + 'a {
-    move |source| AuthError::Io {
+    move |err| AuthError::Io {
         path: path.to_owned(),
         op,
-        source,
+        err,
     }
 }
 

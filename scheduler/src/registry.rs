@@ -494,6 +494,11 @@ impl Registry {
         std::mem::take(&mut self.expired_queue)
     }
 
+    /// The rank of actor `id` (also of a retired or dead one), if it ever registered here.
+    pub fn rank_of(&self, id: ActorId) -> Option<u32> {
+        self.actors.get(&id).map(|record| record.rank)
+    }
+
     /// The registered, non-retired actors, by id.
     pub fn actors(&self) -> Vec<ActorInfo> {
         self.actors

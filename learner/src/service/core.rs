@@ -7,7 +7,7 @@
 //! condition variable [`Shared::wake`] is notified after every insert, update, cycle change and
 //! stop request.
 
-use std::collections::{HashMap, VecDeque};
+use std::collections::{BTreeMap, HashMap, VecDeque};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Condvar, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
@@ -39,6 +39,7 @@ struct EpisodeTrack {
 #[derive(Debug)]
 struct LeaseTrack {
     actor: u64,
+    rank: u32,
     first_episode: u64,
     episodes: u32,
 }
@@ -74,6 +75,9 @@ pub struct Totals {
     pub recent: VecDeque<EpisodeStat>,
     /// Successes among all reported episodes.
     pub successes: u64,
+    /// Step records stored per actor rank (every task of a cluster job shows up here).
+    #[serde(default)]
+    pub rank_steps: BTreeMap<u32, u64>,
 }
 
 impl Totals {
@@ -263,6 +267,7 @@ impl Shared {
                 format!("not an episode of lease {} (expected {range:?})", header.lease_id),
             ));
         }
+        let rank = lease.rank;
         let track = core.episodes.entry(step.episode_id).or_default();
         if track.ended {
             return Err(Refusal::Episode(step.episode_id, "already ended".into()));
@@ -302,6 +307,7 @@ impl Shared {
         track.ended = ended;
         core.rate.record_inserts(1);
         core.totals.steps_received += 1;
+        *core.totals.rank_steps.entry(rank).or_default() += 1;
         let lag = core.policy_version.saturating_sub(step.policy_version);
         core.lag.0 += lag;
         core.lag.1 += 1;
@@ -320,10 +326,12 @@ impl Shared {
     /// Records an assignment's lease so its steps can be admitted.
     pub fn open_lease(core: &mut Core, lease_id: u64, actor: u64, episodes: u32) -> u64 {
         let first = first_episode_id(lease_id, episodes);
+        let rank = core.registry.rank_of(actor).unwrap_or(u32::MAX);
         core.leases.insert(
             lease_id,
             LeaseTrack {
                 actor,
+                rank,
                 first_episode: first,
                 episodes,
             },

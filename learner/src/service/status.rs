@@ -63,6 +63,8 @@ pub struct Status {
     pub refused: Vec<(String, u64)>,
     /// Episodes completed per training world `(world, episodes)`.
     pub world_episodes: Vec<(usize, u64)>,
+    /// Step records stored per actor rank `(rank, steps)`, over the whole run.
+    pub rank_steps: Vec<(u32, u64)>,
     /// The training thread has stopped (final checkpoint written).
     pub finished: bool,
 }
@@ -111,6 +113,7 @@ impl Status {
                 .map(|(k, v)| (k.to_owned(), v))
                 .collect(),
             world_episodes: reg.worlds.iter().map(|w| (w.world, w.completed)).collect(),
+            rank_steps: t.rank_steps.iter().map(|(&r, &n)| (r, n)).collect(),
             finished: super::core::is_set(&shared.finished),
         }
     }

@@ -4,6 +4,7 @@
 //! It owns the [`Td3`] state; everything else it reaches through [`Shared`].
 
 use std::path::{Path, PathBuf};
+use std::sync::atomic::Ordering;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -157,7 +158,6 @@ impl Trainer {
                 }
             }
         }
-        self.report(&mut meter, &exploration);
         let checkpoint = self.checkpoint()?;
         let (inserts, updates) = {
             let core = self.shared.lock();
@@ -171,7 +171,9 @@ impl Trainer {
                 None
             }
         };
-        let _ = self.tensorboard.flush();
+        // The last status says so: the final checkpoint (and export) are on disk.
+        self.shared.finished.store(true, Ordering::Release);
+        self.report(&mut meter, &exploration);
         Ok(TrainSummary {
             inserts,
             updates,

@@ -1,0 +1,662 @@
+//! `adp slurm`: writes the sbatch script of a cluster training job.
+//!
+//! The job runs one `adp learner` task on the first node of the allocation and `adp actor`
+//! tasks on every node (fewer on the learner's node, so the learner keeps its CPUs). The
+//! script is requeue-safe: SLURM warns it before the time limit, it requeues itself, the
+//! learner checkpoints on the SIGTERM that ends the job, and the requeued job (same run
+//! directory, `SLURM_RESTART_COUNT` > 0) resumes the same run from that checkpoint.
+//!
+//! [`SlurmSection`] is the `[slurm]` table of a run config; [`script`] is pure (config in,
+//! text out) so it is unit-tested without SLURM.
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context};
+use serde::{Deserialize, Serialize};
+
+use crate::train::TrainConfig;
+
+/// The embedded default of `configs/slurm.toml`.
+pub const SLURM_TOML: &str = include_str!("../configs/slurm.toml");
+
+/// `[slurm]`: the shape of a cluster job. Every field has a default; unknown keys are refused.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SlurmSection {
+    /// Nodes of the allocation (`--nodes`).
+    pub nodes: u32,
+    /// Actor tasks on each node other than the learner's (`--actors-per-node`).
+    pub actors_per_node: u32,
+    /// Actor tasks on the learner's node; `None` = `actors_per_node - learner_cpus` (at least
+    /// one), so the learner is not starved by actors sharing its cores.
+    pub learner_node_actors: Option<u32>,
+    /// CPUs of the learner task (TD3 updates use them through rayon).
+    pub learner_cpus: u32,
+    /// CPUs of each actor task.
+    pub cpus_per_actor: u32,
+    /// Memory of the learner task (MB).
+    pub learner_mem_mb: u64,
+    /// Memory of each actor task (MB).
+    pub actor_mem_mb: u64,
+    /// Time limit `[D-]HH:MM:SS` (`--time`).
+    pub time: String,
+    /// Partition (`--partition`); empty = the cluster's default.
+    pub partition: String,
+    /// Account to charge (`--account`); empty = the user's default.
+    pub account: String,
+    /// Quality of service; empty = the default.
+    pub qos: String,
+    /// Ask for whole nodes (`--exclusive`), the usual way to run many single-CPU actors beside
+    /// a learner; `false` asks for exactly the CPUs the tasks need.
+    pub exclusive: bool,
+    /// The learner's gRPC port; 0 = `20000 + job id % 20000`, so jobs sharing a node differ.
+    pub port: u16,
+    /// Seconds before the time limit at which SLURM warns the job (it then requeues itself).
+    pub warning_s: u32,
+    /// Requeue the job when the time limit comes and the budget is not reached.
+    pub requeue: bool,
+    /// An actor gives up after the learner has been unreachable this long (s).
+    pub actor_give_up_s: u32,
+    /// Seconds the job waits for actors to leave after the learner finished.
+    pub actor_grace_s: u32,
+    /// The `adp` executable on the compute nodes; empty = the one that wrote the script.
+    pub adp: String,
+    /// Shell lines run before anything else (e.g. `module load ...`).
+    pub setup: Vec<String>,
+}
+
+impl Default for SlurmSection {
+    fn default() -> Self {
+        Self {
+            nodes: 1,
+            actors_per_node: 16,
+            learner_node_actors: None,
+            learner_cpus: 4,
+            cpus_per_actor: 1,
+            learner_mem_mb: 8192,
+            actor_mem_mb: 1024,
+            time: "24:00:00".into(),
+            partition: String::new(),
+            account: String::new(),
+            qos: String::new(),
+            exclusive: true,
+            port: 0,
+            warning_s: 300,
+            requeue: true,
+            actor_give_up_s: 300,
+            actor_grace_s: 60,
+            adp: String::new(),
+            setup: Vec::new(),
+        }
+    }
+}
+
+impl SlurmSection {
+    /// Actor tasks on the learner's node.
+    pub fn learner_node_actors(&self) -> u32 {
+        self.learner_node_actors
+            .unwrap_or_else(|| self.actors_per_node.saturating_sub(self.learner_cpus).max(1))
+    }
+
+    /// Actor tasks of the whole job.
+    pub fn total_actors(&self) -> u32 {
+        self.learner_node_actors() + (self.nodes - 1) * self.actors_per_node
+    }
+
+    /// Checks every field; the error names the field and what is wrong with it.
+    pub fn validate(&self) -> anyhow::Result<()> {
+        if self.nodes == 0 {
+            bail!("nodes = 0: a job needs at least one node");
+        }
+        if self.actors_per_node == 0 {
+            bail!("actors_per_node = 0: each node needs at least one actor");
+        }
+        if self.learner_cpus == 0 || self.cpus_per_actor == 0 {
+            bail!("learner_cpus and cpus_per_actor must be at least 1");
+        }
+        if self.nodes == 1 && self.learner_node_actors() == 0 {
+            bail!("learner_node_actors = 0 with nodes = 1: the job would have no actor");
+        }
+        if self.learner_mem_mb == 0 || self.actor_mem_mb == 0 {
+            bail!("learner_mem_mb and actor_mem_mb must be positive");
+        }
+        check_time(&self.time)?;
+        for (name, value) in [
+            ("partition", &self.partition),
+            ("account", &self.account),
+            ("qos", &self.qos),
+        ] {
+            if !value
+                .chars()
+                .all(|c| c.is_ascii_alphanumeric() || "_-.,".contains(c))
+            {
+                bail!("{name} = {value:?}: only letters, digits and _ - . , are allowed");
+            }
+        }
+        if self.warning_s == 0 {
+            bail!("warning_s must be positive: the learner needs warning to checkpoint");
+        }
+        Ok(())
+    }
+}
+
+/// Accepts SLURM's `[D-]HH:MM:SS` (also `MM:SS`/`HH:MM:SS` without days).
+fn check_time(t: &str) -> anyhow::Result<()> {
+    let bad = || anyhow::anyhow!("time = {t:?}: expected [D-]HH:MM:SS, e.g. 12:00:00 or 2-00:00:00");
+    let (days, rest) = match t.split_once('-') {
+        Some((d, r)) => (Some(d), r),
+        None => (None, t),
+    };
+    if let Some(d) = days {
+        d.parse::<u32>().map_err(|_| bad())?;
+    }
+    let parts: Vec<&str> = rest.split(':').collect();
+    if parts.len() != 3 || parts.iter().any(|p| p.is_empty() || p.parse::<u32>().is_err()) {
+        return Err(bad());
+    }
+    let (m, s): (u32, u32) = (
+        parts[1].parse().expect("checked"),
+        parts[2].parse().expect("checked"),
+    );
+    if m >= 60 || s >= 60 {
+        return Err(bad());
+    }
+    if days.is_none() && rest.split(':').all(|p| p.parse::<u32>() == Ok(0)) {
+        bail!("time = {t:?}: the time limit must be positive");
+    }
+    Ok(())
+}
+
+/// Command-line overrides of `adp slurm`.
+#[derive(Debug, Default, Clone)]
+pub struct SlurmOverrides {
+    /// `--nodes`.
+    pub nodes: Option<u32>,
+    /// `--actors-per-node`.
+    pub actors_per_node: Option<u32>,
+    /// `--time`.
+    pub time: Option<String>,
+    /// `--partition`.
+    pub partition: Option<String>,
+    /// `--account`.
+    pub account: Option<String>,
+    /// `--steps`.
+    pub steps: Option<u64>,
+}
+
+impl SlurmOverrides {
+    /// Applies the overrides to `cfg`.
+    pub fn apply(&self, cfg: &mut TrainConfig) {
+        let s = &mut cfg.slurm;
+        if let Some(n) = self.nodes {
+            s.nodes = n;
+        }
+        if let Some(k) = self.actors_per_node {
+            s.actors_per_node = k;
+        }
+        if let Some(t) = &self.time {
+            s.time = t.clone();
+        }
+        if let Some(p) = &self.partition {
+            s.partition = p.clone();
+        }
+        if let Some(a) = &self.account {
+            s.account = a.clone();
+        }
+        if let Some(n) = self.steps {
+            cfg.run.steps = n;
+        }
+    }
+}
+
+/// Quotes `s` for a POSIX shell (single quotes).
+fn sh_quote(s: &str) -> String {
+    format!("'{}'", s.replace('\'', r"'\''"))
+}
+
+/// What a script is generated from.
+pub struct ScriptInput<'a> {
+    /// The run configuration (its `[slurm]` table shapes the job).
+    pub config: &'a TrainConfig,
+    /// Where the config came from (for the header comment).
+    pub config_name: &'a str,
+    /// The run directory (absolute).
+    pub run_dir: &'a Path,
+    /// The `adp` executable (absolute).
+    pub adp: &'a Path,
+}
+
+/// The sbatch script of `input`. Pure; the config must have passed [`SlurmSection::validate`].
+pub fn script(input: &ScriptInput<'_>) -> String {
+    let cfg = input.config;
+    let s = &cfg.slurm;
+    let run_dir = input.run_dir.display().to_string();
+    let k0 = s.learner_node_actors();
+    let node_cpus = (k0 * s.cpus_per_actor + s.learner_cpus).max(s.actors_per_node * s.cpus_per_actor);
+    let node_mem = (u64::from(k0) * s.actor_mem_mb + s.learner_mem_mb)
+        .max(u64::from(s.actors_per_node) * s.actor_mem_mb);
+    let config_toml = toml::to_string_pretty(cfg).expect("config serializes");
+    let mut o = String::new();
+    let w = &mut o;
+    let _ = writeln!(w, "#!/bin/bash");
+    let _ = writeln!(
+        w,
+        "# adp cluster training job, written by `adp slurm` (adp {}) from {}.",
+        env!("CARGO_PKG_VERSION"),
+        input.config_name
+    );
+    let _ = writeln!(
+        w,
+        "# Layout: {} node(s); the first runs the learner ({} CPUs) and {k0} actor(s), every other\n\
+         # node runs {} actor(s); {} actor(s) in all, {} CPU(s) each. Budget: {} agent steps.",
+        s.nodes,
+        s.learner_cpus,
+        s.actors_per_node,
+        s.total_actors(),
+        s.cpus_per_actor,
+        cfg.run.steps
+    );
+    let _ = writeln!(
+        w,
+        "# Submit: sbatch <this file>. Progress: {run_dir}/status.json, logs in {run_dir}/logs,\n\
+         # TensorBoard: tensorboard --logdir {run_dir}/tensorboard"
+    );
+    let _ = writeln!(w, "#SBATCH --job-name={}", job_name(&cfg.run.name));
+    let _ = writeln!(w, "#SBATCH --nodes={}", s.nodes);
+    if s.exclusive {
+        let _ = writeln!(w, "#SBATCH --exclusive");
+        let _ = writeln!(w, "#SBATCH --mem=0");
+    } else {
+        let _ = writeln!(w, "#SBATCH --ntasks-per-node=1");
+        let _ = writeln!(w, "#SBATCH --cpus-per-task={node_cpus}");
+        let _ = writeln!(w, "#SBATCH --mem={node_mem}M");
+    }
+    let _ = writeln!(w, "#SBATCH --time={}", s.time);
+    for (flag, value) in [
+        ("partition", &s.partition),
+        ("account", &s.account),
+        ("qos", &s.qos),
+    ] {
+        if !value.is_empty() {
+            let _ = writeln!(w, "#SBATCH --{flag}={value}");
+        }
+    }
+    if s.requeue {
+        let _ = writeln!(w, "#SBATCH --requeue");
+    } else {
+        let _ = writeln!(w, "#SBATCH --no-requeue");
+    }
+    let _ = writeln!(
+        w,
+        "#SBATCH --signal=B:USR1@{}\n#SBATCH --open-mode=append\n#SBATCH --output={run_dir}/logs/job-%j.out",
+        s.warning_s
+    );
+    let _ = writeln!(w, "set -euo pipefail\n");
+    if !s.setup.is_empty() {
+        let _ = writeln!(w, "# Site set-up from [slurm] setup.");
+        for line in &s.setup {
+            let _ = writeln!(w, "{line}");
+        }
+        let _ = writeln!(w);
+    }
+    let _ = writeln!(w, "ADP={}", sh_quote(&input.adp.display().to_string()));
+    let _ = writeln!(w, "RUN_DIR={}", sh_quote(&run_dir));
+    let _ = writeln!(w, "LEARNER_NODE_ACTORS={k0}");
+    let _ = writeln!(w, "ACTORS_PER_NODE={}", s.actors_per_node);
+    let _ = writeln!(w, "LEARNER_CPUS={}", s.learner_cpus);
+    let _ = writeln!(w, "CPUS_PER_ACTOR={}", s.cpus_per_actor);
+    let _ = writeln!(w, "mkdir -p \"$RUN_DIR/logs\"\n");
+
+    let _ = writeln!(
+        w,
+        "# 1. The run configuration, written on every (re)start so the job is self-contained."
+    );
+    let _ = writeln!(
+        w,
+        "cat > \"$RUN_DIR/job-config.toml\" <<'ADP_CONFIG'\n{}ADP_CONFIG\n",
+        config_toml
+    );
+    let _ = writeln!(
+        w,
+        "# 2. The run's secret token (mode 0600), made once and kept across requeues. Every\n\
+         #    gRPC call between actors and the learner carries it."
+    );
+    let _ = writeln!(
+        w,
+        "if [ ! -s \"$RUN_DIR/token\" ]; then\n    (umask 077 && od -An -tx1 -N32 /dev/urandom | tr -d ' \\n' > \"$RUN_DIR/token\")\nfi\n"
+    );
+    let _ = writeln!(
+        w,
+        "# 3. The learner runs on the first node of the allocation and listens on a port derived\n\
+         #    from the job id (or [slurm] port)."
+    );
+    let _ = writeln!(
+        w,
+        "LEARNER_HOST=$(scontrol show hostnames \"$SLURM_JOB_NODELIST\" | head -n 1)"
+    );
+    if s.port == 0 {
+        let _ = writeln!(w, "PORT=$((20000 + SLURM_JOB_ID % 20000))");
+    } else {
+        let _ = writeln!(w, "PORT={}", s.port);
+    }
+    let _ = writeln!(w, "OTHER_NODES=$((SLURM_JOB_NUM_NODES - 1))\n");
+    let _ = writeln!(
+        w,
+        "# 4. A requeued job (SLURM_RESTART_COUNT > 0) continues the run from its newest valid\n\
+         #    checkpoint: same run id, step counters and TensorBoard curves."
+    );
+    let _ = writeln!(
+        w,
+        "RESUME=()\nif [ \"${{SLURM_RESTART_COUNT:-0}}\" -gt 0 ] && compgen -G \"$RUN_DIR/checkpoints/ckpt-*\" > /dev/null; then\n    RESUME=(--resume)\nfi\n\
+         echo \"adp job $SLURM_JOB_ID (restart ${{SLURM_RESTART_COUNT:-0}}): learner on $LEARNER_HOST:$PORT ${{RESUME[*]}}\"\n"
+    );
+    if s.requeue {
+        let _ = writeln!(
+            w,
+            "# 5. SLURM sends USR1 to this script {} s before the time limit: requeue the job. SLURM\n\
+             #    then sends SIGTERM to every task; the learner writes a checkpoint and exits.",
+            s.warning_s
+        );
+        let _ = writeln!(
+            w,
+            "on_time_limit() {{\n    echo \"time limit near: requeueing job $SLURM_JOB_ID\"\n    scontrol requeue \"$SLURM_JOB_ID\"\n}}\ntrap on_time_limit USR1\n"
+        );
+    } else {
+        let _ = writeln!(
+            w,
+            "# 5. SLURM sends USR1 to this script {} s before the time limit: the learner checkpoints\n\
+             #    and stops; continue later with a new job on the same run directory.",
+            s.warning_s
+        );
+        let _ = writeln!(
+            w,
+            "on_time_limit() {{\n    echo \"time limit near: stopping the learner\"\n    kill -TERM \"$LEARNER_PID\"\n}}\ntrap on_time_limit USR1\n"
+        );
+    }
+    let _ = writeln!(w, "# 6. The learner: one task on the first node.");
+    let _ = writeln!(
+        w,
+        "RAYON_NUM_THREADS=$LEARNER_CPUS srun --nodes=1 --ntasks=1 --nodelist=\"$LEARNER_HOST\" \\\n    \
+         --cpus-per-task=\"$LEARNER_CPUS\" --mem={}M --output=\"$RUN_DIR/logs/learner.log\" \\\n    \
+         \"$ADP\" learner --config \"$RUN_DIR/job-config.toml\" --out \"$RUN_DIR\" \\\n    \
+         --listen \"0.0.0.0:$PORT\" --token-file \"$RUN_DIR/token\" \"${{RESUME[@]}}\" &\nLEARNER_PID=$!\n",
+        s.learner_mem_mb
+    );
+    let _ = writeln!(
+        w,
+        "# 7. The actors: ranks 0.. on the learner's node, then the other nodes. Each rank seeds\n\
+         #    its episodes from (run seed, rank). They retry until the learner is up; one failing\n\
+         #    actor does not end the others (--kill-on-bad-exit=0), and the learner re-deals its world."
+    );
+    let _ = writeln!(
+        w,
+        "ACTOR_ARGS=(actor --learner \"$LEARNER_HOST:$PORT\" --token-file \"$RUN_DIR/token\" --give-up-after {})",
+        s.actor_give_up_s
+    );
+    let _ = writeln!(w, "ACTOR_PIDS=()");
+    let _ = writeln!(
+        w,
+        "if [ \"$LEARNER_NODE_ACTORS\" -gt 0 ]; then\n    \
+         RAYON_NUM_THREADS=$CPUS_PER_ACTOR srun --nodes=1 --ntasks=\"$LEARNER_NODE_ACTORS\" --nodelist=\"$LEARNER_HOST\" \\\n        \
+         --cpus-per-task=\"$CPUS_PER_ACTOR\" --mem-per-cpu={}M --kill-on-bad-exit=0 \\\n        \
+         --output=\"$RUN_DIR/logs/actors-learner-node-%t.log\" \\\n        \
+         \"$ADP\" \"${{ACTOR_ARGS[@]}}\" --rank-offset 0 &\n    ACTOR_PIDS+=($!)\nfi",
+        s.actor_mem_mb.div_ceil(u64::from(s.cpus_per_actor))
+    );
+    let _ = writeln!(
+        w,
+        "if [ \"$OTHER_NODES\" -gt 0 ]; then\n    \
+         # Task t of this step is rank LEARNER_NODE_ACTORS + t (its log is named by t).\n    \
+         RAYON_NUM_THREADS=$CPUS_PER_ACTOR srun --nodes=\"$OTHER_NODES\" --ntasks-per-node=\"$ACTORS_PER_NODE\" \\\n        \
+         --ntasks=$((OTHER_NODES * ACTORS_PER_NODE)) --exclude=\"$LEARNER_HOST\" \\\n        \
+         --cpus-per-task=\"$CPUS_PER_ACTOR\" --mem-per-cpu={}M --kill-on-bad-exit=0 \\\n        \
+         --output=\"$RUN_DIR/logs/actors-other-nodes-%t.log\" \\\n        \
+         \"$ADP\" \"${{ACTOR_ARGS[@]}}\" --rank-offset \"$LEARNER_NODE_ACTORS\" &\n    ACTOR_PIDS+=($!)\nfi\n",
+        s.actor_mem_mb.div_ceil(u64::from(s.cpus_per_actor))
+    );
+    let _ = writeln!(
+        w,
+        "# 8. Wait for the learner (the USR1 trap interrupts `wait`, so wait again while it runs),\n\
+         #    then give the actors {} s to see the end of the run and leave.",
+        s.actor_grace_s
+    );
+    let _ = writeln!(
+        w,
+        "LEARNER_STATUS=0\nwait \"$LEARNER_PID\" || LEARNER_STATUS=$?\n\
+         while [ \"$LEARNER_STATUS\" -gt 128 ] && kill -0 \"$LEARNER_PID\" 2> /dev/null; do\n    \
+         LEARNER_STATUS=0\n    wait \"$LEARNER_PID\" || LEARNER_STATUS=$?\ndone\n\
+         for _ in $(seq {}); do\n    \
+         RUNNING=0\n    for pid in \"${{ACTOR_PIDS[@]}}\"; do kill -0 \"$pid\" 2> /dev/null && RUNNING=1; done\n    \
+         [ \"$RUNNING\" -eq 0 ] && break\n    sleep 1\ndone\n\
+         for pid in \"${{ACTOR_PIDS[@]}}\"; do kill -TERM \"$pid\" 2> /dev/null || true; done\n\
+         wait || true\n\
+         echo \"learner exited with status $LEARNER_STATUS\"\nexit \"$LEARNER_STATUS\"",
+        s.actor_grace_s
+    );
+    o
+}
+
+/// A SLURM job name from a run name (letters, digits, `-`, `_`, `.`).
+fn job_name(name: &str) -> String {
+    let clean: String = name
+        .chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || "-_.".contains(c) {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect();
+    format!("adp-{clean}")
+}
+
+/// `adp slurm`: loads the config (default: the embedded `configs/slurm.toml`), applies the
+/// overrides, checks everything, creates `<run dir>/logs` (sbatch needs it for the job log)
+/// and returns the script.
+pub fn generate(
+    config: Option<&Path>,
+    o: &SlurmOverrides,
+    run_dir: Option<&Path>,
+    adp: Option<&Path>,
+) -> anyhow::Result<String> {
+    let (name, text) = match config {
+        Some(p) => (
+            p.display().to_string(),
+            std::fs::read_to_string(p).with_context(|| format!("cannot read config {}", p.display()))?,
+        ),
+        None => ("configs/slurm.toml (embedded)".to_owned(), SLURM_TOML.to_owned()),
+    };
+    let mut cfg = TrainConfig::parse(&name, &text)?;
+    o.apply(&mut cfg);
+    cfg.slurm
+        .validate()
+        .map_err(|e| anyhow::anyhow!("{name}: [slurm] {e}"))?;
+    if cfg.run.steps == 0 {
+        bail!("{name}: [run] steps = 0: the job would have nothing to do");
+    }
+    let cwd = std::env::current_dir().context("cannot read the current directory")?;
+    let run_dir = cwd.join(
+        run_dir
+            .map(Path::to_path_buf)
+            .unwrap_or_else(|| PathBuf::from("runs").join(&cfg.run.name)),
+    );
+    let adp = match (adp, cfg.slurm.adp.as_str()) {
+        (Some(p), _) => cwd.join(p),
+        (None, "") => std::env::current_exe().context("cannot find this executable")?,
+        (None, p) => PathBuf::from(p),
+    };
+    let logs = run_dir.join("logs");
+    std::fs::create_dir_all(&logs).with_context(|| format!("cannot create {}", logs.display()))?;
+    Ok(script(&ScriptInput {
+        config: &cfg,
+        config_name: &name,
+        run_dir: &run_dir,
+        adp: &adp,
+    }))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn cfg() -> TrainConfig {
+        TrainConfig::parse("test", SLURM_TOML).unwrap()
+    }
+
+    fn gen(c: &TrainConfig) -> String {
+        script(&ScriptInput {
+            config: c,
+            config_name: "test",
+            run_dir: Path::new("/scratch/it's here/run"),
+            adp: Path::new("/opt/adp/bin/adp"),
+        })
+    }
+
+    #[test]
+    fn embedded_config_is_valid_and_documents_every_field() {
+        let c = cfg();
+        c.slurm.validate().unwrap();
+        let table = toml::to_string(&SlurmSection::default()).unwrap();
+        for line in table.lines() {
+            let key = line.split('=').next().unwrap().trim();
+            assert!(
+                SLURM_TOML.contains(&format!("\n{key} =")) || SLURM_TOML.contains(&format!("\n# {key} =")),
+                "configs/slurm.toml does not show `{key}`"
+            );
+        }
+    }
+
+    #[test]
+    fn placement_keeps_learner_cores_free() {
+        let mut s = SlurmSection {
+            nodes: 4,
+            actors_per_node: 16,
+            learner_cpus: 4,
+            ..SlurmSection::default()
+        };
+        assert_eq!(s.learner_node_actors(), 12);
+        assert_eq!(s.total_actors(), 12 + 3 * 16);
+        s.actors_per_node = 2;
+        assert_eq!(
+            s.learner_node_actors(),
+            1,
+            "at least one actor beside the learner"
+        );
+        s.learner_node_actors = Some(0);
+        s.nodes = 1;
+        assert!(s.validate().unwrap_err().to_string().contains("no actor"));
+    }
+
+    #[test]
+    fn bad_fields_are_named() {
+        let bad = [
+            (
+                SlurmSection {
+                    nodes: 0,
+                    ..SlurmSection::default()
+                },
+                "nodes = 0",
+            ),
+            (
+                SlurmSection {
+                    actors_per_node: 0,
+                    ..SlurmSection::default()
+                },
+                "actors_per_node",
+            ),
+            (
+                SlurmSection {
+                    time: "25h".into(),
+                    ..SlurmSection::default()
+                },
+                "time",
+            ),
+            (
+                SlurmSection {
+                    time: "1:61:00".into(),
+                    ..SlurmSection::default()
+                },
+                "time",
+            ),
+            (
+                SlurmSection {
+                    partition: "gpu; rm -rf /".into(),
+                    ..SlurmSection::default()
+                },
+                "partition",
+            ),
+        ];
+        for (s, what) in bad {
+            let e = s.validate().unwrap_err().to_string();
+            assert!(e.contains(what), "{e}");
+        }
+        for ok in ["00:10:00", "2-00:00:00", "100:00:00"] {
+            check_time(ok).unwrap();
+        }
+        let e = TrainConfig::parse("x.toml", "[slurm]\npartiton = \"gpu\"\n")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("partiton") && e.contains("x.toml") && !e.contains('\n'),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn script_has_the_job_shape_and_quotes_paths() {
+        let mut c = cfg();
+        c.slurm.nodes = 4;
+        c.slurm.actors_per_node = 16;
+        c.slurm.partition = "cpu".into();
+        c.slurm.setup = vec!["module load gcc".into()];
+        let text = gen(&c);
+        assert!(text.starts_with("#!/bin/bash\n"));
+        for want in [
+            "#SBATCH --nodes=4",
+            "#SBATCH --partition=cpu",
+            "#SBATCH --requeue",
+            "#SBATCH --signal=B:USR1@",
+            "RUN_DIR='/scratch/it'\\''s here/run'",
+            "ADP='/opt/adp/bin/adp'",
+            "LEARNER_NODE_ACTORS=12",
+            "ACTORS_PER_NODE=16",
+            "--rank-offset \"$LEARNER_NODE_ACTORS\"",
+            "SLURM_RESTART_COUNT",
+            "scontrol requeue",
+            "module load gcc",
+        ] {
+            assert!(text.contains(want), "missing {want:?} in\n{text}");
+        }
+        assert!(!text.contains("--account"), "empty fields are left out");
+        // The embedded config parses back to the same run configuration.
+        let start = text.find("<<'ADP_CONFIG'\n").unwrap() + "<<'ADP_CONFIG'\n".len();
+        let end = text[start..].find("ADP_CONFIG\n").unwrap() + start;
+        assert_eq!(TrainConfig::parse("embedded", &text[start..end]).unwrap(), c);
+    }
+
+    #[test]
+    fn script_passes_bash_syntax_check() {
+        let Ok(out) = std::process::Command::new("bash").arg("--version").output() else {
+            panic!("bash is needed for this test");
+        };
+        assert!(out.status.success());
+        let dir = std::env::temp_dir().join(format!("adp-slurm-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        for requeue in [true, false] {
+            let mut c = cfg();
+            c.slurm.requeue = requeue;
+            c.slurm.nodes = 3;
+            let p = dir.join("job.sbatch");
+            std::fs::write(&p, gen(&c)).unwrap();
+            let out = std::process::Command::new("bash")
+                .arg("-n")
+                .arg(&p)
+                .output()
+                .unwrap();
+            assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        }
+        std::fs::remove_dir_all(&dir).ok();
+    }
+}
