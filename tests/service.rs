@@ -55,8 +55,6 @@ fn test_config(dir: &Path, shared_memory: bool) -> PathBuf {
 }
 
 #[test]
-#[ignore = "open bug: under load, leases of shared-memory actors expire while their steps wait in the \
-            learner's queue (invalid_lease refusals); shared memory is off by default until fixed"]
 fn local_training_over_shared_memory_is_lossless_and_resumes() {
     let dir = fresh_dir("train-shm");
     let run = dir.join("run");
@@ -64,7 +62,7 @@ fn local_training_over_shared_memory_is_lossless_and_resumes() {
     let out = adp()
         .args(["train", "--config"])
         .arg(&cfg)
-        .args(["--steps", "600", "--actors", "6", "--out"])
+        .args(["--steps", "600", "--actors", "16", "--out"])
         .arg(&run)
         .output()
         .unwrap();
@@ -72,6 +70,8 @@ fn local_training_over_shared_memory_is_lossless_and_resumes() {
     assert!(out.status.success(), "{err}");
     let s = read_status(&run).unwrap();
     assert!(s.inserts >= 600, "{s:?}");
+    assert_eq!(s.leases_expired, 0, "{s:?}");
+    assert_eq!(s.episodes_abandoned, 0, "{s:?}");
     assert_eq!(s.steps_received, s.inserts);
     assert!(s.episodes_verified > 0, "{s:?}");
     assert_eq!(s.episodes_mismatched, 0, "{s:?}");
@@ -105,6 +105,7 @@ fn sixteen_actors_over_grpc_deliver_every_step_exactly_once() {
     assert!(out.status.success(), "{err}");
     assert_eq!(err.matches("steps over grpc").count(), 16, "{err}");
     let s = read_status(&run).unwrap();
+    assert_eq!(s.rank_steps.len(), 16, "every actor delivered steps: {s:?}");
     assert_eq!(s.steps_received, s.inserts);
     assert!(s.episodes_verified >= 16, "{s:?}");
     assert_eq!(s.episodes_mismatched, 0, "{s:?}");

@@ -109,7 +109,10 @@ pub fn run(setup: &ActorSetup<'_>) -> Result<(), String> {
                 since.elapsed()
             ));
         }
-        eprintln!("actor {}: {why}; reconnecting in {wait:?}", setup.rank);
+        log(format_args!(
+            "actor {}: {why}; reconnecting in {wait:?}",
+            setup.rank
+        ));
         std::thread::sleep(wait);
         wait = (wait * 2).min(Duration::from_secs(5));
     }
@@ -202,7 +205,7 @@ fn session(
         toml::from_str(&spec.env_toml).map_err(|e| format!("the learner's environment settings: {e}"))?;
     let dims: Vec<usize> = spec.policy_dims.iter().map(|&d| d as usize).collect();
     let mut planes = open_planes(rt, setup, &spec, data, &run, actor_id)?;
-    eprintln!(
+    log(format_args!(
         "actor {}: registered as {actor_id} with run {} ({}, {} steps over {})",
         setup.rank,
         run.run_id,
@@ -213,7 +216,7 @@ fn session(
         } else {
             "shm"
         }
-    );
+    ));
     let flags = Arc::new(Flags::default());
     let heartbeat = rt.spawn(heartbeats(
         control.clone(),
@@ -231,8 +234,12 @@ fn session(
         env_cfg: &env_cfg,
         flags: &flags,
     };
+    // How long a finished run may take to drain this actor's last lease before it leaves: as
+    // long as the learner keeps the lease valid, up to the actor's patience with the learner.
+    let drain_limit = setup.give_up_after;
     loop {
         if flags.shutdown.load(Ordering::Acquire) {
+            wait_for_lease_end(&flags, drain_limit);
             return Ok(SessionEnd::Shutdown);
         }
         if flags.gone.load(Ordering::Acquire) {
@@ -254,7 +261,10 @@ fn session(
             }
         };
         let a = match decision {
-            Some(pb::assignment_reply::Decision::Shutdown(_)) => return Ok(SessionEnd::Shutdown),
+            Some(pb::assignment_reply::Decision::Shutdown(_)) => {
+                wait_for_lease_end(&flags, drain_limit);
+                return Ok(SessionEnd::Shutdown);
+            }
             Some(pb::assignment_reply::Decision::IdleMs(ms)) => {
                 std::thread::sleep(Duration::from_millis(u64::from(ms.max(1))));
                 continue;
@@ -335,6 +345,28 @@ fn session(
         // The lease stays in the heartbeats until the learner has received all its steps and
         // finished it (steps may still wait in the learner's queue behind its rate limiter).
     }
+}
+
+/// Waits (at most `limit`) until the learner has finished or dropped this actor's lease: the
+/// heartbeats keep it alive meanwhile. A data plane can accept a step before the learner has
+/// stored it (shared memory queues it), so leaving earlier would let the lease expire with
+/// steps still queued, and the learner would refuse them.
+fn wait_for_lease_end(flags: &Flags, limit: Duration) {
+    let start = Instant::now();
+    while flags.lease.load(Ordering::Acquire) != 0
+        && !flags.gone.load(Ordering::Acquire)
+        && start.elapsed() < limit
+    {
+        std::thread::sleep(Duration::from_millis(10));
+    }
+}
+
+/// Writes one line to stderr in a single `write`, so that the lines of many actor processes
+/// sharing one pipe never interleave (`eprintln!` writes each formatted piece separately).
+fn log(args: std::fmt::Arguments) {
+    use std::io::Write;
+    let line = format!("{args}\n");
+    let _ = std::io::stderr().lock().write_all(line.as_bytes());
 }
 
 /// Aborts a tokio task when dropped.

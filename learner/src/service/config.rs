@@ -17,9 +17,8 @@ pub struct ServiceConfig {
     /// directory.
     pub listen: String,
     /// Offer the iceoryx2 shared-memory data plane to actors on this host (they still use gRPC
-    /// for the control plane). Actors on other hosts always stream steps over gRPC. Off by
-    /// default: under load, leases of shared-memory actors were seen to expire while their
-    /// steps waited in the learner's queue (an open bug).
+    /// for the control plane). Actors on other hosts always stream steps over gRPC. On by
+    /// default.
     pub shared_memory: bool,
     /// How often actors send a heartbeat (ms).
     pub heartbeat_ms: u32,
@@ -50,7 +49,7 @@ impl Default for ServiceConfig {
     fn default() -> Self {
         Self {
             listen: "127.0.0.1:0".into(),
-            shared_memory: false,
+            shared_memory: true,
             heartbeat_ms: 1000,
             lease_ttl_ms: 15_000,
             episodes_per_assignment: 2,
@@ -86,8 +85,10 @@ pub struct LearnerOptions {
     pub env_toml: String,
     /// The training worlds (BARN indices).
     pub worlds: Vec<usize>,
-    /// Total agent steps of the run; the learner stops assigning work once they are stored and
-    /// finishes the updates they call for.
+    /// Total agent steps of the run; the learner stops assigning work once they are stored.
+    /// Assignments already dealt still run their episodes to the end and are trained on (a
+    /// partial episode would be wasted), so a run stores up to one assignment per actor more;
+    /// then the learner finishes the updates they call for.
     pub budget_steps: u64,
     /// The run's secret token (every gRPC call must carry it).
     pub token: String,

@@ -369,7 +369,8 @@ impl Learner {
             .join()
             .map_err(|_| "the training thread panicked".to_string())?;
         self.shared.finished.store(true, Ordering::Release);
-        self.shared.request_stop(false);
+        // Training is over: nothing may wait for updates any more (the intake would hang).
+        self.shared.request_stop(true);
         // Let actors hear `shutdown` on their next heartbeat before the server goes away.
         std::thread::sleep(Duration::from_millis(u64::from(self.heartbeat_ms) * 2));
         self.intake_stop.store(true, Ordering::Release);

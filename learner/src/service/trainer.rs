@@ -98,7 +98,13 @@ impl Trainer {
             let publish = published.is_none_or(|v| cycle > v);
             let can_update = core.rate.updates_allowed() > 0 && core.replay.ready_len() > 0 && !core.abort;
             let owed = core.rate.target_updates().floor() as u64 > core.rate.updates();
-            let done = core.abort || (core.stopping && !owed && core.rate.inserts() >= self.shared.budget);
+            // Past the budget, open leases still deliver their episodes (their actors wait for
+            // them to finish before they leave): train on them too, then stop.
+            let done = core.abort
+                || (core.stopping
+                    && !owed
+                    && core.rate.inserts() >= self.shared.budget
+                    && core.open_leases() == 0);
             if done {
                 completed = !core.abort;
                 break;
