@@ -1,12 +1,8 @@
 #!/usr/bin/env python3
 """One TD3 update in PyTorch (CPU), the same work as `adp_learner::Td3::update`.
 
-The Rust figure comes from the ignored test in learner/src/td3.rs:
-
-    cargo test --release -p adp-learner -- --ignored td3_update_time --nocapture
-
-Run both in the same session with the same thread count (DESIGN §8) and compare the mean
-ms/update:
+`adp bench learner --python PYTHON` runs this script right after its own measurement, with
+the same thread count, and prints the ratio of the two (DESIGN §8). By hand:
 
     python3 bench/td3_update.py --threads 2
 
@@ -23,7 +19,7 @@ What one update does, as in learner/src/td3.rs (defaults of DESIGN §5):
 - host read-back of the critic loss, mean Q1, mean y and (on actor updates) the actor loss.
 
 20 warm-up updates, then 200 timed; prints the mean ms/update (wall and process CPU) and the
-medians of critic-only and critic+actor updates, in the format of the Rust test.
+medians of critic-only and critic+actor updates (or, with --json, one JSON object that `adp bench learner` reads).
 
 Needs torch and numpy (PyPI's torch wheel is the CUDA build, ~5 GB installed; it runs on the
 CPU). Not part of CI.
@@ -31,6 +27,7 @@ CPU). Not part of CI.
 
 import argparse
 import copy
+import json
 import os
 import statistics
 import time
@@ -130,6 +127,7 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--threads", type=int, default=os.cpu_count(), help="torch intra-op threads")
     parser.add_argument("--updates", type=int, default=200, help="timed updates")
+    parser.add_argument("--json", action="store_true", help="print one JSON object instead of a sentence")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     torch.manual_seed(0)
@@ -147,6 +145,20 @@ def main():
         (with_actor if len(stats) == 4 else critic_only).append(ms)
     mean = (time.perf_counter() - wall0) * 1e3 / args.updates
     cpu = (time.process_time() - cpu0) * 1e3 / args.updates
+    if args.json:
+        print(
+            json.dumps(
+                {
+                    "torch": torch.__version__,
+                    "threads": torch.get_num_threads(),
+                    "updates": args.updates,
+                    "mean_ms": mean,
+                    "critic_only_median_ms": statistics.median(critic_only),
+                    "with_actor_median_ms": statistics.median(with_actor),
+                }
+            )
+        )
+        return
     print(
         f"PyTorch {torch.__version__}: TD3 update, batch {BATCH}, {OBS}/{ACT}, policy delay {POLICY_DELAY}: "
         f"mean {mean:.2f} ms/update (CPU {cpu:.2f} ms/update); median critic-only "

@@ -1,5 +1,6 @@
 //! `adp`: train and ship adaptive-dynamics navigation planners on BARN.
 
+mod bench;
 mod config;
 mod eval;
 mod export;
@@ -260,6 +261,34 @@ enum Cmd {
         #[command(subcommand)]
         cmd: WorldsCmd,
     },
+    /// Measure the DESIGN §8 figures on this machine (release build) next to their targets.
+    Bench {
+        /// Parts to run (default: all, in this order).
+        #[arg(value_enum)]
+        parts: Vec<bench::Part>,
+        /// Timed TD3 updates (learner).
+        #[arg(long, default_value_t = 200)]
+        updates: usize,
+        /// A Python with torch and numpy: also time the same update in PyTorch and print the
+        /// ratio (learner).
+        #[arg(long)]
+        python: Option<PathBuf>,
+        /// Step records through shared memory; a quarter of them through gRPC (transport).
+        #[arg(long, default_value_t = 400_000)]
+        records: usize,
+        /// Agent steps per collecting thread (collect).
+        #[arg(long, default_value_t = 2000)]
+        collect_steps: u64,
+        /// Agent-step budget of the end-to-end `adp train` run (train).
+        #[arg(long, default_value_t = 4000)]
+        train_steps: u64,
+        /// Actor processes of the end-to-end run (default: one per core).
+        #[arg(long, default_value_t = 0)]
+        train_actors: u32,
+        /// Also write the figures as JSON to this file.
+        #[arg(long)]
+        json: Option<PathBuf>,
+    },
 }
 
 #[derive(Subcommand)]
@@ -298,6 +327,25 @@ fn main() -> ExitCode {
 
 fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.cmd {
+        Cmd::Bench {
+            parts,
+            updates,
+            python,
+            records,
+            collect_steps,
+            train_steps,
+            train_actors,
+            json,
+        } => bench::run(&bench::BenchArgs {
+            parts,
+            updates,
+            python,
+            records,
+            collect_steps,
+            train_steps,
+            train_actors,
+            json,
+        }),
         Cmd::Train {
             config,
             steps,

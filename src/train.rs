@@ -133,15 +133,24 @@ impl TrainConfig {
         Ok(cfg)
     }
 
-    fn space(&self) -> anyhow::Result<ActionSpace> {
+    /// The ADP action space of `[run] action_space`.
+    pub(crate) fn space(&self) -> anyhow::Result<ActionSpace> {
         self.run
             .action_space
             .parse()
             .map_err(|e: String| anyhow::anyhow!(e))
     }
 
-    fn planner_kind(&self) -> anyhow::Result<PlannerKind> {
+    /// The planner of `[run] planner`.
+    pub(crate) fn planner_kind(&self) -> anyhow::Result<PlannerKind> {
         planner_kind(&self.run.planner)
+    }
+
+    /// The training worlds of `[run] worlds`.
+    pub(crate) fn worlds(&self) -> anyhow::Result<Vec<usize>> {
+        sim::splits::SplitFile::embedded()
+            .select(&self.run.worlds)
+            .map_err(|e| anyhow::anyhow!("[run] worlds = {:?}: {e}", self.run.worlds))
     }
 
     fn bwrap(&self) -> anyhow::Result<BwrapMode> {
@@ -155,9 +164,7 @@ impl TrainConfig {
 
     /// The learner options of this config for `run_dir`.
     fn learner_options(&self, run_dir: &Path, token: String, resume: bool) -> anyhow::Result<LearnerOptions> {
-        let worlds = sim::splits::SplitFile::embedded()
-            .select(&self.run.worlds)
-            .map_err(|e| anyhow::anyhow!("[run] worlds = {:?}: {e}", self.run.worlds))?;
+        let worlds = self.worlds()?;
         Ok(LearnerOptions {
             run_dir: run_dir.to_owned(),
             run_id: run_id(&self.run.name),

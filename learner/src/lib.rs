@@ -10,6 +10,7 @@
 
 pub mod adam;
 pub mod batch;
+pub mod bench;
 pub mod checkpoint;
 pub mod config;
 pub mod ddp_init;

@@ -2,10 +2,7 @@
 
 use burn::module::{Module, ModuleVisitor, Param};
 use burn::tensor::Tensor;
-use rand::Rng;
-use rand_pcg::Pcg64Mcg;
 
-use crate::batch::Batch;
 use crate::config::Td3Config;
 
 /// Every float parameter of a module, in visiting order.
@@ -39,18 +36,7 @@ pub(crate) fn tiny_config() -> Td3Config {
     }
 }
 
-/// A batch of uniform random values (every 5th row terminal), for mechanics tests.
-pub(crate) fn random_batch(config: &Td3Config, rows: usize, rng: &mut Pcg64Mcg) -> Batch {
-    let mut b = Batch::new(config.obs_dim, config.act_dim);
-    let mut uniform = |n: usize| -> Vec<f32> { (0..n).map(|_| rng.random_range(-1.0..=1.0)).collect() };
-    b.obs = uniform(rows * config.obs_dim);
-    b.next_obs = uniform(rows * config.obs_dim);
-    b.action = uniform(rows * config.act_dim);
-    b.reward = uniform(rows);
-    b.discount = vec![config.gamma.powi(6) as f32; rows];
-    b.done = (0..rows).map(|i| f32::from(u8::from(i % 5 == 0))).collect();
-    b
-}
+pub(crate) use crate::bench::random_batch;
 
 /// A fresh, empty directory under the system temp dir, unique per test and process.
 pub(crate) fn temp_dir(name: &str) -> std::path::PathBuf {

@@ -357,3 +357,177 @@ impl PolicySource for GrpcPolicySource {
         }
     }
 }
+
+/// Measures the gRPC step plane over loopback: a server with the token interceptor decodes
+/// every batch and copies each observation into a ring of 1024 rows (as the learner copies
+/// into its buffer), while `publishers` threads, each on its own connection and
+/// [`GrpcStepSink`] as actors are, send `records` step records in total (730 observation floats
+/// and 4 action floats each), flushing (close the stream, await the acknowledgement) every 200
+/// records as an actor does at the end of an episode. Returns records per second from the
+/// start of sending to the last acknowledgement.
+pub fn bench_throughput(records: usize, publishers: usize) -> Result<f64, String> {
+    use std::sync::atomic::{AtomicU64, Ordering};
+    use std::sync::Barrier;
+    use std::time::Instant;
+
+    use tonic::{Request, Response, Status, Streaming};
+
+    const OBS: usize = 730;
+    const ROWS: usize = 1024;
+    const FLUSH_EVERY: usize = 200;
+    const TOKEN: &str = "bench";
+
+    /// The server side: decodes and stores, acknowledges every record.
+    struct Sink {
+        received: Arc<AtomicU64>,
+        ring: Arc<Mutex<(Vec<f32>, usize)>>,
+    }
+
+    type NoPolicies =
+        std::pin::Pin<Box<dyn tokio_stream::Stream<Item = Result<pb::PolicySnapshot, Status>> + Send>>;
+
+    #[tonic::async_trait]
+    impl pb::data_server::Data for Sink {
+        async fn push_steps(
+            &self,
+            request: Request<Streaming<pb::StepBatch>>,
+        ) -> Result<Response<pb::Ack>, Status> {
+            let mut stream = request.into_inner();
+            let mut ack = pb::Ack::default();
+            let mut scratch = DecodeScratch::default();
+            while let Some(batch) = stream.message().await? {
+                let mut ring = self.ring.lock().expect("bench ring");
+                let (rows, next) = &mut *ring;
+                for_each_step(&batch, &mut scratch, |step| {
+                    if let Ok(step) = step {
+                        let len = step.obs.len().min(OBS);
+                        rows[*next * OBS..*next * OBS + len].copy_from_slice(&step.obs[..len]);
+                        *next = (*next + 1) % ROWS;
+                        ack.accepted += 1;
+                    } else {
+                        ack.refused += 1;
+                    }
+                });
+                self.received
+                    .fetch_add(batch.steps.len() as u64, Ordering::Relaxed);
+            }
+            Ok(Response::new(ack))
+        }
+
+        type WatchPolicyStream = NoPolicies;
+
+        async fn watch_policy(&self, _: Request<pb::PolicyRequest>) -> Result<Response<NoPolicies>, Status> {
+            Err(Status::unimplemented("the benchmark serves no policies"))
+        }
+    }
+
+    let publishers = publishers.max(1);
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .map_err(|e| format!("cannot start a tokio runtime: {e}"))?;
+    let listener = runtime
+        .block_on(tokio::net::TcpListener::bind("127.0.0.1:0"))
+        .map_err(|e| format!("cannot listen on loopback: {e}"))?;
+    let addr = listener.local_addr().map_err(|e| e.to_string())?;
+    let received = Arc::new(AtomicU64::new(0));
+    let sink = Sink {
+        received: received.clone(),
+        ring: Arc::new(Mutex::new((vec![0f32; ROWS * OBS], 0))),
+    };
+    let auth = crate::auth::ServerAuth::new(TOKEN, Arc::default());
+    let service = InterceptedService::new(
+        pb::data_server::DataServer::new(sink)
+            .max_decoding_message_size(MAX_MESSAGE_BYTES)
+            .max_encoding_message_size(MAX_MESSAGE_BYTES),
+        auth,
+    );
+    let (stop_tx, mut stop_rx) = tokio::sync::watch::channel(false);
+    let server = runtime.spawn(
+        tonic::transport::Server::builder()
+            .add_service(service)
+            .serve_with_incoming_shutdown(
+                tokio_stream::wrappers::TcpListenerStream::new(listener),
+                async move {
+                    let _ = stop_rx.wait_for(|s| *s).await;
+                },
+            ),
+    );
+    let address = LearnerAddress {
+        addr: addr.to_string(),
+        token: Some(TOKEN.into()),
+        tls: None,
+    };
+    let start = Arc::new(Barrier::new(publishers + 1));
+    let senders: Vec<std::thread::JoinHandle<Result<(), String>>> = (0..publishers)
+        .map(|i| {
+            let (handle, address, start) = (runtime.handle().clone(), address.clone(), start.clone());
+            let count = records / publishers + usize::from(i < records % publishers);
+            std::thread::spawn(move || {
+                let connected = handle.block_on(address.connect());
+                start.wait();
+                let (_, data) = connected.map_err(|e| e.to_string())?;
+                let mut sink = GrpcStepSink::new(handle, data, "bench", 1);
+                let obs = vec![0.5f32; OBS];
+                let header = LeaseHeader {
+                    incarnation: 1,
+                    actor_id: i as u64,
+                    lease_id: 1,
+                };
+                for k in 0..count {
+                    let step = StepView {
+                        episode_id: 0,
+                        step_index: k as u32,
+                        policy_version: 0,
+                        obs: &obs,
+                        action: &[0.0; 4],
+                        reward: -0.5,
+                        terminal: false,
+                        truncated: false,
+                        final_obs: &[],
+                    };
+                    sink.send(&header, &step).map_err(|e| e.to_string())?;
+                    if (k + 1) % FLUSH_EVERY == 0 {
+                        sink.flush().map_err(|e| e.to_string())?;
+                    }
+                }
+                sink.flush().map_err(|e| e.to_string())
+            })
+        })
+        .collect();
+    start.wait();
+    let t0 = Instant::now();
+    let mut failure = None;
+    for (i, sender) in senders.into_iter().enumerate() {
+        let outcome = sender.join().unwrap_or_else(|_| Err("panicked".into()));
+        if let Err(e) = outcome {
+            failure.get_or_insert(format!("gRPC bench publisher {i}: {e}"));
+        }
+    }
+    let secs = t0.elapsed().as_secs_f64();
+    let _ = stop_tx.send(true);
+    let _ = runtime.block_on(server);
+    if let Some(e) = failure {
+        return Err(e);
+    }
+    let got = received.load(Ordering::Relaxed);
+    if got != records as u64 {
+        return Err(format!("gRPC bench: received {got} of {records} records"));
+    }
+    Ok(records as f64 / secs)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::test_watchdog::watchdog;
+
+    #[test]
+    fn bench_delivers_every_record_from_every_publisher() {
+        let _w = watchdog(120, "gRPC bench");
+        // 1001 records over 3 publishers: uneven shares and a partial last batch.
+        let rate = bench_throughput(1001, 3).unwrap();
+        assert!(rate.is_finite() && rate > 0.0, "{rate}");
+    }
+}

@@ -876,21 +876,7 @@ mod tests {
         }
     }
 
-    /// Aborts the whole test process if the guard is not dropped within `secs`.
-    struct Watchdog {
-        _stop: mpsc::Sender<()>,
-    }
-
-    fn watchdog(secs: u64, what: &'static str) -> Watchdog {
-        let (stop, stopped) = mpsc::channel::<()>();
-        thread::spawn(move || {
-            if let Err(mpsc::RecvTimeoutError::Timeout) = stopped.recv_timeout(Duration::from_secs(secs)) {
-                eprintln!("watchdog: `{what}` did not finish within {secs} s; aborting");
-                std::process::abort();
-            }
-        });
-        Watchdog { _stop: stop }
-    }
+    use crate::test_watchdog::watchdog;
 
     fn value(actor: usize, k: usize, i: usize) -> f32 {
         ((actor * 131 + k * 17 + i * 7) % 2003) as f32 * 1e-3 - 1.0
@@ -1307,15 +1293,5 @@ mod tests {
         let _w = watchdog(60, "small bench");
         let rate = bench_throughput(2000, 2).unwrap();
         assert!(rate > 0.0);
-    }
-
-    /// `cargo test --release -p adp-proto shm::tests::bench -- --ignored --nocapture`
-    #[test]
-    #[ignore = "throughput measurement"]
-    fn bench() {
-        for publishers in [1, 4, 16] {
-            let rate = bench_throughput(400_000, publishers).unwrap();
-            println!("shm step plane, {publishers} publishers: {rate:.0} records/s");
-        }
     }
 }
