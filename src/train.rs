@@ -72,6 +72,9 @@ pub struct SandboxSection {
     pub address_space_mb: u64,
     /// Open-file limit per actor (0 = inherited).
     pub open_files: u64,
+    /// With bubblewrap, actors run in a private network namespace (no network at all) and
+    /// reach the learner over its Unix socket in the run directory.
+    pub private_network: bool,
 }
 
 impl Default for SandboxSection {
@@ -80,6 +83,7 @@ impl Default for SandboxSection {
             bwrap: "auto".into(),
             address_space_mb: 4096,
             open_files: 1024,
+            private_network: true,
         }
     }
 }
@@ -279,13 +283,19 @@ pub fn train(config: Option<&Path>, o: &Overrides, resume: bool) -> anyhow::Resu
         bwrap: cfg.bwrap()?,
         address_space_bytes: cfg.sandbox.address_space_mb << 20,
         open_files: cfg.sandbox.open_files,
-        private_network: false,
+        // Without the learner's Unix socket, actors need the network to reach it.
+        private_network: cfg.sandbox.private_network && learner.socket().is_some(),
         writable_dirs: vec![PathBuf::from("/dev/shm"), PathBuf::from("/tmp")],
     })?;
+    // Actors on this host talk to the learner over its Unix socket when it has one.
+    let address = match learner.socket() {
+        Some(p) => format!("unix:{}", p.display()),
+        None => learner.addr().to_string(),
+    };
     let args = vec![
         "actor".to_string(),
         "--learner".into(),
-        learner.addr().to_string(),
+        address.clone(),
         "--token-file".into(),
         token_path.display().to_string(),
     ];
@@ -301,7 +311,7 @@ pub fn train(config: Option<&Path>, o: &Overrides, resume: bool) -> anyhow::Resu
         Instant::now(),
     )?;
     eprintln!(
-        "adp train: run {} in {} with {actors} actor(s) ({:?}); Ctrl-C stops with a checkpoint",
+        "adp train: run {} in {} with {actors} actor(s) (bwrap: {:?}; learner at {address}); Ctrl-C stops with a checkpoint",
         learner.run_id(),
         out.display(),
         supervisor.bwrap_status()

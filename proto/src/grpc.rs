@@ -37,7 +37,8 @@ pub type DataClient = pb::data_client::DataClient<InterceptedService<Channel, Cl
 /// Where and how to reach the learner.
 #[derive(Debug, Clone, Default)]
 pub struct LearnerAddress {
-    /// `host:port`.
+    /// `host:port`, or `unix:PATH` for the learner's Unix socket on this host (what sandboxed
+    /// actors without a network use).
     pub addr: String,
     /// The run's token (sent on every call).
     pub token: Option<String>,
@@ -72,6 +73,49 @@ pub enum ConnectError {
 impl LearnerAddress {
     /// Opens one HTTP/2 channel (shared by the control and data clients).
     pub async fn connect(&self) -> Result<(ControlClient, DataClient), ConnectError> {
+        let channel = match self.addr.strip_prefix("unix:") {
+            Some(path) => self.connect_unix(path).await?,
+            None => self.connect_tcp().await?,
+        };
+        let auth = ClientAuth::new(self.token.as_deref());
+        let control = pb::control_client::ControlClient::with_interceptor(channel.clone(), auth.clone())
+            .max_decoding_message_size(MAX_MESSAGE_BYTES);
+        let data = pb::data_client::DataClient::with_interceptor(channel, auth)
+            .max_decoding_message_size(MAX_MESSAGE_BYTES)
+            .max_encoding_message_size(MAX_MESSAGE_BYTES);
+        Ok((control, data))
+    }
+
+    /// A channel over the Unix socket at `path` (plain HTTP/2: the socket never leaves the host;
+    /// the token is still sent and checked).
+    async fn connect_unix(&self, path: &str) -> Result<Channel, ConnectError> {
+        if self.tls.is_some() {
+            return Err(ConnectError::Address {
+                addr: self.addr.clone(),
+                reason: "TLS is for TCP addresses; a Unix socket stays on this host".into(),
+            });
+        }
+        let path = std::path::PathBuf::from(path);
+        // The URI is required by the HTTP/2 layer but not used to connect.
+        let ep = Endpoint::from_static("http://localhost")
+            .connect_timeout(Duration::from_secs(5))
+            .http2_keep_alive_interval(Duration::from_secs(10))
+            .keep_alive_timeout(Duration::from_secs(20));
+        ep.connect_with_connector(tower::service_fn(move |_: tonic::transport::Uri| {
+            let path = path.clone();
+            async move {
+                let stream = tokio::net::UnixStream::connect(path).await?;
+                Ok::<_, std::io::Error>(hyper_util::rt::TokioIo::new(stream))
+            }
+        }))
+        .await
+        .map_err(|source| ConnectError::Transport {
+            addr: self.addr.clone(),
+            source,
+        })
+    }
+
+    async fn connect_tcp(&self) -> Result<Channel, ConnectError> {
         let host = self
             .addr
             .rsplit_once(':')
@@ -99,17 +143,10 @@ impl LearnerAddress {
                     source,
                 })?;
         }
-        let channel = ep.connect().await.map_err(|source| ConnectError::Transport {
+        ep.connect().await.map_err(|source| ConnectError::Transport {
             addr: self.addr.clone(),
             source,
-        })?;
-        let auth = ClientAuth::new(self.token.as_deref());
-        let control = pb::control_client::ControlClient::with_interceptor(channel.clone(), auth.clone())
-            .max_decoding_message_size(MAX_MESSAGE_BYTES);
-        let data = pb::data_client::DataClient::with_interceptor(channel, auth)
-            .max_decoding_message_size(MAX_MESSAGE_BYTES)
-            .max_encoding_message_size(MAX_MESSAGE_BYTES);
-        Ok((control, data))
+        })
     }
 }
 

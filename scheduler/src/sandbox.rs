@@ -403,4 +403,54 @@ mod tests {
         assert_eq!(runs[0], format!("{options} true"));
         assert_eq!(runs[1], format!("{options} /bin/echo hello world"));
     }
+
+    /// With the real bubblewrap: the filesystem is read-only except the writable directories,
+    /// and a private network has nothing but loopback. Skipped (with the reason printed) where
+    /// bwrap is missing or cannot run, unless `ADP_REQUIRE_BWRAP=1` (as in CI).
+    #[test]
+    fn real_bwrap_confines_files_and_network() {
+        let dir = TempDir::new("real-bwrap");
+        let config = SandboxConfig {
+            private_network: true,
+            writable_dirs: vec![dir.path().to_path_buf()],
+            ..config(BwrapMode::Auto)
+        };
+        let sandbox = Sandbox::new(config).unwrap();
+        if !matches!(sandbox.bwrap_status(), BwrapStatus::Used(_)) {
+            let why = format!("{:?}", sandbox.bwrap_status());
+            assert!(
+                std::env::var("ADP_REQUIRE_BWRAP").as_deref() != Ok("1"),
+                "ADP_REQUIRE_BWRAP=1 but bubblewrap is not usable: {why}"
+            );
+            eprintln!("SKIPPED: real bubblewrap not usable here: {why}");
+            return;
+        }
+        let allowed = dir.path().join("allowed");
+        let outside = std::env::current_dir()
+            .unwrap()
+            .join(format!("adp-bwrap-probe-{}", std::process::id()));
+        let script = format!(
+            "touch {} && echo wrote-allowed; touch {} 2>/dev/null && echo wrote-outside; \
+             tail -n +3 /proc/net/dev | cut -d: -f1 | tr -d ' '",
+            allowed.display(),
+            outside.display()
+        );
+        let output = sandbox
+            .command(Path::new("/bin/sh"), &["-c".into(), script])
+            .output()
+            .unwrap();
+        let stdout = String::from_utf8_lossy(&output.stdout);
+        let _ = std::fs::remove_file(&outside);
+        assert!(allowed.is_file(), "the writable directory is writable: {stdout}");
+        assert!(
+            !stdout.contains("wrote-outside"),
+            "the rest is read-only: {stdout}"
+        );
+        let interfaces: Vec<&str> = stdout.lines().skip(1).collect();
+        assert_eq!(
+            interfaces,
+            ["lo"],
+            "a private network has only loopback: {stdout}"
+        );
+    }
 }

@@ -44,6 +44,9 @@ use crate::Device;
 /// File in the run directory holding the learner's bound `host:port`.
 pub const ADDR_FILE: &str = "learner.addr";
 
+/// The learner's Unix socket in the run directory (same services as the TCP address).
+pub const SOCKET_FILE: &str = "learner.sock";
+
 /// A running learner. Dropping it without [`Learner::wait`] aborts the process's threads at
 /// exit; call `wait`.
 pub struct Learner {
@@ -55,7 +58,33 @@ pub struct Learner {
     intake_stop: Arc<AtomicBool>,
     server_stop: watch::Sender<bool>,
     server: tokio::task::JoinHandle<Result<(), tonic::transport::Error>>,
+    unix_server: Option<(
+        PathBuf,
+        tokio::task::JoinHandle<Result<(), tonic::transport::Error>>,
+    )>,
     heartbeat_ms: u32,
+}
+
+/// Binds a Unix socket at `path` (replacing a stale one from an earlier learner of the run),
+/// readable and writable by this user only.
+fn bind_unix(runtime: &tokio::runtime::Runtime, path: &Path) -> Result<tokio::net::UnixListener, String> {
+    use std::os::unix::fs::PermissionsExt;
+    // sockaddr_un holds 108 bytes including the terminating NUL.
+    if path.as_os_str().len() > 107 {
+        return Err(format!("{} is longer than a socket path may be", path.display()));
+    }
+    match std::fs::remove_file(path) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+            return Err(format!("cannot remove the old {}: {e}", path.display()))
+        }
+        _ => {}
+    }
+    let _guard = runtime.enter();
+    let listener =
+        tokio::net::UnixListener::bind(path).map_err(|e| format!("cannot bind {}: {e}", path.display()))?;
+    std::fs::set_permissions(path, std::fs::Permissions::from_mode(0o600))
+        .map_err(|e| format!("cannot chmod 600 {}: {e}", path.display()))?;
+    Ok(listener)
 }
 
 fn fresh_incarnation() -> u64 {
@@ -257,13 +286,36 @@ impl Learner {
             .max_encoding_message_size(proto::grpc::MAX_MESSAGE_BYTES),
             auth,
         );
-        let (server_stop, mut stop_rx) = watch::channel(false);
+        let (server_stop, stop_rx) = watch::channel(false);
+        let stopped = |mut rx: watch::Receiver<bool>| async move {
+            let _ = rx.wait_for(|s| *s).await;
+        };
+        // The same services on a Unix socket in the run directory, for actors on this host
+        // (sandboxed actors without a network reach the learner only this way). Plain HTTP/2:
+        // the socket (mode 0600) never leaves the host; the token is still checked.
+        let socket = run_dir.join(SOCKET_FILE);
+        let unix_server = match bind_unix(&runtime, &socket) {
+            Ok(unix) => Some((
+                socket,
+                runtime.spawn(
+                    tonic::transport::Server::builder()
+                        .add_service(control.clone())
+                        .add_service(data.clone())
+                        .serve_with_incoming_shutdown(
+                            tokio_stream::wrappers::UnixListenerStream::new(unix),
+                            stopped(stop_rx.clone()),
+                        ),
+                ),
+            )),
+            Err(why) => {
+                eprintln!("learner: no Unix socket for local actors ({why}); they use {addr}");
+                None
+            }
+        };
         let router = builder.add_service(control).add_service(data);
         let server = runtime.spawn(router.serve_with_incoming_shutdown(
             tokio_stream::wrappers::TcpListenerStream::new(listener),
-            async move {
-                let _ = stop_rx.wait_for(|s| *s).await;
-            },
+            stopped(stop_rx),
         ));
         write_atomic(&run_dir.join(ADDR_FILE), &format!("{addr}\n"))?;
 
@@ -331,6 +383,7 @@ impl Learner {
             intake_stop,
             server_stop,
             server,
+            unix_server,
             heartbeat_ms: svc.heartbeat_ms,
         })
     }
@@ -338,6 +391,12 @@ impl Learner {
     /// The bound gRPC address.
     pub fn addr(&self) -> SocketAddr {
         self.addr
+    }
+
+    /// The Unix socket actors on this host may use instead (`unix:PATH` as their learner
+    /// address), if it could be bound.
+    pub fn socket(&self) -> Option<&Path> {
+        self.unix_server.as_ref().map(|(p, _)| p.as_path())
     }
 
     /// The run id.
@@ -381,6 +440,12 @@ impl Learner {
         let _ = self
             .runtime
             .block_on(async { tokio::time::timeout(Duration::from_secs(5), self.server).await });
+        if let Some((socket, server)) = self.unix_server {
+            let _ = self
+                .runtime
+                .block_on(async { tokio::time::timeout(Duration::from_secs(5), server).await });
+            let _ = std::fs::remove_file(socket);
+        }
         self.runtime.shutdown_timeout(Duration::from_secs(1));
         summary
     }
