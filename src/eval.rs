@@ -1,5 +1,12 @@
 //! `adp eval`: planners x fidelities x speeds over a set of worlds, run in parallel, reduced
 //! to the papers' table (success, time, score, collision, timeout).
+//!
+//! `Fidelity::Adp` runs either a constant action (one schedule for the whole episode, through
+//! the plain episode driver) or a trained policy closed-loop through the RL environment
+//! [`actor::AdpEnv`], exactly as the actors run it in training but without exploration noise:
+//! every agent step (0.25 s) the policy sees the environment's observation and its action
+//! picks the schedule of the next agent step. Both produce the same per-run
+//! [`EpisodeResult`]s, so rows, table and JSON do not depend on which one ran.
 
 use std::time::Instant;
 
@@ -8,6 +15,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use rayon::prelude::*;
 use serde::Serialize;
 
+use actor::{AdpEnv, End, EnvConfig, MlpPolicy, Scratch, LASER_BEAMS};
 use planner::{run::run_episode, ActionSpace, Dwa, LogMppi, Mppi, NavSystem, Planner, Schedule};
 use sim::{EpisodeResult, Status, World};
 
@@ -95,6 +103,9 @@ pub struct EvalPlan {
     pub seed: u64,
     /// The ADP action space and action for `Fidelity::Adp`.
     pub adp: AdpSetting,
+    /// A trained policy for `Fidelity::Adp` in `adp.space`: when set, it chooses the schedule
+    /// every agent step instead of the constant `adp.action`.
+    pub policy: Option<MlpPolicy>,
 }
 
 /// One table row.
@@ -142,6 +153,46 @@ pub fn run_seed(base: u64, world: usize, run: usize) -> u64 {
     z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
     z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
     z ^ (z >> 31)
+}
+
+/// The environment settings of an evaluation run with a trained policy: the training defaults
+/// (0.25 s agent step, 3 m laser clip: the observation the exported card documents) with no
+/// agent-step cap, so runs end by the BARN protocol of `[episode]` like every other row.
+fn eval_env_config() -> EnvConfig {
+    EnvConfig {
+        max_agent_steps: u32::MAX,
+        ..EnvConfig::default()
+    }
+}
+
+/// Per-thread buffers of closed-loop runs, reused from episode to episode.
+#[derive(Default)]
+struct PolicyBuffers {
+    obs: Vec<f32>,
+    action: Vec<f32>,
+    scratch: Scratch,
+}
+
+/// Runs `env` to its end with `net` choosing the action every agent step (deterministic: no
+/// exploration noise). Returns the result and the planner cycles (`control_dt` is the
+/// episode's control period). Allocates nothing per step beyond what [`AdpEnv::step`] does.
+fn run_policy_episode(
+    mut env: AdpEnv<'_>,
+    net: &MlpPolicy,
+    control_dt: f64,
+    buf: &mut PolicyBuffers,
+) -> anyhow::Result<(EpisodeResult, u64)> {
+    buf.obs.resize(env.obs_dim(), 0.0);
+    buf.action.resize(env.space().dim(), 0.0);
+    while env.end() == End::Continue {
+        env.observation(&mut buf.obs);
+        net.act(&buf.obs, &mut buf.action, &mut buf.scratch);
+        env.step(&buf.action)?;
+    }
+    let r = env.result().episode;
+    // Every planner cycle but the last runs a full control period; the last one may end early.
+    let cycles = (r.sim_time_s / control_dt - 1e-6).ceil().max(0.0) as u64;
+    Ok((r, cycles))
 }
 
 fn charged_time(r: &EpisodeResult) -> f64 {
@@ -196,6 +247,31 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
             .get(w)
             .with_context(|| format!("world {w} is not in the loaded data ({} worlds)", worlds.len()))?;
     }
+    let policy = plan
+        .policy
+        .as_ref()
+        .filter(|_| plan.fidelities.contains(&Fidelity::Adp));
+    if let Some(net) = policy {
+        let space = plan.adp.space;
+        if (net.obs_dim(), net.act_dim()) != (actor::obs_dim(space), space.dim()) {
+            bail!(
+                "the policy maps {} observation values to {} actions; the {} action space needs {} \
+                 to {}",
+                net.obs_dim(),
+                net.act_dim(),
+                kebab(&space),
+                actor::obs_dim(space),
+                space.dim()
+            );
+        }
+        if cfg.episode.lidar.beams != LASER_BEAMS {
+            bail!(
+                "the policy reads {LASER_BEAMS} lidar ranges but the configuration's \
+                 [episode.lidar] beams = {}",
+                cfg.episode.lidar.beams
+            );
+        }
+    }
     let mut jobs = Vec::new();
     for (ri, (&p, &f, &s)) in plan
         .planners
@@ -222,22 +298,37 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
     let t0 = Instant::now();
     let results: Vec<(usize, usize, usize, EpisodeResult, u64)> = jobs
         .par_iter()
-        .map(|&(ri, p, f, s, w, r)| {
+        .map_init(PolicyBuffers::default, |buf, &(ri, p, f, s, w, r)| {
             let seed = run_seed(plan.seed, w, r);
             let mut planner = p.build(cfg, seed ^ 0x5eed_91a2);
-            let (res, cycles) = run_episode(
-                &worlds[w],
-                cfg.episode,
-                planner.as_mut(),
-                &f.schedule(&plan.adp).expect("checked above"),
-                s,
-                seed,
-                |_, _| {},
-            );
+            let (res, cycles) = match policy.filter(|_| f == Fidelity::Adp) {
+                Some(net) => {
+                    let env = AdpEnv::new(
+                        &worlds[w],
+                        cfg.episode,
+                        planner,
+                        plan.adp.space,
+                        s,
+                        eval_env_config(),
+                        seed,
+                    )?;
+                    run_policy_episode(env, net, cfg.episode.control_dt, buf)
+                        .with_context(|| format!("world {w}, run {r}"))?
+                }
+                None => run_episode(
+                    &worlds[w],
+                    cfg.episode,
+                    planner.as_mut(),
+                    &f.schedule(&plan.adp)?,
+                    s,
+                    seed,
+                    |_, _| {},
+                ),
+            };
             bar.inc(1);
-            (ri, w, r, res, cycles)
+            Ok((ri, w, r, res, cycles))
         })
-        .collect();
+        .collect::<anyhow::Result<_>>()?;
     bar.finish_and_clear();
     let cycles: u64 = results.iter().map(|x| x.4).sum();
     let secs = t0.elapsed().as_secs_f64();
@@ -365,6 +456,41 @@ mod tests {
         let (succ, time, _, coll, _, n) = summarize(&[w], 0);
         assert_eq!((succ, coll, n), (75.0, 25.0, 4));
         assert!((time - 20.0).abs() < 1e-12);
+    }
+
+    /// A policy with a constant output, run closed-loop, gives the plain driver's result and
+    /// cycle count with that action's schedule, for a run that succeeds and one that times out
+    /// (on a shortened clock).
+    #[test]
+    fn closed_loop_constant_policy_equals_the_plain_driver() {
+        let cfg = EvalConfig::load(None).unwrap();
+        let space = ActionSpace::Decremental;
+        let bias = [0.2f32, -0.3, 0.1, -0.6];
+        let mut flat = vec![0.0; 730 * 4];
+        flat.extend(bias);
+        let net = MlpPolicy::from_flat(&[730, 4], flat).unwrap();
+        let action: Vec<f64> = bias.iter().map(|b| f64::from(b.tanh())).collect();
+        let schedule = space
+            .schedule(&action, planner::schedule::DEFAULT_BOUNDARY_POINTS)
+            .unwrap();
+        let mut buf = PolicyBuffers::default();
+        let mut statuses = Vec::new();
+        for (w, timeout_s) in [(1, 100.0), (2, 3.33)] {
+            let world = sim::barn::world(w).unwrap();
+            let episode = sim::EpisodeConfig {
+                timeout_s,
+                ..cfg.episode
+            };
+            let seed = run_seed(5, w, 0);
+            let planner = PlannerKind::Dwa.build(&cfg, seed);
+            let env = AdpEnv::new(world, episode, planner, space, 1.5, eval_env_config(), seed).unwrap();
+            let closed = run_policy_episode(env, &net, episode.control_dt, &mut buf).unwrap();
+            let mut planner = PlannerKind::Dwa.build(&cfg, seed);
+            let plain = run_episode(world, episode, planner.as_mut(), &schedule, 1.5, seed, |_, _| {});
+            assert_eq!(closed, plain, "world {w}");
+            statuses.push(plain.0.status);
+        }
+        assert_eq!(statuses, [Status::Succeeded, Status::TimedOut]);
     }
 
     #[test]

@@ -68,11 +68,14 @@ enum Cmd {
         /// Fidelity strategy (or strategies), comma-separated.
         #[arg(long, value_enum, value_delimiter = ',', default_value = "ddp")]
         fidelity: Vec<Fidelity>,
-        /// ADP action space (with --fidelity adp).
-        #[arg(long, default_value = "decremental")]
-        action: ActionSpace,
-        /// ADP policy: a TOML file with a constant normalized `action = [...]` (default: the
-        /// action that reproduces DDP, ADP's initialization).
+        /// ADP action space (with --fidelity adp; default: the policy's, else decremental). When
+        /// given, the policy's space must be the same.
+        #[arg(long)]
+        action: Option<ActionSpace>,
+        /// ADP policy (with --fidelity adp): a trained policy, i.e. the export directory of
+        /// `adp export` or `adp train` (or its policy.json), run closed-loop; or a TOML file
+        /// with a constant normalized `action = [...]`. Default: the constant action that
+        /// reproduces DDP, ADP's initialization.
         #[arg(long)]
         policy: Option<PathBuf>,
         /// Speed cap(s) in m/s, comma-separated: one row per value.
@@ -194,7 +197,8 @@ enum Cmd {
     },
     /// The actor half of a distributed run: connects to a learner and runs assignments.
     Actor {
-        /// The learner's host:port.
+        /// The learner's host:port, or unix:PATH for its Unix socket (<run dir>/learner.sock)
+        /// on the same host.
         #[arg(long)]
         learner: String,
         /// The run's token file (mode 0600).
@@ -448,16 +452,39 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             if runs == 0 {
                 anyhow::bail!("--runs must be at least 1");
             }
+            if policy.is_some() && !fidelity.contains(&Fidelity::Adp) {
+                anyhow::bail!("--policy applies to --fidelity adp, which is not among the fidelities");
+            }
             let all = data.load()?;
-            let adp = AdpSetting {
-                space: action,
-                action: match &policy {
-                    Some(p) => policy::load_constant_action(p, action)?,
-                    None => action.ddp_action(),
+            let ddp = |space: ActionSpace| AdpSetting {
+                space,
+                action: space.ddp_action(),
+            };
+            // The source of a trained policy is reported after the run, so that errors stay
+            // one line.
+            let (adp, net, source) = match &policy {
+                None => (ddp(action.unwrap_or(ActionSpace::Decremental)), None, None),
+                Some(p) => match policy::load(p, action)? {
+                    policy::EvalPolicy::Constant { space, action } => {
+                        (AdpSetting { space, action }, None, None)
+                    }
+                    policy::EvalPolicy::Learned(l) => {
+                        let s = &l.card.source;
+                        let source = format!(
+                            "policy {}: run {}, {} updates, {} action space, layers {:?}",
+                            l.card_path.display(),
+                            s.run_id,
+                            s.updates,
+                            adp_learner::export::space_name(l.space),
+                            l.net.dims()
+                        );
+                        (ddp(l.space), Some(l.net), Some(source))
+                    }
                 },
             };
             let plan = EvalPlan {
                 adp,
+                policy: net,
                 planners: planner,
                 fidelities: fidelity,
                 speeds: max_speed,
@@ -471,6 +498,9 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 .build()
                 .context("cannot start worker threads")?;
             let rows = pool.install(|| eval::run(&plan, &cfg, &all))?;
+            if let Some(source) = source {
+                eprintln!("{source}");
+            }
             print!("{}", eval::table(&rows));
             if let Some(path) = out {
                 let json = serde_json::to_string_pretty(&rows)?;

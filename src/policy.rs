@@ -1,12 +1,25 @@
-//! Fidelity policies usable by `adp eval --fidelity adp`: for now a constant action read from
-//! a small TOML file (a trained policy comes with the learner).
+//! Fidelity policies usable by `adp eval --fidelity adp --policy PATH`:
+//!
+//! * a trained policy: an export directory written by `adp export` or at the end of
+//!   `adp train` (`policy.json` and `policy.safetensors`; `PATH` may also name the
+//!   `policy.json` itself). The card's action space, observation layout and layer sizes are
+//!   checked against this build's environment, the weights (PyTorch's `[out, in]` layout) are
+//!   transposed into the flat `[in][out]` layout of [`MlpPolicy`] (the learner's
+//!   `Actor::flat_weights`), and every value must be finite;
+//! * a constant normalized action read from a small TOML file (see [`load_constant_action`]).
+//!
+//! Every error is one line naming the file and the problem.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context};
 use serde::Deserialize;
 
+use actor::observation::{self, LASER_BEAMS};
+use actor::policy::MlpPolicy;
+use adp_learner::export::{space_name, PolicyCard, CARD_FORMAT, CARD_FORMAT_VERSION, JSON_FILE};
 use planner::ActionSpace;
+use safetensors::tensor::{Dtype, SafeTensors};
 
 /// A constant-action policy file:
 ///
@@ -21,8 +34,73 @@ struct ConstantPolicyFile {
     action: Vec<f64>,
 }
 
+/// What `--policy` named, loaded and checked.
+#[derive(Debug)]
+pub enum EvalPolicy {
+    /// A constant normalized action in `space`.
+    Constant {
+        /// The action space.
+        space: ActionSpace,
+        /// The action, valid in `space`.
+        action: Vec<f64>,
+    },
+    /// A trained policy from an export directory.
+    Learned(Box<LearnedPolicy>),
+}
+
+/// A trained policy read from an export directory.
+#[derive(Debug)]
+pub struct LearnedPolicy {
+    /// The action space it was trained in (`action.space` of the card).
+    pub space: ActionSpace,
+    /// The actor network, ready for [`MlpPolicy::act`].
+    pub net: MlpPolicy,
+    /// The card as read (source run, step counters).
+    pub card: PolicyCard,
+    /// The card's path.
+    pub card_path: PathBuf,
+}
+
+/// Loads `--policy path` for `adp eval`: a trained policy when `path` is a directory or a
+/// `.json` file (its `policy.json`), else a constant-action TOML file. `requested` is
+/// `--action` when it was given: the policy's action space must then be the same; without
+/// it the space is the policy's own (the card's `action.space`, the TOML's `space`, else
+/// decremental).
+pub fn load(path: &Path, requested: Option<ActionSpace>) -> anyhow::Result<EvalPolicy> {
+    if path.is_dir() {
+        let card = path.join(JSON_FILE);
+        return Ok(EvalPolicy::Learned(Box::new(load_learned(&card, requested)?)));
+    }
+    if path.extension().is_some_and(|e| e == "json") {
+        return Ok(EvalPolicy::Learned(Box::new(load_learned(path, requested)?)));
+    }
+    if path
+        .extension()
+        .is_some_and(|e| e == "onnx" || e == "safetensors")
+    {
+        bail!(
+            "policy {}: give the export directory (or its {JSON_FILE}), which describes the weights",
+            path.display()
+        );
+    }
+    let (space, action) = load_constant(path, requested)?;
+    Ok(EvalPolicy::Constant { space, action })
+}
+
 /// Reads a constant action for `space` from `path`, checking that it makes a schedule.
 pub fn load_constant_action(path: &Path, space: ActionSpace) -> anyhow::Result<Vec<f64>> {
+    if path.is_dir() {
+        bail!(
+            "policy {}: a directory (a trained policy); only `adp eval` runs trained policies, \
+             here --policy takes a constant-action TOML file",
+            path.display()
+        );
+    }
+    Ok(load_constant(path, Some(space))?.1)
+}
+
+/// The space and action of a constant-action TOML file (see [`load`] for `requested`).
+fn load_constant(path: &Path, requested: Option<ActionSpace>) -> anyhow::Result<(ActionSpace, Vec<f64>)> {
     let text =
         std::fs::read_to_string(path).with_context(|| format!("cannot read policy {}", path.display()))?;
     let f: ConstantPolicyFile = toml::from_str(&text).map_err(|e| {
@@ -32,28 +110,252 @@ pub fn load_constant_action(path: &Path, space: ActionSpace) -> anyhow::Result<V
             crate::config::one_line(&e.to_string())
         )
     })?;
-    if let Some(s) = f.space {
-        if s != space {
-            bail!(
-                "policy {}: space = {s:?} but --action is {space:?}",
-                path.display()
-            );
+    let space = match (f.space, requested) {
+        (Some(s), Some(r)) if s != r => {
+            bail!("policy {}: space = {s:?} but --action is {r:?}", path.display())
         }
-    }
+        (Some(s), _) => s,
+        (None, r) => r.unwrap_or(ActionSpace::Decremental),
+    };
     space
         .schedule(&f.action, planner::schedule::DEFAULT_BOUNDARY_POINTS)
         .with_context(|| format!("policy {}: field `action`", path.display()))?;
-    Ok(f.action)
+    Ok((space, f.action))
+}
+
+/// Reads and checks the card `card_path` and the weights it names (see the module docs).
+fn load_learned(card_path: &Path, requested: Option<ActionSpace>) -> anyhow::Result<LearnedPolicy> {
+    let dir = card_path.parent().unwrap_or(Path::new("."));
+    let text = std::fs::read_to_string(card_path).map_err(|e| match e.kind() {
+        std::io::ErrorKind::NotFound => anyhow::anyhow!(
+            "policy {}: not found (an export directory of `adp export` or `adp train` holds \
+             {JSON_FILE} and the weights)",
+            card_path.display()
+        ),
+        _ => anyhow::anyhow!("policy {}: cannot read: {e}", card_path.display()),
+    })?;
+    let bad = |what: String| anyhow::anyhow!("policy {}: {what}", card_path.display());
+    let card: PolicyCard = serde_json::from_str(&text).map_err(|e| bad(e.to_string()))?;
+    if card.format != CARD_FORMAT || card.format_version != CARD_FORMAT_VERSION {
+        return Err(bad(format!(
+            "format {:?} version {}; this build reads {CARD_FORMAT:?} version {CARD_FORMAT_VERSION}",
+            card.format, card.format_version
+        )));
+    }
+    let space = card.action.space;
+    if let Some(r) = requested.filter(|&r| r != space) {
+        return Err(bad(format!(
+            "the policy was trained in the {} action space but --action is {} (leave --action \
+             out to use the policy's)",
+            space_name(space),
+            space_name(r)
+        )));
+    }
+    if card.action.dim != space.dim() {
+        return Err(bad(format!(
+            "action.dim = {} but the {} action space has {} values",
+            card.action.dim,
+            space_name(space),
+            space.dim()
+        )));
+    }
+    let want = observation::segments(space);
+    let layout_fits = card.observation.dim == observation::obs_dim(space)
+        && card.observation.segments.len() == want.len()
+        && card
+            .observation
+            .segments
+            .iter()
+            .zip(&want)
+            .all(|(got, w)| got.name == w.name && got.offset == w.offset && got.size == w.size);
+    if !layout_fits {
+        let sizes: Vec<String> = card
+            .observation
+            .segments
+            .iter()
+            .map(|s| format!("{} {}", s.name, s.size))
+            .collect();
+        return Err(bad(format!(
+            "observation of {} values ({}) does not fit the {} action space's observation of {} \
+             values ({LASER_BEAMS} laser, {} previous action, v, w, local goal, global goal)",
+            card.observation.dim,
+            sizes.join(", "),
+            space_name(space),
+            observation::obs_dim(space),
+            space.dim()
+        )));
+    }
+    let dims = &card.network.layer_sizes;
+    if dims.len() < 2
+        || dims.contains(&0)
+        || dims[0] != card.observation.dim
+        || dims[dims.len() - 1] != card.action.dim
+    {
+        return Err(bad(format!(
+            "network.layer_sizes {dims:?} must run from observation.dim = {} to action.dim = {}, \
+             all sizes > 0",
+            card.observation.dim, card.action.dim
+        )));
+    }
+    let activations = (
+        card.network.hidden_activation.as_str(),
+        card.network.output_activation.as_str(),
+    );
+    if activations != ("relu", "tanh") {
+        return Err(bad(format!(
+            "activations {activations:?}: this build runs relu hidden layers and a tanh output"
+        )));
+    }
+    let weights_path = dir.join(&card.network.safetensors_file);
+    let flat = read_weights(&weights_path, dims)?;
+    let net = MlpPolicy::from_flat(dims, flat)
+        .map_err(|e| anyhow::anyhow!("policy {}: {e}", weights_path.display()))?;
+    Ok(LearnedPolicy {
+        space,
+        net,
+        card,
+        card_path: card_path.to_path_buf(),
+    })
+}
+
+/// Reads the float32 tensors `layers.{i}.weight` (`[out, in]`) and `layers.{i}.bias`
+/// (`[out]`) of a safetensors file for the layer sizes `dims` and returns them in
+/// [`MlpPolicy`]'s flat layout: per layer the weight `[in][out]` row-major, then the bias.
+/// Refuses a damaged file, other dtypes, shapes or extra tensors, and non-finite values
+/// (naming the tensor and the element).
+fn read_weights(path: &Path, dims: &[usize]) -> anyhow::Result<Vec<f32>> {
+    let bad = |what: String| anyhow::anyhow!("policy {}: {what}", path.display());
+    let bytes = std::fs::read(path).map_err(|e| bad(format!("cannot read: {e}")))?;
+    let file =
+        SafeTensors::deserialize(&bytes).map_err(|e| bad(format!("not a readable safetensors file: {e}")))?;
+    let layers = dims.len() - 1;
+    let mut flat = Vec::with_capacity(actor::policy::param_count(dims));
+    let mut used = 0;
+    for l in 0..layers {
+        let (n_in, n_out) = (dims[l], dims[l + 1]);
+        let tensor = |name: String, shape: &[usize]| -> anyhow::Result<Vec<f32>> {
+            let view = file.tensor(&name).map_err(|_| {
+                bad(format!(
+                    "no tensor {name} (policy.json's layer_sizes {dims:?} need {layers} layers)"
+                ))
+            })?;
+            if view.dtype() != Dtype::F32 {
+                return Err(bad(format!("tensor {name} is {}, expected F32", view.dtype())));
+            }
+            if view.shape() != shape {
+                return Err(bad(format!(
+                    "tensor {name} has shape {:?}, policy.json's layer_sizes {dims:?} need {shape:?}",
+                    view.shape()
+                )));
+            }
+            let values: Vec<f32> = view
+                .data()
+                .chunks_exact(4)
+                .map(|c| f32::from_le_bytes(c.try_into().expect("4 bytes")))
+                .collect();
+            if let Some(k) = values.iter().position(|v| !v.is_finite()) {
+                let index = if shape.len() == 2 {
+                    format!("[{}, {}]", k / shape[1], k % shape[1])
+                } else {
+                    format!("[{k}]")
+                };
+                return Err(bad(format!(
+                    "{name}{index} is {}: weights must be finite",
+                    values[k]
+                )));
+            }
+            Ok(values)
+        };
+        let weight = tensor(format!("layers.{l}.weight"), &[n_out, n_in])?;
+        let bias = tensor(format!("layers.{l}.bias"), &[n_out])?;
+        used += 2;
+        // [out, in] (PyTorch) -> [in][out] (burn, MlpPolicy).
+        for i in 0..n_in {
+            flat.extend((0..n_out).map(|o| weight[o * n_in + i]));
+        }
+        flat.extend(bias);
+    }
+    if file.len() != used {
+        let mut names = file.names();
+        names.sort_unstable();
+        let extra = names
+            .into_iter()
+            .find(|n| {
+                !(0..layers).any(|l| *n == format!("layers.{l}.weight") || *n == format!("layers.{l}.bias"))
+            })
+            .unwrap_or_default();
+        return Err(bad(format!(
+            "tensor {extra} is not part of policy.json's layer_sizes {dims:?}"
+        )));
+    }
+    Ok(flat)
 }
 
 #[cfg(test)]
 mod tests {
+    use std::collections::{BTreeMap, HashMap};
+
+    use actor::{AdpEnv, End, EnvConfig};
+    use adp_learner::checkpoint::{self, Manifest};
+    use adp_learner::export::actor_safetensors;
+    use adp_learner::{seeded_rng, Actor, Device, FitOptions, Td3, Td3Config};
+    use planner::Schedule;
+
     use super::*;
+
+    /// A fresh directory under the system temp dir, unique per test and process.
+    fn fresh_dir(name: &str) -> PathBuf {
+        let dir = std::env::temp_dir().join(format!("adp-policy-{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        dir
+    }
+
+    /// Writes `actor` as `adp export` does: the learner's card for `space` and its
+    /// safetensors writer.
+    fn write_export(dir: &Path, actor: &Actor, space: ActionSpace) {
+        let (dims, _) = actor.flat_weights();
+        let config = Td3Config {
+            obs_dim: dims[0],
+            act_dim: dims[dims.len() - 1],
+            actor_hidden: dims[1..dims.len() - 1].to_vec(),
+            ..Td3Config::default()
+        };
+        let manifest = Manifest {
+            format: checkpoint::FORMAT.into(),
+            format_version: checkpoint::FORMAT_VERSION,
+            run_id: "unit".into(),
+            updates: 3,
+            inserts: 5,
+            policy_version: 1,
+            config,
+            files: BTreeMap::new(),
+        };
+        let card = PolicyCard::new(space, &manifest).unwrap();
+        std::fs::write(dir.join(JSON_FILE), serde_json::to_vec_pretty(&card).unwrap()).unwrap();
+        let st = actor_safetensors(actor, HashMap::new()).unwrap();
+        std::fs::write(dir.join("policy.safetensors"), st).unwrap();
+    }
+
+    fn learned(path: &Path, requested: Option<ActionSpace>) -> anyhow::Result<LearnedPolicy> {
+        match load(path, requested)? {
+            EvalPolicy::Learned(l) => Ok(*l),
+            EvalPolicy::Constant { .. } => panic!("{} loaded as a constant action", path.display()),
+        }
+    }
+
+    /// The error as the command line prints it; asserts it is one line holding `needles`.
+    fn one_line_error<T: std::fmt::Debug>(r: anyhow::Result<T>, needles: &[&str]) {
+        let e = format!("{:#}", r.unwrap_err());
+        assert!(!e.contains('\n'), "{e}");
+        for n in needles {
+            assert!(e.contains(n), "`{n}` not in: {e}");
+        }
+    }
 
     #[test]
     fn reads_and_validates_constant_actions() {
-        let dir = std::env::temp_dir().join(format!("adp-policy-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let dir = fresh_dir("constant");
         let p = dir.join("a.toml");
         std::fs::write(&p, "space = \"decremental\"\naction = [1.0, 0.0, 0.0, -1.0]\n").unwrap();
         assert_eq!(
@@ -64,6 +366,15 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("--action"), "{e}");
+        // Without --action the file's space is used, else decremental.
+        std::fs::write(&p, "space = \"fixed\"\naction = [0.0, 0.5]\n").unwrap();
+        assert!(matches!(
+            load(&p, None).unwrap(),
+            EvalPolicy::Constant {
+                space: ActionSpace::Fixed,
+                ..
+            }
+        ));
         std::fs::write(&p, "action = [1.0, 0.0]\n").unwrap();
         let e = format!(
             "{:#}",
@@ -79,6 +390,186 @@ mod tests {
             load_constant_action(&p, ActionSpace::Decremental).unwrap_err()
         );
         assert!(e.contains("NaN"), "{e}");
+        one_line_error(
+            load_constant_action(&dir, ActionSpace::Decremental),
+            &["a directory", "only `adp eval`"],
+        );
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    /// The safetensors tensors land in the learner's flat layout (`Actor::flat_weights`, what
+    /// actors load during training) bit for bit, and the network computes burn's actions.
+    #[test]
+    fn learned_policy_has_the_learners_flat_layout() {
+        let dir = fresh_dir("layout");
+        let actor = Actor::new(730, &[24, 16], 4, &Device::flex(), &mut seeded_rng(5, 0));
+        write_export(&dir, &actor, ActionSpace::Decremental);
+        let l = learned(&dir, None).unwrap();
+        assert_eq!(l.space, ActionSpace::Decremental);
+        assert_eq!(l.card.source.run_id, "unit");
+        let (dims, flat) = actor.flat_weights();
+        assert_eq!(l.net, MlpPolicy::from_flat(&dims, flat).unwrap());
+        // The card path and an explicit, matching --action load the same network.
+        let again = learned(&dir.join(JSON_FILE), Some(ActionSpace::Decremental)).unwrap();
+        assert_eq!(again.net, l.net);
+
+        let obs: Vec<f32> = (0..3 * 730).map(|k| (k as f32 * 0.37).sin()).collect();
+        let want = actor.act(&obs, 0.0, &mut seeded_rng(0, 0));
+        let mut scratch = actor::Scratch::default();
+        let mut got = [0.0f32; 4];
+        for (row, want) in obs.chunks(730).zip(want.chunks(4)) {
+            l.net.act(row, &mut got, &mut scratch);
+            for (a, b) in got.iter().zip(want) {
+                assert!((a - b).abs() <= 1e-5, "{got:?} vs {want:?}");
+            }
+        }
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    #[test]
+    fn bad_exports_give_one_line_errors_naming_the_file() {
+        let dir = fresh_dir("bad");
+        one_line_error(load(&dir, None), &["policy.json: not found", "adp export"]);
+        one_line_error(
+            load(&dir.join("policy.onnx"), None),
+            &["policy.onnx: give the export directory"],
+        );
+        let actor = Actor::new(730, &[24, 16], 4, &Device::flex(), &mut seeded_rng(6, 0));
+        write_export(&dir, &actor, ActionSpace::Decremental);
+        one_line_error(
+            load(&dir, Some(ActionSpace::Incremental)),
+            &[
+                "policy.json",
+                "trained in the decremental action space but --action is incremental",
+            ],
+        );
+        let card_path = dir.join(JSON_FILE);
+        let card = std::fs::read_to_string(&card_path).unwrap();
+        let edit = |from: &str, to: &str| {
+            assert!(card.contains(from), "{from}");
+            std::fs::write(&card_path, card.replacen(from, to, 1)).unwrap();
+        };
+        // Wrong hidden size: the weights do not fit.
+        edit(
+            "\"layer_sizes\": [\n      730,\n      24,\n      16,",
+            "\"layer_sizes\": [\n      730,\n      24,\n      17,",
+        );
+        one_line_error(
+            load(&dir, None),
+            &[
+                "policy.safetensors",
+                "layers.1.weight has shape [16, 24]",
+                "need [17, 24]",
+            ],
+        );
+        // Wrong input size: does not fit the observation.
+        edit("\"layer_sizes\": [\n      730,", "\"layer_sizes\": [\n      731,");
+        one_line_error(load(&dir, None), &["policy.json", "layer_sizes [731, 24, 16, 4]"]);
+        edit("\"dim\": 730,", "\"dim\": 731,");
+        one_line_error(
+            load(&dir, None),
+            &[
+                "policy.json",
+                "observation of 731 values",
+                "observation of 730 values",
+            ],
+        );
+        edit("\"dim\": 4,", "\"dim\": 5,");
+        one_line_error(load(&dir, None), &["policy.json", "action.dim = 5"]);
+        edit("\"space\": \"decremental\"", "\"space\": \"sideways\"");
+        one_line_error(load(&dir, None), &["policy.json", "sideways"]);
+        std::fs::write(&card_path, &card).unwrap();
+        assert!(load(&dir, None).is_ok());
+
+        // Damaged weights.
+        let st_path = dir.join("policy.safetensors");
+        let st = std::fs::read(&st_path).unwrap();
+        let data_start = 8 + u64::from_le_bytes(st[..8].try_into().unwrap()) as usize;
+        let mut nan = st.clone();
+        // The first tensor in the data (names sorted) is layers.0.bias; its element 2:
+        nan[data_start + 8..data_start + 12].copy_from_slice(&f32::NAN.to_le_bytes());
+        std::fs::write(&st_path, &nan).unwrap();
+        one_line_error(
+            load(&dir, None),
+            &["policy.safetensors", "layers.0.bias[2] is NaN", "finite"],
+        );
+        std::fs::write(&st_path, &st[..st.len() - 4]).unwrap();
+        one_line_error(
+            load(&dir, None),
+            &["policy.safetensors", "not a readable safetensors file"],
+        );
+        std::fs::write(&st_path, b"1234").unwrap();
+        one_line_error(
+            load(&dir, None),
+            &["policy.safetensors", "not a readable safetensors file"],
+        );
+        std::fs::remove_file(&st_path).unwrap();
+        one_line_error(load(&dir, None), &["policy.safetensors", "cannot read"]);
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    /// DESIGN §5: the DDP-initialized actor (what `adp train` starts from) outputs the DDP
+    /// schedule for every observation, within rounding. The fit draws observations uniform in
+    /// [-1, 1]; this checks the loaded network on the observations of real closed-loop
+    /// episodes (raw velocities and goal distances of several metres), step by step.
+    #[test]
+    fn ddp_initialized_policy_picks_the_ddp_schedule_on_real_observations() {
+        let dir = fresh_dir("ddp");
+        let space = ActionSpace::Decremental;
+        let mut td3 = Td3::new(Td3Config::default(), &Device::flex()).unwrap();
+        let target: Vec<f32> = space.ddp_action().iter().map(|&a| a as f32).collect();
+        td3.init_actor_to_action(&target, &FitOptions::default()).unwrap();
+        write_export(&dir, &td3.policy(), space);
+        let l = learned(&dir, None).unwrap();
+        let ddp = Schedule::ddp_default();
+        let cfg = crate::config::EvalConfig::load(None).unwrap();
+        let (mut obs, mut action, mut scratch) = (vec![0.0; 730], [0.0f32; 4], actor::Scratch::default());
+        let tolerance = FitOptions::default().tolerance;
+        let mut steps = 0;
+        for world in [0, 1, 20, 100, 250] {
+            let mut env = AdpEnv::new(
+                sim::barn::world(world).unwrap(),
+                cfg.episode,
+                Box::new(planner::Dwa::new(cfg.dwa)),
+                space,
+                1.5,
+                EnvConfig::default(),
+                7,
+            )
+            .unwrap();
+            while env.end() == End::Continue {
+                env.observation(&mut obs);
+                l.net.act(&obs, &mut action, &mut scratch);
+                for (a, t) in action.iter().zip(&target) {
+                    assert!(
+                        (a - t).abs() <= tolerance,
+                        "world {world}: action {action:?} vs DDP {target:?}"
+                    );
+                }
+                let a64: Vec<f64> = action.iter().map(|&a| f64::from(a)).collect();
+                let schedule = space.schedule(&a64, ddp.boundary_points()).unwrap();
+                assert_eq!(schedule.len(), ddp.len(), "world {world}: N");
+                for (c, d) in schedule.checks().iter().zip(ddp.checks()) {
+                    assert!(
+                        c.abs_diff(*d) <= 1,
+                        "world {world}: checks {:?} vs {:?}",
+                        schedule.checks(),
+                        ddp.checks()
+                    );
+                }
+                for (x, y) in schedule.dts().iter().zip(ddp.dts()) {
+                    assert!(
+                        (x - y).abs() <= 2e-3,
+                        "world {world}: steps {:?} vs {:?}",
+                        schedule.dts(),
+                        ddp.dts()
+                    );
+                }
+                env.step(&action).unwrap();
+                steps += 1;
+            }
+        }
+        assert!(steps > 100, "{steps} agent steps");
         std::fs::remove_dir_all(&dir).ok();
     }
 }

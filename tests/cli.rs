@@ -180,3 +180,240 @@ fn render_writes_png_and_svg() {
     one_line_error(&o, "must end in .png or .svg");
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// A fresh directory `<temp>/adp-<name>-<pid>`.
+fn fresh_dir(name: &str) -> std::path::PathBuf {
+    let dir = std::env::temp_dir().join(format!("adp-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+/// Exports a decremental-space learner (actor hidden sizes `hidden`, its actor set up by
+/// `prepare`) the way a run ends: a learner checkpoint written through the learner API, then
+/// `adp export` into `<dir>/export`, which is returned.
+fn export_policy(
+    dir: &std::path::Path,
+    hidden: &[usize],
+    prepare: impl FnOnce(&mut adp_learner::Td3),
+) -> std::path::PathBuf {
+    use adp_learner::{checkpoint, seeded_rng, Device, RateLimiter, RunState, Td3, Td3Config};
+    let config = Td3Config {
+        actor_hidden: hidden.to_vec(),
+        critic_hidden: vec![16],
+        seed: 11,
+        ..Td3Config::default()
+    };
+    let mut td3 = Td3::new(config.clone(), &Device::flex()).unwrap();
+    prepare(&mut td3);
+    let run = RunState {
+        run_id: "eval-test".into(),
+        rate: RateLimiter::new(&config),
+        sampler_rng: seeded_rng(config.seed, 2),
+        policy_version: 1,
+        extra: serde_json::Value::Null,
+    };
+    let ckpt = dir.join("ckpt");
+    checkpoint::save(&ckpt, &td3, &run).unwrap();
+    let export = dir.join("export");
+    let o = adp(&[
+        "export",
+        "--checkpoint",
+        ckpt.to_str().unwrap(),
+        "--out",
+        export.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    export
+}
+
+/// `adp eval ARGS --out <dir>/<name>.json`: the table (stdout), stderr, and the JSON rows.
+fn eval_json(dir: &std::path::Path, name: &str, args: &[&str]) -> (String, String, Vec<serde_json::Value>) {
+    let json = dir.join(format!("{name}.json"));
+    let mut all = vec!["eval"];
+    all.extend_from_slice(args);
+    all.extend_from_slice(&["--out", json.to_str().unwrap()]);
+    let o = adp(&all);
+    assert!(o.status.success(), "adp {all:?}: {}", stderr(&o));
+    let rows: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    (stdout(&o), stderr(&o), rows.as_array().unwrap().clone())
+}
+
+/// Every run of a JSON row, in (world, run) order.
+fn runs(row: &serde_json::Value) -> Vec<serde_json::Value> {
+    row["per_world"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .flat_map(|w| w["runs"].as_array().unwrap().clone())
+        .collect()
+}
+
+/// The policy `adp train` starts from (the actor fitted to the DDP action, full size) is
+/// exported and evaluated closed-loop; run by run it behaves like the fixed DDP grid. Its
+/// actions are DDP's only within the fit's tolerance (p = 1.698 instead of 1.7, ...), which
+/// can tip a marginal run (DWA gets stuck in some worlds), so: the same outcome in all runs
+/// but at most one, times within 10 % where both succeed, and most runs ending within one
+/// control period (0.05 s) of DDP's time, i.e. on the same path; a run that times out does so
+/// on eval's 100 s clock.
+#[test]
+fn eval_runs_an_exported_ddp_initialized_policy_like_ddp() {
+    let dir = fresh_dir("eval-ddp-policy");
+    let export = export_policy(&dir, &[512, 512], |td3| {
+        let target: Vec<f32> = planner::ActionSpace::Decremental
+            .ddp_action()
+            .iter()
+            .map(|&a| a as f32)
+            .collect();
+        td3.init_actor_to_action(&target, &adp_learner::FitOptions::default())
+            .unwrap();
+    });
+    let (table, err, rows) = eval_json(
+        &dir,
+        "ddp",
+        &[
+            "--fidelity",
+            "ddp,adp",
+            "--policy",
+            export.to_str().unwrap(),
+            "--worlds",
+            "0..8",
+            "--runs",
+            "1",
+        ],
+    );
+    assert!(table.contains("| dwa | ddp | 1.5 |"), "{table}");
+    let adp_row = table.lines().find(|l| l.starts_with("| dwa | adp | 1.5 |"));
+    let cells: Vec<&str> = adp_row.expect(&table).split('|').map(str::trim).collect();
+    let (success, time, score): (f64, f64, f64) = (
+        cells[4].parse().unwrap(),
+        cells[5].parse().unwrap(),
+        cells[6].parse().unwrap(),
+    );
+    assert!(
+        (0.0..=100.0).contains(&success) && time > 0.0 && time <= 50.0,
+        "{table}"
+    );
+    assert!((0.0..=0.5).contains(&score) && cells[9] == "8", "{table}");
+    assert!(err.contains("policy.json: run eval-test"), "{err}");
+    assert_eq!(rows[1]["fidelity_label"], "adp-decremental");
+    let (ddp, adp) = (runs(&rows[0]), runs(&rows[1]));
+    assert_eq!((ddp.len(), adp.len()), (8, 8));
+    let (mut other_outcome, mut same_time) = (0, 0);
+    for (d, a) in ddp.iter().zip(&adp) {
+        assert_eq!(a["world"], d["world"]);
+        let (td, ta) = (d["time_s"].as_f64().unwrap(), a["time_s"].as_f64().unwrap());
+        if a["status"] != d["status"] {
+            other_outcome += 1;
+        } else if d["status"] == "succeeded" {
+            assert!((ta - td).abs() <= 0.1 * td, "ddp {d} vs adp {a}");
+        }
+        same_time += usize::from((ta - td).abs() <= 0.05);
+        if a["status"] == "timed_out" {
+            // The BARN clock of [episode], not the 50 s step cap of training episodes.
+            assert!(ta >= 100.0 - 1e-6, "{a}");
+        }
+    }
+    assert!(other_outcome <= 1 && same_time >= 5, "ddp {ddp:?} vs adp {adp:?}");
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+/// A network whose output is the constant action X for every observation (output weights
+/// zero) runs exactly like `--policy x.toml` with that action: the same results bit for bit,
+/// run by run. X is not DDP, and the runs differ from DDP's, so the policy's action really
+/// picks the schedule.
+#[test]
+fn eval_policy_with_a_constant_output_matches_the_constant_action() {
+    let dir = fresh_dir("eval-constant-policy");
+    // Coarse and fast-ending: p = 1.2, T = 1.7 s, N = 16, alpha = 0.5.
+    let bias: [f32; 4] = [-0.4, -0.6, -0.7, 0.6];
+    let export = export_policy(&dir, &[32], |td3| {
+        let actor = td3.policy().with_output(0.0, &bias.map(f32::atanh));
+        td3.set_actor(actor);
+    });
+    let action: Vec<String> = bias
+        .map(|b| format!("{:?}", f64::from(b.atanh().tanh())))
+        .to_vec();
+    let toml = dir.join("x.toml");
+    std::fs::write(&toml, format!("action = [{}]\n", action.join(", "))).unwrap();
+    let common = ["--worlds", "0..6", "--runs", "2", "--max-speed", "2.0"];
+    let with = |policy: &std::path::Path, fidelity: &str| {
+        let mut args = vec!["--fidelity", fidelity, "--policy", policy.to_str().unwrap()];
+        args.extend_from_slice(&common);
+        args.into_iter().map(String::from).collect::<Vec<_>>()
+    };
+    let learned = with(&export.join("policy.json"), "ddp,adp");
+    let learned: Vec<&str> = learned.iter().map(String::as_str).collect();
+    let (_, _, rows) = eval_json(&dir, "learned", &learned);
+    let constant = with(&toml, "adp");
+    let constant: Vec<&str> = constant.iter().map(String::as_str).collect();
+    let (_, _, constant) = eval_json(&dir, "constant", &constant);
+    assert_eq!(runs(&rows[1]), runs(&constant[0]));
+    assert_eq!(runs(&rows[1]).len(), 12);
+    assert_ne!(
+        runs(&rows[1]),
+        runs(&rows[0]),
+        "the policy's schedule is not DDP's"
+    );
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn bad_policies_give_one_line_errors() {
+    let dir = fresh_dir("eval-bad-policy");
+    let eval = |policy: &std::path::Path, extra: &[&str]| {
+        let mut args = vec![
+            "eval",
+            "--fidelity",
+            "adp",
+            "--worlds",
+            "0",
+            "--policy",
+            policy.to_str().unwrap(),
+        ];
+        args.extend_from_slice(extra);
+        adp(&args)
+    };
+    let empty = dir.join("empty");
+    std::fs::create_dir_all(&empty).unwrap();
+    one_line_error(&eval(&empty, &[]), "empty/policy.json: not found");
+
+    let export = export_policy(&dir, &[32], |_| {});
+    one_line_error(
+        &eval(&export, &["--action", "unconstrained"]),
+        "trained in the decremental action space but --action is unconstrained",
+    );
+    one_line_error(
+        &adp(&[
+            "eval",
+            "--fidelity",
+            "ddp",
+            "--worlds",
+            "0",
+            "--policy",
+            export.to_str().unwrap(),
+        ]),
+        "--policy applies to --fidelity adp",
+    );
+    // A simulated lidar that does not make the policy's observation.
+    let config = dir.join("eval.toml");
+    std::fs::write(&config, "[episode.lidar]\nbeams = 360\n").unwrap();
+    one_line_error(
+        &eval(&export, &["--config", config.to_str().unwrap()]),
+        "the policy reads 720 lidar ranges but the configuration's [episode.lidar] beams = 360",
+    );
+    let card_path = export.join("policy.json");
+    let card = std::fs::read_to_string(&card_path).unwrap();
+    let mut edited: serde_json::Value = serde_json::from_str(&card).unwrap();
+    edited["network"]["layer_sizes"] = serde_json::json!([730, 64, 4]);
+    std::fs::write(&card_path, edited.to_string()).unwrap();
+    one_line_error(
+        &eval(&export, &[]),
+        "policy.safetensors: tensor layers.0.weight has shape [32, 730], policy.json's layer_sizes [730, 64, 4] need [64, 730]",
+    );
+    let mut edited: serde_json::Value = serde_json::from_str(&card).unwrap();
+    edited["observation"]["dim"] = serde_json::json!(746);
+    std::fs::write(&card_path, edited.to_string()).unwrap();
+    one_line_error(&eval(&export, &[]), "policy.json: observation of 746 values");
+    std::fs::remove_dir_all(&dir).ok();
+}

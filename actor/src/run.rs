@@ -223,6 +223,7 @@ fn session(
         run.clone(),
         actor_id,
         Duration::from_millis(u64::from(spec.heartbeat_ms.max(10))),
+        Duration::from_millis(u64::from(spec.lease_ttl_ms.max(spec.heartbeat_ms).max(10))),
         flags.clone(),
     ));
     let _stop_heartbeats = AbortOnDrop(heartbeat);
@@ -244,7 +245,7 @@ fn session(
         }
         if flags.gone.load(Ordering::Acquire) {
             return Ok(SessionEnd::Reconnect(
-                "the learner no longer knows this session".into(),
+                "the learner no longer knows this session, or stopped answering heartbeats".into(),
             ));
         }
         let reply = rt.block_on(control.next_assignment(pb::AssignmentRequest {
@@ -317,7 +318,22 @@ fn session(
             ) {
                 Ok(o) => o,
                 Err(EpisodeError::Plane(e)) => return Ok(SessionEnd::Reconnect(e.to_string())),
-                Err(EpisodeError::LeaseLost) => break,
+                Err(EpisodeError::LeaseLost) => {
+                    // Records of the lost lease may still wait in the sink (the gRPC sink
+                    // batches them): send them now, to be refused and counted, rather than in
+                    // front of the next lease's records, whose flush would then fail and throw
+                    // away that lease's finished episode with a needless re-registration.
+                    match planes.sink.flush() {
+                        Ok(()) => {}
+                        Err(PlaneError::Refused { refused, sent, .. }) => log(format_args!(
+                            "actor {}: lease {} lost; the learner refused {refused} of its last {sent} \
+                             step records",
+                            setup.rank, a.lease_id
+                        )),
+                        Err(e) => return Ok(SessionEnd::Reconnect(e.to_string())),
+                    }
+                    break;
+                }
                 Err(EpisodeError::Fatal(e)) => return Err(e),
             };
             if let Err(e) = planes.sink.flush() {
@@ -378,26 +394,33 @@ impl Drop for AbortOnDrop {
     }
 }
 
+/// Renews the current lease every `every` and relays what the learner answers through `flags`.
+///
+/// Each call gets `every` (at least one second) to answer. When no heartbeat has succeeded for
+/// longer than `ttl` the learner has expired the lease (or is gone): the session is marked gone
+/// so that an actor waiting on the learner (for a policy, or to drain its last lease) leaves and
+/// reconnects rather than waiting forever.
 async fn heartbeats(
     mut control: ControlClient,
     run: pb::RunRef,
     actor_id: u64,
     every: Duration,
+    ttl: Duration,
     flags: Arc<Flags>,
 ) {
     let mut tick = tokio::time::interval(every);
+    let mut last_ok = tokio::time::Instant::now();
     loop {
         tick.tick().await;
         let lease_id = flags.lease.load(Ordering::Acquire);
-        match control
-            .heartbeat(pb::HeartbeatRequest {
-                run: Some(run.clone()),
-                actor_id,
-                lease_id,
-            })
-            .await
-        {
-            Ok(r) => {
+        let call = control.heartbeat(pb::HeartbeatRequest {
+            run: Some(run.clone()),
+            actor_id,
+            lease_id,
+        });
+        match tokio::time::timeout(every.max(Duration::from_secs(1)), call).await {
+            Ok(Ok(r)) => {
+                last_ok = tokio::time::Instant::now();
                 let r = r.into_inner();
                 // An invalid lease is either lost (expired: drop the assignment) or finished by
                 // the learner once all its steps landed; either way stop heartbeating it.
@@ -414,13 +437,18 @@ async fn heartbeats(
                     flags.shutdown.store(true, Ordering::Release);
                 }
             }
-            Err(s) if matches!(s.code(), tonic::Code::FailedPrecondition | tonic::Code::NotFound) => {
+            Ok(Err(s)) if matches!(s.code(), tonic::Code::FailedPrecondition | tonic::Code::NotFound) => {
                 flags.gone.store(true, Ordering::Release);
                 flags.lease_lost.store(true, Ordering::Release);
             }
-            // Transient failures: the lease keeps running until its TTL; data-plane errors
-            // notice a dead learner sooner.
-            Err(_) => {}
+            // Transient failures (an error or no answer in time): the lease keeps running until
+            // its TTL, after which the learner no longer honours it.
+            Ok(Err(_)) | Err(_) => {
+                if last_ok.elapsed() > ttl {
+                    flags.gone.store(true, Ordering::Release);
+                    flags.lease_lost.store(true, Ordering::Release);
+                }
+            }
         }
     }
 }

@@ -1462,38 +1462,4 @@ mod tests {
             .all(|&t| t == first));
         assert!(first.v > 0.0);
     }
-
-    /// One planning cycle in release mode:
-    /// `cargo test --release -p adp-planner system_cycle_timing -- --ignored --nocapture`.
-    #[test]
-    #[ignore]
-    fn system_cycle_timing() {
-        let world = sim::barn::world(250).unwrap();
-        for (name, sched) in [("vanilla", Schedule::vanilla()), ("ddp", Schedule::ddp_default())] {
-            let mut ep = Episode::new(world, EpisodeConfig::default(), 3);
-            let mut sys = NavSystem::new(SystemConfig::default(), 3);
-            let mut times = Vec::new();
-            for _ in 0..200 {
-                let input = PlanInput {
-                    perception: ep.perception(),
-                    schedule: &sched,
-                    max_speed: 1.5,
-                };
-                let t = std::time::Instant::now();
-                let cmd = sys.plan(&input);
-                times.push(t.elapsed().as_secs_f64() * 1e3);
-                if ep.step(cmd) != Status::Running {
-                    break;
-                }
-            }
-            times.sort_by(f64::total_cmp);
-            println!(
-                "system-{name}: {} cycles, median {:.3} ms, p90 {:.3} ms, {} rayon threads",
-                times.len(),
-                times[times.len() / 2],
-                times[times.len() * 9 / 10],
-                rayon::current_num_threads()
-            );
-        }
-    }
 }

@@ -1,0 +1,721 @@
+//! Fault-injection acceptance tests of the training service (issue #5), each with real
+//! `adp learner` and `adp actor` processes:
+//!
+//! - **a frozen actor** (gRPC data plane): an actor stopped with SIGSTOP in the middle of an
+//!   assignment loses its lease (its heartbeats stop too); after SIGCONT its late data is
+//!   refused and counted as `invalid_lease` under the expired lease, nothing of it reaches the
+//!   replay buffer (every stored step is counted once, no episode mismatches its actor's
+//!   checksum), the actor gets new work, and the run reaches its budget with every process
+//!   exiting 0;
+//! - **a killed learner** (shared-memory data plane): the learner is killed with SIGKILL after a
+//!   periodic checkpoint and started again with `--resume` on the same address; the same actor
+//!   processes notice the dead learner, register with the new incarnation, and the run
+//!   continues from the newest complete checkpoint (same run id, the counters go on) to its
+//!   budget, with nothing of the old sessions refused by the new learner;
+//! - **two network namespaces**: the learner in one namespace, two actors in another, joined by
+//!   a veth pair, so steps and policies travel over gRPC on a non-loopback address. Skipped
+//!   with a reason when namespaces cannot be made (not root, no `ip`), unless
+//!   `ADP_REQUIRE_NETNS=1`.
+//!
+//! Every wait is a bounded poll (a watchdog against hangs that prints every child's stderr and
+//! the last `status.json`), never a timing assertion. Children write their stderr to files
+//! under `CARGO_TARGET_TMPDIR` and are killed by a guard when a test fails. The tests take
+//! turns (one lock), so that their short leases are not starved by each other on a small
+//! machine.
+
+use std::fs::File;
+use std::os::unix::process::ExitStatusExt;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, ExitStatus, Stdio};
+use std::sync::{Mutex, MutexGuard};
+use std::time::Duration;
+
+use adp_learner::service::{read_addr, read_status, Status};
+
+/// Time between two polls of a wait.
+const POLL: Duration = Duration::from_millis(100);
+
+/// Polls of a watchdog that should never fire (about five minutes).
+const PATIENCE: u32 = 3000;
+
+static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
+
+/// Serializes the tests of this file (a failed test poisons the lock; the next still runs).
+fn take_turn() -> MutexGuard<'static, ()> {
+    ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+fn adp() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_adp"))
+}
+
+fn fresh_dir(name: &str) -> PathBuf {
+    let d = Path::new(env!("CARGO_TARGET_TMPDIR")).join(name);
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// What differs between the tests' run configurations.
+struct TestConfig {
+    shared_memory: bool,
+    lease_ttl_ms: u32,
+    checkpoint_every_s: f64,
+}
+
+/// A run configuration with short episodes (so that a scheduler cycle is short), a short
+/// warm-up, small networks (the tests are about the service, not about learning), fast
+/// heartbeats and short leases.
+fn write_config(dir: &Path, c: &TestConfig) -> PathBuf {
+    let text = format!(
+        "[env]\nmax_agent_steps = 80\n\n[td3]\nwarmup_steps = 128\nrate_tolerance = 64.0\nbatch_size = 64\n\
+         actor_hidden = [64, 64]\ncritic_hidden = [64, 64]\n\n\
+         [service]\nshared_memory = {}\nheartbeat_ms = 200\nlease_ttl_ms = {}\n\
+         status_every_s = 0.2\ncheckpoint_every_s = {:?}\ncheckpoint_replay = true\n",
+        c.shared_memory, c.lease_ttl_ms, c.checkpoint_every_s
+    );
+    let p = dir.join("test.toml");
+    std::fs::write(&p, text).unwrap();
+    p
+}
+
+/// `adp learner` for `run` with `budget` steps on `listen` (`prefix`: e.g. `ip netns exec A`).
+fn learner_cmd(prefix: &[&str], cfg: &Path, run: &Path, budget: u64, listen: &str, resume: bool) -> Command {
+    let mut c = wrapped(prefix);
+    c.args(["learner", "--config"])
+        .arg(cfg)
+        .args(["--steps", &budget.to_string(), "--listen", listen, "--out"])
+        .arg(run);
+    if resume {
+        c.arg("--resume");
+    }
+    c
+}
+
+/// `adp actor` of `rank` for the learner at `addr`.
+fn actor_cmd(prefix: &[&str], addr: &str, token: &Path, rank: u32, plane: &str) -> Command {
+    let mut c = wrapped(prefix);
+    c.args([
+        "actor",
+        "--learner",
+        addr,
+        "--data-plane",
+        plane,
+        "--rank",
+        &rank.to_string(),
+        "--token-file",
+    ])
+    .arg(token);
+    c
+}
+
+/// `adp`, or `prefix... adp` when a prefix is given.
+fn wrapped(prefix: &[&str]) -> Command {
+    match prefix.split_first() {
+        None => adp(),
+        Some((program, args)) => {
+            let mut c = Command::new(program);
+            c.args(args).arg(env!("CARGO_BIN_EXE_adp"));
+            c
+        }
+    }
+}
+
+fn status(run: &Path) -> Option<Status> {
+    read_status(run).ok()
+}
+
+fn refused(s: &Status, kind: &str) -> u64 {
+    s.refused.iter().find(|(k, _)| k == kind).map_or(0, |r| r.1)
+}
+
+fn refused_total(s: &Status) -> u64 {
+    s.refused.iter().map(|r| r.1).sum()
+}
+
+fn rank_steps(s: &Status, rank: u32) -> u64 {
+    s.rank_steps.iter().find(|(r, _)| *r == rank).map_or(0, |r| r.1)
+}
+
+/// A port that was free a moment ago (bound and released), for a learner that must come back
+/// on the same address.
+fn free_port() -> u16 {
+    let l = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    l.local_addr().unwrap().port()
+}
+
+/// The actor ids an actor's stderr says it registered as.
+fn registered_ids(log: &str) -> Vec<u64> {
+    log.lines()
+        .filter_map(|l| l.split_once("registered as ").map(|(_, rest)| rest))
+        .filter_map(|rest| rest.split_whitespace().next()?.parse().ok())
+        .collect()
+}
+
+/// One child process and where its stderr goes.
+struct Proc {
+    name: String,
+    child: Child,
+    log: PathBuf,
+    exit: Option<ExitStatus>,
+    /// Whether the process may exit now (otherwise an exit fails the current wait at once).
+    may_exit: bool,
+}
+
+/// The children of a test; dropping it kills those still running.
+struct Procs {
+    dir: PathBuf,
+    run: PathBuf,
+    list: Vec<Proc>,
+}
+
+impl Procs {
+    fn new(dir: &Path, run: &Path) -> Self {
+        Self {
+            dir: dir.to_owned(),
+            run: run.to_owned(),
+            list: Vec::new(),
+        }
+    }
+
+    /// Starts `cmd` with its stderr in `<dir>/<name>.stderr`.
+    fn spawn(&mut self, name: &str, mut cmd: Command) -> usize {
+        let log = self.dir.join(format!("{name}.stderr"));
+        let file = File::create(&log).unwrap();
+        let child = cmd
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .stderr(file)
+            .spawn()
+            .unwrap_or_else(|e| panic!("cannot start {name}: {e}"));
+        self.list.push(Proc {
+            name: name.to_owned(),
+            child,
+            log,
+            exit: None,
+            may_exit: false,
+        });
+        self.list.len() - 1
+    }
+
+    fn log(&self, i: usize) -> String {
+        std::fs::read_to_string(&self.list[i].log).unwrap_or_default()
+    }
+
+    /// Every child's stderr (the last 8000 bytes of each) and the last status, for failures.
+    fn report(&self) -> String {
+        let mut out = String::new();
+        for p in &self.list {
+            let text = std::fs::read_to_string(&p.log).unwrap_or_default();
+            let mut start = text.len().saturating_sub(8000);
+            while !text.is_char_boundary(start) {
+                start += 1;
+            }
+            out += &format!(
+                "\n----- {} (pid {}, {:?}) stderr {} -----\n{}",
+                p.name,
+                p.child.id(),
+                p.exit,
+                p.log.display(),
+                &text[start..]
+            );
+        }
+        out += &format!("\n----- last status -----\n{:#?}\n", status(&self.run));
+        out
+    }
+
+    fn pid(&self, i: usize) -> i32 {
+        self.list[i].child.id() as i32
+    }
+
+    fn signal(&self, i: usize, sig: i32) {
+        // SAFETY: kill(2) on our own child's pid has no memory-safety preconditions.
+        let rc = unsafe { libc::kill(self.pid(i), sig) };
+        assert_eq!(
+            rc,
+            0,
+            "kill({}, {sig}) failed{}",
+            self.list[i].name,
+            self.report()
+        );
+    }
+
+    /// Lets process `i` exit without failing the waits.
+    fn may_exit(&mut self, i: usize) {
+        self.list[i].may_exit = true;
+    }
+
+    fn exited(&mut self, i: usize) -> Option<ExitStatus> {
+        let p = &mut self.list[i];
+        if p.exit.is_none() {
+            p.exit = p.child.try_wait().unwrap();
+        }
+        p.exit
+    }
+
+    /// Panics if a process exited that should still run.
+    fn check_alive(&mut self) {
+        for i in 0..self.list.len() {
+            if !self.list[i].may_exit {
+                if let Some(code) = self.exited(i) {
+                    panic!(
+                        "{} exited unexpectedly ({code:?}){}",
+                        self.list[i].name,
+                        self.report()
+                    );
+                }
+            }
+        }
+    }
+
+    /// Polls `cond`; `false` after `polls` polls.
+    fn poll(&mut self, polls: u32, mut cond: impl FnMut(&Self) -> bool) -> bool {
+        for _ in 0..polls {
+            if cond(self) {
+                return true;
+            }
+            self.check_alive();
+            std::thread::sleep(POLL);
+        }
+        cond(self)
+    }
+
+    /// Polls `cond`; panics with every child's stderr after `polls` polls (a watchdog against
+    /// hangs, not a timing assertion) or as soon as a child exits that should not.
+    fn wait_for(&mut self, what: &str, polls: u32, cond: impl FnMut(&Self) -> bool) {
+        if !self.poll(polls, cond) {
+            panic!("watchdog: gave up waiting for {what}{}", self.report());
+        }
+    }
+
+    /// Waits for process `i` to exit and returns how it did.
+    fn wait_exit(&mut self, i: usize, polls: u32) -> ExitStatus {
+        self.may_exit(i);
+        let name = self.list[i].name.clone();
+        for _ in 0..polls {
+            if let Some(code) = self.exited(i) {
+                return code;
+            }
+            self.check_alive();
+            std::thread::sleep(POLL);
+        }
+        panic!("watchdog: gave up waiting for {name} to exit{}", self.report());
+    }
+}
+
+impl Drop for Procs {
+    fn drop(&mut self) {
+        for p in &mut self.list {
+            if p.exit.is_none() && matches!(p.child.try_wait(), Ok(None)) {
+                let _ = p.child.kill();
+                let _ = p.child.wait();
+            }
+        }
+    }
+}
+
+/// Checks that hold at the end of every run: each stored step was counted once, every verified
+/// episode matched its actor's checksum.
+fn assert_consistent(s: &Status, procs: &Procs) {
+    assert_eq!(s.steps_received, s.inserts, "{}", procs.report());
+    assert_eq!(s.episodes_mismatched, 0, "{}", procs.report());
+    assert!(s.episodes_verified > 0, "{}", procs.report());
+    assert!(s.inserts >= s.budget && s.finished, "{}", procs.report());
+    for kind in ["unauthenticated", "bad_shape", "not_finite", "out_of_range"] {
+        assert_eq!(refused(s, kind), 0, "{kind}: {}", procs.report());
+    }
+}
+
+#[test]
+fn a_frozen_actor_loses_its_lease_and_its_late_data_is_refused() {
+    const BUDGET: u64 = 4000;
+    let _turn = take_turn();
+    let dir = fresh_dir("faults-sigstop");
+    let run = dir.join("run");
+    let cfg = write_config(
+        &dir,
+        &TestConfig {
+            shared_memory: false,
+            lease_ttl_ms: 1500,
+            checkpoint_every_s: 600.0,
+        },
+    );
+    let mut procs = Procs::new(&dir, &run);
+    let learner = procs.spawn(
+        "learner",
+        learner_cmd(&[], &cfg, &run, BUDGET, "127.0.0.1:0", false),
+    );
+    procs.wait_for("learner.addr", PATIENCE, |_| run.join("learner.addr").is_file());
+    let addr = read_addr(&run).unwrap();
+    let token = run.join("token");
+    let actors: Vec<usize> = (0..3)
+        .map(|r| procs.spawn(&format!("actor{r}"), actor_cmd(&[], &addr, &token, r, "grpc")))
+        .collect();
+    procs.wait_for("steps past the warm-up", PATIENCE, |_| {
+        status(&run).is_some_and(|s| s.steps_received >= 200)
+    });
+
+    // Freeze an actor while it delivers steps. It may have just finished its assignment (then
+    // it holds no lease and none expires) or have sent every step it made (then it has no late
+    // data): thaw it and freeze the next one. Within an attempt, only counters are compared.
+    let mut attempts: Vec<String> = Vec::new();
+    let (rank, at_stop) = loop {
+        assert!(
+            attempts.len() < 9,
+            "no frozen actor sent late data: {attempts:?}{}",
+            procs.report()
+        );
+        let rank = (attempts.len() % 3) as u32;
+        let victim = actors[rank as usize];
+        // Every actor holds a lease (the start of a cycle) and this one delivers steps.
+        let base = status(&run).unwrap();
+        procs.wait_for(&format!("actor {rank} to work on a lease"), PATIENCE, |_| {
+            status(&run).is_some_and(|s| s.open_leases == 3 && rank_steps(&s, rank) > rank_steps(&base, rank))
+        });
+        let before = status(&run).unwrap();
+        procs.signal(victim, libc::SIGSTOP);
+        // A lease lives 1.5 s after the last heartbeat: when none expires meanwhile, the actor
+        // had finished its assignment (a retry, not an assertion).
+        let expired = procs.poll(60, |_| {
+            status(&run).is_some_and(|s| s.leases_expired > before.leases_expired)
+        });
+        if !expired {
+            procs.signal(victim, libc::SIGCONT);
+            attempts.push(format!("actor {rank}: held no lease"));
+            continue;
+        }
+        let at_stop = status(&run).unwrap();
+        assert!(at_stop.leases_expired >= 1);
+        procs.signal(victim, libc::SIGCONT);
+        // The thawed actor sends what it had not sent yet under the dead lease (refused), or
+        // learns from a heartbeat that the lease is gone and takes new work.
+        procs.wait_for(
+            &format!("thawed actor {rank} to send late data or take new work"),
+            PATIENCE,
+            |_| {
+                status(&run).is_some_and(|s| {
+                    refused(&s, "invalid_lease") > refused(&at_stop, "invalid_lease")
+                        || rank_steps(&s, rank) > rank_steps(&at_stop, rank)
+                })
+            },
+        );
+        if refused(&status(&run).unwrap(), "invalid_lease") > refused(&at_stop, "invalid_lease") {
+            break (rank, at_stop);
+        }
+        attempts.push(format!("actor {rank}: no late data"));
+    };
+    let victim = actors[rank as usize];
+    eprintln!(
+        "froze actor {rank} after {} other attempt(s): {attempts:?}",
+        attempts.len()
+    );
+
+    // Training goes on, and the thawed actor works again (its rank delivers accepted steps,
+    // possibly after registering again).
+    procs.wait_for("training to go on", PATIENCE, |_| {
+        status(&run).is_some_and(|s| s.inserts > at_stop.inserts + 100)
+    });
+    procs.wait_for(
+        &format!("thawed actor {rank} to deliver steps again"),
+        PATIENCE,
+        |_| status(&run).is_some_and(|s| rank_steps(&s, rank) > rank_steps(&at_stop, rank)),
+    );
+
+    // The refused records were the expired lease's: the learner logged the lease of the frozen
+    // actor as expired and refused records under it.
+    let victim_ids = registered_ids(&procs.log(victim));
+    let learner_log = procs.log(learner);
+    let expired_leases: Vec<u64> = learner_log
+        .lines()
+        .filter_map(|l| {
+            let rest = l.strip_prefix("learner: lease ")?;
+            let (lease, rest) = rest.split_once(" of actor ")?;
+            let actor: u64 = rest.split_whitespace().next()?.parse().ok()?;
+            victim_ids.contains(&actor).then(|| lease.parse().ok())?
+        })
+        .collect();
+    assert!(!expired_leases.is_empty(), "{}", procs.report());
+    assert!(
+        expired_leases.iter().any(|lease| learner_log
+            .lines()
+            .any(|l| l.starts_with("learner: refused") && l.contains(&format!(": lease {lease}: ")))),
+        "no refusal names an expired lease of actor {rank} ({expired_leases:?}){}",
+        procs.report()
+    );
+
+    // The run reaches its budget; the learner and every actor exit 0.
+    for &i in &actors {
+        procs.may_exit(i);
+    }
+    let code = procs.wait_exit(learner, PATIENCE);
+    assert!(code.success(), "learner: {code:?}{}", procs.report());
+    for &i in &actors {
+        let code = procs.wait_exit(i, PATIENCE);
+        assert!(
+            code.success(),
+            "{}: {code:?}{}",
+            procs.list[i].name,
+            procs.report()
+        );
+    }
+    let s = read_status(&run).unwrap();
+    assert_consistent(&s, &procs);
+    assert!(s.leases_expired >= 1, "{}", procs.report());
+    // The dead lease's open episode (if it had begun one) was abandoned, never completed.
+    assert!(s.episodes_abandoned <= s.leases_expired, "{}", procs.report());
+    assert!(refused(&s, "invalid_lease") > 0, "{}", procs.report());
+    assert_eq!(refused(&s, "wrong_run"), 0, "{}", procs.report());
+    for r in 0..3 {
+        assert!(rank_steps(&s, r) > 0, "rank {r}: {}", procs.report());
+    }
+}
+
+#[test]
+fn actors_outlive_a_killed_learner_and_the_resumed_run_reaches_its_budget() {
+    const BUDGET: u64 = 1500;
+    let _turn = take_turn();
+    let dir = fresh_dir("faults-restart");
+    let run = dir.join("run");
+    let cfg = write_config(
+        &dir,
+        &TestConfig {
+            shared_memory: true,
+            lease_ttl_ms: 1500,
+            checkpoint_every_s: 2.0,
+        },
+    );
+    let listen = format!("127.0.0.1:{}", free_port());
+    let mut procs = Procs::new(&dir, &run);
+    let first = procs.spawn("learner-1", learner_cmd(&[], &cfg, &run, BUDGET, &listen, false));
+    procs.wait_for("learner.addr", PATIENCE, |_| run.join("learner.addr").is_file());
+    assert_eq!(read_addr(&run).unwrap(), listen);
+    let token = run.join("token");
+    let actors: Vec<usize> = (0..2)
+        .map(|r| procs.spawn(&format!("actor{r}"), actor_cmd(&[], &listen, &token, r, "auto")))
+        .collect();
+    let checkpoints = run.join("checkpoints");
+    procs.wait_for("a checkpoint with steps in it", PATIENCE, |_| {
+        status(&run).is_some_and(|s| s.inserts >= 300 && s.rank_steps.len() == 2)
+            && adp_learner::retention::latest(&checkpoints)
+                .ok()
+                .flatten()
+                .is_some_and(|c| !c.ends_with("ckpt-000000000000-000000000000"))
+    });
+    let before = status(&run).unwrap();
+    assert!(before.inserts < BUDGET, "{}", procs.report());
+    for &a in &actors {
+        assert!(procs.log(a).contains("steps over shm"), "{}", procs.report());
+    }
+
+    // kill -9 the learner: no final checkpoint, no shutdown for the actors.
+    procs.may_exit(first);
+    procs.signal(first, libc::SIGKILL);
+    let code = procs.wait_exit(first, PATIENCE);
+    assert_eq!(code.signal(), Some(libc::SIGKILL), "{}", procs.report());
+    // Every actor notices the learner is gone and keeps trying to reconnect (it does not exit).
+    let reconnects: Vec<usize> = actors
+        .iter()
+        .map(|&a| procs.log(a).matches("reconnecting in").count())
+        .collect();
+    procs.wait_for("the actors to notice the dead learner", PATIENCE, |p| {
+        actors
+            .iter()
+            .zip(&reconnects)
+            .all(|(&a, &n)| p.log(a).matches("reconnecting in").count() > n)
+    });
+
+    // The same run, resumed on the same address from the newest complete checkpoint (named
+    // `ckpt-<inserts>-<updates>`; a checkpoint cut short by the kill is not complete).
+    let ckpt = adp_learner::retention::latest(&checkpoints).unwrap().unwrap();
+    let resumed_inserts: u64 = ckpt
+        .file_name()
+        .and_then(|n| n.to_str()?.strip_prefix("ckpt-")?.split('-').next()?.parse().ok())
+        .unwrap_or_else(|| panic!("unexpected checkpoint name {}", ckpt.display()));
+    assert!(resumed_inserts > 0, "{}", ckpt.display());
+    let second = procs.spawn("learner-2", learner_cmd(&[], &cfg, &run, BUDGET, &listen, true));
+    procs.wait_for("the resumed learner", PATIENCE, |p| {
+        p.log(second).contains("serving on")
+    });
+    let expected = format!(
+        "learner: resuming run {} from {} ({resumed_inserts} steps, ",
+        before.run_id,
+        ckpt.display()
+    );
+    assert!(
+        procs.log(second).contains(&expected),
+        "{expected}{}",
+        procs.report()
+    );
+
+    // The actors (the same processes) register with the new incarnation and deliver again.
+    procs.wait_for("the actors to register again", PATIENCE, |p| {
+        actors.iter().all(|&a| registered_ids(&p.log(a)).len() >= 2)
+    });
+    procs.wait_for("steps from both actors after the resume", PATIENCE, |_| {
+        status(&run).is_some_and(|s| {
+            s.incarnation != before.incarnation
+                && s.inserts > resumed_inserts
+                && (0..2).all(|r| rank_steps(&s, r) > rank_steps(&before, r))
+        })
+    });
+    let resumed = status(&run).unwrap();
+    assert_eq!(resumed.run_id, before.run_id);
+
+    // The resumed run reaches its budget; the learner and the actors exit 0.
+    for &a in &actors {
+        procs.may_exit(a);
+    }
+    let code = procs.wait_exit(second, PATIENCE);
+    assert!(code.success(), "learner-2: {code:?}{}", procs.report());
+    for &a in &actors {
+        let code = procs.wait_exit(a, PATIENCE);
+        assert!(
+            code.success(),
+            "{}: {code:?}{}",
+            procs.list[a].name,
+            procs.report()
+        );
+        assert!(
+            procs.log(a).matches("steps over shm").count() >= 2,
+            "{}",
+            procs.report()
+        );
+    }
+    let s = read_status(&run).unwrap();
+    assert_eq!(s.run_id, before.run_id);
+    assert!(s.updates > before.updates, "{}", procs.report());
+    assert_consistent(&s, &procs);
+    // Every old session ended before the new learner came up: nothing of it reached the new
+    // incarnation (no stale heartbeat, step or report to refuse).
+    assert_eq!(refused_total(&s), 0, "{}", procs.report());
+}
+
+/// Two network namespaces joined by a veth pair; deleted (with the pair) when dropped.
+struct Netns {
+    names: Vec<String>,
+}
+
+impl Drop for Netns {
+    fn drop(&mut self) {
+        for n in self.names.iter().rev() {
+            let _ = Command::new("ip")
+                .args(["netns", "del", n])
+                .stderr(Stdio::null())
+                .status();
+        }
+    }
+}
+
+fn ip(args: &[&str]) -> Result<(), String> {
+    let out = Command::new("ip")
+        .args(args)
+        .stdin(Stdio::null())
+        .output()
+        .map_err(|e| format!("cannot run `ip`: {e}"))?;
+    if out.status.success() {
+        Ok(())
+    } else {
+        Err(format!(
+            "`ip {}` failed: {}",
+            args.join(" "),
+            String::from_utf8_lossy(&out.stderr).trim()
+        ))
+    }
+}
+
+/// Namespace `a` at 10.77.0.1/24 and `b` at 10.77.0.2/24 over a veth pair, loopback up in
+/// both.
+fn make_netns(a: &str, b: &str, tag: &str) -> Result<Netns, String> {
+    // SAFETY: geteuid(2) has no preconditions.
+    if unsafe { libc::geteuid() } != 0 {
+        return Err("not root".into());
+    }
+    let mut ns = Netns { names: Vec::new() };
+    for n in [a, b] {
+        // A namespace left by a killed earlier run of this pid.
+        let _ = ip(&["netns", "del", n]);
+        ip(&["netns", "add", n])?;
+        ns.names.push(n.to_owned());
+    }
+    let (va, vb) = (format!("adpa{tag}"), format!("adpb{tag}"));
+    ip(&[
+        "-n", a, "link", "add", &va, "type", "veth", "peer", "name", &vb, "netns", b,
+    ])?;
+    ip(&["-n", a, "addr", "add", "10.77.0.1/24", "dev", &va])?;
+    ip(&["-n", b, "addr", "add", "10.77.0.2/24", "dev", &vb])?;
+    for (n, v) in [(a, &va), (b, &vb)] {
+        ip(&["-n", n, "link", "set", "lo", "up"])?;
+        ip(&["-n", n, "link", "set", v, "up"])?;
+    }
+    Ok(ns)
+}
+
+#[test]
+fn learner_and_actors_in_two_network_namespaces_train_over_grpc() {
+    const BUDGET: u64 = 600;
+    let _turn = take_turn();
+    let tag = std::process::id().to_string();
+    let (a, b) = (format!("adp-learner-{tag}"), format!("adp-actors-{tag}"));
+    let _netns = match make_netns(&a, &b, &tag) {
+        Ok(ns) => ns,
+        Err(why) => {
+            assert!(
+                std::env::var("ADP_REQUIRE_NETNS").as_deref() != Ok("1"),
+                "ADP_REQUIRE_NETNS=1 but network namespaces are unavailable: {why}"
+            );
+            eprintln!("SKIPPED: cannot create network namespaces: {why}");
+            return;
+        }
+    };
+    let dir = fresh_dir("faults-netns");
+    let run = dir.join("run");
+    // The learner offers shared memory; the actors, on "another host", must not take it.
+    let cfg = write_config(
+        &dir,
+        &TestConfig {
+            shared_memory: true,
+            lease_ttl_ms: 2000,
+            checkpoint_every_s: 600.0,
+        },
+    );
+    // Dropped before the namespaces (declared after them): no process is left inside.
+    let mut procs = Procs::new(&dir, &run);
+    let in_a = ["ip", "netns", "exec", a.as_str()];
+    let in_b = ["ip", "netns", "exec", b.as_str()];
+    let learner = procs.spawn(
+        "learner",
+        learner_cmd(&in_a, &cfg, &run, BUDGET, "10.77.0.1:0", false),
+    );
+    procs.wait_for("learner.addr", PATIENCE, |_| run.join("learner.addr").is_file());
+    let addr = read_addr(&run).unwrap();
+    assert!(addr.starts_with("10.77.0.1:"), "{addr}");
+    let token = run.join("token");
+    let actors: Vec<usize> = (0..2)
+        .map(|r| procs.spawn(&format!("actor{r}"), actor_cmd(&in_b, &addr, &token, r, "grpc")))
+        .collect();
+    for &i in &actors {
+        procs.may_exit(i);
+    }
+    let code = procs.wait_exit(learner, PATIENCE);
+    assert!(code.success(), "learner: {code:?}{}", procs.report());
+    for &i in &actors {
+        let code = procs.wait_exit(i, PATIENCE);
+        assert!(
+            code.success(),
+            "{}: {code:?}{}",
+            procs.list[i].name,
+            procs.report()
+        );
+        let log = procs.log(i);
+        assert!(log.contains("steps over grpc"), "{}", procs.report());
+        assert!(!log.contains("steps over shm"), "{}", procs.report());
+    }
+    let s = read_status(&run).unwrap();
+    assert_consistent(&s, &procs);
+    assert_eq!(s.rank_steps.len(), 2, "{}", procs.report());
+    for r in 0..2 {
+        assert!(rank_steps(&s, r) > 0, "rank {r}: {}", procs.report());
+    }
+    assert_eq!(refused_total(&s), 0, "{}", procs.report());
+    assert_eq!(s.leases_expired, 0, "{}", procs.report());
+}
