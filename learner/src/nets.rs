@@ -208,6 +208,14 @@ impl Actor {
             layers: polyak_layers(self.layers, &online.layers, tau),
         }
     }
+
+    /// Moves the layers out, leaving an actor without layers in their place (to be overwritten
+    /// before any other use). Lets an update own the parameters without sharing their buffers.
+    pub(crate) fn take(&mut self) -> Self {
+        Self {
+            layers: std::mem::take(&mut self.layers),
+        }
+    }
 }
 
 /// One Q-network `(obs, act) -> hidden (ReLU) ... -> 1`; the action is concatenated onto the
@@ -242,9 +250,40 @@ impl Critic {
         forward_mlp(&self.layers, Tensor::cat(vec![obs, action], 1))
     }
 
+    /// The same Q-values as [`Critic::forward`] (up to float rounding), with the first layer
+    /// split by input rows: `relu(obs W_obs + action W_act + b) -> ...`. For a critic whose
+    /// weights take no gradient (TD3's actor step): the observation product is then outside the
+    /// autodiff graph, and the backward pass computes the gradient of the `act_dim` action
+    /// inputs only instead of all `obs_dim + act_dim` of the concatenated input (on the paper's
+    /// sizes, a 730 x 512 matrix product per step saved).
+    pub fn forward_frozen(&self, obs: Tensor<2>, action: Tensor<2>) -> Tensor<2> {
+        let first = &self.layers[0];
+        let weight = first.weight.val();
+        let [rows, cols] = weight.dims();
+        let obs_dim = obs.dims()[1];
+        let mut x = obs.matmul(weight.clone().slice([0..obs_dim, 0..cols]))
+            + action.matmul(weight.slice([obs_dim..rows, 0..cols]));
+        if let Some(bias) = &first.bias {
+            x = x + bias.val().unsqueeze_dim(0);
+        }
+        let rest = &self.layers[1..];
+        if rest.is_empty() {
+            x
+        } else {
+            forward_mlp(rest, relu(x))
+        }
+    }
+
     fn polyak(self, online: &Critic, tau: f64) -> Self {
         Self {
             layers: polyak_layers(self.layers, &online.layers, tau),
+        }
+    }
+
+    /// See [`Actor::take`].
+    fn take(&mut self) -> Self {
+        Self {
+            layers: std::mem::take(&mut self.layers),
         }
     }
 }
@@ -278,6 +317,15 @@ impl TwinCritic {
             self.q1.forward(obs.clone(), action.clone()),
             self.q2.forward(obs, action),
         )
+    }
+
+    /// Moves both critics out, leaving critics without layers in their place (see
+    /// [`Actor::take`]).
+    pub(crate) fn take(&mut self) -> Self {
+        Self {
+            q1: self.q1.take(),
+            q2: self.q2.take(),
+        }
     }
 
     /// These critics moved `tau` of the way towards `online` (Polyak averaging).
@@ -317,4 +365,53 @@ fn tensor_values<const D: usize>(t: Tensor<D>) -> Vec<f32> {
     t.into_data()
         .try_to_vec::<f32>()
         .expect("network parameters are f32")
+}
+
+#[cfg(test)]
+mod tests {
+    use burn::module::Module;
+    use burn::tensor::{Device, Tensor};
+    use rand::Rng;
+    use rand_pcg::Pcg64Mcg;
+
+    use super::Critic;
+    use crate::td3::tensor2;
+
+    fn values(t: Tensor<2>) -> Vec<f32> {
+        t.into_data().try_to_vec::<f32>().unwrap()
+    }
+
+    /// The split first layer of the actor step computes the same Q-values, and the same
+    /// gradient with respect to the action, as the concatenated one.
+    #[test]
+    fn frozen_forward_matches_forward_and_its_action_gradient() {
+        let device = Device::flex().autodiff();
+        let mut rng = Pcg64Mcg::new(11);
+        let (obs_dim, act_dim, rows) = (37, 4, 9);
+        let critic = Critic::new(obs_dim, act_dim, &[32, 16], &device, &mut rng).no_grad();
+        let mut uniform = |n: usize| -> Vec<f32> { (0..n).map(|_| rng.random_range(-1.0..1.0)).collect() };
+        let (obs, act) = (uniform(rows * obs_dim), uniform(rows * act_dim));
+        let run = |frozen: bool| {
+            let obs = tensor2(&obs, rows, obs_dim, &device);
+            let action = tensor2(&act, rows, act_dim, &device).require_grad();
+            let q = if frozen {
+                critic.forward_frozen(obs, action.clone())
+            } else {
+                critic.forward(obs, action.clone())
+            };
+            let grads = q.clone().sum().backward();
+            let grad = action.grad(&grads).expect("the action takes a gradient");
+            (values(q.inner()), values(grad))
+        };
+        let ((q_split, g_split), (q_cat, g_cat)) = (run(true), run(false));
+        assert_eq!(q_split.len(), rows);
+        assert_eq!(g_split.len(), rows * act_dim);
+        for (a, b) in q_split.iter().zip(&q_cat).chain(g_split.iter().zip(&g_cat)) {
+            assert!((a - b).abs() <= 1e-5 * (1.0 + b.abs()), "{a} vs {b}");
+        }
+        assert!(
+            g_cat.iter().any(|g| g.abs() > 1e-4),
+            "a zero gradient proves nothing"
+        );
+    }
 }

@@ -174,7 +174,9 @@ impl Td3 {
         let c = &self.config;
         let (lr, device) = (c.critic_lr, &self.device);
         let [opt1, opt2] = &mut self.critic_opts;
-        let (q1, q2) = (self.critic.q1.clone(), self.critic.q2.clone());
+        // Moved out (not cloned), so each parameter's buffer has one owner and Adam updates it
+        // without a copy.
+        let TwinCritic { q1, q2 } = self.critic.take();
         let ((q1, loss1, q1_mean), (q2, loss2, _)) = rayon::join(
             || critic_step(q1, opt1, lr, batch, y.clone(), device),
             || critic_step(q2, opt2, lr, batch, y.clone(), device),
@@ -190,16 +192,16 @@ impl Td3 {
             let obs = tensor2(&batch.obs, batch.len(), c.obs_dim, &self.device);
             let q1_frozen = self.critic.q1.clone().no_grad();
             let loss = q1_frozen
-                .forward(obs.clone(), self.actor.forward(obs))
+                .forward_frozen(obs.clone(), self.actor.forward(obs))
                 .mean()
                 .neg();
             let grads = GradientsParams::from_grads(loss.backward(), &self.actor);
-            self.actor = self.actor_opt.step(c.actor_lr, self.actor.clone(), grads);
+            self.actor = self.actor_opt.step(c.actor_lr, self.actor.take(), grads);
             actor_loss = Some(loss.into_scalar::<f32>());
             actor_grad_norm = Some(self.actor_opt.last_grad_norm());
 
             let tau = c.tau;
-            let (actor_target, critic_target) = (self.actor_target.clone(), self.critic_target.clone());
+            let (actor_target, critic_target) = (self.actor_target.take(), self.critic_target.take());
             let (actor, critic) = (&self.actor, &self.critic);
             (self.actor_target, self.critic_target) = rayon::join(
                 || actor_target.polyak(actor, tau),
