@@ -186,6 +186,24 @@ pub struct SlurmOverrides {
 }
 
 impl SlurmOverrides {
+    /// Refuses an override that no config could make valid, naming the option (so `--nodes 0`
+    /// is not reported as a fault of the config file).
+    pub fn check(&self) -> anyhow::Result<()> {
+        if self.nodes == Some(0) {
+            bail!("--nodes 0: a job needs at least one node");
+        }
+        if self.actors_per_node == Some(0) {
+            bail!("--actors-per-node 0: each node needs at least one actor");
+        }
+        if self.steps == Some(0) {
+            bail!("--steps 0: the job would have nothing to do");
+        }
+        if let Some(t) = &self.time {
+            check_time(t).map_err(|_| anyhow::anyhow!("--time {t}: expected [D-]HH:MM:SS, e.g. 12:00:00"))?;
+        }
+        Ok(())
+    }
+
     /// Applies the overrides to `cfg`.
     pub fn apply(&self, cfg: &mut TrainConfig) {
         let s = &mut cfg.slurm;
@@ -468,6 +486,7 @@ pub fn generate(
         ),
         None => ("configs/slurm.toml (embedded)".to_owned(), SLURM_TOML.to_owned()),
     };
+    o.check()?;
     let mut cfg = TrainConfig::parse(&name, &text)?;
     o.apply(&mut cfg);
     cfg.slurm
@@ -602,6 +621,46 @@ mod tests {
             e.contains("partiton") && e.contains("x.toml") && !e.contains('\n'),
             "{e}"
         );
+    }
+
+    /// A bad command-line value is reported as the option, not as a fault of the config file.
+    #[test]
+    fn bad_overrides_name_the_option() {
+        let cases = [
+            (
+                SlurmOverrides {
+                    nodes: Some(0),
+                    ..SlurmOverrides::default()
+                },
+                "--nodes 0: a job needs at least one node",
+            ),
+            (
+                SlurmOverrides {
+                    actors_per_node: Some(0),
+                    ..SlurmOverrides::default()
+                },
+                "--actors-per-node 0",
+            ),
+            (
+                SlurmOverrides {
+                    steps: Some(0),
+                    ..SlurmOverrides::default()
+                },
+                "--steps 0",
+            ),
+            (
+                SlurmOverrides {
+                    time: Some("90 minutes".into()),
+                    ..SlurmOverrides::default()
+                },
+                "--time 90 minutes: expected",
+            ),
+        ];
+        for (o, want) in cases {
+            let err = generate(None, &o, None, None).unwrap_err().to_string();
+            assert!(err.starts_with(want), "{err:?} does not start with {want:?}");
+        }
+        assert!(SlurmOverrides::default().check().is_ok());
     }
 
     #[test]
