@@ -106,6 +106,9 @@ pub struct EvalPlan {
     /// A trained policy for `Fidelity::Adp` in `adp.space`: when set, it chooses the schedule
     /// every agent step instead of the constant `adp.action`.
     pub policy: Option<MlpPolicy>,
+    /// The environment settings `policy` was trained with (agent period, laser clip); its
+    /// agent-step cap is lifted in evaluation.
+    pub policy_env: EnvConfig,
 }
 
 /// One table row.
@@ -155,13 +158,13 @@ pub fn run_seed(base: u64, world: usize, run: usize) -> u64 {
     z ^ (z >> 31)
 }
 
-/// The environment settings of an evaluation run with a trained policy: the training defaults
-/// (0.25 s agent step, 3 m laser clip: the observation the exported card documents) with no
+/// The environment settings of an evaluation run with a trained policy: the ones it was
+/// trained with (agent period, laser clip: the observation its card documents) with no
 /// agent-step cap, so runs end by the BARN protocol of `[episode]` like every other row.
-fn eval_env_config() -> EnvConfig {
+fn eval_env_config(trained: EnvConfig) -> EnvConfig {
     EnvConfig {
         max_agent_steps: u32::MAX,
-        ..EnvConfig::default()
+        ..trained
     }
 }
 
@@ -309,7 +312,7 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
                         planner,
                         plan.adp.space,
                         s,
-                        eval_env_config(),
+                        eval_env_config(plan.policy_env),
                         seed,
                     )?;
                     run_policy_episode(env, net, cfg.episode.control_dt, buf)
@@ -483,7 +486,16 @@ mod tests {
             };
             let seed = run_seed(5, w, 0);
             let planner = PlannerKind::Dwa.build(&cfg, seed);
-            let env = AdpEnv::new(world, episode, planner, space, 1.5, eval_env_config(), seed).unwrap();
+            let env = AdpEnv::new(
+                world,
+                episode,
+                planner,
+                space,
+                1.5,
+                eval_env_config(EnvConfig::default()),
+                seed,
+            )
+            .unwrap();
             let closed = run_policy_episode(env, &net, episode.control_dt, &mut buf).unwrap();
             let mut planner = PlannerKind::Dwa.build(&cfg, seed);
             let plain = run_episode(world, episode, planner.as_mut(), &schedule, 1.5, seed, |_, _| {});

@@ -489,20 +489,26 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                     policy::EvalPolicy::Learned(l) => {
                         let s = &l.card.source;
                         let source = format!(
-                            "policy {}: run {}, {} updates, {} action space, layers {:?}",
+                            "policy {}: run {}, {} updates, {} action space, layers {:?}, an action \
+                             every {} planner cycles, laser clipped at {} m",
                             l.card_path.display(),
                             s.run_id,
                             s.updates,
                             adp_learner::export::space_name(l.space),
-                            l.net.dims()
+                            l.net.dims(),
+                            l.env.agent_period_cycles,
+                            l.env.laser_clip_m
                         );
-                        (ddp(l.space), Some(l.net), Some(source))
+                        (ddp(l.space), Some((l.net, l.env)), Some(source))
                     }
                 },
             };
             let plan = EvalPlan {
                 adp,
-                policy: net,
+                policy_env: net
+                    .as_ref()
+                    .map_or_else(actor::EnvConfig::default, |(_, env)| *env),
+                policy: net.map(|(net, _)| net),
                 planners: planner,
                 fidelities: fidelity,
                 speeds: max_speed,

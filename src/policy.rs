@@ -17,6 +17,7 @@ use serde::Deserialize;
 
 use actor::observation::{self, LASER_BEAMS};
 use actor::policy::MlpPolicy;
+use actor::EnvConfig;
 use adp_learner::export::{space_name, PolicyCard, CARD_FORMAT, CARD_FORMAT_VERSION, JSON_FILE};
 use planner::ActionSpace;
 use safetensors::tensor::{Dtype, SafeTensors};
@@ -55,6 +56,10 @@ pub struct LearnedPolicy {
     pub space: ActionSpace,
     /// The actor network, ready for [`MlpPolicy::act`].
     pub net: MlpPolicy,
+    /// The environment settings it was trained with (the card's `environment`; the defaults
+    /// for a card that does not record them): its agent period and laser clip shape what it
+    /// sees, so it is evaluated with them.
+    pub env: EnvConfig,
     /// The card as read (source run, step counters).
     pub card: PolicyCard,
     /// The card's path.
@@ -206,6 +211,13 @@ fn load_learned(card_path: &Path, requested: Option<ActionSpace>) -> anyhow::Res
             "activations {activations:?}: this build runs relu hidden layers and a tanh output"
         )));
     }
+    let env = match &card.environment {
+        serde_json::Value::Null => EnvConfig::default(),
+        recorded => serde_json::from_value::<EnvConfig>(recorded.clone())
+            .map_err(|e| e.to_string())
+            .and_then(|env| env.validate().map(|()| env).map_err(|e| e.to_string()))
+            .map_err(|e| bad(format!("environment: {e}")))?,
+    };
     let weights_path = dir.join(&card.network.safetensors_file);
     let flat = read_weights(&weights_path, dims)?;
     let net = MlpPolicy::from_flat(dims, flat)
@@ -213,6 +225,7 @@ fn load_learned(card_path: &Path, requested: Option<ActionSpace>) -> anyhow::Res
     Ok(LearnedPolicy {
         space,
         net,
+        env,
         card,
         card_path: card_path.to_path_buf(),
     })
@@ -314,6 +327,11 @@ mod tests {
     /// Writes `actor` as `adp export` does: the learner's card for `space` and its
     /// safetensors writer.
     fn write_export(dir: &Path, actor: &Actor, space: ActionSpace) {
+        write_export_with(dir, actor, space, &serde_json::Value::Null);
+    }
+
+    /// [`write_export`] with recorded environment settings.
+    fn write_export_with(dir: &Path, actor: &Actor, space: ActionSpace, environment: &serde_json::Value) {
         let (dims, _) = actor.flat_weights();
         let config = Td3Config {
             obs_dim: dims[0],
@@ -331,7 +349,7 @@ mod tests {
             config,
             files: BTreeMap::new(),
         };
-        let card = PolicyCard::new(space, &manifest).unwrap();
+        let card = PolicyCard::new(space, &manifest, environment).unwrap();
         std::fs::write(dir.join(JSON_FILE), serde_json::to_vec_pretty(&card).unwrap()).unwrap();
         let st = actor_safetensors(actor, HashMap::new()).unwrap();
         std::fs::write(dir.join("policy.safetensors"), st).unwrap();
@@ -422,6 +440,34 @@ mod tests {
             for (a, b) in got.iter().zip(want) {
                 assert!((a - b).abs() <= 1e-5, "{got:?} vs {want:?}");
             }
+        }
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    /// The environment a card records is the one the policy is evaluated in; a card without
+    /// one gets the defaults; a recorded one that is not a valid `[env]` table is refused.
+    #[test]
+    fn the_cards_environment_is_the_evaluation_environment() {
+        let dir = fresh_dir("environment");
+        let actor = Actor::new(730, &[8], 4, &Device::flex(), &mut seeded_rng(6, 0));
+        let trained = EnvConfig {
+            agent_period_cycles: 3,
+            laser_clip_m: 4.5,
+            ..EnvConfig::default()
+        };
+        let recorded = serde_json::to_value(trained).unwrap();
+        write_export_with(&dir, &actor, ActionSpace::Decremental, &recorded);
+        assert_eq!(learned(&dir, None).unwrap().env, trained);
+
+        write_export(&dir, &actor, ActionSpace::Decremental);
+        assert_eq!(learned(&dir, None).unwrap().env, EnvConfig::default());
+
+        for bad in [
+            serde_json::json!({ "laser_clip_meters": 4.5 }),
+            serde_json::json!({ "agent_period_cycles": 0 }),
+        ] {
+            write_export_with(&dir, &actor, ActionSpace::Decremental, &bad);
+            one_line_error(load(&dir, None), &["policy.json: environment"]);
         }
         std::fs::remove_dir_all(&dir).ok();
     }

@@ -212,6 +212,7 @@ fn export_policy(
         sampler_rng: seeded_rng(config.seed, 2),
         policy_version: 1,
         extra: serde_json::Value::Null,
+        environment: serde_json::Value::Null,
     };
     let ckpt = dir.join("ckpt");
     checkpoint::save(&ckpt, &td3, &run).unwrap();

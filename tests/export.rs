@@ -78,6 +78,7 @@ fn make_checkpoint(dir: &Path) {
         sampler_rng: seeded_rng(config.seed, 2),
         policy_version: 1,
         extra: serde_json::Value::Null,
+        environment: serde_json::Value::Null,
     };
     checkpoint::save(dir, &td3, &run).unwrap();
 }

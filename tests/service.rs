@@ -43,10 +43,11 @@ fn refused(s: &Status, kind: &str) -> u64 {
     s.refused.iter().find(|(k, _)| k == kind).map_or(0, |r| r.1)
 }
 
-/// A config with a short warm-up and fast leases, for tests.
+/// A config with a short warm-up and fast leases (and a laser clip other than the default, which
+/// the export must record), for tests.
 fn test_config(dir: &Path, shared_memory: bool) -> PathBuf {
     let text = format!(
-        "[td3]\nwarmup_steps = 128\nrate_tolerance = 64.0\n\n[service]\nshared_memory = {shared_memory}\n\
+        "[env]\nlaser_clip_m = 2.5\n\n[td3]\nwarmup_steps = 128\nrate_tolerance = 64.0\n\n[service]\nshared_memory = {shared_memory}\n\
          heartbeat_ms = 200\nlease_ttl_ms = 2000\nstatus_every_s = 0.2\ncheckpoint_replay = true\n"
     );
     let p = dir.join("test.toml");
@@ -83,6 +84,13 @@ fn local_training_over_shared_memory_is_lossless_and_resumes() {
     );
     assert!(err.contains("steps over shm"), "{err}");
     assert!(run.join("export/policy.onnx").is_file());
+    // The card documents the observation the actors made: the run's clip, not the default.
+    let card: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(run.join("export/policy.json")).unwrap()).unwrap();
+    assert_eq!(card["environment"]["laser_clip_m"], 2.5, "{card}");
+    assert_eq!(card["environment"]["agent_period_cycles"], 5, "{card}");
+    let laser = card["observation"]["segments"][0]["encoding"].as_str().unwrap();
+    assert!(laser.contains("min(r, 2.5) / 2.5"), "{laser}");
     assert!(!adp_learner::tensorboard::event_files(&run.join("tensorboard"))
         .unwrap()
         .is_empty());

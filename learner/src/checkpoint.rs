@@ -66,6 +66,12 @@ pub struct RunState {
     pub policy_version: u64,
     /// Service state this crate does not interpret (scheduler cycles, evaluation scores).
     pub extra: serde_json::Value,
+    /// The environment settings the run's actors were given (the `[env]` table of the run
+    /// config: agent period, laser clip, rewards), so an export can say how the policy's
+    /// observations were made. `Null` when not recorded (checkpoints written before this field
+    /// existed; their runs used the defaults).
+    #[serde(default)]
+    pub environment: serde_json::Value,
 }
 
 /// What a checkpoint's `manifest.json` holds.
@@ -511,6 +517,7 @@ mod tests {
             sampler_rng: seeded_rng(config.seed, 2),
             policy_version: 3,
             extra: serde_json::json!({ "cycle": 4 }),
+            environment: serde_json::json!({ "laser_clip_m": 4.5 }),
         }
     }
 

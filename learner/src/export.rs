@@ -56,7 +56,8 @@ pub const OUTPUT_NAME: &str = "action";
 pub const BATCH_DIM: &str = "batch";
 /// Laser beams at the start of every observation (DESIGN §5).
 pub const LASER_BEAMS: usize = 720;
-/// Laser ranges are clipped at this distance (m) before being mapped to [-1, 1].
+/// Laser ranges are clipped at this distance (m) before being mapped to [-1, 1], unless the run's
+/// environment settings say otherwise (`laser_clip_m`).
 pub const LASER_CLIP_M: f64 = 3.0;
 
 /// Why an export failed. Every variant names the file involved.
@@ -309,6 +310,12 @@ pub struct PolicyCard {
     pub observation: ObservationLayout,
     /// What the network's output means.
     pub action: ActionCard,
+    /// The environment settings the policy was trained with (the `[env]` table of the run
+    /// config: `agent_period_cycles` planner cycles per action, `laser_clip_m`, rewards), so it
+    /// can be run as it was trained; `null` when the checkpoint did not record them (the
+    /// defaults applied).
+    #[serde(default)]
+    pub environment: serde_json::Value,
 }
 
 /// Name and version of the exporting software.
@@ -419,17 +426,18 @@ pub struct ActionDimension {
     pub integer: bool,
 }
 
-/// The observation layout of DESIGN §5 for `space`: 720 laser values, the previous action,
-/// v, w, and (bearing, distance) to the local and the global goal.
-pub fn observation_layout(space: ActionSpace) -> ObservationLayout {
+/// The observation layout of DESIGN §5 for `space`: 720 laser values (ranges clipped at
+/// `laser_clip_m`), the previous action, v, w, and (bearing, distance) to the local and the
+/// global goal.
+pub fn observation_layout(space: ActionSpace, laser_clip_m: f64) -> ObservationLayout {
     let parts: [(&str, usize, String); 6] = [
         (
             "laser",
             LASER_BEAMS,
             format!(
                 "lidar ranges r (m) in beam order, beam k at -135 + k * 270/{} degrees from the \
-                 heading (counter-clockwise positive); x = 2 * min(r, {LASER_CLIP_M}) / \
-                 {LASER_CLIP_M} - 1, in [-1, 1]",
+                 heading (counter-clockwise positive); x = 2 * min(r, {laser_clip_m}) / \
+                 {laser_clip_m} - 1, in [-1, 1]",
                 LASER_BEAMS - 1
             ),
         ),
@@ -512,11 +520,17 @@ fn schedule_text(space: ActionSpace) -> &'static str {
 }
 
 impl PolicyCard {
-    /// The card for an actor trained in `space`, from the checkpoint whose manifest is
-    /// `manifest`. Fails when the checkpoint's observation or action size does not fit `space`.
-    pub fn new(space: ActionSpace, manifest: &Manifest) -> Result<Self, String> {
+    /// The card for an actor trained in `space` with the environment settings `environment`
+    /// (see [`checkpoint::RunState::environment`]), from the checkpoint whose manifest is `manifest`. Fails
+    /// when the checkpoint's observation or action size does not fit `space`, or the settings
+    /// are not a table with a positive `laser_clip_m`.
+    pub fn new(
+        space: ActionSpace,
+        manifest: &Manifest,
+        environment: &serde_json::Value,
+    ) -> Result<Self, String> {
         let config = &manifest.config;
-        let layout = observation_layout(space);
+        let layout = observation_layout(space, laser_clip_m(environment)?);
         if config.act_dim != space.dim() {
             return Err(format!(
                 "act_dim = {} does not fit the {} action space ({} values)",
@@ -592,7 +606,29 @@ impl PolicyCard {
                 ddp_action,
                 ddp_physical,
             },
+            environment: environment.clone(),
         })
+    }
+}
+
+/// The laser clip of recorded environment settings: their `laser_clip_m`, or [`LASER_CLIP_M`]
+/// when they are `null` or do not set it.
+fn laser_clip_m(environment: &serde_json::Value) -> Result<f64, String> {
+    let table = match environment {
+        serde_json::Value::Null => return Ok(LASER_CLIP_M),
+        serde_json::Value::Object(table) => table,
+        other => {
+            return Err(format!(
+                "the recorded environment settings are not a table: {other}"
+            ))
+        }
+    };
+    match table.get("laser_clip_m") {
+        None => Ok(LASER_CLIP_M),
+        Some(v) => v
+            .as_f64()
+            .filter(|c| c.is_finite() && *c > 0.0)
+            .ok_or_else(|| format!("the recorded environment's laser_clip_m = {v} is not a positive number")),
     }
 }
 
@@ -627,11 +663,11 @@ pub fn export_checkpoint(
     space: ActionSpace,
 ) -> Result<ExportSummary, ExportError> {
     let manifest = checkpoint::read_manifest(checkpoint)?;
-    let card = PolicyCard::new(space, &manifest).map_err(|what| ExportError::Mismatch {
+    let (td3, run) = checkpoint::load(checkpoint, &Device::flex())?;
+    let card = PolicyCard::new(space, &manifest, &run.environment).map_err(|what| ExportError::Mismatch {
         file: checkpoint.join(checkpoint::MANIFEST),
         what,
     })?;
-    let (td3, _) = checkpoint::load(checkpoint, &Device::flex())?;
     let actor = td3.policy();
 
     std::fs::create_dir_all(out).map_err(|source| ExportError::Io {
@@ -861,7 +897,12 @@ mod tests {
 
     #[test]
     fn card_describes_layout_ranges_and_source() {
-        let card = PolicyCard::new(ActionSpace::Decremental, &manifest(Td3Config::default())).unwrap();
+        let card = PolicyCard::new(
+            ActionSpace::Decremental,
+            &manifest(Td3Config::default()),
+            &serde_json::Value::Null,
+        )
+        .unwrap();
         assert_eq!(card.network.layer_sizes, [730, 512, 512, 4]);
         assert_eq!(
             (
@@ -925,14 +966,24 @@ mod tests {
             act_dim: 20,
             ..Td3Config::default()
         };
-        let card = PolicyCard::new(ActionSpace::Unconstrained, &manifest(unconstrained)).unwrap();
+        let card = PolicyCard::new(
+            ActionSpace::Unconstrained,
+            &manifest(unconstrained),
+            &serde_json::Value::Null,
+        )
+        .unwrap();
         assert_eq!(card.observation.dim, 746);
         assert_eq!(card.action.dimensions.len(), 20);
     }
 
     #[test]
     fn card_refuses_sizes_that_do_not_fit_the_space() {
-        let err = PolicyCard::new(ActionSpace::Unconstrained, &manifest(Td3Config::default())).unwrap_err();
+        let err = PolicyCard::new(
+            ActionSpace::Unconstrained,
+            &manifest(Td3Config::default()),
+            &serde_json::Value::Null,
+        )
+        .unwrap_err();
         assert!(
             err.contains("act_dim = 4") && err.contains("unconstrained"),
             "{err}"
@@ -942,7 +993,45 @@ mod tests {
             laser_dim: 0,
             ..Td3Config::default()
         };
-        let err = PolicyCard::new(ActionSpace::Decremental, &manifest(small)).unwrap_err();
+        let err = PolicyCard::new(
+            ActionSpace::Decremental,
+            &manifest(small),
+            &serde_json::Value::Null,
+        )
+        .unwrap_err();
         assert!(err.contains("obs_dim = 3") && err.contains("730 values"), "{err}");
+    }
+
+    /// The card carries the run's environment settings and documents the laser encoding with
+    /// the run's clip, not the default one; settings that cannot be right are refused.
+    #[test]
+    fn card_documents_the_recorded_environment() {
+        let laser = |card: &PolicyCard| card.observation.segments[0].encoding.clone();
+        let env = serde_json::json!({ "agent_period_cycles": 4, "laser_clip_m": 4.5 });
+        let card = PolicyCard::new(ActionSpace::Decremental, &manifest(Td3Config::default()), &env).unwrap();
+        assert!(laser(&card).contains("min(r, 4.5) / 4.5"), "{}", laser(&card));
+        assert_eq!(card.environment, env);
+        let json = serde_json::to_string(&card).unwrap();
+        assert_eq!(serde_json::from_str::<PolicyCard>(&json).unwrap(), card);
+
+        // Not recorded (an older checkpoint): the default clip, and the card says `null`.
+        let card = PolicyCard::new(
+            ActionSpace::Decremental,
+            &manifest(Td3Config::default()),
+            &serde_json::Value::Null,
+        )
+        .unwrap();
+        assert!(laser(&card).contains("min(r, 3) / 3"), "{}", laser(&card));
+        assert!(card.environment.is_null());
+
+        for bad in [
+            serde_json::json!({ "laser_clip_m": -1.0 }),
+            serde_json::json!({ "laser_clip_m": "far" }),
+            serde_json::json!([1, 2]),
+        ] {
+            let err =
+                PolicyCard::new(ActionSpace::Decremental, &manifest(Td3Config::default()), &bad).unwrap_err();
+            assert!(err.contains("environment"), "{err}");
+        }
     }
 }

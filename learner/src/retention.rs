@@ -76,6 +76,7 @@ mod tests {
             sampler_rng: seeded_rng(0, 2),
             policy_version: 0,
             extra: serde_json::Value::Null,
+            environment: serde_json::Value::Null,
         };
         let root = temp_dir("retention");
         let mut rng = seeded_rng(0, 0);

@@ -217,6 +217,9 @@ impl Learner {
             service_prefix: format!("adp/{run_id}/{incarnation:016x}"),
             ..ShmConfig::default()
         });
+        // Recorded in checkpoints, so exports document the observation the policy was trained on.
+        let environment: serde_json::Value = toml::from_str(&opts.env_toml)
+            .map_err(|e| format!("the environment settings (env_toml) are not a TOML table: {e}"))?;
         let (dims, _) = td3.policy().flat_weights();
         let spec = pb::RunSpec {
             obs_dim: cfg.obs_dim as u32,
@@ -368,6 +371,7 @@ impl Learner {
             policy_tx,
             shm,
             tensorboard,
+            environment,
         };
         let trainer = std::thread::Builder::new()
             .name("adp-train".into())
@@ -453,7 +457,7 @@ impl Learner {
 
 /// The observation size actors produce for `space` (720 laser, previous action, 6 state values).
 pub fn actor_obs_dim(space: planner::ActionSpace) -> usize {
-    crate::export::observation_layout(space).dim
+    crate::export::observation_layout(space, crate::export::LASER_CLIP_M).dim
 }
 
 /// Reads the learner address a running learner wrote into `run_dir`.

@@ -36,6 +36,8 @@ pub struct Trainer {
     pub(super) policy_tx: watch::Sender<Arc<pb::PolicySnapshot>>,
     pub(super) shm: Option<ShmConfig>,
     pub(super) tensorboard: EventWriter,
+    /// The actors' environment settings (recorded in every checkpoint for the export card).
+    pub(super) environment: serde_json::Value,
 }
 
 /// How the training thread ended.
@@ -237,6 +239,7 @@ impl Trainer {
                 "registry": core.registry.snapshot(),
                 "totals": core.totals,
             }),
+            environment: self.environment.clone(),
         };
         if dir.join(checkpoint::MANIFEST).exists() {
             return Ok(dir);
