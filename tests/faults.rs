@@ -32,6 +32,9 @@ use std::time::Duration;
 
 use adp_learner::service::{read_addr, read_status, Status};
 
+mod common;
+use common::{adp, fresh_dir, refused, status};
+
 /// Time between two polls of a wait.
 const POLL: Duration = Duration::from_millis(100);
 
@@ -43,17 +46,6 @@ static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
 /// Serializes the tests of this file (a failed test poisons the lock; the next still runs).
 fn take_turn() -> MutexGuard<'static, ()> {
     ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner())
-}
-
-fn adp() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_adp"))
-}
-
-fn fresh_dir(name: &str) -> PathBuf {
-    let d = Path::new(env!("CARGO_TARGET_TMPDIR")).join(name);
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
 }
 
 /// What differs between the tests' run configurations.
@@ -119,14 +111,6 @@ fn wrapped(prefix: &[&str]) -> Command {
             c
         }
     }
-}
-
-fn status(run: &Path) -> Option<Status> {
-    read_status(run).ok()
-}
-
-fn refused(s: &Status, kind: &str) -> u64 {
-    s.refused.iter().find(|(k, _)| k == kind).map_or(0, |r| r.1)
 }
 
 fn refused_total(s: &Status) -> u64 {
@@ -301,6 +285,18 @@ impl Procs {
         }
         panic!("watchdog: gave up waiting for {name} to exit{}", self.report());
     }
+
+    /// Waits for `learner`, then every one of `actors`, to exit, and asserts that each exited
+    /// with status 0 (the run reached its budget).
+    fn wait_all_succeed(&mut self, learner: usize, actors: &[usize]) {
+        for &a in actors {
+            self.may_exit(a);
+        }
+        for i in std::iter::once(learner).chain(actors.iter().copied()) {
+            let code = self.wait_exit(i, PATIENCE);
+            assert!(code.success(), "{}: {code:?}{}", self.list[i].name, self.report());
+        }
+    }
 }
 
 impl Drop for Procs {
@@ -444,20 +440,7 @@ fn a_frozen_actor_loses_its_lease_and_its_late_data_is_refused() {
     );
 
     // The run reaches its budget; the learner and every actor exit 0.
-    for &i in &actors {
-        procs.may_exit(i);
-    }
-    let code = procs.wait_exit(learner, PATIENCE);
-    assert!(code.success(), "learner: {code:?}{}", procs.report());
-    for &i in &actors {
-        let code = procs.wait_exit(i, PATIENCE);
-        assert!(
-            code.success(),
-            "{}: {code:?}{}",
-            procs.list[i].name,
-            procs.report()
-        );
-    }
+    procs.wait_all_succeed(learner, &actors);
     let s = read_status(&run).unwrap();
     assert_consistent(&s, &procs);
     assert!(s.leases_expired >= 1, "{}", procs.report());
@@ -562,19 +545,8 @@ fn actors_outlive_a_killed_learner_and_the_resumed_run_reaches_its_budget() {
     assert_eq!(resumed.run_id, before.run_id);
 
     // The resumed run reaches its budget; the learner and the actors exit 0.
+    procs.wait_all_succeed(second, &actors);
     for &a in &actors {
-        procs.may_exit(a);
-    }
-    let code = procs.wait_exit(second, PATIENCE);
-    assert!(code.success(), "learner-2: {code:?}{}", procs.report());
-    for &a in &actors {
-        let code = procs.wait_exit(a, PATIENCE);
-        assert!(
-            code.success(),
-            "{}: {code:?}{}",
-            procs.list[a].name,
-            procs.report()
-        );
         assert!(
             procs.log(a).matches("steps over shm").count() >= 2,
             "{}",
@@ -693,19 +665,8 @@ fn learner_and_actors_in_two_network_namespaces_train_over_grpc() {
     let actors: Vec<usize> = (0..2)
         .map(|r| procs.spawn(&format!("actor{r}"), actor_cmd(&in_b, &addr, &token, r, "grpc")))
         .collect();
+    procs.wait_all_succeed(learner, &actors);
     for &i in &actors {
-        procs.may_exit(i);
-    }
-    let code = procs.wait_exit(learner, PATIENCE);
-    assert!(code.success(), "learner: {code:?}{}", procs.report());
-    for &i in &actors {
-        let code = procs.wait_exit(i, PATIENCE);
-        assert!(
-            code.success(),
-            "{}: {code:?}{}",
-            procs.list[i].name,
-            procs.report()
-        );
         let log = procs.log(i);
         assert!(log.contains("steps over grpc"), "{}", procs.report());
         assert!(!log.contains("steps over shm"), "{}", procs.report());

@@ -5,23 +5,15 @@
 //! Waits are bounded by a watchdog (a number of polls); nothing asserts a duration.
 
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::process::{Child, Stdio};
 use std::time::Duration;
 
 use adp_learner::service::{read_status, Status};
 use proto::grpc::LearnerAddress;
 use proto::pb;
 
-fn adp() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_adp"))
-}
-
-fn fresh_dir(name: &str) -> PathBuf {
-    let d = Path::new(env!("CARGO_TARGET_TMPDIR")).join(name);
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
+mod common;
+use common::{adp, fresh_dir, refused, status};
 
 /// Polls `cond` every 100 ms; panics with `what` after `polls` polls (a watchdog against
 /// deadlocks, not a timing assertion).
@@ -33,14 +25,6 @@ fn wait_for(what: &str, polls: u32, mut cond: impl FnMut() -> bool) {
         std::thread::sleep(Duration::from_millis(100));
     }
     panic!("watchdog: gave up waiting for {what}");
-}
-
-fn status(dir: &Path) -> Option<Status> {
-    read_status(dir).ok()
-}
-
-fn refused(s: &Status, kind: &str) -> u64 {
-    s.refused.iter().find(|(k, _)| k == kind).map_or(0, |r| r.1)
 }
 
 /// A config with a short warm-up and fast leases (and a laser clip other than the default, which
