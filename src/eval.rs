@@ -8,6 +8,8 @@
 //! picks the schedule of the next agent step. Both produce the same per-run
 //! [`EpisodeResult`]s, so rows, table and JSON do not depend on which one ran.
 
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Arc;
 use std::time::Instant;
 
 use anyhow::{bail, Context};
@@ -16,7 +18,10 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use actor::{AdpEnv, End, EnvConfig, MlpPolicy, Scratch, LASER_BEAMS};
-use planner::{run::run_episode, ActionSpace, Dwa, LogMppi, Mppi, NavSystem, Planner, Schedule};
+use planner::{
+    run::run_episode, ActionSpace, Dwa, LogMppi, Mppi, NavSystem, PlanInput, Planner, Rollouts, Schedule,
+};
+use sim::robot::Twist;
 use sim::{EpisodeResult, Status, World};
 
 use crate::config::EvalConfig;
@@ -134,6 +139,12 @@ pub struct Row {
     pub timeout_pct: f64,
     /// Runs counted (after trimming).
     pub episodes: usize,
+    /// Mean collision-check points (robot centre + footprint boundary points) the planner
+    /// evaluated per planning cycle, over every run of the row.
+    pub check_points_per_cycle: f64,
+    /// Mean wall-clock time of one planning call (ms), over every run of the row; measured
+    /// on the thread that runs the episode while all cores run episodes.
+    pub plan_ms_per_cycle: f64,
     /// Every run of every world, untrimmed.
     pub per_world: Vec<WorldRuns>,
 }
@@ -156,6 +167,52 @@ pub fn run_seed(base: u64, world: usize, run: usize) -> u64 {
     z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
     z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
     z ^ (z >> 31)
+}
+
+/// What one episode's planning cost: planning calls, collision-check points and time.
+#[derive(Debug, Default)]
+struct PlanCost {
+    calls: AtomicU64,
+    points: AtomicU64,
+    nanos: AtomicU64,
+}
+
+/// A planner wrapped to meter its cost into a shared [`PlanCost`] (shared because a policy
+/// episode moves its planner into the environment). `Send`, like the planner it wraps.
+struct Metered {
+    inner: Box<dyn Planner>,
+    cost: Arc<PlanCost>,
+}
+
+impl Planner for Metered {
+    fn name(&self) -> &'static str {
+        self.inner.name()
+    }
+
+    fn plan(&mut self, input: &PlanInput<'_>) -> Twist {
+        let before = self.inner.evaluated_points();
+        let t0 = Instant::now();
+        let cmd = self.inner.plan(input);
+        let nanos = t0.elapsed().as_nanos() as u64;
+        let c = &self.cost;
+        c.calls.fetch_add(1, Ordering::Relaxed);
+        c.nanos.fetch_add(nanos, Ordering::Relaxed);
+        c.points
+            .fetch_add(self.inner.evaluated_points() - before, Ordering::Relaxed);
+        cmd
+    }
+
+    fn rollouts(&self) -> &Rollouts {
+        self.inner.rollouts()
+    }
+
+    fn set_recording(&mut self, on: bool) {
+        self.inner.set_recording(on);
+    }
+
+    fn evaluated_points(&self) -> u64 {
+        self.inner.evaluated_points()
+    }
 }
 
 /// The environment settings of an evaluation run with a trained policy: the ones it was
@@ -267,6 +324,15 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
                 space.dim()
             );
         }
+        if plan.policy_env.profile != cfg.episode.profile {
+            bail!(
+                "the policy was trained on the {} simulator profile but this evaluation runs {}: \
+                 pass --profile {} (or set [episode] profile) so every row runs the same robot",
+                plan.policy_env.profile.name(),
+                cfg.episode.profile.name(),
+                plan.policy_env.profile.name()
+            );
+        }
         if cfg.episode.lidar.beams != LASER_BEAMS {
             bail!(
                 "the policy reads {LASER_BEAMS} lidar ranges but the configuration's \
@@ -299,11 +365,15 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
         .expect("static template"),
     );
     let t0 = Instant::now();
-    let results: Vec<(usize, usize, usize, EpisodeResult, u64)> = jobs
+    let results: Vec<(usize, usize, usize, EpisodeResult, u64, Arc<PlanCost>)> = jobs
         .par_iter()
         .map_init(PolicyBuffers::default, |buf, &(ri, p, f, s, w, r)| {
             let seed = run_seed(plan.seed, w, r);
-            let mut planner = p.build(cfg, seed ^ 0x5eed_91a2);
+            let cost = Arc::new(PlanCost::default());
+            let mut planner: Box<dyn Planner> = Box::new(Metered {
+                inner: p.build(cfg, seed ^ 0x5eed_91a2),
+                cost: Arc::clone(&cost),
+            });
             let (res, cycles) = match policy.filter(|_| f == Fidelity::Adp) {
                 Some(net) => {
                     let env = AdpEnv::new(
@@ -325,11 +395,11 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
                     &f.schedule(&plan.adp)?,
                     s,
                     seed,
-                    |_, _| {},
+                    |_, _, _| {},
                 ),
             };
             bar.inc(1);
-            Ok((ri, w, r, res, cycles))
+            Ok((ri, w, r, res, cycles, cost))
         })
         .collect::<anyhow::Result<_>>()?;
     bar.finish_and_clear();
@@ -369,6 +439,14 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
             .collect();
         let (success_pct, avg_time_s, avg_score, collision_pct, timeout_pct, episodes) =
             summarize(&per_world, plan.trim);
+        let (calls, points, nanos) = results.iter().filter(|x| x.0 == ri).fold((0, 0, 0), |acc, x| {
+            (
+                acc.0 + x.5.calls.load(Ordering::Relaxed),
+                acc.1 + x.5.points.load(Ordering::Relaxed),
+                acc.2 + x.5.nanos.load(Ordering::Relaxed),
+            )
+        });
+        let per_call = |total: u64| total as f64 / calls.max(1) as f64;
         rows.push(Row {
             planner: p,
             fidelity: f,
@@ -383,6 +461,8 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
             collision_pct,
             timeout_pct,
             episodes,
+            check_points_per_cycle: per_call(points),
+            plan_ms_per_cycle: per_call(nanos) / 1e6,
             per_world,
         });
     }
@@ -400,12 +480,12 @@ fn kebab<T: Serialize>(v: &T) -> String {
 /// The markdown table of the rows.
 pub fn table(rows: &[Row]) -> String {
     let mut out = String::from(
-        "| planner | fidelity | max speed (m/s) | success (%) | avg time (s) | avg score | collision (%) | timeout (%) | episodes |\n\
-         |---|---|---|---|---|---|---|---|---|\n",
+        "| planner | fidelity | max speed (m/s) | success (%) | avg time (s) | avg score | collision (%) | timeout (%) | episodes | check points / cycle | plan ms / cycle |\n\
+         |---|---|---|---|---|---|---|---|---|---|---|\n",
     );
     for r in rows {
         out.push_str(&format!(
-            "| {} | {} | {:.1} | {:.2} | {:.2} | {:.3} | {:.2} | {:.2} | {} |\n",
+            "| {} | {} | {:.1} | {:.2} | {:.2} | {:.3} | {:.2} | {:.2} | {} | {:.0} | {:.3} |\n",
             serde_json::to_value(r.planner)
                 .expect("enum")
                 .as_str()
@@ -420,7 +500,9 @@ pub fn table(rows: &[Row]) -> String {
             r.avg_score,
             r.collision_pct,
             r.timeout_pct,
-            r.episodes
+            r.episodes,
+            r.check_points_per_cycle,
+            r.plan_ms_per_cycle
         ));
     }
     out
@@ -464,6 +546,47 @@ mod tests {
     /// A policy with a constant output, run closed-loop, gives the plain driver's result and
     /// cycle count with that action's schedule, for a run that succeeds and one that times out
     /// (on a shortened clock).
+    /// Every row of one evaluation runs the same robot: a policy trained on another profile
+    /// is refused with the flag that fixes it; rows report the cost of their fidelity.
+    #[test]
+    fn policy_rows_run_the_policys_profile_and_rows_report_their_cost() {
+        let cfg = EvalConfig::load(None).unwrap();
+        assert_eq!(cfg.episode.profile, sim::Profile::GazeboJackal, "the default");
+        let space = ActionSpace::Decremental;
+        let mut flat = vec![0.0; 730 * 4];
+        flat.extend([0.0f32; 4]);
+        let plan = |profile| EvalPlan {
+            planners: vec![PlannerKind::Dwa],
+            fidelities: vec![Fidelity::Vanilla, Fidelity::Adp],
+            speeds: vec![1.5],
+            worlds: vec![0],
+            runs: 1,
+            trim: 0,
+            seed: 1,
+            adp: AdpSetting {
+                space,
+                action: space.ddp_action(),
+            },
+            policy: Some(MlpPolicy::from_flat(&[730, 4], flat.clone()).unwrap()),
+            policy_env: EnvConfig {
+                profile,
+                ..EnvConfig::default()
+            },
+        };
+        let worlds = sim::barn::worlds();
+        let err = run(&plan(sim::Profile::Ideal), &cfg, worlds)
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("--profile ideal"), "{err}");
+        let rows = run(&plan(sim::Profile::GazeboJackal), &cfg, worlds).unwrap();
+        assert_eq!(rows.len(), 2);
+        for r in &rows {
+            // At least the centre of every rollout step is checked, and planning takes time.
+            assert!(r.check_points_per_cycle >= 400.0, "{r:?}");
+            assert!(r.plan_ms_per_cycle > 0.0);
+        }
+    }
+
     #[test]
     fn closed_loop_constant_policy_equals_the_plain_driver() {
         let cfg = EvalConfig::load(None).unwrap();
@@ -498,7 +621,15 @@ mod tests {
             .unwrap();
             let closed = run_policy_episode(env, &net, episode.control_dt, &mut buf).unwrap();
             let mut planner = PlannerKind::Dwa.build(&cfg, seed);
-            let plain = run_episode(world, episode, planner.as_mut(), &schedule, 1.5, seed, |_, _| {});
+            let plain = run_episode(
+                world,
+                episode,
+                planner.as_mut(),
+                &schedule,
+                1.5,
+                seed,
+                |_, _, _| {},
+            );
             assert_eq!(closed, plain, "world {w}");
             statuses.push(plain.0.status);
         }

@@ -1,6 +1,7 @@
 //! `adp`: train and ship adaptive-dynamics navigation planners on BARN.
 
 mod bench;
+mod calibrate;
 mod config;
 mod eval;
 mod export;
@@ -19,7 +20,7 @@ use config::EvalConfig;
 use eval::{AdpSetting, EvalPlan, Fidelity, PlannerKind};
 use planner::ActionSpace;
 use sim::splits::SplitFile;
-use sim::World;
+use sim::{Profile, World};
 
 #[derive(Parser)]
 #[command(
@@ -102,6 +103,43 @@ enum Cmd {
         /// Configuration file (default: the embedded configs/eval.toml).
         #[arg(long)]
         config: Option<PathBuf>,
+        /// Simulator profile (ideal, gazebo-jackal, custom): overrides [episode] profile.
+        #[arg(long, value_parser = parse_profile)]
+        profile: Option<Profile>,
+        #[command(flatten)]
+        data: WorldData,
+    },
+    /// Run the DDP paper's Table I protocol (300 worlds x 3 runs x 1.0/1.5/2.0 m/s; DWA,
+    /// DWA-DDP, MPPI, MPPI-DDP, Log-MPPI, Log-MPPI-DDP, the DDP system) and print our table
+    /// beside the paper's with the difference per cell and the calibration checks.
+    Calibrate {
+        /// Rows to run, comma-separated labels (default: all seven).
+        #[arg(long, value_delimiter = ',')]
+        rows: Vec<String>,
+        /// Speed caps, comma-separated (default: the paper's 1.0, 1.5, 2.0).
+        #[arg(long, value_delimiter = ',', default_value = "1.0,1.5,2.0")]
+        max_speed: Vec<f64>,
+        /// Worlds: a split (train, test, hardest50, all), a range 0..50, or a list 3,7,9.
+        #[arg(long, default_value = "all")]
+        worlds: String,
+        /// Runs per world.
+        #[arg(long, default_value_t = 3)]
+        runs: usize,
+        /// Base seed of every run's noise.
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        /// Worker threads (default: all cores).
+        #[arg(long)]
+        jobs: Option<usize>,
+        /// Also write the comparison, the checks and every eval row as JSON here.
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Configuration file (default: the embedded configs/eval.toml).
+        #[arg(long)]
+        config: Option<PathBuf>,
+        /// Simulator profile (ideal, gazebo-jackal, custom): overrides [episode] profile.
+        #[arg(long, value_parser = parse_profile)]
+        profile: Option<Profile>,
         #[command(flatten)]
         data: WorldData,
     },
@@ -140,6 +178,9 @@ enum Cmd {
         /// Configuration file (default: the embedded configs/eval.toml).
         #[arg(long)]
         config: Option<PathBuf>,
+        /// Simulator profile (ideal, gazebo-jackal, custom): overrides [episode] profile.
+        #[arg(long, value_parser = parse_profile)]
+        profile: Option<Profile>,
         #[command(flatten)]
         data: WorldData,
     },
@@ -318,6 +359,25 @@ enum WorldsCmd {
     },
 }
 
+/// Parses a simulator profile name.
+fn parse_profile(s: &str) -> Result<Profile, String> {
+    serde_json::from_value(serde_json::Value::String(s.to_string()))
+        .map_err(|_| format!("unknown profile `{s}` (expected ideal, gazebo-jackal or custom)"))
+}
+
+/// The evaluation config at `path` (or the embedded one) with `profile` applied.
+fn eval_config(path: Option<&std::path::Path>, profile: Option<Profile>) -> anyhow::Result<EvalConfig> {
+    let mut cfg = EvalConfig::load(path)?;
+    if let Some(p) = profile {
+        let custom = cfg.episode.dynamics.filter(|_| p == Profile::Custom);
+        cfg.episode = cfg.episode.with_profile(p, custom);
+        cfg.episode
+            .validate()
+            .map_err(|e| anyhow::anyhow!("--profile {}: {e}", p.name()))?;
+    }
+    Ok(cfg)
+}
+
 fn main() -> ExitCode {
     keep_freed_memory();
     let cli = Cli::parse();
@@ -463,9 +523,10 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             jobs,
             out,
             config,
+            profile,
             data,
         } => {
-            let cfg = EvalConfig::load(config.as_deref())?;
+            let cfg = eval_config(config.as_deref(), profile)?;
             let ids = SplitFile::embedded().select(&worlds)?;
             if runs == 0 {
                 anyhow::bail!("--runs must be at least 1");
@@ -532,6 +593,89 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             }
             Ok(())
         }
+        Cmd::Calibrate {
+            rows,
+            max_speed,
+            worlds,
+            runs,
+            seed,
+            jobs,
+            out,
+            config,
+            profile,
+            data,
+        } => {
+            let cfg = eval_config(config.as_deref(), profile)?;
+            let ids = SplitFile::embedded().select(&worlds)?;
+            let chosen: Vec<&calibrate::PaperRow> = if rows.is_empty() {
+                calibrate::TABLE_I.iter().collect()
+            } else {
+                rows.iter()
+                    .map(|r| {
+                        calibrate::paper_row(r).with_context(|| {
+                            let labels: Vec<&str> = calibrate::TABLE_I.iter().map(|p| p.label).collect();
+                            format!("--rows: unknown row `{r}` (expected {})", labels.join(", "))
+                        })
+                    })
+                    .collect::<anyhow::Result<_>>()?
+            };
+            let all = data.load()?;
+            let space = ActionSpace::Decremental;
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(jobs.unwrap_or(0))
+                .build()
+                .context("cannot start worker threads")?;
+            let t0 = std::time::Instant::now();
+            let mut eval_rows = Vec::new();
+            // One eval per row keeps the work to exactly the rows asked for.
+            for row in &chosen {
+                let plan = EvalPlan {
+                    adp: AdpSetting {
+                        space,
+                        action: space.ddp_action(),
+                    },
+                    policy: None,
+                    policy_env: actor::EnvConfig::default(),
+                    planners: vec![row.planner],
+                    fidelities: vec![row.fidelity],
+                    speeds: max_speed.clone(),
+                    worlds: ids.clone(),
+                    runs,
+                    trim: 0,
+                    seed,
+                };
+                eprintln!("{}:", row.label);
+                eval_rows.extend(pool.install(|| eval::run(&plan, &cfg, &all))?);
+            }
+            let cells = calibrate::compare(&eval_rows);
+            let report = calibrate::Report {
+                checks: calibrate::checks(&cells),
+                cells,
+            };
+            println!(
+                "Table I protocol on the {} profile: {} worlds x {} runs, {:.0} s",
+                cfg.episode.profile.name(),
+                ids.len(),
+                runs,
+                t0.elapsed().as_secs_f64()
+            );
+            print!("{}", calibrate::render(&report));
+            println!("\nour rows with their cost:\n");
+            print!("{}", eval::table(&eval_rows));
+            if let Some(path) = out {
+                let json = serde_json::json!({
+                    "profile": cfg.episode.profile.name(),
+                    "dynamics": cfg.episode.resolved_dynamics().map_err(anyhow::Error::msg)?,
+                    "worlds": ids.len(),
+                    "runs": runs,
+                    "report": report,
+                    "rows": eval_rows,
+                });
+                std::fs::write(&path, serde_json::to_string_pretty(&json)?)
+                    .with_context(|| format!("cannot write {}", path.display()))?;
+            }
+            Ok(())
+        }
         Cmd::Render {
             world,
             planner,
@@ -544,9 +688,10 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             footprint_every,
             out,
             config,
+            profile,
             data,
         } => {
-            let cfg = EvalConfig::load(config.as_deref())?;
+            let cfg = eval_config(config.as_deref(), profile)?;
             let all = data.load()?;
             let w = all
                 .get(world)

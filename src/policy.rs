@@ -211,13 +211,18 @@ fn load_learned(card_path: &Path, requested: Option<ActionSpace>) -> anyhow::Res
             "activations {activations:?}: this build runs relu hidden layers and a tanh output"
         )));
     }
-    let env = match &card.environment {
-        serde_json::Value::Null => EnvConfig::default(),
-        recorded => serde_json::from_value::<EnvConfig>(recorded.clone())
-            .map_err(|e| e.to_string())
-            .and_then(|env| env.validate().map(|()| env).map_err(|e| e.to_string()))
-            .map_err(|e| bad(format!("environment: {e}")))?,
+    // Cards written before simulator profiles existed were trained on what is now `ideal`.
+    let mut recorded = match &card.environment {
+        serde_json::Value::Null => serde_json::json!({}),
+        other => other.clone(),
     };
+    if let Some(map) = recorded.as_object_mut() {
+        map.entry("profile").or_insert_with(|| "ideal".into());
+    }
+    let env = serde_json::from_value::<EnvConfig>(recorded)
+        .map_err(|e| e.to_string())
+        .and_then(|env| env.validate().map(|()| env).map_err(|e| e.to_string()))
+        .map_err(|e| bad(format!("environment: {e}")))?;
     let weights_path = dir.join(&card.network.safetensors_file);
     let flat = read_weights(&weights_path, dims)?;
     let net = MlpPolicy::from_flat(dims, flat)
@@ -445,7 +450,9 @@ mod tests {
     }
 
     /// The environment a card records is the one the policy is evaluated in; a card without
-    /// one gets the defaults; a recorded one that is not a valid `[env]` table is refused.
+    /// one gets the defaults on the `ideal` profile (cards before profiles were trained on
+    /// it), as does a recorded one without a profile; one that is not a valid `[env]` table
+    /// is refused.
     #[test]
     fn the_cards_environment_is_the_evaluation_environment() {
         let dir = fresh_dir("environment");
@@ -459,8 +466,22 @@ mod tests {
         write_export_with(&dir, &actor, ActionSpace::Decremental, &recorded);
         assert_eq!(learned(&dir, None).unwrap().env, trained);
 
+        let legacy = EnvConfig {
+            profile: sim::Profile::Ideal,
+            ..EnvConfig::default()
+        };
         write_export(&dir, &actor, ActionSpace::Decremental);
-        assert_eq!(learned(&dir, None).unwrap().env, EnvConfig::default());
+        assert_eq!(learned(&dir, None).unwrap().env, legacy);
+        let mut old = recorded.clone();
+        old.as_object_mut().unwrap().remove("profile");
+        write_export_with(&dir, &actor, ActionSpace::Decremental, &old);
+        assert_eq!(
+            learned(&dir, None).unwrap().env,
+            EnvConfig {
+                profile: sim::Profile::Ideal,
+                ..trained
+            }
+        );
 
         for bad in [
             serde_json::json!({ "laser_clip_meters": 4.5 }),

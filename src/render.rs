@@ -1,7 +1,10 @@
 //! `adp render`: a picture of one episode — the world, the driven trajectory, the footprint
 //! at intervals, and at chosen moments the sampled rollouts, each segment coloured by its
 //! step length (short step = dark = high fidelity, long step = light), as in Fig. 2 of the
-//! ADP paper. PNG or SVG by the output's extension.
+//! ADP paper. At the same moments the rollout the planner predicts for the command it chose
+//! (its own model: nominal accelerations, the profile's integrator, dots at the grid points)
+//! is drawn in purple beside the path the robot really drove (red), so the gap between the
+//! planner's model and the robot shows. PNG or SVG by the output's extension.
 
 use std::path::Path;
 
@@ -9,8 +12,9 @@ use anyhow::{bail, Context};
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
-use planner::{run::run_episode, Planner, Schedule};
+use planner::{run::run_episode, Planner, Prediction, Schedule};
 use sim::geometry::{Footprint, Pose, Vec2};
+use sim::robot::{approach, RobotLimits, Twist};
 use sim::{EpisodeConfig, EpisodeResult, World};
 
 /// Pixels per metre.
@@ -22,6 +26,26 @@ struct Moment {
     rollouts: Vec<(Vec<Pose>, bool)>,
     origin: Pose,
     dts: Vec<f64>,
+    /// The predicted rollout of the chosen command (world frame), one point per grid step.
+    predicted: Vec<Vec2>,
+}
+
+/// The rollout a planner predicts for holding `cmd` from velocity `vel` over `schedule`: the
+/// velocity approaches the command at the nominal controller accelerations (what every
+/// planner assumes) and the pose moves by the prediction's integrator. Robot frame.
+fn predicted_rollout(prediction: Prediction, schedule: &Schedule, mut vel: Twist, cmd: Twist) -> Vec<Pose> {
+    let nominal = RobotLimits::JACKAL;
+    let mut pose = Pose::default();
+    schedule
+        .dts()
+        .iter()
+        .map(|&dt| {
+            vel.v = approach(vel.v, cmd.v, nominal.accel_v * dt);
+            vel.w = approach(vel.w, cmd.w, nominal.accel_w * dt);
+            pose = prediction.integrator.step_pose(pose, vel, dt);
+            pose
+        })
+        .collect()
 }
 
 /// What to draw.
@@ -62,17 +86,23 @@ pub fn render(mut job: RenderJob<'_>, out: &Path) -> anyhow::Result<EpisodeResul
     let mut trail: Vec<Pose> = Vec::new();
     let mut moments: Vec<Moment> = Vec::new();
     let mut cycle = 0u64;
+    let prediction = Prediction::for_profile(job.episode.profile);
+    let schedule = &job.schedule;
     let (result, _) = run_episode(
         job.world,
         job.episode,
         job.planner.as_mut(),
-        &job.schedule,
+        schedule,
         job.max_speed,
         job.seed,
-        |ep, planner| {
+        |ep, planner, cmd| {
             let pose = ep.state().pose;
             trail.push(pose);
             if cycle > 0 && cycle.is_multiple_of(every) {
+                let predicted = predicted_rollout(prediction, schedule, ep.perception().vel, cmd)
+                    .iter()
+                    .map(|p| pose.to_world(p.position()))
+                    .collect();
                 let r = planner.rollouts();
                 moments.push(Moment {
                     rollouts: r
@@ -82,6 +112,7 @@ pub fn render(mut job: RenderJob<'_>, out: &Path) -> anyhow::Result<EpisodeResul
                         .collect(),
                     origin: pose,
                     dts: r.dts.clone(),
+                    predicted,
                 });
             }
             cycle += 1;
@@ -186,12 +217,44 @@ where
     let line: Vec<(i32, i32)> = trail.iter().map(|p| px(p.position())).collect();
     root.draw(&PathElement::new(line, RGBColor(200, 30, 30).stroke_width(3)))
         .map_err(e)?;
+    // The chosen command's predicted rollout, over the driven path.
+    let purple = RGBColor(120, 40, 170);
+    for m in moments {
+        let line: Vec<(i32, i32)> = std::iter::once(m.origin.position())
+            .chain(m.predicted.iter().copied())
+            .map(px)
+            .collect();
+        root.draw(&PathElement::new(line, purple.stroke_width(2)))
+            .map_err(e)?;
+        for &p in &m.predicted {
+            root.draw(&Circle::new(px(p), 3, purple.filled())).map_err(e)?;
+        }
+    }
     Ok(())
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_predicted_rollout_follows_the_planners_model() {
+        // From rest, a constant (1.5, 0) command: the nominal 20 m/s^2 give 1 m/s in the first
+        // 0.05 s step and 1.5 m/s from the second: 0.05 + 19 x 0.075 = 1.475 m.
+        let s = Schedule::uniform(0.05, 20, 0).unwrap();
+        let p = predicted_rollout(Prediction::PAPERS, &s, Twist::default(), Twist::new(1.5, 0.0));
+        assert_eq!(p.len(), 20);
+        assert!(
+            (p[19].x - 1.475).abs() < 1e-9 && p[19].y.abs() < 1e-12,
+            "{:?}",
+            p[19]
+        );
+        // Euler and exact arcs part on a turn.
+        let turn = Twist::new(1.0, 1.5);
+        let e = predicted_rollout(Prediction::PAPERS, &Schedule::ddp_default(), turn, turn);
+        let a = predicted_rollout(Prediction::IDEAL, &Schedule::ddp_default(), turn, turn);
+        assert!(e[19].position().dist(a[19].position()) > 0.05);
+    }
 
     #[test]
     fn fidelity_colours_darken_with_shorter_steps() {

@@ -131,8 +131,14 @@ fn eval_prints_a_table_and_writes_json() {
     let rows: Vec<&str> = table.lines().filter(|l| l.starts_with("| dwa")).collect();
     assert_eq!(rows.len(), 4, "{table}");
     assert!(rows[0].starts_with("| dwa | vanilla | 1.0 |"), "{table}");
-    // Each row counts 2 worlds x (3 runs - 2 trimmed) = 2 episodes.
-    assert!(rows.iter().all(|r| r.trim_end().ends_with("| 2 |")), "{table}");
+    // Each row counts 2 worlds x (3 runs - 2 trimmed) = 2 episodes, and reports what its
+    // fidelity costs: collision-check points and planning time per cycle.
+    for r in &rows {
+        let cells: Vec<&str> = r.split('|').map(str::trim).collect();
+        assert_eq!(cells[9], "2", "{table}");
+        assert!(cells[10].parse::<f64>().unwrap() >= 400.0, "{table}");
+        assert!(cells[11].parse::<f64>().unwrap() > 0.0, "{table}");
+    }
     let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
     let rows = v.as_array().unwrap();
     assert_eq!(rows.len(), 4);
@@ -212,7 +218,8 @@ fn export_policy(
         sampler_rng: seeded_rng(config.seed, 2),
         policy_version: 1,
         extra: serde_json::Value::Null,
-        environment: serde_json::Value::Null,
+        // What a run records today: the actors' [env] settings, profile included.
+        environment: serde_json::to_value(actor::EnvConfig::default()).unwrap(),
     };
     let ckpt = dir.join("ckpt");
     checkpoint::save(&ckpt, &td3, &run).unwrap();

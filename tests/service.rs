@@ -192,7 +192,17 @@ fn grpc_learner_survives_a_killed_actor_and_refuses_bad_requests() {
     });
 
     // kill -9 one actor mid-episode: its lease expires, the world is dealt again, the episode
-    // is abandoned (not terminal), and the learner keeps training.
+    // is abandoned (not terminal), and the learner keeps training. Mid-episode = its step
+    // count just moved (an actor that has finished its two episodes idles without a lease).
+    let rank2 =
+        |s: &adp_learner::service::Status| s.rank_steps.iter().find(|(r, _)| *r == 2).map_or(0, |(_, n)| *n);
+    let mut last = status(&run).map_or(0, |s| rank2(&s));
+    wait_for("actor 2 streaming steps", 1200, || {
+        let now = status(&run).map_or(last, |s| rank2(&s));
+        let moved = now > last;
+        last = now;
+        moved
+    });
     actors[2].kill().unwrap();
     actors[2].wait().unwrap();
     wait_for("the killed actor's lease to expire", 600, || {

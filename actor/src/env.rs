@@ -14,10 +14,10 @@
 
 use planner::action::ActionError;
 use planner::schedule::DEFAULT_BOUNDARY_POINTS;
-use planner::{ActionSpace, PlanInput, Planner};
+use planner::{ActionSpace, PlanInput, Planner, Prediction};
 use serde::{Deserialize, Serialize};
 use sim::episode::{Episode, EpisodeConfig, EpisodeResult, Status};
-use sim::World;
+use sim::{Dynamics, Profile, World};
 
 use crate::observation::{self, DEFAULT_LASER_CLIP_M, LASER_BEAMS};
 use crate::reward::obstacle_penalty;
@@ -48,6 +48,14 @@ pub struct EnvConfig {
     pub timeout_reward: f64,
     /// Added to the shaping reward of the step that reaches the goal (default 50.0).
     pub success_reward: f64,
+    /// The simulator profile the episodes run on (`ideal`, `gazebo-jackal` (default) or
+    /// `custom`): the robot's true response and the planners' rollout model. It overrides the
+    /// episode settings' profile, so checkpoints and the policy card record what the policy
+    /// was trained on.
+    pub profile: Profile,
+    /// The response parameters of `profile = "custom"` (a `[env.dynamics]` table; absent
+    /// otherwise).
+    pub dynamics: Option<Dynamics>,
 }
 
 impl Default for EnvConfig {
@@ -63,6 +71,8 @@ impl Default for EnvConfig {
             collision_reward: -100.0,
             timeout_reward: -100.0,
             success_reward: 50.0,
+            profile: Profile::default(),
+            dynamics: None,
         }
     }
 }
@@ -97,7 +107,10 @@ impl EnvConfig {
                 return bad(format!("{name} = {v} must be finite"));
             }
         }
-        Ok(())
+        self.profile
+            .resolve(self.dynamics.as_ref(), "env.dynamics")
+            .map(|_| ())
+            .map_err(EnvError::Config)
     }
 }
 
@@ -164,6 +177,7 @@ pub struct AdpEnv<'w> {
     planner: Box<dyn Planner>,
     space: ActionSpace,
     max_speed: f64,
+    prediction: Prediction,
     cfg: EnvConfig,
     previous_action: Vec<f32>,
     action_f64: Vec<f64>,
@@ -174,8 +188,9 @@ pub struct AdpEnv<'w> {
 }
 
 impl<'w> AdpEnv<'w> {
-    /// Starts an episode on `world`; `seed` drives the sensor noise. The previous action
-    /// starts as the space's DDP action. Refuses invalid configurations, a lidar without
+    /// Starts an episode on `world` with `episode_cfg` under the profile of `cfg` (which
+    /// replaces the episode settings' own); `seed` drives the sensor noise and drift. The
+    /// previous action starts as the space's DDP action. Refuses invalid configurations, a lidar without
     /// [`LASER_BEAMS`] beams (the observation layout needs them) and a non-positive speed cap.
     pub fn new(
         world: &'w World,
@@ -187,6 +202,7 @@ impl<'w> AdpEnv<'w> {
         seed: u64,
     ) -> Result<Self, EnvError> {
         cfg.validate()?;
+        let episode_cfg = episode_cfg.with_profile(cfg.profile, cfg.dynamics);
         episode_cfg
             .validate()
             .map_err(|e| EnvError::Config(format!("episode: {e}")))?;
@@ -208,6 +224,7 @@ impl<'w> AdpEnv<'w> {
             planner,
             space,
             max_speed,
+            prediction: Prediction::for_profile(cfg.profile),
             cfg,
             previous_action: space.ddp_action().into_iter().map(|a| a as f32).collect(),
             action_f64: Vec::with_capacity(space.dim()),
@@ -281,6 +298,7 @@ impl<'w> AdpEnv<'w> {
                 perception: self.episode.perception(),
                 schedule: &schedule,
                 max_speed: self.max_speed,
+                prediction: self.prediction,
             });
             if self.episode.step(cmd) != Status::Running {
                 break;
@@ -477,7 +495,14 @@ mod tests {
     #[test]
     fn collision_is_terminal_and_final() {
         let world = open_field(true);
-        let mut e = env(&world, constant(1.0), EnvConfig::default(), 1);
+        // The ideal robot: from the first step on, driving at the goal gains more than the
+        // step penalty (the Jackal profile's latency and acceleration make the first step
+        // slower).
+        let ideal = EnvConfig {
+            profile: sim::Profile::Ideal,
+            ..EnvConfig::default()
+        };
+        let mut e = env(&world, constant(1.0), ideal, 1);
         let action = [0.3, -0.2, 0.5, 0.9];
         let last = loop {
             let out = e.step(&action).unwrap();
@@ -701,7 +726,7 @@ mod tests {
             &planner::Schedule::ddp_default(),
             1.5,
             11,
-            |_, _| {},
+            |_, _, _| {},
         );
         assert_eq!(r.episode, plain);
         assert_eq!(u64::from(r.agent_steps), cycles.div_ceil(5));

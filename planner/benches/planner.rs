@@ -20,6 +20,7 @@ fn warm_episode(world: &sim::World) -> Episode<'_> {
             perception: ep.perception(),
             schedule: &sched,
             max_speed: 1.5,
+            prediction: planner::Prediction::PAPERS,
         });
         ep.step(cmd);
     }
@@ -45,6 +46,7 @@ fn planning_cycles(c: &mut Criterion) {
                         perception: ep.perception(),
                         schedule: &sched,
                         max_speed: 1.5,
+                        prediction: planner::Prediction::PAPERS,
                     }))
                 })
             });
@@ -67,6 +69,7 @@ fn simulated_second(c: &mut Criterion) {
                     perception: ep.perception(),
                     schedule: &sched,
                     max_speed: 1.5,
+                    prediction: planner::Prediction::PAPERS,
                 });
                 ep.step(cmd);
             }

@@ -2,16 +2,19 @@
 //!
 //! Each cycle samples a `v_samples x w_samples` grid of constant commands inside the window
 //! reachable within one control period, rolls each out over the schedule's time grid (the
-//! velocity approaching the command at the acceleration limits, then exact arcs), checks the
-//! footprint after every step with the schedule's check density, and returns the cheapest
-//! collision-free command.
+//! velocity approaching the command at the acceleration limits, then a forward-Euler or
+//! exact-arc step, as the [`crate::Prediction`] says), checks the footprint after every step
+//! with the schedule's check density, and returns the cheapest admissible command: one whose
+//! rollout stays clear, or that the planner's model can stop before its first failed check
+//! (the classic DWA admissibility); such a rollout ends at its last clear point with the
+//! highest obstacle cost.
 
 use serde::{Deserialize, Serialize};
 use sim::geometry::{Pose, Vec2};
 use sim::robot::{approach, Twist};
 
 use crate::local_map::LocalMap;
-use crate::{PlanInput, Planner, Rollouts};
+use crate::{Integrator, PlanInput, Planner, Rollouts};
 
 /// DWA parameters (defaults used by `adp eval`).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -79,6 +82,10 @@ pub struct Dwa {
     /// Per v sample and step: v.
     v_prof: Vec<f64>,
     cost: Vec<Candidate>,
+    /// Infeasibility threshold per check density: the configured margin, or the clearance
+    /// the robot already has when that is smaller (so a robot that ended up closer than the
+    /// margin may still move away instead of being stuck).
+    margins: Vec<f64>,
     rollouts: Rollouts,
     recording: bool,
     evaluated: u64,
@@ -91,7 +98,14 @@ struct Candidate {
     path: f64,
     obstacle: f64,
     speed: f64,
+    /// Share of the horizon the rollout stays clear (1 = all of it).
+    clear_share: f64,
 }
+
+/// Cost of a rollout that fails a check, scaled by the share of the horizon it does not stay
+/// clear: a failure right ahead outweighs every normalized term, one at the end of the
+/// horizon (where the grid is coarse and the check sparse) adds little to the obstacle term.
+const HIT_COST: f64 = 4.0;
 
 impl Dwa {
     /// A DWA planner.
@@ -106,6 +120,7 @@ impl Dwa {
             w_prof: Vec::new(),
             v_prof: Vec::new(),
             cost: Vec::new(),
+            margins: Vec::new(),
             rollouts: Rollouts::default(),
             recording: false,
             evaluated: 0,
@@ -151,8 +166,15 @@ impl Planner for Dwa {
         let per = &input.perception;
         let sched = input.schedule;
         let steps = sched.len();
-        self.map
-            .prepare(per.points, sched, input.max_speed, 1.0, cfg.clearance_cap);
+        let euler = input.prediction.integrator == Integrator::Euler;
+        self.map.prepare(
+            per.points,
+            sched,
+            input.prediction.checks,
+            input.max_speed,
+            1.0,
+            cfg.clearance_cap,
+        );
 
         let v0 = per.vel.v;
         let w0 = per.vel.w;
@@ -184,13 +206,28 @@ impl Planner for Dwa {
             }
         }
 
+        let horizon = sched.horizon();
+        self.margins.clear();
+        for m in 0..=self.map.boundary_points() {
+            let here =
+                self.map
+                    .footprint_clearance(&Pose::default(), m, cfg.detail_within, &mut self.evaluated);
+            self.margins.push(cfg.margin.min(here));
+        }
+
         self.rollouts.clear(sched.dts());
         self.cost.clear();
         for i in 0..nv {
             for j in 0..nw {
                 let (mut x, mut y, mut s0, mut c0) = (0.0, 0.0, 0.0, 1.0);
                 let mut min_clear = cfg.clearance_cap;
-                let mut feasible = true;
+                // Distance driven up to the last clear grid point, and that point.
+                let (mut driven, mut last_clear) = (0.0, (0.0, 0.0));
+                // The rollout's point halfway through its steps (path cost).
+                let mut mid = Vec2::default();
+                let mut hit = false;
+                let mut admissible = true;
+                let mut clear_time = horizon;
                 if self.recording {
                     self.rollouts.begin();
                 }
@@ -198,7 +235,11 @@ impl Planner for Dwa {
                     let v = self.v_prof[i * steps + k];
                     let (w, s1, c1) = self.w_prof[j * steps + k];
                     let dt = sched.dts()[k];
-                    if (w * dt).abs() > 1e-9 {
+                    if euler {
+                        // Forward Euler along the heading after the step (the authors' motion()).
+                        x += v * dt * c1;
+                        y += v * dt * s1;
+                    } else if (w * dt).abs() > 1e-9 {
                         x += v / w * (s1 - s0);
                         y -= v / w * (c1 - c0);
                     } else {
@@ -210,22 +251,32 @@ impl Planner for Dwa {
                     if self.recording {
                         self.rollouts.push(pose);
                     }
-                    let clear = self.map.footprint_clearance(
-                        &pose,
-                        sched.checks()[k] as usize,
-                        cfg.detail_within,
-                        &mut self.evaluated,
-                    );
-                    if clear < cfg.margin {
-                        feasible = false;
+                    let m = sched.checks()[k] as usize;
+                    let clear =
+                        self.map
+                            .footprint_clearance(&pose, m, cfg.detail_within, &mut self.evaluated);
+                    if clear < self.margins[m.min(self.margins.len() - 1)] {
+                        // Admissible (Fox et al. 1997) when the planner's model can still stop
+                        // before the obstacle: the rollout then ends at its last clear point.
+                        let v_before = if k > 0 { self.v_prof[i * steps + k - 1] } else { v0 };
+                        hit = true;
+                        clear_time = sched.dts()[..k].iter().sum();
+                        admissible = k > 0 && v_before * v_before <= 2.0 * cfg.accel_v * driven;
+                        (x, y) = last_clear;
+                        min_clear = 0.0;
                         break;
+                    }
+                    driven += v.abs() * dt;
+                    last_clear = (x, y);
+                    if k < steps.div_ceil(2) {
+                        mid = Vec2::new(x, y);
                     }
                     min_clear = min_clear.min(clear);
                 }
                 if self.recording {
-                    self.rollouts.end(feasible);
+                    self.rollouts.end(!hit);
                 }
-                if !feasible {
+                if !admissible {
                     continue;
                 }
                 let end = Vec2::new(x, y);
@@ -233,13 +284,16 @@ impl Planner for Dwa {
                 self.cost.push(Candidate {
                     cmd,
                     goal: end.dist(per.local_goal),
-                    path: distance_to_path(per.local_path, end, per.local_goal),
+                    path: 0.5
+                        * (distance_to_path(per.local_path, mid, per.local_goal)
+                            + distance_to_path(per.local_path, end, per.local_goal)),
                     obstacle: (cfg.clearance_cap - min_clear) / cfg.clearance_cap,
                     speed: if input.max_speed > 0.0 {
                         (input.max_speed - cmd.v) / input.max_speed
                     } else {
                         0.0
                     },
+                    clear_share: clear_time / horizon,
                 });
             }
         }
@@ -264,6 +318,11 @@ impl Planner for Dwa {
                 + cfg.w_path * (c.path - p_lo) / p_span
                 + cfg.w_obstacle * c.obstacle
                 + cfg.w_speed * c.speed
+                + if c.clear_share < 1.0 {
+                    HIT_COST * (1.0 - c.clear_share)
+                } else {
+                    0.0
+                }
         };
         self.cost
             .iter()
@@ -327,16 +386,54 @@ mod tests {
         for sched in [Schedule::vanilla(), Schedule::ddp_default()] {
             let mut dwa = Dwa::new(DwaConfig::default());
             let mut passing_x = None;
-            let (r, _) = run_episode(&w, EpisodeConfig::default(), &mut dwa, &sched, 1.5, 1, |ep, _| {
-                let p = ep.state().pose;
-                if (p.y - 4.0).abs() < 0.1 {
-                    passing_x = Some(p.x);
-                }
-            });
+            let (r, _) = run_episode(
+                &w,
+                EpisodeConfig::default(),
+                &mut dwa,
+                &sched,
+                1.5,
+                1,
+                |ep, _, _| {
+                    let p = ep.state().pose;
+                    if (p.y - 4.0).abs() < 0.1 {
+                        passing_x = Some(p.x);
+                    }
+                },
+            );
             assert_eq!(r.status, Status::Succeeded, "{r:?}");
             let x = passing_x.expect("drove past the cylinder");
             // Footprint half-width 0.215 + cylinder 0.3: the centre must pass > 0.515 aside.
             assert!(x.abs() > 0.515, "passed the cylinder at x = {x}");
+        }
+    }
+
+    /// The real robot can end up closer to an obstacle than the planner's margin (it does not
+    /// follow the predicted arc); the planner must still drive on, away from it, not freeze.
+    #[test]
+    fn a_robot_closer_than_the_margin_still_drives_away() {
+        // A wall along the robot's left side, 0.01 m from the footprint (margin 0.02).
+        let pts: Vec<Vec2> = (0..40)
+            .map(|i| Vec2::new(-1.0 + 0.05 * i as f64, 0.225))
+            .collect();
+        let path = [Vec2::new(0.0, 0.0), Vec2::new(3.0, -0.3)];
+        let perception = sim::Perception {
+            ranges: &[],
+            points: &pts,
+            vel: Twist::new(0.5, 0.0),
+            local_goal: Vec2::new(3.0, -0.3),
+            local_path: &path,
+            goal: Vec2::new(8.0, -0.3),
+        };
+        for schedule in [Schedule::vanilla(), Schedule::ddp_default()] {
+            let mut dwa = Dwa::new(DwaConfig::default());
+            let cmd = dwa.plan(&PlanInput {
+                perception,
+                schedule: &schedule,
+                max_speed: 1.5,
+                prediction: crate::Prediction::PAPERS,
+            });
+            assert!(cmd.v > 0.3, "drives on: {cmd:?}");
+            assert!(cmd.w <= 0.0, "not toward the wall: {cmd:?}");
         }
     }
 
@@ -352,6 +449,7 @@ mod tests {
                 perception: ep.perception(),
                 schedule: &ddp,
                 max_speed: 1.5,
+                prediction: crate::Prediction::PAPERS,
             });
             ep.step(cmd);
         }
@@ -363,6 +461,7 @@ mod tests {
                 perception: ep.perception(),
                 schedule: s,
                 max_speed: 1.5,
+                prediction: crate::Prediction::PAPERS,
             });
             dwa.evaluated_points()
         };

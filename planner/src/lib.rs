@@ -2,13 +2,16 @@
 //!
 //! Every planner maps what the robot perceives (lidar points in the robot frame, velocity,
 //! local path and goal) plus a [`Schedule`] to a velocity command, behind one trait,
-//! [`Planner`]. Schedules come from fixed strategies (vanilla, DDP) or, later, a policy.
+//! [`Planner`]. Schedules come from fixed strategies (vanilla, DDP) or a trained policy (ADP);
+//! the [`Prediction`] says how rollouts model the robot (the papers' forward Euler with checks
+//! at grid points, or exact arcs with conservative checks).
 
 pub mod action;
 pub mod dwa;
 pub mod local_map;
 pub mod log_mppi;
 pub mod mppi;
+pub mod prediction;
 pub mod run;
 pub mod schedule;
 pub mod system;
@@ -17,6 +20,7 @@ pub use action::ActionSpace;
 pub use dwa::{Dwa, DwaConfig};
 pub use log_mppi::{LogMppi, LogMppiConfig};
 pub use mppi::{Mppi, MppiConfig};
+pub use prediction::{CheckMode, Integrator, Prediction};
 pub use schedule::Schedule;
 pub use system::{Mode, ModeMachine, NavSystem, SystemConfig};
 
@@ -33,6 +37,8 @@ pub struct PlanInput<'a> {
     pub schedule: &'a Schedule,
     /// The run's speed cap (m/s).
     pub max_speed: f64,
+    /// How rollouts model the robot.
+    pub prediction: Prediction,
 }
 
 /// A local planner. One instance per episode: `plan` takes `&mut self` so planners keep

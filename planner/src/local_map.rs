@@ -7,6 +7,7 @@
 
 use sim::geometry::{Footprint, Pose, Vec2};
 
+use crate::prediction::CheckMode;
 use crate::Schedule;
 
 /// Distance reported for space outside the field (m).
@@ -28,6 +29,8 @@ pub struct LocalMap {
     points: Vec<Vec<Vec2>>,
     /// Half the spacing between neighbouring points of `points[m]` (m).
     half_gap: Vec<f64>,
+    /// How [`LocalMap::footprint_clearance`] treats what is not checked.
+    mode: CheckMode,
     scratch_f: Vec<f32>,
     scratch_d: Vec<f32>,
     scratch_v: Vec<usize>,
@@ -48,6 +51,7 @@ impl LocalMap {
             radii: (footprint.inscribed_radius(), footprint.circumscribed_radius()),
             points: Vec::new(),
             half_gap: Vec::new(),
+            mode: CheckMode::Conservative,
             scratch_f: Vec::new(),
             scratch_d: Vec::new(),
             scratch_v: Vec::new(),
@@ -85,10 +89,26 @@ impl LocalMap {
             .collect();
     }
 
-    /// Prepares the field for one planning cycle: check sets for the schedule's density, and
-    /// the distance field over everything a rollout at `max_speed` can reach (horizon x speed
-    /// + circumscribed radius + `margin` ahead and sideways, `back` behind).
-    pub fn prepare(&mut self, points: &[Vec2], schedule: &Schedule, max_speed: f64, back: f64, margin: f64) {
+    /// Sets how clearance is estimated (conservative by default).
+    pub fn set_check_mode(&mut self, mode: CheckMode) {
+        self.mode = mode;
+    }
+
+    /// Prepares the field for one planning cycle: the check mode, check sets for the
+    /// schedule's density, and the distance field over everything a rollout at `max_speed` can
+    /// reach (horizon x speed + circumscribed radius + `margin` ahead and sideways, `back`
+    /// behind).
+    #[allow(clippy::too_many_arguments)]
+    pub fn prepare(
+        &mut self,
+        points: &[Vec2],
+        schedule: &Schedule,
+        mode: CheckMode,
+        max_speed: f64,
+        back: f64,
+        margin: f64,
+    ) {
+        self.mode = mode;
         self.set_boundary_points(schedule.boundary_points());
         let reach = max_speed * schedule.horizon() + self.radii.1 + margin;
         self.build(points, back, reach);
@@ -167,13 +187,18 @@ impl LocalMap {
 
     /// Estimated clearance (m) between the footprint at `pose` (robot frame of the scan) and
     /// the obstacles, checking the centre and `m` boundary points; adds the number of points
-    /// evaluated to `evaluated`.
+    /// evaluated to `evaluated`. An obstacle within the inscribed radius of the centre gives a
+    /// negative value in both modes. When the circumscribed-disk bound (centre distance minus
+    /// the circumscribed radius) already exceeds `enough`, the boundary points are skipped and
+    /// that bound is returned.
     ///
-    /// The estimate is a lower bound up to the field's discretisation: the larger of the
-    /// circumscribed-disk bound (centre distance minus the circumscribed radius) and the
-    /// boundary bound (smallest point distance minus half the gap between points). More points = tighter bound. An obstacle
-    /// within the inscribed radius of the centre gives a negative value. When the disk bound
-    /// already exceeds `enough`, the boundary points are skipped.
+    /// - [`CheckMode::Conservative`]: a lower bound up to the field's discretisation: the
+    ///   larger of the disk bound and the boundary bound (smallest point distance minus half
+    ///   the gap between points). More points = tighter bound.
+    /// - [`CheckMode::GridPoints`]: only what is checked: the smaller of the inscribed-disk
+    ///   clearance (centre distance minus the inscribed radius) and the smallest distance of
+    ///   the `m` checked points. Between the points the footprint is assumed free, so fewer
+    ///   points can miss an obstacle (optimistic, as DDP's reduced checks are).
     pub fn footprint_clearance(&self, pose: &Pose, m: usize, enough: f64, evaluated: &mut u64) -> f64 {
         let c = pose.position();
         let dc = self.distance(c);
@@ -184,8 +209,14 @@ impl LocalMap {
         }
         let disk = dc - circumscribed;
         let m = m.min(self.points.len() - 1);
-        if disk >= enough || m == 0 {
+        if disk >= enough {
             return disk;
+        }
+        if m == 0 {
+            return match self.mode {
+                CheckMode::Conservative => disk,
+                CheckMode::GridPoints => dc - inscribed,
+            };
         }
         let (s, co) = pose.yaw.sin_cos();
         let mut nearest = f64::INFINITY;
@@ -194,7 +225,10 @@ impl LocalMap {
             nearest = nearest.min(self.distance(p));
         }
         *evaluated += m as u64;
-        disk.max(nearest - self.half_gap[m])
+        match self.mode {
+            CheckMode::Conservative => disk.max(nearest - self.half_gap[m]),
+            CheckMode::GridPoints => nearest.min(dc - inscribed),
+        }
     }
 }
 

@@ -32,7 +32,7 @@ use sim::robot::{approach, Twist};
 
 use crate::dwa::distance_to_path;
 use crate::local_map::LocalMap;
-use crate::{PlanInput, Planner, Rollouts};
+use crate::{Integrator, PlanInput, Planner, Rollouts};
 
 /// MPPI parameters (defaults used by `adp eval`).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -154,6 +154,8 @@ struct Scene<'a> {
     path: &'a [Vec2],
     /// Collision threshold on the estimated clearance (m), per check density.
     margins: &'a [f64],
+    /// The rollout integrator.
+    integrator: Integrator,
 }
 
 impl Mppi {
@@ -315,8 +317,8 @@ pub fn average_over(seq: &[Twist], dts: &[f64], span: f64) -> Twist {
 }
 
 /// The rollout model: a unicycle whose velocity approaches each step's command at the
-/// acceleration limits, then moves on the exact arc of that velocity for the step (robot
-/// frame, starting at the origin).
+/// acceleration limits, then moves with that velocity for the step by the prediction's
+/// integrator (robot frame, starting at the origin).
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Unicycle {
     /// Forward position (m).
@@ -329,11 +331,12 @@ pub(crate) struct Unicycle {
     cos: f64,
     /// Current velocity.
     vel: Twist,
+    integrator: Integrator,
 }
 
 impl Unicycle {
-    /// At the origin, heading +x, moving with `vel`.
-    pub(crate) fn new(vel: Twist) -> Self {
+    /// At the origin, heading +x, moving with `vel`, integrated by `integrator`.
+    pub(crate) fn new(vel: Twist, integrator: Integrator) -> Self {
         Self {
             x: 0.0,
             y: 0.0,
@@ -341,6 +344,7 @@ impl Unicycle {
             sin: 0.0,
             cos: 1.0,
             vel,
+            integrator,
         }
     }
 
@@ -349,16 +353,11 @@ impl Unicycle {
         let v = approach(self.vel.v, cmd.v, accel_v * dt);
         let w = approach(self.vel.w, cmd.w, accel_w * dt);
         self.vel = Twist::new(v, w);
-        self.yaw += w * dt;
-        let (s1, c1) = self.yaw.sin_cos();
-        if (w * dt).abs() > 1e-9 {
-            self.x += v / w * (s1 - self.sin);
-            self.y -= v / w * (c1 - self.cos);
-        } else {
-            self.x += v * dt * self.cos;
-            self.y += v * dt * self.sin;
-        }
-        (self.sin, self.cos) = (s1, c1);
+        let mut pose = self.pose();
+        let mut sc = (self.sin, self.cos);
+        self.integrator.advance(&mut pose, &mut sc, v, w, dt);
+        (self.x, self.y, self.yaw) = (pose.x, pose.y, pose.yaw);
+        (self.sin, self.cos) = sc;
     }
 
     /// The pose (heading not wrapped).
@@ -371,7 +370,7 @@ impl Unicycle {
 /// records the poses when `record` is given.
 fn rollout(scene: &Scene<'_>, controls: &[Twist], mut record: Option<&mut Rollouts>) -> Outcome {
     let cfg = scene.cfg;
-    let mut robot = Unicycle::new(scene.start);
+    let mut robot = Unicycle::new(scene.start, scene.integrator);
     let mut prev = scene.start;
     let (mut min_clear, mut smooth, mut evaluated) = (cfg.clearance_cap, 0.0, 0u64);
     let (mut t, mut hit) = (0.0, None);
@@ -434,8 +433,14 @@ impl Planner for Mppi {
         let per = &input.perception;
         let sched = input.schedule;
         let steps = sched.len();
-        self.map
-            .prepare(per.points, sched, input.max_speed, 1.0, cfg.clearance_cap);
+        self.map.prepare(
+            per.points,
+            sched,
+            input.prediction.checks,
+            input.max_speed,
+            1.0,
+            cfg.clearance_cap,
+        );
 
         // Warm start: the last nominal, one control period later, on this schedule's grid.
         shift_sequence(
@@ -469,6 +474,7 @@ impl Planner for Mppi {
             goal: per.local_goal,
             path: per.local_path,
             margins: &self.margins,
+            integrator: input.prediction.integrator,
         };
         self.controls
             .par_chunks(steps.max(1))
@@ -627,17 +633,21 @@ pub(crate) mod tests {
 
     /// Runs `planner` through [`corridor_with_cylinder`]; returns the status and the
     /// closest approach of the robot centre to the cylinder's centre.
-    pub(crate) fn drive_around(planner: &mut dyn Planner, schedule: &Schedule) -> (Status, f64) {
+    pub(crate) fn drive_around(
+        planner: &mut dyn Planner,
+        schedule: &Schedule,
+        profile: sim::Profile,
+    ) -> (Status, f64) {
         let (world, block) = corridor_with_cylinder();
         let mut closest = f64::INFINITY;
         let (res, _) = run_episode(
             &world,
-            EpisodeConfig::default(),
+            EpisodeConfig::default().with_profile(profile, None),
             planner,
             schedule,
             1.5,
             3,
-            |ep, _| {
+            |ep, _, _| {
                 closest = closest.min(ep.state().pose.position().dist(block.c));
             },
         );
@@ -654,6 +664,7 @@ pub(crate) mod tests {
                 perception: ep.perception(),
                 schedule,
                 max_speed: 1.5,
+                prediction: crate::Prediction::PAPERS,
             });
             out.push(cmd);
             ep.step(cmd);
@@ -665,7 +676,7 @@ pub(crate) mod tests {
     fn avoids_a_cylinder_on_the_straight_route() {
         for schedule in [Schedule::vanilla(), Schedule::ddp_default()] {
             let mut mppi = Mppi::new(MppiConfig::default(), 11);
-            let (status, closest) = drive_around(&mut mppi, &schedule);
+            let (status, closest) = drive_around(&mut mppi, &schedule, sim::Profile::GazeboJackal);
             assert_eq!(status, Status::Succeeded);
             // The centre stayed further from the cylinder than its radius plus half the robot.
             assert!(closest > 0.35 + 0.215, "closest approach {closest}");
@@ -699,6 +710,7 @@ pub(crate) mod tests {
             perception: ep.perception(),
             schedule: &sched,
             max_speed: 1.5,
+            prediction: crate::Prediction::PAPERS,
         });
         let r = mppi.rollouts();
         assert_eq!(r.spans.len(), 50);

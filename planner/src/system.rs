@@ -42,7 +42,7 @@ use sim::navigation::point_at_arc_length;
 use sim::robot::{approach, integrate_arc, Twist};
 
 use crate::local_map::{LocalMap, FAR};
-use crate::{PlanInput, Planner, Rollouts};
+use crate::{Integrator, PlanInput, Planner, Rollouts};
 
 /// Navigation-system parameters (defaults used by `adp eval`).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -560,6 +560,7 @@ struct RolloutCtx<'a> {
     start: Twist,
     accel_v: f64,
     accel_w: f64,
+    integrator: Integrator,
     margin: f64,
     min_travel: f64,
     min_safe_time: Option<f64>,
@@ -593,7 +594,7 @@ fn evaluate(ctx: &RolloutCtx<'_>, controls: &[Twist], e: &mut SampleEval) {
             let before = (vel, pose);
             vel.v = approach(vel.v, u.v, ctx.accel_v * dt);
             vel.w = approach(vel.w, u.w, ctx.accel_w * dt);
-            pose = integrate_arc(pose, vel, dt);
+            pose = ctx.integrator.step_pose(pose, vel, dt);
             let clear = chained_clearance(
                 ctx.map,
                 (&before.1, last_clear),
@@ -679,6 +680,8 @@ pub struct NavSystem {
     rotate_flipped: bool,
     /// Clearance bound of the robot's current pose (all boundary points checked).
     start_clear: f64,
+    /// The rollout integrator of this cycle (from the plan input's prediction).
+    integrator: Integrator,
     /// Scan points within [`NEAR_RANGE`] of the robot, and remembered points in the
     /// lidar's blind sector behind it.
     near: Vec<Vec2>,
@@ -717,6 +720,7 @@ impl NavSystem {
             rotate_dir: 0.0,
             rotate_flipped: false,
             start_clear: 0.0,
+            integrator: Integrator::ExactArc,
             near: Vec::new(),
             obstacles: Vec::new(),
             memory: Vec::new(),
@@ -957,6 +961,7 @@ impl NavSystem {
             start: per.vel,
             accel_v: cfg.accel_v,
             accel_w: cfg.accel_w,
+            integrator: self.integrator,
             margin: mp.margin,
             min_travel: mp.min_travel,
             min_safe_time: mp.min_safe_time,
@@ -1072,7 +1077,7 @@ impl NavSystem {
             let before = pose;
             vel.v = approach(vel.v, cmd.v, self.cfg.accel_v * dt);
             vel.w = approach(vel.w, cmd.w, self.cfg.accel_w * dt);
-            pose = integrate_arc(pose, vel, dt);
+            pose = self.integrator.step_pose(pose, vel, dt);
             t += dt;
             clear = chained_clearance(
                 &self.map,
@@ -1100,9 +1105,11 @@ impl Planner for NavSystem {
         let per = &input.perception;
         let sched = input.schedule;
         self.remember(per);
+        self.integrator = input.prediction.integrator;
         self.map.prepare(
             &self.obstacles,
             sched,
+            input.prediction.checks,
             input.max_speed,
             NEAR_RANGE,
             cfg.clearance_cap,
@@ -1368,7 +1375,7 @@ mod tests {
             &Schedule::ddp_default(),
             1.5,
             3,
-            |ep, _| {
+            |ep, _, _| {
                 let p = ep.state().pose;
                 if (p.y - 4.0).abs() < 0.3 {
                     beside = beside.max(p.x.abs());
@@ -1399,6 +1406,7 @@ mod tests {
                 perception: ep.perception(),
                 schedule: sched,
                 max_speed: 1.5,
+                prediction: crate::Prediction::PAPERS,
             });
             ep.step(cmd);
             cycle += 1;
@@ -1420,6 +1428,7 @@ mod tests {
                 perception: ep.perception(),
                 schedule: &sched,
                 max_speed: 1.5,
+                prediction: crate::Prediction::PAPERS,
             });
             spans = spans.max(sys.rollouts().spans.len());
             out.push(cmd);
@@ -1452,6 +1461,7 @@ mod tests {
             perception: ep.perception(),
             schedule: &sched,
             max_speed: 1.5,
+            prediction: crate::Prediction::PAPERS,
         };
         let first = sys.plan(&input);
         sys.plan(&input);

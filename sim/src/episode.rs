@@ -9,12 +9,17 @@ use rand_pcg::Pcg64Mcg;
 use serde::{Deserialize, Serialize};
 
 use crate::costmap::{Costmap, CostmapConfig};
-use crate::geometry::Vec2;
+use crate::dynamics::{Drive, Dynamics, Localization, Profile};
+use crate::geometry::{Pose, Vec2};
 use crate::lidar::{Lidar, LidarConfig};
 use crate::navigation::{point_at_arc_length, smooth, GlobalPlanner};
 use crate::robot::{RobotLimits, RobotState, Twist};
 use crate::score::barn_score;
 use crate::world::World;
+
+/// Seed offset of the localization-drift stream (kept apart from the sensor noise, so the
+/// `ideal` profile draws exactly the noise it always did).
+const DRIFT_STREAM: u64 = 0x5eed_d41f_7000_0001;
 
 /// Episode parameters. Defaults follow the BARN protocol (DESIGN §3).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -38,6 +43,11 @@ pub struct EpisodeConfig {
     pub costmap: CostmapConfig,
     /// Robot limits.
     pub robot: RobotLimits,
+    /// How the robot really responds to commands (and how planners predict it): `ideal`,
+    /// `gazebo-jackal` (default) or `custom`.
+    pub profile: Profile,
+    /// The response parameters of `profile = "custom"` (must be absent otherwise).
+    pub dynamics: Option<Dynamics>,
 }
 
 impl Default for EpisodeConfig {
@@ -52,6 +62,8 @@ impl Default for EpisodeConfig {
             lidar: LidarConfig::default(),
             costmap: CostmapConfig::default(),
             robot: RobotLimits::JACKAL,
+            profile: Profile::default(),
+            dynamics: None,
         }
     }
 }
@@ -71,7 +83,22 @@ impl EpisodeConfig {
         if self.replan_every == 0 {
             return Err("replan_every must be >= 1".into());
         }
+        self.resolved_dynamics()?;
         self.lidar.validate()
+    }
+
+    /// The robot's response parameters: the profile's preset, or the `dynamics` table of a
+    /// custom profile.
+    pub fn resolved_dynamics(&self) -> Result<Dynamics, String> {
+        self.profile.resolve(self.dynamics.as_ref(), "episode.dynamics")
+    }
+
+    /// This configuration with another profile (and custom parameters, for
+    /// [`Profile::Custom`]).
+    pub fn with_profile(mut self, profile: Profile, dynamics: Option<Dynamics>) -> Self {
+        self.profile = profile;
+        self.dynamics = dynamics;
+        self
     }
 }
 
@@ -106,7 +133,8 @@ pub struct EpisodeResult {
     pub distance_m: f64,
 }
 
-/// What the planners may see: the robot's own perception, all in the robot frame.
+/// What the planners may see: the robot's own perception, all in the robot frame. Goals and
+/// the path come from the robot's own (possibly drifted) localization.
 #[derive(Clone, Copy, Debug)]
 pub struct Perception<'a> {
     /// Lidar ranges, one per beam (m).
@@ -129,6 +157,11 @@ pub struct Episode<'w> {
     cfg: EpisodeConfig,
     lidar: Lidar,
     rng: Pcg64Mcg,
+    drift_rng: Pcg64Mcg,
+    drive: Drive,
+    localization: Localization,
+    /// Distance driven since the last drift update (m).
+    undrifted: f64,
     state: RobotState,
     sim_time: f64,
     clock_start: Option<f64>,
@@ -147,8 +180,15 @@ pub struct Episode<'w> {
 }
 
 impl<'w> Episode<'w> {
-    /// Resets the robot to the world's start; the seed drives the sensor noise.
+    /// Resets the robot to the world's start; the seed drives the sensor noise and (on a
+    /// separate stream) the localization drift.
+    ///
+    /// # Panics
+    /// If the profile does not resolve ([`EpisodeConfig::validate`] reports that first).
     pub fn new(world: &'w World, cfg: EpisodeConfig, seed: u64) -> Self {
+        let dynamics = cfg
+            .resolved_dynamics()
+            .unwrap_or_else(|e| panic!("invalid episode configuration: {e}"));
         let lidar = Lidar::new(cfg.lidar);
         let costmap = Costmap::around(cfg.costmap, world.start.position(), world.goal);
         let mut ep = Self {
@@ -156,6 +196,10 @@ impl<'w> Episode<'w> {
             cfg,
             lidar,
             rng: Pcg64Mcg::seed_from_u64(seed),
+            drift_rng: Pcg64Mcg::seed_from_u64(seed ^ DRIFT_STREAM),
+            drive: Drive::new(dynamics, cfg.robot, cfg.physics_dt),
+            localization: Localization::default(),
+            undrifted: 0.0,
             state: RobotState {
                 pose: world.start,
                 vel: Twist::default(),
@@ -220,9 +264,19 @@ impl<'w> Episode<'w> {
         &self.costmap
     }
 
+    /// The pose the robot believes it has (world frame): the truth plus localization drift.
+    pub fn believed_pose(&self) -> Pose {
+        self.localization.estimate(&self.state.pose)
+    }
+
+    /// The robot's response parameters.
+    pub fn dynamics(&self) -> &Dynamics {
+        self.drive.dynamics()
+    }
+
     /// What the planner sees now.
     pub fn perception(&self) -> Perception<'_> {
-        let pose = &self.state.pose;
+        let pose = &self.believed_pose();
         Perception {
             ranges: &self.ranges,
             points: &self.points,
@@ -233,8 +287,9 @@ impl<'w> Episode<'w> {
         }
     }
 
-    /// Applies `cmd` for one control period (several physics steps), then senses and updates
-    /// the map and path. Does nothing once the run has ended.
+    /// Issues `cmd` (it takes effect after the profile's latency) and simulates one control
+    /// period (several physics steps), then senses and updates the map and path. Does nothing
+    /// once the run has ended.
     pub fn step(&mut self, cmd: Twist) -> Status {
         if self.status != Status::Running {
             return self.status;
@@ -242,12 +297,15 @@ impl<'w> Episode<'w> {
         let n = (self.cfg.control_dt / self.cfg.physics_dt).round().max(1.0) as usize;
         let dt = self.cfg.control_dt / n as f64;
         let fp = self.cfg.robot.footprint;
+        self.drive.command(cmd);
         for _ in 0..n {
             let before = self.state.pose.position();
-            self.state.step(&self.cfg.robot, cmd, dt);
+            self.drive.step(&mut self.state, dt);
             self.sim_time += dt;
             let pos = self.state.pose.position();
-            self.distance += pos.dist(before);
+            let moved = pos.dist(before);
+            self.distance += moved;
+            self.undrifted += moved;
             if self.clock_start.is_none()
                 && pos.dist(self.world.start.position()) >= self.cfg.clock_start_distance
             {
@@ -308,11 +366,16 @@ impl<'w> Episode<'w> {
         status
     }
 
-    /// Scan, mark the map, replan when due, and recompute the local goal.
+    /// Scan (from the true pose), then, from the believed pose: mark the map, replan when due,
+    /// and recompute the local goal.
     fn sense(&mut self) {
-        let pose = self.state.pose;
         self.lidar
-            .scan(self.world, &pose, &mut self.rng, &mut self.ranges);
+            .scan(self.world, &self.state.pose, &mut self.rng, &mut self.ranges);
+        let dynamics = *self.drive.dynamics();
+        self.localization
+            .drift(&dynamics, self.undrifted, &mut self.drift_rng);
+        self.undrifted = 0.0;
+        let pose = self.believed_pose();
         self.lidar.points(&self.ranges, &mut self.points);
         let pts = &self.points;
         self.costmap
@@ -358,6 +421,11 @@ mod tests {
     use super::*;
     use crate::geometry::{Circle, Pose};
 
+    /// The protocol tests drive the ideal robot, whose motion is known in closed form.
+    fn ideal() -> EpisodeConfig {
+        EpisodeConfig::default().with_profile(Profile::Ideal, None)
+    }
+
     fn corridor(with_wall: bool) -> World {
         // Two walls of cylinders 2 m apart along +y; optionally a wall across at y = 4.
         let mut c = Vec::new();
@@ -393,7 +461,7 @@ mod tests {
     #[test]
     fn straight_drive_into_wall_collides() {
         let w = corridor(true);
-        let mut ep = Episode::new(&w, EpisodeConfig::default(), 1);
+        let mut ep = Episode::new(&w, ideal(), 1);
         let mut status = Status::Running;
         for _ in 0..400 {
             status = ep.step(Twist::new(1.0, 0.0));
@@ -415,7 +483,7 @@ mod tests {
     #[test]
     fn clear_corridor_succeeds_and_scores() {
         let w = corridor(false);
-        let mut ep = Episode::new(&w, EpisodeConfig::default(), 1);
+        let mut ep = Episode::new(&w, ideal(), 1);
         while ep.step(Twist::new(2.0, 0.0)) == Status::Running {}
         let r = ep.result();
         assert_eq!(r.status, Status::Succeeded);
@@ -431,7 +499,7 @@ mod tests {
         let w = corridor(false);
         let cfg = EpisodeConfig {
             timeout_s: 2.0,
-            ..Default::default()
+            ..ideal()
         };
         let mut ep = Episode::new(&w, cfg, 1);
         let mut steps = 0;
@@ -441,7 +509,7 @@ mod tests {
         assert_eq!(ep.status(), Status::TimedOut);
         assert_eq!(steps, 39);
         // Moving slowly: the clock starts only after 0.1 m.
-        let mut ep = Episode::new(&w, EpisodeConfig::default(), 1);
+        let mut ep = Episode::new(&w, ideal(), 1);
         for _ in 0..20 {
             ep.step(Twist::new(0.05, 0.0));
         }
@@ -470,5 +538,30 @@ mod tests {
         };
         assert_eq!(run(5), run(5));
         assert_ne!(run(5), run(6));
+    }
+
+    #[test]
+    fn the_jackal_profile_lags_and_drifts_where_the_ideal_one_does_not() {
+        let w = corridor(false);
+        let drive = |cfg: EpisodeConfig| {
+            let mut ep = Episode::new(&w, cfg, 9);
+            for _ in 0..40 {
+                ep.step(Twist::new(1.5, 0.3));
+            }
+            (ep.state().pose, ep.believed_pose(), ep.state().vel)
+        };
+        let (truth, belief, vel) = drive(ideal());
+        assert_eq!(truth, belief, "no drift on the ideal robot");
+        assert!((vel.v - 1.5).abs() < 1e-12 && (vel.w - 0.3).abs() < 1e-12);
+        let (truth_j, belief_j, vel_j) = drive(EpisodeConfig::default());
+        assert_ne!(truth_j, belief_j, "the believed pose drifts");
+        assert!(truth_j.position().dist(belief_j.position()) < 0.2);
+        // 2 s of driving: slower to start (lag, 2.5 m/s^2, latency), and the base turns less
+        // than commanded (skid-steer slip).
+        assert!(truth_j.y < truth.y - 0.05, "{} vs {}", truth_j.y, truth.y);
+        assert!(vel_j.w < 0.3 && vel_j.w > 0.2, "yaw rate {}", vel_j.w);
+        // A config naming a custom profile without its table is refused.
+        let bad = EpisodeConfig::default().with_profile(Profile::Custom, None);
+        assert!(bad.validate().unwrap_err().contains("[episode.dynamics]"));
     }
 }

@@ -1,10 +1,13 @@
-//! The simulator: BARN worlds, Jackal kinematics, a 2-D lidar, exact footprint collision,
-//! the robot's own costmap and global path, episodes with the BARN protocol, and the score.
+//! The simulator: BARN worlds, Jackal kinematics and its true response to commands (lag,
+//! acceleration limits, skid-steer slip, latency, localization drift: [`dynamics`]), a 2-D
+//! lidar, exact footprint collision, the robot's own costmap and global path, episodes with
+//! the BARN protocol, and the score.
 //!
 //! Pure and deterministic: every random draw comes from a seed the caller passes in.
 
 pub mod barn;
 pub mod costmap;
+pub mod dynamics;
 pub mod episode;
 pub mod geometry;
 pub mod lidar;
@@ -14,6 +17,7 @@ pub mod score;
 pub mod splits;
 pub mod world;
 
+pub use dynamics::{Dynamics, Profile};
 pub use episode::{Episode, EpisodeConfig, EpisodeResult, Perception, Status};
 pub use geometry::{Circle, Footprint, Pose, Vec2};
 pub use robot::{RobotLimits, RobotState, Twist};

@@ -106,8 +106,10 @@ impl Data for DataService {
             return Err(refusal_status(&why));
         }
         let have = r.have_version;
+        // The channel starts with an empty placeholder until the first policy is published:
+        // never send it (an actor would take it for a policy without weights).
         let stream = tokio_stream::wrappers::WatchStream::new(self.policy.clone())
-            .filter(move |p| p.version > have || have == 0)
+            .filter(move |p| !p.weights.is_empty() && (p.version > have || have == 0))
             .map(|p| Ok(pb::PolicySnapshot::clone(&p)));
         Ok(Response::new(Box::pin(stream)))
     }

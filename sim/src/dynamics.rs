@@ -1,0 +1,505 @@
+//! The robot's true response to velocity commands, which is not what the planners predict.
+//!
+//! Planners roll out a unicycle that reaches a commanded velocity at the controller's nominal
+//! accelerations (20 m/s^2, 25 rad/s^2). A real Jackal, and its Gazebo model, does not: the
+//! wheels track the command through a velocity loop (a first-order lag) bounded by what the
+//! motors and tyre friction deliver, a skid-steer base turns less than its wheels ask for
+//! (more so at speed and in tight turns), commands arrive a sense -> plan -> act latency after
+//! the scan they were planned on, and the pose the robot believes in drifts from the truth as
+//! it drives. [`Dynamics`] holds those parameters (each documented with its source);
+//! [`Profile`] names the presets; [`Drive`] applies them to a [`RobotState`] one physics step at
+//! a time.
+//!
+//! Everything is deterministic: the only random draws (localization drift) come from the
+//! episode's seed, on a stream separate from the sensor noise.
+
+use std::collections::VecDeque;
+
+use rand::Rng;
+use rand_distr::StandardNormal;
+use serde::{Deserialize, Serialize};
+
+use crate::geometry::{wrap_angle, Pose, Vec2};
+use crate::robot::{integrate_arc, RobotLimits, RobotState, Twist};
+
+/// A named robot-response preset.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Profile {
+    /// The robot does exactly what the planners predict: the controller's nominal
+    /// accelerations, exact arcs, no lag, slip, latency or drift; planners roll out exact arcs
+    /// with conservative collision bounds. Kept so results stay comparable with earlier runs.
+    Ideal,
+    /// A Jackal as Gazebo simulates it (the papers' setting): see [`Dynamics::gazebo_jackal`].
+    /// Planners roll out the papers' model (forward Euler, checks at grid points only).
+    #[default]
+    GazeboJackal,
+    /// Parameters given explicitly in an `[episode.dynamics]` (or `[env.dynamics]`) table;
+    /// planners roll out the papers' model.
+    Custom,
+}
+
+impl Profile {
+    /// The preset's parameters (`None` for [`Profile::Custom`], which has none).
+    pub fn preset(self) -> Option<Dynamics> {
+        match self {
+            Profile::Ideal => Some(Dynamics::IDEAL),
+            Profile::GazeboJackal => Some(Dynamics::gazebo_jackal()),
+            Profile::Custom => None,
+        }
+    }
+
+    /// The parameters this profile runs with: the preset, or `custom` for
+    /// [`Profile::Custom`]. Errors name the table that is missing or out of place.
+    pub fn resolve(self, custom: Option<&Dynamics>, table: &str) -> Result<Dynamics, String> {
+        match (self.preset(), custom) {
+            (Some(d), None) => Ok(d),
+            (None, Some(d)) => d.validate().map(|()| *d).map_err(|e| format!("[{table}] {e}")),
+            (None, None) => Err(format!(
+                "profile = \"custom\" needs a complete [{table}] table (see configs/eval.toml)"
+            )),
+            (Some(_), Some(_)) => Err(format!(
+                "[{table}] is given with profile = \"{}\"; set profile = \"custom\" to use it",
+                self.name()
+            )),
+        }
+    }
+
+    /// The name used in configs and tables.
+    pub fn name(self) -> &'static str {
+        match self {
+            Profile::Ideal => "ideal",
+            Profile::GazeboJackal => "gazebo-jackal",
+            Profile::Custom => "custom",
+        }
+    }
+}
+
+/// How the simulated robot really responds (all in SI units). Plain data; `Copy`.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Dynamics {
+    /// Largest forward acceleration the drive delivers (m/s^2).
+    pub accel_v: f64,
+    /// Largest braking deceleration (m/s^2).
+    pub decel_v: f64,
+    /// Largest yaw acceleration of the wheels' turn command (rad/s^2).
+    pub accel_w: f64,
+    /// Time constant of the wheel velocity loop: the realized velocity approaches the command
+    /// as a first-order lag, within the acceleration limits (s; 0 = none).
+    pub lag_s: f64,
+    /// Sense -> plan -> act latency: a command takes effect this long after the scan it was
+    /// planned on (s; rounded to whole physics steps).
+    pub latency_s: f64,
+    /// Skid-steer yaw slip: the base turns at (1 - s) times the wheels' turn rate, with
+    /// s = `slip_per_v` |v| + `slip_per_w` |w| (capped at `max_slip`). Per m/s.
+    pub slip_per_v: f64,
+    /// Yaw-slip growth with the turn rate (per rad/s).
+    pub slip_per_w: f64,
+    /// Cap of the yaw slip fraction.
+    pub max_slip: f64,
+    /// Outward side-slip in turns: lateral velocity = -`side_slip` v w (s).
+    pub side_slip: f64,
+    /// Localization drift: heading random walk, standard deviation per square root of metre
+    /// driven (rad / sqrt(m)). The robot's costmap, global path and goals use the drifted pose.
+    pub drift_yaw: f64,
+    /// Localization drift: position random walk per axis (m / sqrt(m)).
+    pub drift_pos: f64,
+}
+
+impl Dynamics {
+    /// The planners' own model: nominal controller accelerations, nothing else.
+    pub const IDEAL: Dynamics = Dynamics {
+        accel_v: RobotLimits::JACKAL.accel_v,
+        decel_v: RobotLimits::JACKAL.accel_v,
+        accel_w: RobotLimits::JACKAL.accel_w,
+        lag_s: 0.0,
+        latency_s: 0.0,
+        slip_per_v: 0.0,
+        slip_per_w: 0.0,
+        max_slip: 0.0,
+        side_slip: 0.0,
+        drift_yaw: 0.0,
+        drift_pos: 0.0,
+    };
+
+    /// A Jackal as Gazebo simulates it for the BARN benchmark. Sources:
+    /// - accelerations: the wheels' Coulomb friction in the Jackal's Gazebo description
+    ///   (`mu1 = mu2 = 0.5`, jackal_description) bounds the traction of a 17.4 kg robot at
+    ///   mu g = 4.9 m/s^2; the motors deliver less than that from standstill, so forward
+    ///   acceleration is taken at 2.5 m/s^2 and braking at the traction bound less rolling
+    ///   losses, 4.0 m/s^2. The yaw acceleration is bounded the same way: friction at the
+    ///   wheel contacts, half the track (0.188 m) from the centre, against the base's yaw
+    ///   inertia gives about 8 rad/s^2.
+    /// - lag: 0.10 s, the time constant of a velocity-controlled wheel joint (the diff-drive
+    ///   controller's PID on Gazebo's ODE contacts at the Jackal's mass); the controller's
+    ///   nominal 20 m/s^2 is never seen.
+    /// - latency: 0.075 s, the mean age of a command's data when it reaches the wheels: half a
+    ///   scan period at 40 Hz (Hokuyo UST-10, 12.5 ms), half a 20 Hz planning period plus the
+    ///   planning itself (25 + ~25 ms), and half the velocity controller's 50 Hz period
+    ///   (10 ms).
+    /// - yaw slip: the Jackal's diff-drive controller multiplies the wheel separation by 1.5
+    ///   (jackal_control `control.yaml`) to cancel the skid-steer base's average slip; the
+    ///   residual grows with speed and turn rate: 8 % per m/s plus 6 % per rad/s, capped at
+    ///   40 %.
+    /// - side slip: 0.03 s (3 cm/s outward at 1 m/s and 1 rad/s).
+    /// - drift: the EKF fuses wheel odometry with an IMU whose heading drifts (hector IMU
+    ///   plugin, `headingDrift` 0.005); 0.01 rad and 0.01 m per square root of metre driven.
+    pub fn gazebo_jackal() -> Dynamics {
+        Dynamics {
+            accel_v: 2.5,
+            decel_v: 4.0,
+            accel_w: 8.0,
+            lag_s: 0.10,
+            latency_s: 0.075,
+            slip_per_v: 0.08,
+            slip_per_w: 0.06,
+            max_slip: 0.4,
+            side_slip: 0.03,
+            drift_yaw: 0.01,
+            drift_pos: 0.01,
+        }
+    }
+
+    /// Checks every value; the error names the field.
+    pub fn validate(&self) -> Result<(), String> {
+        let positive = [
+            ("accel_v", self.accel_v),
+            ("decel_v", self.decel_v),
+            ("accel_w", self.accel_w),
+        ];
+        for (name, v) in positive {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(format!("{name} = {v} must be finite and > 0"));
+            }
+        }
+        let non_negative = [
+            ("lag_s", self.lag_s),
+            ("latency_s", self.latency_s),
+            ("slip_per_v", self.slip_per_v),
+            ("slip_per_w", self.slip_per_w),
+            ("side_slip", self.side_slip),
+            ("drift_yaw", self.drift_yaw),
+            ("drift_pos", self.drift_pos),
+        ];
+        for (name, v) in non_negative {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(format!("{name} = {v} must be finite and >= 0"));
+            }
+        }
+        if !(0.0..1.0).contains(&self.max_slip) {
+            return Err(format!("max_slip = {} must be in [0, 1)", self.max_slip));
+        }
+        if self.latency_s > 1.0 {
+            return Err(format!("latency_s = {} must be at most 1 s", self.latency_s));
+        }
+        Ok(())
+    }
+
+    /// The yaw slip fraction at wheel-level velocity (v, w).
+    pub fn slip(&self, v: f64, w: f64) -> f64 {
+        (self.slip_per_v * v.abs() + self.slip_per_w * w.abs()).min(self.max_slip)
+    }
+}
+
+/// The drive train between the planner's command and the robot's motion: latency queue,
+/// wheel velocity loop, skid-steer slip. One per episode; stepping does not allocate once the
+/// queue has reached its length (latency / physics step).
+#[derive(Clone, Debug)]
+pub struct Drive {
+    dynamics: Dynamics,
+    limits: RobotLimits,
+    /// Physics steps between a command's issue and its effect.
+    delay_ticks: u64,
+    /// Physics steps taken.
+    tick: u64,
+    /// Commands waiting for their tick.
+    queue: VecDeque<(u64, Twist)>,
+    /// The command in effect.
+    applied: Twist,
+    /// Wheel-level velocity (what the wheels do, before the base slips).
+    wheel: Twist,
+}
+
+impl Drive {
+    /// A drive at rest for a physics step of `physics_dt` seconds.
+    pub fn new(dynamics: Dynamics, limits: RobotLimits, physics_dt: f64) -> Self {
+        let delay_ticks = (dynamics.latency_s / physics_dt).round() as u64;
+        Self {
+            dynamics,
+            limits,
+            delay_ticks,
+            tick: 0,
+            queue: VecDeque::with_capacity(delay_ticks as usize + 2),
+            applied: Twist::default(),
+            wheel: Twist::default(),
+        }
+    }
+
+    /// The parameters.
+    pub fn dynamics(&self) -> &Dynamics {
+        &self.dynamics
+    }
+
+    /// Issues a command now; it takes effect after the latency.
+    pub fn command(&mut self, cmd: Twist) {
+        if self.delay_ticks == 0 {
+            self.applied = cmd;
+        } else {
+            self.queue.push_back((self.tick + self.delay_ticks, cmd));
+        }
+    }
+
+    /// The command currently driving the wheels.
+    pub fn applied(&self) -> Twist {
+        self.applied
+    }
+
+    /// Advances `state` by one physics step of `dt` seconds.
+    pub fn step(&mut self, state: &mut RobotState, dt: f64) {
+        while let Some(&(due, cmd)) = self.queue.front() {
+            if due > self.tick {
+                break;
+            }
+            self.applied = cmd;
+            self.queue.pop_front();
+        }
+        self.tick += 1;
+        let d = &self.dynamics;
+        let lim = &self.limits;
+        let target_v = self.applied.v.clamp(-lim.max_reverse_v, lim.max_v);
+        let target_w = self.applied.w.clamp(-lim.max_w, lim.max_w);
+        let gain = if d.lag_s > 0.0 {
+            1.0 - (-dt / d.lag_s).exp()
+        } else {
+            1.0
+        };
+        let v = self.wheel.v;
+        let speeding_up = target_v * v >= 0.0 && target_v.abs() > v.abs();
+        let max_dv = if speeding_up { d.accel_v } else { d.decel_v } * dt;
+        self.wheel.v = v + ((target_v - v) * gain).clamp(-max_dv, max_dv);
+        let w = self.wheel.w;
+        let max_dw = d.accel_w * dt;
+        self.wheel.w = w + ((target_w - w) * gain).clamp(-max_dw, max_dw);
+
+        let slip = d.slip(self.wheel.v, self.wheel.w);
+        state.vel = Twist::new(self.wheel.v, self.wheel.w * (1.0 - slip));
+        let before = state.pose;
+        state.pose = integrate_arc(before, state.vel, dt);
+        if d.side_slip > 0.0 {
+            let lateral = -d.side_slip * state.vel.v * state.vel.w * dt;
+            let mid = before.yaw + 0.5 * state.vel.w * dt;
+            state.pose.x -= lateral * mid.sin();
+            state.pose.y += lateral * mid.cos();
+        }
+    }
+}
+
+/// The robot's belief about its own pose: the true pose plus a drift that random-walks with
+/// the distance driven.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Localization {
+    /// Heading error (rad).
+    pub yaw: f64,
+    /// Position error in the world frame (m).
+    pub offset: Vec2,
+}
+
+impl Localization {
+    /// Adds the drift of `distance` metres of driving.
+    pub fn drift(&mut self, d: &Dynamics, distance: f64, rng: &mut impl Rng) {
+        if distance <= 0.0 || (d.drift_yaw == 0.0 && d.drift_pos == 0.0) {
+            return;
+        }
+        let s = distance.sqrt();
+        let n: [f64; 3] = [
+            rng.sample(StandardNormal),
+            rng.sample(StandardNormal),
+            rng.sample(StandardNormal),
+        ];
+        self.yaw += d.drift_yaw * s * n[0];
+        self.offset = self.offset + Vec2::new(n[1], n[2]) * (d.drift_pos * s);
+    }
+
+    /// The believed pose for a true pose.
+    pub fn estimate(&self, truth: &Pose) -> Pose {
+        Pose::new(
+            truth.x + self.offset.x,
+            truth.y + self.offset.y,
+            wrap_angle(truth.yaw + self.yaw),
+        )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn drive(d: Dynamics) -> (Drive, RobotState) {
+        (Drive::new(d, RobotLimits::JACKAL, 0.01), RobotState::default())
+    }
+
+    #[test]
+    fn ideal_drive_is_the_old_kinematics() {
+        // Same arithmetic as RobotState::step: the ideal profile changes nothing.
+        let (mut dr, mut a) = drive(Dynamics::IDEAL);
+        let mut b = RobotState::default();
+        for k in 0..300 {
+            let cmd = Twist::new(1.5 * ((k / 40) % 2) as f64, -2.0 + (k % 7) as f64 * 0.7);
+            dr.command(cmd);
+            dr.step(&mut a, 0.01);
+            b.step(&RobotLimits::JACKAL, cmd, 0.01);
+            assert_eq!(a, b, "step {k}");
+        }
+    }
+
+    #[test]
+    fn step_response_matches_the_closed_form() {
+        // Lag only (acceleration limits out of reach): v(t) = 1 - exp(-t / tau) exactly at
+        // the physics steps.
+        let d = Dynamics {
+            accel_v: 1e6,
+            decel_v: 1e6,
+            accel_w: 1e6,
+            lag_s: 0.2,
+            ..Dynamics::IDEAL
+        };
+        let (mut dr, mut s) = drive(d);
+        dr.command(Twist::new(1.0, 0.0));
+        for k in 1..=100 {
+            dr.step(&mut s, 0.01);
+            let t = k as f64 * 0.01;
+            assert!((s.vel.v - (1.0 - (-t / 0.2f64).exp())).abs() < 1e-12, "t = {t}");
+        }
+        // Acceleration limit only: a ramp at 2.5 m/s^2 up to the command, then braking at 4.
+        let d = Dynamics {
+            accel_v: 2.5,
+            decel_v: 4.0,
+            ..Dynamics::IDEAL
+        };
+        let (mut dr, mut s) = drive(d);
+        dr.command(Twist::new(2.0, 0.0));
+        for k in 1..=100 {
+            dr.step(&mut s, 0.01);
+            let want = (2.5 * k as f64 * 0.01).min(2.0);
+            assert!((s.vel.v - want).abs() < 1e-12, "k = {k}: {} vs {want}", s.vel.v);
+        }
+        dr.command(Twist::new(0.0, 0.0));
+        for k in 1..=60 {
+            dr.step(&mut s, 0.01);
+            let want = (2.0 - 4.0 * k as f64 * 0.01).max(0.0);
+            assert!((s.vel.v - want).abs() < 1e-12, "braking k = {k}");
+        }
+        // Both: the lag's demand is cut by the limit early, the exponential tail remains.
+        let d = Dynamics {
+            lag_s: 0.15,
+            ..Dynamics::gazebo_jackal()
+        };
+        let (mut dr, mut s) = drive(Dynamics { latency_s: 0.0, ..d });
+        dr.command(Twist::new(2.0, 0.0));
+        dr.step(&mut s, 0.01);
+        let lag_step = 2.0 * (1.0 - (-0.01f64 / 0.15).exp());
+        assert!(lag_step > 0.025, "the lag alone would ask for {lag_step}");
+        assert!((s.vel.v - 0.025).abs() < 1e-12, "limited to 2.5 m/s^2 x 0.01 s");
+    }
+
+    #[test]
+    fn latency_delays_the_command_by_exactly_the_configured_time() {
+        let d = Dynamics {
+            latency_s: 0.1,
+            ..Dynamics::IDEAL
+        };
+        let (mut dr, mut s) = drive(d);
+        dr.command(Twist::new(1.0, 0.0));
+        for _ in 0..10 {
+            dr.step(&mut s, 0.01);
+            assert_eq!(s.vel.v, 0.0, "nothing happens during the first 0.1 s");
+        }
+        dr.step(&mut s, 0.01);
+        assert!(
+            (s.vel.v - 0.2).abs() < 1e-12,
+            "then the ideal 20 m/s^2 ramp starts"
+        );
+        // A later command replaces it exactly 10 steps after its issue.
+        dr.command(Twist::new(0.0, 0.0));
+        for _ in 0..10 {
+            dr.step(&mut s, 0.01);
+        }
+        assert_eq!(dr.applied(), Twist::new(1.0, 0.0));
+        dr.step(&mut s, 0.01);
+        assert_eq!(dr.applied(), Twist::new(0.0, 0.0));
+    }
+
+    #[test]
+    fn slip_makes_the_base_turn_less_the_faster_and_tighter() {
+        let d = Dynamics::gazebo_jackal();
+        assert_eq!(d.slip(0.0, 0.0), 0.0);
+        assert!(d.slip(2.0, 1.0) > d.slip(1.0, 1.0));
+        assert!(d.slip(1.0, 2.0) > d.slip(1.0, 1.0));
+        assert_eq!(d.slip(2.0, 5.0), d.max_slip);
+        let (mut dr, mut s) = drive(Dynamics { latency_s: 0.0, ..d });
+        dr.command(Twist::new(1.0, 1.0));
+        for _ in 0..200 {
+            dr.step(&mut s, 0.01);
+        }
+        let expect = 1.0 * (1.0 - d.slip(1.0, 1.0));
+        assert!((s.vel.w - expect).abs() < 1e-9, "{} vs {expect}", s.vel.w);
+    }
+
+    #[test]
+    fn profiles_resolve_and_refuse_misplaced_tables() {
+        assert_eq!(
+            Profile::Ideal.resolve(None, "episode.dynamics"),
+            Ok(Dynamics::IDEAL)
+        );
+        let custom = Dynamics {
+            lag_s: 0.3,
+            ..Dynamics::IDEAL
+        };
+        assert_eq!(
+            Profile::Custom.resolve(Some(&custom), "episode.dynamics"),
+            Ok(custom)
+        );
+        let e = Profile::Custom.resolve(None, "env.dynamics").unwrap_err();
+        assert!(e.contains("[env.dynamics]"), "{e}");
+        let e = Profile::GazeboJackal
+            .resolve(Some(&custom), "episode.dynamics")
+            .unwrap_err();
+        assert!(e.contains("profile = \"custom\""), "{e}");
+        let bad = Dynamics {
+            max_slip: 1.5,
+            ..Dynamics::IDEAL
+        };
+        let e = Profile::Custom
+            .resolve(Some(&bad), "episode.dynamics")
+            .unwrap_err();
+        assert!(e.contains("max_slip"), "{e}");
+        assert!(Dynamics::gazebo_jackal().validate().is_ok());
+    }
+
+    #[test]
+    fn drift_is_a_seeded_random_walk_with_distance() {
+        use rand::SeedableRng;
+        let d = Dynamics::gazebo_jackal();
+        let walk = |seed| {
+            let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(seed);
+            let mut l = Localization::default();
+            for _ in 0..100 {
+                l.drift(&d, 0.1, &mut rng);
+            }
+            l
+        };
+        assert_eq!(walk(3), walk(3));
+        assert_ne!(walk(3), walk(4));
+        // Standing still never drifts.
+        let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(1);
+        let mut l = Localization::default();
+        l.drift(&d, 0.0, &mut rng);
+        assert_eq!(l, Localization::default());
+        // The spread after 10 m is about drift * sqrt(10): check it over many walks.
+        let n = 2000;
+        let var: f64 = (0..n).map(|s| walk(s).yaw.powi(2)).sum::<f64>() / n as f64;
+        let want = d.drift_yaw.powi(2) * 10.0;
+        assert!((var / want - 1.0).abs() < 0.15, "variance {var} vs {want}");
+    }
+}
