@@ -463,21 +463,15 @@ class Actor:
                     break
                 seed = a.seeds[i] if i < len(a.seeds) else a.lease_id
                 episode_id = a.first_episode_id + i
-                report = self._episode(s, a, episode_id, seed, pol)
-                if report is None:  # lease lost mid-episode
-                    self.leases_lost += 1
-                    try:
-                        s.flush()
-                    except StepsRefused as e:
-                        self.log(f"actor {self.rank}: lease {a.lease_id} lost; {e}")
-                    break
                 try:
+                    report = self._episode(s, a, episode_id, seed, pol)  # None: lease lost
+                    # Send what waits; after a lost lease the learner refuses and counts it.
                     s.flush()
                 except StepsRefused as e:
-                    if not (s.lease_lost.is_set() or s.gone.is_set()):
-                        raise
+                    self._refused(s, a, e)
+                    report = None
+                if report is None:
                     self.leases_lost += 1
-                    self.log(f"actor {self.rank}: lease {a.lease_id} lost; {e}")
                     break
                 report.lease_id = a.lease_id
                 report.last_of_assignment = i + 1 == a.episodes
@@ -486,6 +480,16 @@ class Actor:
                     self.leases_lost += 1
                     break
                 self.episodes += 1
+
+    def _refused(self, s: Session, a, e: StepsRefused):
+        """Decides what a refusal means: the lease or session ended (drop the assignment, or
+        register again), or records this client made wrongly (a fatal error)."""
+        if s.lease_lost.is_set() or e.reason.startswith(f"lease {a.lease_id}:"):
+            self.log(f"actor {self.rank}: lease {a.lease_id} lost; {e}")
+            return
+        if s.gone.is_set() or e.reason.startswith(("stale incarnation", "wrong run", "actor ")):
+            raise _Reconnect(str(e))
+        raise e
 
     def _episode(self, s: Session, a, episode_id, seed, pol):
         version, sigma, net = pol
