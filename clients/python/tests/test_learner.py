@@ -23,15 +23,6 @@ from adp_client.actor import _Reconnect
 from conftest import Learner, free_port, refused, spawn_actor, wait_exit, wait_for
 
 
-def assert_clean_finish(s):
-    assert s["finished"], s
-    assert s["inserts"] >= s["budget"], s
-    assert s["episodes"] > 0 and s["episodes_verified"] == s["episodes"] - s["episodes_abandoned"] or \
-        s["episodes_verified"] > 0, s
-    assert s["episodes_mismatched"] == 0, s
-    assert s["policy_version"] >= 2, s
-
-
 @pytest.fixture(scope="module")
 def trained(tmp_path_factory):
     """Three Python actors, one killed with SIGKILL mid-run; the run finishes."""
