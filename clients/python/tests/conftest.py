@@ -79,11 +79,12 @@ class Learner:
             args.append("--resume")
         else:
             (self.run / "learner.addr").unlink(missing_ok=True)
-        self.log = open(dir / ("learner-resumed.log" if resume else "learner.log"), "w")
+        self.log_path = dir / ("learner-resumed.log" if resume else "learner.log")
+        self.log = open(self.log_path, "w")
         self.proc = subprocess.Popen(args, stdout=self.log, stderr=subprocess.STDOUT)
         wait_for("learner.addr", lambda: (self.run / "learner.addr").is_file() or self.proc.poll() is not None)
         if self.proc.poll() is not None:
-            pytest.fail(f"adp learner exited with {self.proc.returncode}: {(dir / 'learner.log').read_text()}")
+            pytest.fail(f"adp learner exited with {self.proc.returncode}: {self.log_path.read_text()}")
         self.addr = (self.run / "learner.addr").read_text().strip()
         self.token = self.run / "token"
 
@@ -92,7 +93,7 @@ class Learner:
 
     def wait_finished(self):
         wait_for("the learner to finish", lambda: self.proc.poll() is not None)
-        assert self.proc.returncode == 0, (self.dir / "learner.log").read_text()
+        assert self.proc.returncode == 0, self.log_path.read_text()
         return self.status()
 
     def stop(self):

@@ -175,7 +175,8 @@ def test_actor_reconnects_to_a_restarted_learner(tmp_path):
     try:
         wait_for("steps and a checkpoint with steps in it",
                  lambda: (s := learner.status()) and s["inserts"] >= 150 and ckpts.is_dir()
-                 and any(not c.name.startswith("ckpt-000000000000-") for c in ckpts.iterdir()))
+                 and any(not c.name.startswith("ckpt-000000000000-") and ".tmp" not in c.name
+                         for c in ckpts.iterdir()))
         first = learner.status()
         # kill -9: no final checkpoint, no shutdown for the actor, which must keep trying.
         learner.proc.send_signal(signal.SIGKILL)
