@@ -1,0 +1,127 @@
+"""Action spaces: how a normalized action in [-1, 1]^k becomes a planner's rollout schedule
+(a Python port of planner/src/action.rs and the schedule constructors it uses).
+
+A schedule is a list of step lengths `dts` (seconds) and, per step, how many footprint
+boundary points are collision-checked (`checks`, at most `n`).
+"""
+
+import math
+from dataclasses import dataclass
+from typing import List
+
+FIXED_HORIZON = 2.0
+UNCONSTRAINED_STEPS = 20
+_DDP_P = 1.7
+
+_RANGES = {
+    "decremental": [("p", 1.0, 1.7), ("T", 1.6, 2.2), ("N", 15.0, 22.0), ("alpha", 0.0, 0.6)],
+    "incremental": [("p", 1.0, 1.7), ("T", 1.6, 2.2), ("N", 15.0, 22.0), ("alpha", 0.0, 0.6)],
+    "unconstrained": [("dt", 0.02, 0.18)] * UNCONSTRAINED_STEPS,
+    "fixed": [("dt", 0.05, 0.2), ("check_density", 0.0, 1.0)],
+}
+
+
+class ActionError(ValueError):
+    """An action that cannot be turned into a schedule."""
+
+
+def _round(x: float) -> float:
+    # Rust's f64::round rounds halves away from zero (Python's round() goes to even).
+    return math.floor(x + 0.5) if x >= 0 else -math.floor(-x + 0.5)
+
+
+@dataclass
+class Schedule:
+    """Step lengths (s) and boundary points checked after each step (of `boundary_points`)."""
+
+    dts: List[float]
+    checks: List[int]
+    boundary_points: int
+
+    @property
+    def horizon(self) -> float:
+        """Rollout horizon: the sum of the steps (s)."""
+        return sum(self.dts)
+
+
+def _from_parts(dts, checks, n) -> Schedule:
+    if not dts or len(dts) != len(checks):
+        raise ActionError("schedule: need one check count per step")
+    for d in dts:
+        if not d > 0.0:
+            raise ActionError(f"schedule: dt = {d} must be > 0")
+    return Schedule(list(dts), [min(int(c), n) for c in checks], n)
+
+
+def _decremental(p, total, steps, alpha, n) -> Schedule:
+    if not p > 0 or not total > 0 or steps < 1 or not 0.0 <= alpha <= 1.0:
+        raise ActionError(f"schedule: p = {p}, T = {total}, N = {steps}, alpha = {alpha} out of range")
+
+    def t(i):
+        f = i / steps
+        return alpha * f * total + (1.0 - alpha) * f**p * total
+
+    dts = [t(i) - t(i - 1) for i in range(1, steps + 1)]
+    checks = [int(_round(n * (1.0 - (i / steps) ** p))) for i in range(1, steps + 1)]
+    return Schedule(dts, checks, n)
+
+
+class ActionSpace:
+    """One of the run's action spaces by name: decremental, incremental, unconstrained, fixed."""
+
+    def __init__(self, name: str):
+        if name not in _RANGES:
+            raise ActionError(
+                f"unknown action space `{name}` (expected decremental, incremental, unconstrained or fixed)"
+            )
+        self.name = name
+
+    @property
+    def dim(self) -> int:
+        """Dimension of the action vector."""
+        return len(_RANGES[self.name])
+
+    def ranges(self):
+        """Name and physical range (low, high) of each action dimension."""
+        return list(_RANGES[self.name])
+
+    def to_params(self, action) -> List[float]:
+        """Physical parameters of a normalized action (clamped to [-1, 1] first; N rounded)."""
+        ranges = _RANGES[self.name]
+        action = [float(a) for a in action]
+        if len(action) != len(ranges):
+            raise ActionError(f"{self.name} action needs {len(ranges)} values, got {len(action)}")
+        out = []
+        for i, (a, (name, lo, hi)) in enumerate(zip(action, ranges)):
+            if not math.isfinite(a):
+                raise ActionError(f"action value {i} ({name}) is {a}: must be finite")
+            v = lo + (min(max(a, -1.0), 1.0) + 1.0) * 0.5 * (hi - lo)
+            out.append(float(_round(v)) if name == "N" else v)
+        return out
+
+    def to_action(self, params) -> List[float]:
+        """The normalized action of physical parameters (clamped to their ranges)."""
+        return [2.0 * (min(max(v, lo), hi) - lo) / (hi - lo) - 1.0 for v, (_, lo, hi) in zip(params, _RANGES[self.name])]
+
+    def schedule(self, action, n: int) -> Schedule:
+        """The schedule an action selects, with up to `n` footprint boundary points per check."""
+        q = self.to_params(action)
+        if self.name == "decremental":
+            return _decremental(q[0], q[1], int(q[2]), q[3], n)
+        if self.name == "incremental":
+            s = _decremental(q[0], q[1], int(q[2]), q[3], n)
+            return Schedule(s.dts[::-1], s.checks[::-1], n)
+        if self.name == "unconstrained":
+            total = sum(q)
+            scale = FIXED_HORIZON / total if total > FIXED_HORIZON else 1.0
+            dts = [d * scale for d in q]
+            horizon = sum(dts)
+            t = 0.0
+            checks = []
+            for d in dts:
+                t += d
+                checks.append(int(_round(n * (1.0 - (t / horizon) ** _DDP_P))))
+            return _from_parts(dts, checks, n)
+        steps = int(max(_round(FIXED_HORIZON / q[0]), 1.0))
+        c = int(_round(q[1] * n))
+        return _from_parts([q[0]] * steps, [c] * steps, n)
