@@ -172,7 +172,11 @@ impl Learner {
             (false, None) => {
                 let mut td3 = Td3::new(opts.td3.clone(), &Device::flex()).map_err(|e| e.to_string())?;
                 if svc.ddp_init {
-                    let target: Vec<f32> = opts.space.ddp_action().iter().map(|&a| a as f32).collect();
+                    let target: Vec<f32> = action_map(&opts.env_toml)?
+                        .ddp_policy_action(opts.space)
+                        .iter()
+                        .map(|&a| a as f32)
+                        .collect();
                     let report = td3
                         .init_actor_to_action(&target, &FitOptions::default())
                         .map_err(|e| format!("DDP initialization: {e}"))?;
@@ -458,6 +462,20 @@ impl Learner {
 /// The observation size actors produce for `space` (720 laser, previous action, 6 state values).
 pub fn actor_obs_dim(space: planner::ActionSpace) -> usize {
     crate::export::observation_layout(space, crate::export::LASER_CLIP_M).dim
+}
+
+/// The action map of the environment settings (`action_map` in `env_toml`; the environment's
+/// default, DDP-centred, when absent): it decides which policy output is the DDP schedule.
+fn action_map(env_toml: &str) -> Result<planner::ActionMap, String> {
+    let table: toml::Table = toml::from_str(env_toml)
+        .map_err(|e| format!("the environment settings (env_toml) are not a TOML table: {e}"))?;
+    match table.get("action_map") {
+        None => Ok(planner::ActionMap::default()),
+        Some(v) => v
+            .as_str()
+            .ok_or_else(|| format!("env.action_map = {v} must be a string"))?
+            .parse(),
+    }
 }
 
 /// Reads the learner address a running learner wrote into `run_dir`.
