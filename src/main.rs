@@ -5,6 +5,7 @@ mod calibrate;
 mod config;
 mod eval;
 mod export;
+mod greedy;
 mod policy;
 mod render;
 mod slurm;

@@ -63,6 +63,8 @@ pub struct Learner {
         tokio::task::JoinHandle<Result<(), tonic::transport::Error>>,
     )>,
     heartbeat_ms: u32,
+    /// The newest published policy (what `WatchPolicy` streams).
+    policy: watch::Receiver<Arc<pb::PolicySnapshot>>,
 }
 
 /// Binds a Unix socket at `path` (replacing a stale one from an earlier learner of the run),
@@ -284,6 +286,7 @@ impl Learner {
             }),
             auth.clone(),
         );
+        let latest_policy = policy_rx.clone();
         let data = tonic::service::interceptor::InterceptedService::new(
             pb::data_server::DataServer::new(data::DataService {
                 shared: shared.clone(),
@@ -393,6 +396,7 @@ impl Learner {
             server,
             unix_server,
             heartbeat_ms: svc.heartbeat_ms,
+            policy: latest_policy,
         })
     }
 
@@ -410,6 +414,18 @@ impl Learner {
     /// The run id.
     pub fn run_id(&self) -> &str {
         &self.shared.validator.run_id
+    }
+
+    /// The newest published policy: its version (0 before the first publish), exploration
+    /// sigma and flat weights (decoded), with the layer sizes of the run's actor, as
+    /// `MlpPolicy::from_flat` takes them. For in-process evaluation of the greedy policy.
+    pub fn latest_policy(&self) -> Result<(u64, Vec<usize>, Vec<f32>), String> {
+        let snapshot = self.policy.borrow().clone();
+        let dims = self.shared.spec.policy_dims.iter().map(|&d| d as usize).collect();
+        let mut weights = Vec::new();
+        proto::floats::decode_into("weights", &snapshot.weights, &mut weights)
+            .map_err(|e| format!("policy version {}: {e}", snapshot.version))?;
+        Ok((snapshot.version, dims, weights))
     }
 
     /// Current counters.
