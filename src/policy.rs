@@ -464,6 +464,7 @@ mod tests {
         let trained = EnvConfig {
             agent_period_cycles: 3,
             laser_clip_m: 4.5,
+            reward_scale: 0.05,
             ..EnvConfig::default()
         };
         let recorded = serde_json::to_value(trained).unwrap();

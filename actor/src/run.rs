@@ -432,6 +432,13 @@ async fn heartbeats(
                         .is_ok()
                 {
                     flags.lease_lost.store(true, Ordering::Release);
+                    // Refusals reach the actor this way whichever plane carried its steps.
+                    if !r.lease_lost_reason.is_empty() {
+                        log(format_args!(
+                            "actor {actor_id}: lease {lease_id} ended by the learner: {}",
+                            r.lease_lost_reason
+                        ));
+                    }
                 }
                 if r.shutdown {
                     flags.shutdown.store(true, Ordering::Release);

@@ -248,14 +248,32 @@ pub fn save_with_replay(
     run: &RunState,
     replay: &ReplayBuffer,
 ) -> Result<Manifest, CheckpointError> {
-    save_impl(dir, td3, run, Some(replay))
+    save_impl(dir, td3, run, Some(ReplayData::Buffer(replay)))
+}
+
+/// [`save_with_replay`] from a replay snapshot already taken with
+/// [`ReplayBuffer::write_snapshot`]: the learner copies its buffer under its lock and writes
+/// (hashes, fsyncs) outside it.
+pub fn save_with_replay_snapshot(
+    dir: &Path,
+    td3: &Td3,
+    run: &RunState,
+    snapshot: &[u8],
+) -> Result<Manifest, CheckpointError> {
+    save_impl(dir, td3, run, Some(ReplayData::Snapshot(snapshot)))
+}
+
+/// The replay part of a checkpoint: the live buffer (streamed to disk) or a snapshot of it.
+enum ReplayData<'a> {
+    Buffer(&'a ReplayBuffer),
+    Snapshot(&'a [u8]),
 }
 
 fn save_impl(
     dir: &Path,
     td3: &Td3,
     run: &RunState,
-    replay: Option<&ReplayBuffer>,
+    replay: Option<ReplayData<'_>>,
 ) -> Result<Manifest, CheckpointError> {
     if dir.exists() {
         return Err(CheckpointError::Exists(dir.to_path_buf()));
@@ -267,7 +285,14 @@ fn save_impl(
     if tmp.exists() {
         std::fs::remove_dir_all(&tmp).map_err(io("remove stale", &tmp))?;
     }
-    std::fs::create_dir(&tmp).map_err(io("create directory", &tmp))?;
+    {
+        use std::os::unix::fs::DirBuilderExt;
+        // Checkpoints hold the run's state (and its data): this user only.
+        std::fs::DirBuilder::new()
+            .mode(0o700)
+            .create(&tmp)
+            .map_err(io("create directory", &tmp))?;
+    }
 
     let state = State {
         updates: td3.updates,
@@ -288,8 +313,21 @@ fn save_impl(
         ),
     ];
     let mut files = BTreeMap::new();
-    if let Some(replay) = replay {
-        files.insert(REPLAY.to_string(), write_replay(&tmp.join(REPLAY), replay)?);
+    match replay {
+        Some(ReplayData::Buffer(replay)) => {
+            files.insert(REPLAY.to_string(), write_replay(&tmp.join(REPLAY), replay)?);
+        }
+        Some(ReplayData::Snapshot(data)) => {
+            write_synced(&tmp.join(REPLAY), data)?;
+            files.insert(
+                REPLAY.to_string(),
+                FileEntry {
+                    bytes: data.len() as u64,
+                    sha256: sha256_hex(data),
+                },
+            );
+        }
+        None => {}
     }
     for (file, data) in &contents {
         write_synced(&tmp.join(file), data)?;

@@ -287,6 +287,15 @@ impl Td3Config {
             self.rate_tolerance,
             "must be finite and >= 1 (one update)",
         )?;
+        // Inserts stop when the learner lags by more than `rate_tolerance` updates; if that is
+        // less than one insert's worth of updates, the limiter can hold inserts back while
+        // allowing no update either, and the run deadlocks.
+        check(
+            self.rate_tolerance >= self.updates_per_insert,
+            "rate_tolerance",
+            self.rate_tolerance,
+            "must be >= updates_per_insert (otherwise the rate limiter can block inserts while allowing no update: a deadlock)",
+        )?;
         Ok(())
     }
 }
@@ -392,6 +401,14 @@ mod tests {
                 "rate_tolerance",
                 Td3Config {
                     rate_tolerance: 0.5,
+                    ..Default::default()
+                },
+            ),
+            (
+                "rate_tolerance",
+                Td3Config {
+                    updates_per_insert: 4.0,
+                    rate_tolerance: 1.0,
                     ..Default::default()
                 },
             ),

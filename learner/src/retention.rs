@@ -16,11 +16,47 @@ pub fn complete_checkpoints(root: &Path) -> Result<Vec<(u64, PathBuf)>, Checkpoi
     let mut found: Vec<(u64, PathBuf)> = entries
         .filter_map(Result::ok)
         .map(|e| e.path())
-        .filter(|p| p.is_dir())
+        .filter(|p| p.is_dir() && !is_aborted_save(p))
         .filter_map(|p| read_manifest(&p).ok().map(|m| (m.updates, p)))
         .collect();
     found.sort();
     Ok(found)
+}
+
+/// Whether `dir` is the temporary directory of a save (`<name>.tmp-<pid>`): never a
+/// checkpoint, even if it holds every file (a copy, or a crash between rename and cleanup).
+pub fn is_aborted_save(dir: &Path) -> bool {
+    dir.file_name()
+        .is_some_and(|n| n.to_string_lossy().contains(".tmp-"))
+}
+
+/// Removes the temporary directories aborted saves left under `root` (see
+/// [`is_aborted_save`]). Only call it while no save into `root` can be running (the learner
+/// holds the run directory's lock). Returns the removed directories.
+pub fn remove_aborted_saves(root: &Path) -> Result<Vec<PathBuf>, CheckpointError> {
+    let entries = match std::fs::read_dir(root) {
+        Ok(e) => e,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(Vec::new()),
+        Err(source) => {
+            return Err(CheckpointError::Io {
+                op: "list",
+                path: root.to_path_buf(),
+                source,
+            })
+        }
+    };
+    let mut removed = Vec::new();
+    for dir in entries.filter_map(Result::ok).map(|e| e.path()) {
+        if dir.is_dir() && is_aborted_save(&dir) {
+            std::fs::remove_dir_all(&dir).map_err(|source| CheckpointError::Io {
+                op: "remove",
+                path: dir.clone(),
+                source,
+            })?;
+            removed.push(dir);
+        }
+    }
+    Ok(removed)
 }
 
 /// The newest complete checkpoint under `root` (what a requeued job resumes from), if any.
@@ -98,6 +134,34 @@ mod tests {
             .collect();
         assert_eq!(left, vec![1, 3, 4]);
         assert!(root.join("step-005").is_dir() && root.join("notes").is_dir());
+        std::fs::remove_dir_all(&root).unwrap();
+    }
+
+    #[test]
+    fn an_aborted_save_never_counts_and_is_cleaned_up() {
+        let config = tiny_config();
+        let td3 = Td3::new(config.clone(), &Device::flex()).unwrap();
+        let run = RunState {
+            run_id: "r".into(),
+            rate: RateLimiter::new(&config),
+            sampler_rng: seeded_rng(0, 2),
+            policy_version: 0,
+            extra: serde_json::Value::Null,
+            environment: serde_json::Value::Null,
+        };
+        let root = temp_dir("retention-tmp");
+        save(&root.join("ckpt-1"), &td3, &run).unwrap();
+        // A complete-looking temporary directory sorts after its checkpoint: it must not win.
+        let tmp = root.join("ckpt-1.tmp-4242");
+        std::fs::create_dir(&tmp).unwrap();
+        for f in std::fs::read_dir(root.join("ckpt-1")).unwrap() {
+            let f = f.unwrap().path();
+            std::fs::copy(&f, tmp.join(f.file_name().unwrap())).unwrap();
+        }
+        assert_eq!(latest(&root).unwrap(), Some(root.join("ckpt-1")));
+        assert_eq!(complete_checkpoints(&root).unwrap().len(), 1);
+        assert_eq!(remove_aborted_saves(&root).unwrap(), vec![tmp.clone()]);
+        assert!(!tmp.exists() && root.join("ckpt-1").is_dir());
         std::fs::remove_dir_all(&root).unwrap();
     }
 }

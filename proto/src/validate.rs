@@ -13,6 +13,20 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use thiserror::Error;
 
 use crate::floats::RaggedBytes;
+use crate::pb;
+
+/// Largest magnitude accepted for a value without a natural range: the reward and the
+/// observation values after the laser (previous action, speeds, goal bearings and distances).
+/// Real values stay below a few hundred; this bound only stops garbage (1e30, denormal-free
+/// overflow bait) from entering the buffer.
+pub const MAX_ABS_VALUE: f32 = 1.0e6;
+
+/// Largest magnitude accepted for an episode's return (a sum of at most a few thousand
+/// rewards, each within [`MAX_ABS_VALUE`]).
+pub const MAX_ABS_RETURN: f64 = 1.0e9;
+
+/// Largest BARN-clock time (s) an episode report may carry (episodes time out at 100 s).
+pub const MAX_EPISODE_TIME_S: f64 = 1.0e6;
 
 /// The shapes of a run's observations and actions.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -109,6 +123,35 @@ pub enum Refusal {
         /// The value.
         value: f32,
     },
+    /// A value of unbounded range (reward, a non-laser observation) beyond
+    /// [`MAX_ABS_VALUE`]: no simulator produces it, and it would swamp every gradient.
+    #[error("field `{field}`[{index}] = {value} exceeds the magnitude bound {MAX_ABS_VALUE:e}")]
+    Magnitude {
+        /// The field.
+        field: &'static str,
+        /// The first bad index.
+        index: usize,
+        /// The value.
+        value: f32,
+    },
+    /// A policy version no learner of this run has published yet.
+    #[error("field `policy_version` = {got} is newer than the newest published policy version {newest}")]
+    FutureVersion {
+        /// The version named by the message.
+        got: u64,
+        /// The newest version published.
+        newest: u64,
+    },
+    /// A number of an episode report that is not finite or outside its range.
+    #[error("episode report field `{field}` = {value} is {expected}")]
+    Report {
+        /// The field.
+        field: &'static str,
+        /// The value as sent.
+        value: f64,
+        /// What it should be.
+        expected: &'static str,
+    },
     /// `terminal` and `truncated` together, or `final_obs` without `truncated`.
     #[error("incoherent episode end: {0}")]
     BadEnd(&'static str),
@@ -184,7 +227,12 @@ impl Refusal {
             Self::Episode(..) => RefusalKind::Episode,
             Self::Shape { .. } | Self::Malformed(_) => RefusalKind::Shape,
             Self::NotFinite { .. } => RefusalKind::NotFinite,
-            Self::OutOfRange { .. } | Self::BadEnd(_) => RefusalKind::Range,
+            Self::Report { value, .. } if !value.is_finite() => RefusalKind::NotFinite,
+            Self::OutOfRange { .. }
+            | Self::Magnitude { .. }
+            | Self::FutureVersion { .. }
+            | Self::Report { .. }
+            | Self::BadEnd(_) => RefusalKind::Range,
         }
     }
 }
@@ -266,6 +314,7 @@ impl Validator {
         check_finite("action", step.action)?;
         check_unit("action", step.action)?;
         check_finite("reward", &[step.reward])?;
+        check_magnitude("reward", &[step.reward])?;
         match (step.terminal, step.truncated) {
             (true, true) => return Err(Refusal::BadEnd("both `terminal` and `truncated` are set")),
             (_, true) => check_obs("final_obs", step.final_obs, s)?,
@@ -310,10 +359,66 @@ fn check_unit(field: &'static str, values: &[f32]) -> Result<(), Refusal> {
     }
 }
 
+fn check_magnitude(field: &'static str, values: &[f32]) -> Result<(), Refusal> {
+    match values.iter().position(|v| v.abs() > MAX_ABS_VALUE) {
+        None => Ok(()),
+        Some(index) => Err(Refusal::Magnitude {
+            field,
+            index,
+            value: values[index],
+        }),
+    }
+}
+
 fn check_obs(field: &'static str, obs: &[f32], s: &Spaces) -> Result<(), Refusal> {
     check_len(field, obs.len(), s.obs_dim)?;
     check_finite(field, obs)?;
-    check_unit(field, &obs[..s.laser_dim])
+    check_unit(field, &obs[..s.laser_dim])?;
+    match check_magnitude(field, &obs[s.laser_dim..]) {
+        Err(Refusal::Magnitude { field, index, value }) => Err(Refusal::Magnitude {
+            field,
+            index: index + s.laser_dim,
+            value,
+        }),
+        other => other,
+    }
+}
+
+/// Checks the numbers of an episode report (run, actor and lease are checked by the learner):
+/// the return, score and time finite and in range. The policy version is checked against the
+/// newest published one by the learner, which knows it.
+pub fn check_report(r: &pb::EpisodeReport) -> Result<(), Refusal> {
+    let checks: [(&'static str, f64, bool, &'static str); 3] = [
+        (
+            "episode_return",
+            r.episode_return,
+            r.episode_return.abs() <= MAX_ABS_RETURN,
+            "not a finite number within ±1e9",
+        ),
+        (
+            "score",
+            r.score,
+            (0.0..=1.0).contains(&r.score),
+            "not a BARN score in [0, 1]",
+        ),
+        (
+            "time_s",
+            r.time_s,
+            (0.0..=MAX_EPISODE_TIME_S).contains(&r.time_s),
+            "not a time in [0, 1e6] s",
+        ),
+    ];
+    for (field, value, ok, expected) in checks {
+        // NaN fails every comparison above, so `ok` is false for it.
+        if !ok {
+            return Err(Refusal::Report {
+                field,
+                value,
+                expected,
+            });
+        }
+    }
+    Ok(())
 }
 
 #[cfg(test)]
@@ -411,6 +516,94 @@ mod tests {
             .contains("`final_obs` has 2"));
         assert_eq!(counts.get(RefusalKind::Shape), 2);
         assert_eq!(counts.total(), 5);
+    }
+
+    #[test]
+    fn refuses_absurd_magnitudes_of_unbounded_values() {
+        let v = validator();
+        let mut s = step(&OBS, &[0.0, 0.0]);
+        s.reward = 1.0e30;
+        let e = v.check_step(&s).unwrap_err();
+        assert_eq!(e.kind(), RefusalKind::Range, "{e}");
+        assert!(e.to_string().contains("`reward`[0]"), "{e}");
+        // Index 5 is a non-laser value (laser_dim 4).
+        let obs = [0.1, -1.0, 1.0, 0.0, 5.0, -3.0e9];
+        let e = v.check_step(&step(&obs, &[0.0, 0.0])).unwrap_err();
+        assert!(e.to_string().contains("`obs`[5]"), "{e}");
+        let mut s = step(&OBS, &[0.0, 0.0]);
+        s.truncated = true;
+        s.final_obs = &obs;
+        assert!(v
+            .check_step(&s)
+            .unwrap_err()
+            .to_string()
+            .contains("`final_obs`[5]"));
+    }
+
+    #[test]
+    fn refuses_reports_with_non_finite_or_absurd_numbers() {
+        let good = pb::EpisodeReport {
+            episode_return: -120.5,
+            score: 0.3,
+            time_s: 22.0,
+            ..Default::default()
+        };
+        check_report(&good).unwrap();
+        let cases: [(pb::EpisodeReport, &str, RefusalKind); 6] = [
+            (
+                pb::EpisodeReport {
+                    episode_return: f64::NAN,
+                    ..good.clone()
+                },
+                "episode_return",
+                RefusalKind::NotFinite,
+            ),
+            (
+                pb::EpisodeReport {
+                    episode_return: f64::INFINITY,
+                    ..good.clone()
+                },
+                "episode_return",
+                RefusalKind::NotFinite,
+            ),
+            (
+                pb::EpisodeReport {
+                    episode_return: -1.0e12,
+                    ..good.clone()
+                },
+                "episode_return",
+                RefusalKind::Range,
+            ),
+            (
+                pb::EpisodeReport {
+                    score: f64::NAN,
+                    ..good.clone()
+                },
+                "score",
+                RefusalKind::NotFinite,
+            ),
+            (
+                pb::EpisodeReport {
+                    score: 7.0,
+                    ..good.clone()
+                },
+                "score",
+                RefusalKind::Range,
+            ),
+            (
+                pb::EpisodeReport {
+                    time_s: f64::NEG_INFINITY,
+                    ..good.clone()
+                },
+                "time_s",
+                RefusalKind::NotFinite,
+            ),
+        ];
+        for (r, field, kind) in cases {
+            let e = check_report(&r).unwrap_err();
+            assert_eq!(e.kind(), kind, "{e}");
+            assert!(e.to_string().contains(&format!("`{field}`")), "{e}");
+        }
     }
 
     #[test]

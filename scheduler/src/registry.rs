@@ -486,6 +486,19 @@ impl Registry {
         Ok(())
     }
 
+    /// Ends the open lease `lease_id` now as if it had expired (its world is dealt again, its
+    /// actor idles until the next cycle, later data under it is refused, and the next
+    /// [`Registry::tick`] reports it). For leases that cannot finish although their actor is
+    /// alive. Returns whether the lease was open.
+    pub fn revoke(&mut self, lease_id: u64) -> bool {
+        if !self.open.contains_key(&lease_id) {
+            return false;
+        }
+        self.expire(lease_id);
+        self.advance_if_done();
+        true
+    }
+
     /// Expires overdue leases, marks silent actors dead, advances the cycle if its barrier is
     /// met, and returns every lease expired since the previous `tick` (including those expired
     /// by other calls or by re-registration), oldest first.

@@ -25,6 +25,16 @@ pub struct ServiceConfig {
     /// A lease expires this long (ms) after the last heartbeat; its world is dealt again and
     /// its late data refused.
     pub lease_ttl_ms: u32,
+    /// A lease whose episodes make no progress (no step stored, no report accepted) for this
+    /// long (ms) is dropped even though its actor keeps heartbeating (a hung main loop with a
+    /// live heartbeat thread, a policy version that never arrives); its world is dealt again.
+    /// 0 (the default) means 4 x `lease_ttl_ms`. The clock stands still while the learner
+    /// itself holds actors up (rate limiter, an unpublished policy). A lease with a refused
+    /// step is dropped at once: its episode can never complete.
+    pub progress_timeout_ms: u32,
+    /// Allow `listen` on an address other than loopback without `[service.tls]` (the token
+    /// then travels in clear text). Off by default; `adp learner --allow-insecure-listen`.
+    pub allow_insecure_listen: bool,
     /// Episodes per assignment (the ADP cycle runs two).
     pub episodes_per_assignment: u32,
     /// An idle actor asks for work again after this long (ms).
@@ -45,6 +55,54 @@ pub struct ServiceConfig {
     pub tls: Option<TlsFiles>,
 }
 
+impl ServiceConfig {
+    /// The no-progress bound of a lease in ms (`progress_timeout_ms`, or 4 x `lease_ttl_ms`).
+    pub fn progress_timeout(&self) -> u64 {
+        match self.progress_timeout_ms {
+            0 => 4 * u64::from(self.lease_ttl_ms),
+            ms => u64::from(ms),
+        }
+    }
+
+    /// Refuses settings that cannot work: a heartbeat not shorter than the lease, and a
+    /// network address other than loopback without TLS unless `allow_insecure_listen`.
+    pub fn check(&self) -> Result<(), String> {
+        if self.heartbeat_ms == 0 || self.lease_ttl_ms <= self.heartbeat_ms {
+            return Err(format!(
+                "[service] lease_ttl_ms ({}) must exceed heartbeat_ms ({}) > 0",
+                self.lease_ttl_ms, self.heartbeat_ms
+            ));
+        }
+        if self.progress_timeout_ms != 0 && self.progress_timeout_ms <= self.heartbeat_ms {
+            return Err(format!(
+                "[service] progress_timeout_ms ({}) must exceed heartbeat_ms ({})",
+                self.progress_timeout_ms, self.heartbeat_ms
+            ));
+        }
+        if self.tls.is_none() && !self.allow_insecure_listen && !is_loopback_listen(&self.listen) {
+            return Err(format!(
+                "refusing to listen on {} without TLS (the run's token would cross the network in clear \
+                 text): configure [service.tls], or pass --allow-insecure-listen \
+                 ([service] allow_insecure_listen = true) on a trusted network",
+                self.listen
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// Whether `listen` (`host:port`) names a loopback address (`127.0.0.0/8`, `::1`,
+/// `localhost`).
+pub fn is_loopback_listen(listen: &str) -> bool {
+    if let Ok(addr) = listen.parse::<std::net::SocketAddr>() {
+        return addr.ip().is_loopback();
+    }
+    let host = listen.rsplit_once(':').map_or(listen, |(h, _)| h);
+    let host = host.trim_start_matches('[').trim_end_matches(']');
+    host.eq_ignore_ascii_case("localhost")
+        || host.parse::<std::net::IpAddr>().is_ok_and(|ip| ip.is_loopback())
+}
+
 impl Default for ServiceConfig {
     fn default() -> Self {
         Self {
@@ -52,6 +110,8 @@ impl Default for ServiceConfig {
             shared_memory: true,
             heartbeat_ms: 1000,
             lease_ttl_ms: 15_000,
+            progress_timeout_ms: 0,
+            allow_insecure_listen: false,
             episodes_per_assignment: 2,
             idle_retry_ms: 100,
             checkpoint_every_s: 600.0,
@@ -96,4 +156,36 @@ pub struct LearnerOptions {
     pub resume: bool,
     /// Stop the process gracefully (final checkpoint) on SIGINT/SIGTERM.
     pub handle_signals: bool,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn non_loopback_listen_without_tls_is_refused_naming_the_flag() {
+        let mut c = ServiceConfig::default();
+        c.check().unwrap();
+        for listen in ["127.0.0.1:0", "[::1]:5000", "localhost:7000", "127.0.0.2:1"] {
+            c.listen = listen.into();
+            c.check().unwrap_or_else(|e| panic!("{listen}: {e}"));
+        }
+        for listen in ["0.0.0.0:0", "10.1.2.3:50051", "[::]:0", "node17:50051"] {
+            c.listen = listen.into();
+            let e = c.check().unwrap_err();
+            assert!(e.contains("--allow-insecure-listen") && !e.contains('\n'), "{e}");
+        }
+        c.allow_insecure_listen = true;
+        c.check().unwrap();
+    }
+
+    #[test]
+    fn progress_timeout_defaults_to_four_lease_ttls() {
+        let mut c = ServiceConfig::default();
+        assert_eq!(c.progress_timeout(), 60_000);
+        c.progress_timeout_ms = 1500;
+        assert_eq!(c.progress_timeout(), 1500);
+        c.progress_timeout_ms = 10;
+        assert!(c.check().unwrap_err().contains("progress_timeout_ms"));
+    }
 }

@@ -112,7 +112,7 @@ impl Control for ControlService {
                     pb::assignment_reply::Decision::IdleMs(self.shared.idle_retry_ms)
                 }
                 Decision::Assign(a) => {
-                    let first = Shared::open_lease(&mut core, a.lease_id, r.actor_id, a.episodes);
+                    let first = Shared::open_lease(&mut core, a.lease_id, r.actor_id, a.episodes, now);
                     pb::assignment_reply::Decision::Assign(pb::Assignment {
                         lease_id: a.lease_id,
                         world: a.world as u32,
@@ -149,9 +149,14 @@ impl Control for ControlService {
             }
             Err(_) => false,
         };
+        let lease_lost_reason = match lease {
+            Some(id) if !lease_valid => core.dropped_reason(id).unwrap_or_default().to_owned(),
+            _ => String::new(),
+        };
         Ok(Response::new(pb::HeartbeatReply {
             lease_valid,
             shutdown: core.stopping,
+            lease_lost_reason,
         }))
     }
 

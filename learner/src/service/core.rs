@@ -42,6 +42,23 @@ struct LeaseTrack {
     rank: u32,
     first_episode: u64,
     episodes: u32,
+    /// When the lease last made progress (opened, a step stored, a report accepted), in the
+    /// registry's clock.
+    progress_ms: u64,
+    /// Why the lease can no longer finish (a step of one of its episodes was refused), if so.
+    broken: Option<String>,
+}
+
+/// Dropped leases remembered with the reason (told to their actors on their next heartbeat).
+const DROPPED_REMEMBERED: usize = 4096;
+
+/// Accepts a missing or `null` number (a counter written before reports were validated, when
+/// serde_json turned NaN into `null`) as 0, so that counters can never make a checkpoint
+/// unreadable.
+fn finite_or_zero<'de, D: serde::Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+    Ok(Option::<f64>::deserialize(d)?
+        .filter(|v| v.is_finite())
+        .unwrap_or(0.0))
 }
 
 /// One reported episode, for the recent-episode statistics.
@@ -50,8 +67,10 @@ pub struct EpisodeStat {
     /// Reached the goal.
     pub success: bool,
     /// Undiscounted return.
+    #[serde(deserialize_with = "finite_or_zero")]
     pub episode_return: f64,
     /// BARN score.
+    #[serde(deserialize_with = "finite_or_zero")]
     pub score: f64,
 }
 
@@ -69,8 +88,13 @@ pub struct Totals {
     /// Episodes left unfinished by an expired lease (their tail is never sampled; they are never
     /// marked terminal).
     pub episodes_abandoned: u64,
-    /// Leases that expired.
+    /// Leases that expired (no heartbeat within their TTL).
     pub leases_expired: u64,
+    /// Leases the learner dropped although their actor kept heartbeating: a step of one of their
+    /// episodes was refused (the episode can never complete), or they made no progress for
+    /// `[service] progress_timeout_ms`. Their worlds are dealt again.
+    #[serde(default)]
+    pub leases_dropped: u64,
     /// Recent episodes, oldest first.
     pub recent: VecDeque<EpisodeStat>,
     /// Successes among all reported episodes.
@@ -111,6 +135,8 @@ pub struct Core {
     pub policy_version: u64,
     episodes: HashMap<u64, EpisodeTrack>,
     leases: HashMap<u64, LeaseTrack>,
+    /// Recently dropped leases and why, oldest first (bounded by [`DROPPED_REMEMBERED`]).
+    dropped: VecDeque<(u64, String)>,
     /// No more assignments: the budget is stored or a stop was requested.
     pub stopping: bool,
     /// Stop now (signal, shutdown call) rather than after the owed updates.
@@ -135,6 +161,13 @@ pub struct Shared {
     pub episodes_per_assignment: u32,
     /// Idle retry hint for actors (ms).
     pub idle_retry_ms: u32,
+    /// A lease that makes no progress for this long (ms) is dropped (see
+    /// [`Shared::expire_leases`]).
+    pub progress_timeout_ms: u64,
+    /// Checkpoints a resume skipped and why (shown in `status.json`).
+    pub resume_warnings: Vec<String>,
+    /// Why the shared-memory data plane is not in use, when it was offered but failed.
+    pub shm_unavailable: Mutex<Option<String>>,
     started: Instant,
     /// Set once the training thread has finished (final checkpoint written).
     pub finished: AtomicBool,
@@ -171,6 +204,7 @@ impl Shared {
         budget: u64,
         episodes_per_assignment: u32,
         idle_retry_ms: u32,
+        progress_timeout_ms: u64,
     ) -> Self {
         Self {
             validator,
@@ -181,6 +215,9 @@ impl Shared {
             budget,
             episodes_per_assignment,
             idle_retry_ms,
+            progress_timeout_ms,
+            resume_warnings: Vec::new(),
+            shm_unavailable: Mutex::new(None),
             started: Instant::now(),
             finished: AtomicBool::new(false),
             log_budget: Mutex::new(50),
@@ -235,9 +272,16 @@ impl Shared {
                 got: header.incarnation,
             });
         }
-        self.validator.check_step(step)?;
+        if let Err(why) = self.validator.check_step(step) {
+            // The episode can never complete: end its lease (the actor is told).
+            let now = self.now_ms();
+            self.lock().break_lease(header, &why, now);
+            return Err(why);
+        }
         let mut core = self.lock();
-        while core.rate.inserts_allowed() == 0 && !core.abort {
+        // Hold inserts back while the learner lags, but only while an update can run: with
+        // nothing ready to sample no update can make room, and waiting would deadlock.
+        while core.rate.inserts_allowed() == 0 && core.replay.ready_len() > 0 && !core.abort {
             core = self
                 .wake
                 .wait_timeout(core, Duration::from_millis(50))
@@ -245,72 +289,7 @@ impl Shared {
                 .0;
         }
         let now = self.now_ms();
-        core.registry
-            .check_lease(header.actor_id, header.lease_id, now)
-            .map_err(lease_refusal)?;
-        let lease = core.leases.get(&header.lease_id).ok_or_else(|| {
-            Refusal::Lease(
-                header.lease_id,
-                "no assignment was handed out under this lease".into(),
-            )
-        })?;
-        if lease.actor != header.actor_id {
-            return Err(Refusal::Lease(
-                header.lease_id,
-                format!("belongs to actor {}", lease.actor),
-            ));
-        }
-        let range = lease.first_episode..lease.first_episode + u64::from(lease.episodes);
-        if !range.contains(&step.episode_id) {
-            return Err(Refusal::Episode(
-                step.episode_id,
-                format!("not an episode of lease {} (expected {range:?})", header.lease_id),
-            ));
-        }
-        let rank = lease.rank;
-        let track = core.episodes.entry(step.episode_id).or_default();
-        if track.ended {
-            return Err(Refusal::Episode(step.episode_id, "already ended".into()));
-        }
-        if step.step_index != track.next_index {
-            return Err(Refusal::Episode(
-                step.episode_id,
-                format!(
-                    "step {} out of order (expected {})",
-                    step.step_index, track.next_index
-                ),
-            ));
-        }
-        let end = match (step.terminal, step.truncated) {
-            (true, _) => StepEnd::Terminal,
-            (false, true) => StepEnd::Truncated {
-                final_obs: step.final_obs,
-            },
-            _ => StepEnd::Continue,
-        };
-        let pushed = core.replay.push(
-            step.episode_id,
-            &Step {
-                obs: step.obs,
-                action: step.action,
-                reward: step.reward,
-                end,
-            },
-        );
-        if let Err(e) = pushed {
-            return Err(Refusal::Episode(step.episode_id, e.to_string()));
-        }
-        let track = core.episodes.get_mut(&step.episode_id).expect("inserted above");
-        track.next_index += 1;
-        track.checksum = track.checksum.wrapping_add(step_checksum(step));
-        let ended = step.terminal || step.truncated;
-        track.ended = ended;
-        core.rate.record_inserts(1);
-        core.totals.steps_received += 1;
-        *core.totals.rank_steps.entry(rank).or_default() += 1;
-        let lag = core.policy_version.saturating_sub(step.policy_version);
-        core.lag.0 += lag;
-        core.lag.1 += 1;
+        let ended = core.store(header, step, now)?;
         if core.rate.inserts() >= self.budget {
             core.stopping = true;
         }
@@ -324,7 +303,7 @@ impl Shared {
     }
 
     /// Records an assignment's lease so its steps can be admitted.
-    pub fn open_lease(core: &mut Core, lease_id: u64, actor: u64, episodes: u32) -> u64 {
+    pub fn open_lease(core: &mut Core, lease_id: u64, actor: u64, episodes: u32, now_ms: u64) -> u64 {
         let first = first_episode_id(lease_id, episodes);
         let rank = core.registry.rank_of(actor).unwrap_or(u32::MAX);
         core.leases.insert(
@@ -334,6 +313,8 @@ impl Shared {
                 rank,
                 first_episode: first,
                 episodes,
+                progress_ms: now_ms,
+                broken: None,
             },
         );
         first
@@ -349,6 +330,14 @@ impl Shared {
         core.registry
             .check_lease(r.actor_id, r.lease_id, now)
             .map_err(lease_refusal)?;
+        // Nothing that could make the counters (and so a checkpoint) unreadable gets in.
+        proto::validate::check_report(r)?;
+        if r.policy_version > core.policy_version {
+            return Err(Refusal::FutureVersion {
+                got: r.policy_version,
+                newest: core.policy_version,
+            });
+        }
         let in_lease = core.leases.get(&r.lease_id).is_some_and(|l| {
             l.actor == r.actor_id
                 && (l.first_episode..l.first_episode + u64::from(l.episodes)).contains(&r.episode_id)
@@ -383,6 +372,9 @@ impl Shared {
         if t.recent.len() > RECENT_EPISODES {
             t.recent.pop_front();
         }
+        if let Some(lease) = core.leases.get_mut(&r.lease_id) {
+            lease.progress_ms = now;
+        }
         core.verify_episode(r.episode_id);
         core.try_finish(r.lease_id, now);
         Ok(())
@@ -390,10 +382,53 @@ impl Shared {
 
     /// Expires overdue leases: their worlds go back to the pool and their unfinished episodes
     /// are abandoned in the replay buffer (never marked terminal).
+    ///
+    /// Also drops leases that cannot or do not finish although their actor keeps heartbeating:
+    /// a lease with a refused step (its episode can never complete) at once, and a lease whose
+    /// episodes made no progress (no step stored, no report accepted) for
+    /// [`Shared::progress_timeout_ms`]. The clock of the latter stands still while the learner
+    /// itself holds the actors up (its rate limiter blocks inserts, or the current cycle's
+    /// policy is not published yet). A dropped lease's actor learns it on its next heartbeat
+    /// (`lease_valid: false`, with the reason).
     pub fn expire_leases(&self) {
-        let now = self.now_ms();
+        self.expire_leases_at(self.now_ms());
+    }
+
+    fn expire_leases_at(&self, now: u64) {
         let mut core = self.lock();
+        let learner_holds = core.rate.inserts_allowed() == 0 || core.policy_version < core.registry.cycle();
+        let timeout = self.progress_timeout_ms;
+        let mut drop_now: Vec<(u64, String)> = Vec::new();
+        for (&id, lease) in core.leases.iter_mut() {
+            if learner_holds {
+                lease.progress_ms = now;
+            }
+            if let Some(why) = &lease.broken {
+                drop_now.push((id, format!("a step was refused ({why})")));
+            } else if now.saturating_sub(lease.progress_ms) >= timeout {
+                drop_now.push((
+                    id,
+                    format!(
+                        "no progress for {} ms (progress_timeout_ms {timeout})",
+                        now - lease.progress_ms
+                    ),
+                ));
+            }
+        }
+        let mut revoked = Vec::new();
+        for (id, why) in drop_now {
+            if core.registry.revoke(id) {
+                eprintln!("learner: lease {id} dropped: {why}; its world is dealt again");
+                core.totals.leases_dropped += 1;
+                core.remember_dropped(id, why);
+                revoked.push(id);
+            }
+            core.drop_lease(id);
+        }
         for expired in core.registry.tick(now) {
+            if revoked.contains(&expired.lease_id) {
+                continue;
+            }
             eprintln!(
                 "learner: lease {} of actor {} (world {}) expired; the world is dealt again",
                 expired.lease_id, expired.actor, expired.world
@@ -424,9 +459,138 @@ impl Core {
             policy_version,
             episodes: HashMap::new(),
             leases: HashMap::new(),
+            dropped: VecDeque::new(),
             stopping: false,
             abort: false,
         }
+    }
+
+    /// Stores one validated step under its lease. Returns whether it ended its episode. A
+    /// refusal after the lease was found valid breaks the lease (its episode cannot complete).
+    fn store(&mut self, header: &LeaseHeader, step: &StepView<'_>, now: u64) -> Result<bool, Refusal> {
+        self.registry
+            .check_lease(header.actor_id, header.lease_id, now)
+            .map_err(lease_refusal)?;
+        let lease = self.leases.get(&header.lease_id).ok_or_else(|| {
+            Refusal::Lease(
+                header.lease_id,
+                "no assignment was handed out under this lease".into(),
+            )
+        })?;
+        if lease.actor != header.actor_id {
+            return Err(Refusal::Lease(
+                header.lease_id,
+                format!("belongs to actor {}", lease.actor),
+            ));
+        }
+        let result = self.store_in_lease(header, step, now);
+        if let Err(why) = &result {
+            self.break_lease(header, why, now);
+        }
+        result
+    }
+
+    fn store_in_lease(
+        &mut self,
+        header: &LeaseHeader,
+        step: &StepView<'_>,
+        now: u64,
+    ) -> Result<bool, Refusal> {
+        let lease = &self.leases[&header.lease_id];
+        let range = lease.first_episode..lease.first_episode + u64::from(lease.episodes);
+        if !range.contains(&step.episode_id) {
+            return Err(Refusal::Episode(
+                step.episode_id,
+                format!("not an episode of lease {} (expected {range:?})", header.lease_id),
+            ));
+        }
+        if step.policy_version > self.policy_version {
+            return Err(Refusal::FutureVersion {
+                got: step.policy_version,
+                newest: self.policy_version,
+            });
+        }
+        let rank = lease.rank;
+        let track = self.episodes.entry(step.episode_id).or_default();
+        if track.ended {
+            return Err(Refusal::Episode(step.episode_id, "already ended".into()));
+        }
+        if step.step_index != track.next_index {
+            return Err(Refusal::Episode(
+                step.episode_id,
+                format!(
+                    "step {} out of order (expected {})",
+                    step.step_index, track.next_index
+                ),
+            ));
+        }
+        let end = match (step.terminal, step.truncated) {
+            (true, _) => StepEnd::Terminal,
+            (false, true) => StepEnd::Truncated {
+                final_obs: step.final_obs,
+            },
+            _ => StepEnd::Continue,
+        };
+        self.replay
+            .push(
+                step.episode_id,
+                &Step {
+                    obs: step.obs,
+                    action: step.action,
+                    reward: step.reward,
+                    end,
+                },
+            )
+            .map_err(|e| Refusal::Episode(step.episode_id, e.to_string()))?;
+        let track = self.episodes.get_mut(&step.episode_id).expect("inserted above");
+        track.next_index += 1;
+        track.checksum = track.checksum.wrapping_add(step_checksum(step));
+        let ended = step.terminal || step.truncated;
+        track.ended = ended;
+        self.rate.record_inserts(1);
+        self.totals.steps_received += 1;
+        *self.totals.rank_steps.entry(rank).or_default() += 1;
+        let lag = self.policy_version.saturating_sub(step.policy_version);
+        self.lag.0 += lag;
+        self.lag.1 += 1;
+        if let Some(lease) = self.leases.get_mut(&header.lease_id) {
+            lease.progress_ms = now;
+        }
+        Ok(ended)
+    }
+
+    /// Marks the open lease of a refused step as broken (dropped by the next lease tick), if
+    /// the step was sent by the lease's actor under a currently valid lease.
+    fn break_lease(&mut self, header: &LeaseHeader, why: &Refusal, now: u64) {
+        if self
+            .registry
+            .check_lease(header.actor_id, header.lease_id, now)
+            .is_err()
+        {
+            return;
+        }
+        if let Some(lease) = self.leases.get_mut(&header.lease_id) {
+            if lease.actor == header.actor_id && lease.broken.is_none() {
+                lease.broken = Some(why.to_string());
+            }
+        }
+    }
+
+    fn remember_dropped(&mut self, lease: u64, why: String) {
+        self.dropped.push_back((lease, why));
+        if self.dropped.len() > DROPPED_REMEMBERED {
+            self.dropped.pop_front();
+        }
+    }
+
+    /// Why the learner dropped `lease` although its actor kept heartbeating, if it did
+    /// (recently).
+    pub fn dropped_reason(&self, lease: u64) -> Option<&str> {
+        self.dropped
+            .iter()
+            .rev()
+            .find(|(id, _)| *id == lease)
+            .map(|(_, why)| why.as_str())
     }
 
     /// Compares a finished, reported episode's received steps with the actor's report.
@@ -515,4 +679,306 @@ impl Core {
 /// Whether `flag` is set (relaxed).
 pub fn is_set(flag: &AtomicBool) -> bool {
     flag.load(Ordering::Acquire)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::Td3Config;
+    use proto::validate::{RefusalKind, Spaces};
+    use scheduler::{Decision, RegistryConfig};
+
+    const TTL: u64 = 1000;
+
+    /// A learner core with one registered actor holding one lease of two episodes.
+    struct Fixture {
+        shared: Arc<Shared>,
+        header: LeaseHeader,
+        first: u64,
+    }
+
+    fn fixture(td3: Td3Config, progress_timeout_ms: u64) -> Fixture {
+        let registry = Registry::new(
+            RegistryConfig {
+                lease_ttl_ms: TTL,
+                episodes_per_assignment: 2,
+                run_seed: 1,
+            },
+            vec![3, 5],
+        )
+        .unwrap();
+        let core = Core::new(
+            registry,
+            ReplayBuffer::new(&td3),
+            RateLimiter::new(&td3),
+            Totals::default(),
+            0,
+        );
+        let validator = Validator {
+            run_id: "run".into(),
+            incarnation: 9,
+            spaces: Spaces {
+                obs_dim: td3.obs_dim,
+                act_dim: td3.act_dim,
+                laser_dim: td3.laser_dim,
+            },
+        };
+        let shared = Arc::new(Shared::new(
+            validator,
+            pb::RunSpec::default(),
+            core,
+            1_000_000,
+            2,
+            100,
+            progress_timeout_ms,
+        ));
+        let now = shared.now_ms();
+        let mut core = shared.lock();
+        let actor = core.registry.register(0, "host".into(), 1, now);
+        let Decision::Assign(a) = core.registry.next_assignment(actor, now, 0).unwrap() else {
+            panic!("no assignment");
+        };
+        let first = Shared::open_lease(&mut core, a.lease_id, actor, a.episodes, now);
+        drop(core);
+        Fixture {
+            shared,
+            header: LeaseHeader {
+                incarnation: 9,
+                actor_id: actor,
+                lease_id: a.lease_id,
+            },
+            first,
+        }
+    }
+
+    fn td3_config() -> Td3Config {
+        Td3Config {
+            obs_dim: 3,
+            act_dim: 1,
+            laser_dim: 0,
+            replay_capacity: 1024,
+            warmup_steps: 1000,
+            ..Td3Config::default()
+        }
+    }
+
+    const OBS: [f32; 3] = [0.1, 0.2, 0.3];
+    const ACTION: [f32; 1] = [0.5];
+
+    fn step(episode_id: u64, step_index: u32) -> StepView<'static> {
+        StepView {
+            episode_id,
+            step_index,
+            policy_version: 0,
+            obs: &OBS,
+            action: &ACTION,
+            reward: -0.5,
+            terminal: false,
+            truncated: false,
+            final_obs: &[],
+        }
+    }
+
+    fn report(f: &Fixture, episode_return: f64) -> pb::EpisodeReport {
+        pb::EpisodeReport {
+            run: Some(pb::RunRef {
+                run_id: "run".into(),
+                incarnation: 9,
+            }),
+            actor_id: f.header.actor_id,
+            lease_id: f.header.lease_id,
+            episode_id: f.first,
+            episode_return,
+            score: 0.1,
+            time_s: 10.0,
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    fn a_nan_report_is_refused_and_counters_always_reach_a_resume() {
+        let f = fixture(td3_config(), 60_000);
+        let e = f.shared.report(&report(&f, f64::NAN)).unwrap_err();
+        assert_eq!(e.kind(), RefusalKind::NotFinite, "{e}");
+        let core = f.shared.lock();
+        assert_eq!(core.totals.episodes_reported, 0);
+        assert!(core.totals.recent.is_empty());
+        drop(core);
+        let mut future = report(&f, -3.0);
+        future.policy_version = 7;
+        let e = f.shared.report(&future).unwrap_err();
+        assert!(e.to_string().contains("policy_version"), "{e}");
+        // Counters written by a learner that let a NaN through (serde_json wrote `null`) still
+        // load.
+        let mut totals = Totals::default();
+        totals.recent.push_back(EpisodeStat {
+            success: false,
+            episode_return: f64::NAN,
+            score: f64::INFINITY,
+        });
+        let json = serde_json::to_value(&totals).unwrap();
+        assert!(json["recent"][0]["episode_return"].is_null(), "{json}");
+        let back: Totals = serde_json::from_value(json).unwrap();
+        assert_eq!(back.recent[0].episode_return, 0.0);
+        assert_eq!(back.recent[0].score, 0.0);
+    }
+
+    #[test]
+    fn a_refused_step_ends_its_lease_the_actor_is_told_and_the_cycle_advances() {
+        let f = fixture(td3_config(), 60_000);
+        f.shared.ingest(&f.header, &step(f.first, 0)).unwrap();
+        let mut bad = step(f.first, 1);
+        bad.reward = f32::NAN;
+        assert_eq!(
+            f.shared.ingest(&f.header, &bad).unwrap_err().kind(),
+            RefusalKind::NotFinite
+        );
+        // Every later step of the episode would be refused: the lease must not stay open.
+        let now = f.shared.now_ms();
+        f.shared.expire_leases_at(now);
+        let core = f.shared.lock();
+        assert_eq!(core.open_leases(), 0);
+        assert_eq!((core.totals.leases_dropped, core.totals.leases_expired), (1, 0));
+        assert_eq!(core.totals.episodes_abandoned, 1);
+        assert!(core
+            .registry
+            .check_lease(f.header.actor_id, f.header.lease_id, now)
+            .is_err());
+        assert!(
+            core.dropped_reason(f.header.lease_id)
+                .is_some_and(|why| why.contains("reward")),
+            "{:?}",
+            core.dropped_reason(f.header.lease_id)
+        );
+        assert_eq!(core.registry.cycle(), 1, "the only actor's turn is over");
+        assert_eq!(
+            core.registry
+                .status()
+                .worlds
+                .iter()
+                .map(|w| w.completed)
+                .sum::<u64>(),
+            0
+        );
+    }
+
+    #[test]
+    fn out_of_order_and_duplicate_steps_are_refused_and_end_the_lease() {
+        for (index, what) in [(0, "duplicate"), (2, "gap")] {
+            let f = fixture(td3_config(), 60_000);
+            f.shared.ingest(&f.header, &step(f.first, 0)).unwrap();
+            let e = f.shared.ingest(&f.header, &step(f.first, index)).unwrap_err();
+            assert_eq!(e.kind(), RefusalKind::Episode, "{what}: {e}");
+            assert!(e.to_string().contains("out of order"), "{what}: {e}");
+            f.shared.expire_leases_at(f.shared.now_ms());
+            assert_eq!(f.shared.lock().totals.leases_dropped, 1, "{what}");
+        }
+    }
+
+    #[test]
+    fn a_lease_without_progress_is_dropped_although_heartbeats_keep_it_alive() {
+        let timeout = 5 * TTL;
+        let f = fixture(td3_config(), timeout);
+        f.shared.ingest(&f.header, &step(f.first, 0)).unwrap();
+        let progress = f.shared.now_ms();
+        let heartbeat = |t: u64| {
+            f.shared
+                .lock()
+                .registry
+                .heartbeat(f.header.actor_id, Some(f.header.lease_id), t)
+                .unwrap();
+        };
+        // A live heartbeat thread, a hung main loop: the TTL alone never ends the lease.
+        for t in (0..10).map(|k| progress + k * TTL / 2) {
+            heartbeat(t);
+            f.shared.expire_leases_at(t);
+            assert_eq!(f.shared.lock().open_leases(), 1, "at {t} ms");
+        }
+        let t = progress + timeout + 10;
+        heartbeat(t - 20);
+        f.shared.expire_leases_at(t);
+        let core = f.shared.lock();
+        assert_eq!(core.open_leases(), 0);
+        assert_eq!((core.totals.leases_dropped, core.totals.leases_expired), (1, 0));
+        assert!(core
+            .dropped_reason(f.header.lease_id)
+            .is_some_and(|why| why.contains("no progress")));
+    }
+
+    #[test]
+    fn no_progress_clock_stands_still_while_the_learner_owes_the_policy() {
+        let timeout = 2 * TTL;
+        let f = fixture(td3_config(), timeout);
+        // The cycle moved on but its policy is not published yet (e.g. a checkpoint is being
+        // written): waiting actors are not at fault.
+        f.shared.lock().registry.revoke(f.header.lease_id);
+        let _ = f.shared.lock().registry.tick(0);
+        f.shared.lock().drop_lease(f.header.lease_id);
+        let f = {
+            let mut core = f.shared.lock();
+            assert_eq!(core.registry.cycle(), 1);
+            let Decision::Assign(a) = core.registry.next_assignment(f.header.actor_id, 0, 0).unwrap() else {
+                panic!("no assignment in cycle 1");
+            };
+            Shared::open_lease(&mut core, a.lease_id, f.header.actor_id, a.episodes, 0);
+            drop(core);
+            Fixture {
+                header: LeaseHeader {
+                    lease_id: a.lease_id,
+                    ..f.header
+                },
+                first: 0,
+                shared: f.shared.clone(),
+            }
+        };
+        let t = 10 * timeout;
+        for beat in (0..t).step_by((TTL / 2) as usize) {
+            f.shared
+                .lock()
+                .registry
+                .heartbeat(f.header.actor_id, Some(f.header.lease_id), beat)
+                .unwrap();
+            f.shared.expire_leases_at(beat);
+        }
+        f.shared.expire_leases_at(t);
+        assert_eq!(f.shared.lock().open_leases(), 1);
+        assert_eq!(f.shared.lock().totals.leases_dropped, 0);
+    }
+
+    #[test]
+    fn inserts_never_wait_for_updates_that_cannot_run() {
+        // No warm-up and room for one update: after one insert the limiter holds inserts back,
+        // but with n-step 6 nothing is ready to sample, so no update can make room.
+        let f = fixture(
+            Td3Config {
+                warmup_steps: 0,
+                updates_per_insert: 1.0,
+                rate_tolerance: 1.0,
+                ..td3_config()
+            },
+            60_000,
+        );
+        let (done_tx, done_rx) = std::sync::mpsc::channel();
+        let (shared, header, first) = (f.shared.clone(), f.header, f.first);
+        std::thread::spawn(move || {
+            for i in 0..3 {
+                shared.ingest(&header, &step(first, i)).unwrap();
+            }
+            done_tx.send(()).unwrap();
+        });
+        // A watchdog against the deadlock, not a timing assertion.
+        done_rx
+            .recv_timeout(Duration::from_secs(120))
+            .expect("watchdog: ingest blocked although no update could run");
+        assert_eq!(f.shared.lock().rate.inserts(), 3);
+    }
+
+    #[test]
+    fn steps_of_a_policy_version_not_yet_published_are_refused() {
+        let f = fixture(td3_config(), 60_000);
+        let mut s = step(f.first, 0);
+        s.policy_version = 3;
+        let e = f.shared.ingest(&f.header, &s).unwrap_err();
+        assert!(e.to_string().contains("newer than the newest published"), "{e}");
+    }
 }

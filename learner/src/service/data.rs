@@ -5,6 +5,7 @@
 use std::cell::RefCell;
 use std::pin::Pin;
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc::{Receiver, SyncSender};
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -116,13 +117,27 @@ impl Data for DataService {
 }
 
 /// Drains the shared-memory step service into [`Shared::ingest`] until `stop` is set.
-pub fn shm_intake(shared: Arc<Shared>, cfg: ShmConfig, stop: Arc<AtomicBool>) {
+///
+/// Opens the service first and says whether that worked on `opened`; then waits for the shared
+/// state on `shared` (the learner builds it once it knows which plane actors get).
+pub fn shm_intake(
+    cfg: ShmConfig,
+    opened: SyncSender<Result<(), String>>,
+    shared: Receiver<Arc<Shared>>,
+    stop: Arc<AtomicBool>,
+) {
     let mut source = match ShmStepSource::open(&cfg) {
-        Ok(s) => s,
+        Ok(s) => {
+            let _ = opened.send(Ok(()));
+            s
+        }
         Err(e) => {
-            eprintln!("learner: shared-memory data plane unavailable ({e}); actors must use gRPC");
+            let _ = opened.send(Err(e.to_string()));
             return;
         }
+    };
+    let Ok(shared) = shared.recv() else {
+        return;
     };
     // The slots live in memory the actor can still write: copy each record before validating
     // it, so what is checked is what is stored.

@@ -37,6 +37,7 @@ use crate::ddp_init::FitOptions;
 use crate::export::space_name;
 use crate::rate::RateLimiter;
 use crate::replay::ReplayBuffer;
+use crate::retention;
 use crate::td3::{seeded_rng, Td3};
 use crate::tensorboard::EventWriter;
 use crate::Device;
@@ -65,6 +66,92 @@ pub struct Learner {
     heartbeat_ms: u32,
     /// The newest published policy (what `WatchPolicy` streams).
     policy: watch::Receiver<Arc<pb::PolicySnapshot>>,
+    /// Held while this learner serves the run directory (see [`lock_run_dir`]).
+    _run_lock: std::fs::File,
+}
+
+/// What a resumed learner continues from.
+struct ResumeState {
+    td3: Td3,
+    run_id: String,
+    rate: RateLimiter,
+    sampler_rng: rand_pcg::Pcg64Mcg,
+    policy_version: u64,
+    registry: Registry,
+    totals: Totals,
+    replay: ReplayBuffer,
+}
+
+/// Loads everything a resume needs from checkpoint `ckpt`, verifying every file. Counters that
+/// do not parse are reset (with a warning) rather than failing: they are statistics, not
+/// training state.
+fn load_resume_state(ckpt: &Path, registry_cfg: &RegistryConfig) -> Result<ResumeState, String> {
+    let (td3, state) = checkpoint::load(ckpt, &Device::flex()).map_err(|e| e.to_string())?;
+    let replay = checkpoint::load_replay(ckpt)
+        .map_err(|e| e.to_string())?
+        .unwrap_or_else(|| ReplayBuffer::new(td3.config()));
+    let snapshot: RegistrySnapshot = serde_json::from_value(state.extra["registry"].clone())
+        .map_err(|e| format!("{}: registry state: {e}", ckpt.display()))?;
+    let totals: Totals = serde_json::from_value(state.extra["totals"].clone()).unwrap_or_else(|e| {
+        eprintln!(
+            "learner: WARNING: {}: the counters do not parse ({e}); they restart from zero",
+            ckpt.display()
+        );
+        Totals::default()
+    });
+    let registry = Registry::restore(*registry_cfg, snapshot).map_err(|e| e.to_string())?;
+    Ok(ResumeState {
+        td3,
+        run_id: state.run_id,
+        rate: state.rate,
+        sampler_rng: state.sampler_rng,
+        policy_version: state.policy_version,
+        registry,
+        totals,
+        replay,
+    })
+}
+
+/// The lock file a learner holds in its run directory.
+pub const LOCK_FILE: &str = "learner.lock";
+
+/// Takes the run directory's lock (an exclusive `flock` on `learner.lock`, which also records
+/// the holder's host and pid). Refused while another learner process holds it, so a second
+/// learner can never remove the first one's socket or write into its checkpoints. The lock
+/// goes away with the process, also when it is killed.
+pub fn lock_run_dir(run_dir: &Path) -> Result<std::fs::File, String> {
+    use std::io::{Read, Seek, Write};
+    use std::os::unix::fs::OpenOptionsExt;
+    let path = run_dir.join(LOCK_FILE);
+    let mut file = std::fs::OpenOptions::new()
+        .read(true)
+        .write(true)
+        .create(true)
+        .truncate(false)
+        .mode(0o600)
+        .open(&path)
+        .map_err(|e| format!("cannot open the lock file {}: {e}", path.display()))?;
+    match file.try_lock() {
+        Ok(()) => {
+            let holder = format!("{} pid {}\n", proto::hostname(), std::process::id());
+            let _ = file
+                .set_len(0)
+                .and_then(|()| file.rewind())
+                .and_then(|()| file.write_all(holder.as_bytes()));
+            Ok(file)
+        }
+        Err(std::fs::TryLockError::WouldBlock) => {
+            let mut holder = String::new();
+            let _ = file.read_to_string(&mut holder);
+            Err(format!(
+                "{} is in use by another learner ({}; lock file {}): stop it first or choose another --out",
+                run_dir.display(),
+                holder.trim(),
+                path.display()
+            ))
+        }
+        Err(std::fs::TryLockError::Error(e)) => Err(format!("cannot lock {}: {e}", path.display())),
+    }
 }
 
 /// Binds a Unix socket at `path` (replacing a stale one from an earlier learner of the run),
@@ -115,60 +202,94 @@ impl Learner {
     /// once actors can connect (the bound address is in [`Learner::addr`] and `learner.addr`).
     pub fn start(opts: LearnerOptions) -> Result<Self, String> {
         let run_dir = opts.run_dir.clone();
-        std::fs::create_dir_all(&run_dir).map_err(|e| format!("cannot create {}: {e}", run_dir.display()))?;
         let svc = opts.service.clone();
-        if svc.heartbeat_ms == 0 || svc.lease_ttl_ms <= svc.heartbeat_ms {
-            return Err(format!(
-                "[service] lease_ttl_ms ({}) must exceed heartbeat_ms ({}) > 0",
-                svc.lease_ttl_ms, svc.heartbeat_ms
-            ));
+        svc.check()?;
+        trainer::create_private_dir(&run_dir)?;
+        // Before anything in the run directory is touched: one learner per run directory.
+        let run_lock = lock_run_dir(&run_dir)?;
+        let checkpoints = run_dir.join("checkpoints");
+        match retention::remove_aborted_saves(&checkpoints) {
+            Ok(removed) => {
+                for dir in removed {
+                    eprintln!(
+                        "learner: removed {} (left by an aborted checkpoint save)",
+                        dir.display()
+                    );
+                }
+            }
+            Err(e) => eprintln!("learner: cannot clean aborted checkpoint saves: {e}"),
         }
         let registry_cfg = RegistryConfig {
             lease_ttl_ms: u64::from(svc.lease_ttl_ms),
             episodes_per_assignment: svc.episodes_per_assignment,
             run_seed: opts.td3.seed,
         };
-        let newest = trainer::newest_checkpoint(&run_dir)?;
-        let (td3, run_id, rate, sampler_rng, policy_version, registry, totals, replay) = match (opts.resume, newest) {
+        let candidates = if checkpoints.exists() {
+            retention::complete_checkpoints(&checkpoints).map_err(|e| e.to_string())?
+        } else {
+            Vec::new()
+        };
+        let mut resume_warnings = Vec::new();
+        let (td3, run_id, rate, sampler_rng, policy_version, registry, totals, replay) = match (
+            opts.resume,
+            candidates.last(),
+        ) {
             (true, None) => {
                 return Err(format!(
-                    "--resume: no valid checkpoint under {}",
-                    run_dir.join("checkpoints").display()
+                    "--resume: no complete checkpoint under {}",
+                    checkpoints.display()
                 ))
             }
-            (false, Some(c)) => {
+            (false, Some((_, c))) => {
                 return Err(format!(
                     "{} already holds a run (checkpoint {}); pass --resume to continue it or choose another --out",
                     run_dir.display(),
                     c.display()
                 ))
             }
-            (true, Some(ckpt)) => {
-                let (td3, state) = checkpoint::load(&ckpt, &Device::flex()).map_err(|e| e.to_string())?;
-                let replay = checkpoint::load_replay(&ckpt)
-                    .map_err(|e| e.to_string())?
-                    .unwrap_or_else(|| ReplayBuffer::new(td3.config()));
-                let snapshot: RegistrySnapshot = serde_json::from_value(state.extra["registry"].clone())
-                    .map_err(|e| format!("{}: registry state: {e}", ckpt.display()))?;
-                let totals: Totals = serde_json::from_value(state.extra["totals"].clone())
-                    .map_err(|e| format!("{}: counters: {e}", ckpt.display()))?;
-                let registry = Registry::restore(registry_cfg, snapshot).map_err(|e| e.to_string())?;
+            (true, Some(_)) => {
+                // Newest first; a checkpoint that does not load is skipped, loudly.
+                let mut loaded = None;
+                for (_, ckpt) in candidates.iter().rev() {
+                    match load_resume_state(ckpt, &registry_cfg) {
+                        Ok(state) => {
+                            loaded = Some((ckpt, state));
+                            break;
+                        }
+                        Err(e) => {
+                            let warning = format!(
+                                "checkpoint {} is unusable ({e}); falling back to the previous one",
+                                ckpt.display()
+                            );
+                            eprintln!("learner: WARNING: {warning}");
+                            resume_warnings.push(warning);
+                        }
+                    }
+                }
+                let Some((ckpt, r)) = loaded else {
+                    return Err(format!(
+                        "--resume: none of the {} checkpoints under {} is usable: {}",
+                        candidates.len(),
+                        checkpoints.display(),
+                        resume_warnings.join("; ")
+                    ));
+                };
                 eprintln!(
                     "learner: resuming run {} from {} ({} steps, {} updates)",
-                    state.run_id,
+                    r.run_id,
                     ckpt.display(),
-                    state.rate.inserts(),
-                    state.rate.updates()
+                    r.rate.inserts(),
+                    r.rate.updates()
                 );
                 (
-                    td3,
-                    state.run_id,
-                    state.rate,
-                    state.sampler_rng,
-                    state.policy_version,
-                    registry,
-                    totals,
-                    replay,
+                    r.td3,
+                    r.run_id,
+                    r.rate,
+                    r.sampler_rng,
+                    r.policy_version,
+                    r.registry,
+                    r.totals,
+                    r.replay,
                 )
             }
             (false, None) => {
@@ -223,6 +344,34 @@ impl Learner {
             service_prefix: format!("adp/{run_id}/{incarnation:016x}"),
             ..ShmConfig::default()
         });
+        // The shared-memory intake opens its step service before actors are told which plane
+        // to use: if that fails, the run offers gRPC only (the reason is logged and shown in
+        // status.json) rather than sending actors to a plane nobody drains.
+        let intake_stop = Arc::new(AtomicBool::new(false));
+        let (shared_tx, shared_rx) = std::sync::mpsc::sync_channel::<Arc<Shared>>(1);
+        let (shm, shm_unavailable, intake) = match shm {
+            Some(cfg) => {
+                let (opened_tx, opened_rx) = std::sync::mpsc::sync_channel(1);
+                let (c, stop) = (cfg.clone(), intake_stop.clone());
+                let handle = std::thread::Builder::new()
+                    .name("adp-shm-intake".into())
+                    .spawn(move || data::shm_intake(c, opened_tx, shared_rx, stop))
+                    .map_err(|e| e.to_string())?;
+                match opened_rx.recv() {
+                    Ok(Ok(())) => (Some(cfg), None, Some(handle)),
+                    Ok(Err(why)) => {
+                        eprintln!("learner: shared-memory data plane unavailable ({why}); actors use gRPC");
+                        let _ = handle.join();
+                        (None, Some(why), None)
+                    }
+                    Err(_) => {
+                        let _ = handle.join();
+                        (None, Some("the intake thread ended".to_owned()), None)
+                    }
+                }
+            }
+            None => (None, None, None),
+        };
         // Recorded in checkpoints, so exports document the observation the policy was trained on.
         let environment: serde_json::Value = toml::from_str(&opts.env_toml)
             .map_err(|e| format!("the environment settings (env_toml) are not a TOML table: {e}"))?;
@@ -245,14 +394,29 @@ impl Learner {
         };
         let mut core = Core::new(registry, replay, rate, totals, policy_version);
         core.drop_all_leases();
-        let shared = Arc::new(Shared::new(
+        if core.rate.inserts() >= opts.budget_steps {
+            // A finished run resumed with the same budget: nothing to collect. Say so and end
+            // (final checkpoint, export) instead of waiting for steps nobody will be asked for.
+            eprintln!(
+                "learner: run {run_id} already stored {} of its {} steps; nothing to collect (pass a larger \
+                 --steps to train it further)",
+                core.rate.inserts(),
+                opts.budget_steps
+            );
+            core.stopping = true;
+        }
+        let mut shared = Shared::new(
             validator,
             spec,
             core,
             opts.budget_steps,
             svc.episodes_per_assignment,
             svc.idle_retry_ms,
-        ));
+            svc.progress_timeout(),
+        );
+        shared.resume_warnings = resume_warnings;
+        *shared.shm_unavailable.get_mut().expect("shm note lock") = shm_unavailable;
+        let shared = Arc::new(shared);
         let tensorboard_dir = run_dir.join("tensorboard");
         let inserts = shared.lock().rate.inserts();
         let tensorboard = if opts.resume {
@@ -355,19 +519,9 @@ impl Learner {
                 s.request_stop(true);
             });
         }
-        let intake_stop = Arc::new(AtomicBool::new(false));
-        let intake = match &shm {
-            Some(cfg) => {
-                let (s, c, stop) = (shared.clone(), cfg.clone(), intake_stop.clone());
-                Some(
-                    std::thread::Builder::new()
-                        .name("adp-shm-intake".into())
-                        .spawn(move || data::shm_intake(s, c, stop))
-                        .map_err(|e| e.to_string())?,
-                )
-            }
-            None => None,
-        };
+        if intake.is_some() {
+            let _ = shared_tx.send(shared.clone());
+        }
         let trainer = trainer::Trainer {
             shared: shared.clone(),
             td3,
@@ -397,6 +551,7 @@ impl Learner {
             unix_server,
             heartbeat_ms: svc.heartbeat_ms,
             policy: latest_policy,
+            _run_lock: run_lock,
         })
     }
 

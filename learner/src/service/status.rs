@@ -51,8 +51,10 @@ pub struct Status {
     pub episodes_mismatched: u64,
     /// Episodes abandoned by expired leases.
     pub episodes_abandoned: u64,
-    /// Leases that expired.
+    /// Leases that expired (no heartbeat within their TTL).
     pub leases_expired: u64,
+    /// Leases dropped although their actor heartbeated (a refused step, or no progress).
+    pub leases_dropped: u64,
     /// Success rate of the recent episodes.
     pub success_rate: Option<f64>,
     /// Mean return of the recent episodes.
@@ -65,6 +67,10 @@ pub struct Status {
     pub world_episodes: Vec<(usize, u64)>,
     /// Step records stored per actor rank `(rank, steps)`, over the whole run.
     pub rank_steps: Vec<(u32, u64)>,
+    /// Checkpoints the resume of this learner skipped as unusable, with the reason.
+    pub resume_warnings: Vec<String>,
+    /// Why the shared-memory data plane was offered but is not in use (actors use gRPC).
+    pub shm_unavailable: Option<String>,
     /// The training thread has stopped (final checkpoint written).
     pub finished: bool,
 }
@@ -103,6 +109,7 @@ impl Status {
             episodes_mismatched: t.episodes_mismatched,
             episodes_abandoned: t.episodes_abandoned,
             leases_expired: t.leases_expired,
+            leases_dropped: t.leases_dropped,
             success_rate: means.map(|m| m.0),
             mean_return: means.map(|m| m.1),
             mean_score: means.map(|m| m.2),
@@ -114,6 +121,8 @@ impl Status {
                 .collect(),
             world_episodes: reg.worlds.iter().map(|w| (w.world, w.completed)).collect(),
             rank_steps: t.rank_steps.iter().map(|(&r, &n)| (r, n)).collect(),
+            resume_warnings: shared.resume_warnings.clone(),
+            shm_unavailable: shared.shm_unavailable.lock().expect("shm note lock").clone(),
             finished: super::core::is_set(&shared.finished),
         }
     }
@@ -132,6 +141,7 @@ impl Status {
                 self.refused.iter().map(|r| r.1).sum::<u64>() as f64,
             ),
             ("service/leases_expired", self.leases_expired as f64),
+            ("service/leases_dropped", self.leases_dropped as f64),
             ("train/exploration_sigma", self.exploration_sigma),
             ("train/updates", self.updates as f64),
         ];

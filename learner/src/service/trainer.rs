@@ -71,6 +71,8 @@ impl Trainer {
                 Ok(p) => Some(p),
                 Err(e) => {
                     eprintln!("learner: cannot publish policies over shared memory ({e}); gRPC only");
+                    *self.shared.shm_unavailable.lock().expect("shm note lock") =
+                        Some(format!("policy publisher: {e}"));
                     None
                 }
             },
@@ -80,6 +82,8 @@ impl Trainer {
         let cfg = self.td3.config().clone();
         let mut batch = Batch::new(cfg.obs_dim, cfg.act_dim);
         let mut published: Option<u64> = None;
+        // A failed shared-memory publish: (version, sigma, when), retried until it works.
+        let mut shm_retry: Option<(u64, f64, Instant)> = None;
         let mut last_checkpoint = Instant::now();
         let status_every = Duration::from_secs_f64(self.service.status_every_s);
         let mut last_status = Instant::now() - status_every;
@@ -114,11 +118,17 @@ impl Trainer {
             if publish {
                 let version = cycle.max(core.policy_version);
                 let sigma = exploration.sigma(core.rate.inserts());
+                // Steps made with this version may arrive as soon as either plane carries it:
+                // the learner must already accept it.
+                let mut core = core;
+                core.policy_version = version;
                 drop(core);
                 let (_, weights) = self.td3.policy().flat_weights();
+                shm_retry = None;
                 if let Some(p) = shm_pub.as_mut() {
                     if let Err(e) = p.publish(version, sigma, &weights) {
-                        eprintln!("learner: shared-memory policy publish failed: {e}");
+                        eprintln!("learner: shared-memory policy publish of version {version} failed ({e}); retrying");
+                        shm_retry = Some((version, sigma, Instant::now()));
                     }
                 }
                 let snapshot = pb::PolicySnapshot {
@@ -127,10 +137,26 @@ impl Trainer {
                     weights: proto::floats::encode(&weights).into(),
                 };
                 self.policy_tx.send_replace(Arc::new(snapshot));
-                self.shared.lock().policy_version = version;
                 published = Some(version);
                 self.shared.wake.notify_all();
                 continue;
+            }
+            if let (Some((version, sigma, at)), Some(p)) = (shm_retry, shm_pub.as_mut()) {
+                if at.elapsed() >= Duration::from_millis(100) {
+                    drop(core);
+                    // The networks have not changed since the publish: the actors of this cycle
+                    // need exactly that version. (A run that trains on moves to the next cycle
+                    // with a fresh publish.)
+                    let weights = self.snapshot_weights_of(version);
+                    shm_retry = match weights.map(|w| p.publish(version, sigma, &w)) {
+                        Some(Ok(())) => {
+                            eprintln!("learner: shared-memory policy version {version} published on retry");
+                            None
+                        }
+                        _ => Some((version, sigma, Instant::now())),
+                    };
+                    continue;
+                }
             }
             if can_update {
                 let sampled = core
@@ -191,6 +217,16 @@ impl Trainer {
         })
     }
 
+    /// The weights of the published policy `version` (as sent over gRPC), if it is the newest.
+    fn snapshot_weights_of(&self, version: u64) -> Option<Vec<f32>> {
+        let snapshot = self.policy_tx.borrow().clone();
+        let mut weights = Vec::new();
+        (snapshot.version == version)
+            .then(|| proto::floats::decode_into("weights", &snapshot.weights, &mut weights).ok())
+            .flatten()
+            .map(|()| weights)
+    }
+
     /// Writes `status.json` and the service scalars to TensorBoard.
     fn report(&mut self, meter: &mut Meter, exploration: &ExplorationSchedule) {
         let mut core = self.shared.lock();
@@ -225,32 +261,52 @@ impl Trainer {
 
     /// Writes a checkpoint of the whole run (networks, optimizers, RNGs, rate limiter, registry,
     /// counters, and the replay buffer when configured) and prunes old ones.
+    ///
+    /// The core lock is held only to copy the shared state (counters, registry snapshot, the
+    /// replay buffer's snapshot bytes); serializing the networks, hashing and fsyncing happen
+    /// outside it, so heartbeats, leases and ingest go on during a slow write. The networks
+    /// belong to this thread, so nothing changes them meanwhile.
     fn checkpoint(&mut self) -> Result<PathBuf, String> {
         let root = self.run_dir.join("checkpoints");
-        let core = self.shared.lock();
-        let name = format!("ckpt-{:012}-{:012}", core.rate.inserts(), core.rate.updates());
-        let dir = root.join(&name);
-        let run = RunState {
-            run_id: self.shared.validator.run_id.clone(),
-            rate: core.rate.clone(),
-            sampler_rng: self.sampler_rng.clone(),
-            policy_version: core.policy_version,
-            extra: serde_json::json!({
-                "registry": core.registry.snapshot(),
-                "totals": core.totals,
-            }),
-            environment: self.environment.clone(),
+        let (dir, run, replay) = {
+            let core = self.shared.lock();
+            let name = format!("ckpt-{:012}-{:012}", core.rate.inserts(), core.rate.updates());
+            let dir = root.join(&name);
+            if dir.join(checkpoint::MANIFEST).exists() {
+                return Ok(dir);
+            }
+            let run = RunState {
+                run_id: self.shared.validator.run_id.clone(),
+                rate: core.rate.clone(),
+                sampler_rng: self.sampler_rng.clone(),
+                policy_version: core.policy_version,
+                extra: serde_json::json!({
+                    "registry": core.registry.snapshot(),
+                    "totals": core.totals,
+                }),
+                environment: self.environment.clone(),
+            };
+            let replay = if self.service.checkpoint_replay {
+                let mut bytes = Vec::new();
+                core.replay
+                    .write_snapshot(&mut bytes)
+                    .map_err(|e| format!("copying the replay buffer for {}: {e}", dir.display()))?;
+                Some(bytes)
+            } else {
+                None
+            };
+            (dir, run, replay)
         };
-        if dir.join(checkpoint::MANIFEST).exists() {
-            return Ok(dir);
+        if let Some(ms) = slow_checkpoint_ms() {
+            // Tests: stand in for a slow shared filesystem (outside the lock, like the write).
+            std::thread::sleep(Duration::from_millis(ms));
         }
-        std::fs::create_dir_all(&root).map_err(|e| format!("cannot create {}: {e}", root.display()))?;
-        let saved = if self.service.checkpoint_replay {
-            checkpoint::save_with_replay(&dir, &self.td3, &run, &core.replay)
-        } else {
-            checkpoint::save(&dir, &self.td3, &run)
+        create_private_dir(&root)?;
+        let saved = match &replay {
+            Some(bytes) => checkpoint::save_with_replay_snapshot(&dir, &self.td3, &run, bytes),
+            None => checkpoint::save(&dir, &self.td3, &run),
         };
-        drop(core);
+        drop(replay);
         saved.map_err(|e| format!("checkpoint {}: {e}", dir.display()))?;
         eprintln!("learner: checkpoint {}", dir.display());
         if let Err(e) = retention::prune(&root, self.service.keep_checkpoints.max(1), &[]) {
@@ -260,11 +316,20 @@ impl Trainer {
     }
 }
 
-/// The checkpoint directory a run resumes from, if any.
-pub fn newest_checkpoint(run_dir: &Path) -> Result<Option<PathBuf>, String> {
-    let root = run_dir.join("checkpoints");
-    if !root.exists() {
-        return Ok(None);
-    }
-    retention::latest(&root).map_err(|e| e.to_string())
+/// Test hook: `ADP_TEST_SLOW_CHECKPOINT_MS` delays every checkpoint write by that long, to
+/// stand in for a slow shared filesystem.
+fn slow_checkpoint_ms() -> Option<u64> {
+    std::env::var("ADP_TEST_SLOW_CHECKPOINT_MS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+}
+
+/// Creates `dir` (and missing parents) readable by this user only.
+pub(super) fn create_private_dir(dir: &Path) -> Result<(), String> {
+    use std::os::unix::fs::DirBuilderExt;
+    std::fs::DirBuilder::new()
+        .recursive(true)
+        .mode(0o700)
+        .create(dir)
+        .map_err(|e| format!("cannot create {}: {e}", dir.display()))
 }
