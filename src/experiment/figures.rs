@@ -244,6 +244,18 @@ fn horizon(space: ActionSpace, p: &[f64]) -> f64 {
     }
 }
 
+/// The colour scale of [`horizon`] in a space (s): the range its actions can reach.
+fn horizon_range(space: ActionSpace) -> (f64, f64) {
+    match space {
+        ActionSpace::Decremental | ActionSpace::Incremental => {
+            let r = space.ranges();
+            (r[1].1, r[1].2)
+        }
+        ActionSpace::Unconstrained => (0.4, 2.0),
+        ActionSpace::Fixed => (1.8, 2.2),
+    }
+}
+
 /// Bins of clutter for [`schedule_vs_clutter`].
 const BINS: usize = 10;
 
@@ -330,7 +342,7 @@ pub struct Drive {
 }
 
 /// Draws `drive` on `world`: cylinders, goal, and the path coloured by the chosen rollout
-/// horizon (dark blue = short, yellow = long).
+/// horizon on the space's range (dark blue = shortest, yellow = longest).
 pub fn episode(world: &World, drive: &Drive, space: ActionSpace, title: &str, out: &Path) -> anyhow::Result<()> {
     fonts();
     let root = BitMapBackend::new(out, (560, 1000)).into_drawing_area();
@@ -366,12 +378,12 @@ pub fn episode(world: &World, drive: &Drive, space: ActionSpace, title: &str, ou
         )
         .map_err(err)?;
     let hs: Vec<f64> = drive.steps.iter().map(|s| horizon(space, &s.1)).collect();
+    let (lo, hi) = horizon_range(space);
     let (hmin, hmax) = hs
         .iter()
         .fold((f64::INFINITY, f64::NEG_INFINITY), |a, &h| (a.0.min(h), a.1.max(h)));
-    let span = (hmax - hmin).max(1e-6);
     for (w, h) in drive.steps.windows(2).zip(&hs) {
-        let f = (h - hmin) / span;
+        let f = ((h - lo) / (hi - lo)).clamp(0.0, 1.0);
         let c = RGBColor(
             (30.0 + 220.0 * f) as u8,
             (40.0 + 180.0 * f) as u8,
@@ -386,7 +398,7 @@ pub fn episode(world: &World, drive: &Drive, space: ActionSpace, title: &str, ou
     }
     root.draw(&Text::new(
         format!(
-            "{}; horizon {hmin:.2} s (blue) .. {hmax:.2} s (yellow)",
+            "{}; horizon {hmin:.2}..{hmax:.2} s; colour {lo:.1} s (blue) .. {hi:.1} s (yellow)",
             drive.outcome
         ),
         (60, 40),

@@ -285,4 +285,52 @@ mod tests {
         assert!(a.iter().any(|&x| x >= 10), "later items get in");
         assert_eq!(reservoir(&items[..3], 10, 5), vec![0, 1, 2]);
     }
+
+    /// The state-shuffled policy acts on pool observations, not on its own: a network whose
+    /// output follows the laser chooses other schedules when fed a pool of one
+    /// all-obstacles-close observation.
+    #[test]
+    fn shuffled_policy_differs_from_the_real_one() {
+        let cfg = EvalConfig::load(None).unwrap();
+        let space = ActionSpace::Decremental;
+        // Layer 730 -> 4: output 1 (T) = tanh(0.002 x sum of the laser encodings).
+        let mut flat = vec![0.0f32; 730 * 4];
+        for i in 0..LASER_BEAMS {
+            flat[i * 4 + 1] = 0.002;
+        }
+        flat.extend([0.0f32; 4]);
+        let net = MlpPolicy::from_flat(&[730, 4], flat).unwrap();
+        let spec = RunSpec {
+            cfg: &cfg,
+            worlds: sim::barn::worlds(),
+            planner: PlannerKind::Dwa,
+            speed: 1.5,
+            world_ids: &[3],
+            runs: 1,
+            seed: 9,
+            trace: true,
+        };
+        let env = EnvConfig::default();
+        let real = evaluate(&spec, &Controller::Policy { net: &net, env, space }).unwrap();
+        let pool = vec![vec![-1.0f32; 730]];
+        let shuffled = evaluate(
+            &spec,
+            &Controller::Shuffled {
+                net: &net,
+                env,
+                space,
+                pool: &pool,
+                seed: 1,
+            },
+        )
+        .unwrap();
+        let t = |e: &Evaluation| e.trace.iter().map(|p| p.params[1]).collect::<Vec<_>>();
+        let (a, b) = (t(&real), t(&shuffled));
+        assert!(!a.is_empty() && !b.is_empty());
+        // Fed only the pool's observation, every step picks T = 1.6 + 0.3 (1 + tanh(-1.44)).
+        let want = 1.6 + 0.3 * (1.0 + (-1.44f64).tanh());
+        assert!(b.iter().all(|&x| (x - want).abs() < 1e-4), "{b:?}");
+        assert!(a.iter().all(|&x| (x - want).abs() > 0.05), "{a:?}");
+        assert_eq!(real.per_world[0].runs.len(), 1);
+    }
 }

@@ -1,0 +1,123 @@
+//! `adp experiment` end to end on a tiny configuration (2 test worlds, 1 seed, a 200-step
+//! training run, 3 runs per world with 1 trimmed from each end): the report, the results and
+//! PNG figures exist; a resumed experiment skips every finished stage (the trained arm is not
+//! trained again) and picks up a learning curve written since; a changed experiment file or a
+//! second start in the same directory is refused.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn adp(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_adp"))
+        .args(args)
+        .output()
+        .expect("adp binary runs")
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+const TINY: &str = r#"
+[experiment]
+name = "tiny"
+planners = ["dwa"]
+speeds = [1.5]
+train_worlds = ["150,153"]
+test_worlds = "0,1"
+seeds = 1
+
+[eval]
+runs = 3
+trim = 1
+
+[constant_search]
+worlds = "150,153"
+candidates = 3
+
+[shuffle]
+worlds = "150"
+pool = 64
+
+[stats]
+resamples = 200
+
+[train.run]
+steps = 200
+actors = 1
+
+[train.td3]
+actor_hidden = [64, 64]
+critic_hidden = [64, 64]
+batch_size = 32
+warmup_steps = 100
+"#;
+
+fn is_png(path: &Path) -> bool {
+    std::fs::read(path).is_ok_and(|b| b.starts_with(b"\x89PNG\r\n\x1a\n") && b.len() > 1000)
+}
+
+#[test]
+fn tiny_experiment_reports_resumes_and_refuses_mixing() {
+    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("experiment-tiny");
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let config = dir.join("tiny.toml");
+    std::fs::write(&config, TINY).unwrap();
+    let out = dir.join("out");
+    let (c, o) = (config.to_str().unwrap(), out.to_str().unwrap());
+
+    let first = adp(&["experiment", "--config", c, "--out", o]);
+    assert!(first.status.success(), "{}", stderr(&first));
+    assert!(stderr(&first).contains("7 to run"), "{}", stderr(&first));
+    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    for needle in [
+        "## Table I",
+        "| DDP |",
+        "best constant",
+        "untrained (DDP init)",
+        "state-shuffled",
+        "ADP-decremental",
+        "## Paired statistics",
+        "no run wrote greedy_eval.jsonl",
+    ] {
+        assert!(report.contains(needle), "report lacks {needle:?}:\n{report}");
+    }
+    let arm = "dwa-decremental-1.5-150_153";
+    for fig in ["scatter", "clutter", "episode"] {
+        let p = out.join("figures").join(format!("{fig}-{arm}.png"));
+        assert!(is_png(&p), "{} is not a PNG", p.display());
+    }
+    let results: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("results.json")).unwrap()).unwrap();
+    assert_eq!(results[0]["comparisons"].as_array().unwrap().len(), 4);
+
+    // Starting again in the same directory is refused; so is resuming with another file.
+    let again = adp(&["experiment", "--config", c, "--out", o]);
+    assert!(!again.status.success() && stderr(&again).contains("--resume"), "{}", stderr(&again));
+    let changed = dir.join("changed.toml");
+    std::fs::write(&changed, TINY.replace("candidates = 3", "candidates = 4")).unwrap();
+    let mixed = adp(&["experiment", "--config", changed.to_str().unwrap(), "--out", o, "--resume"]);
+    assert!(!mixed.status.success() && stderr(&mixed).contains("differs"), "{}", stderr(&mixed));
+
+    // A resumed experiment skips every finished stage: nothing is trained or evaluated again.
+    let run_dir = out.join("runs").join(arm).join("seed-0");
+    let marker = std::fs::metadata(run_dir.join("trained.json")).unwrap().modified().unwrap();
+    let adp_file = out.join("eval").join(arm).join("seed-0").join("adp.json");
+    let evaluated = std::fs::metadata(&adp_file).unwrap().modified().unwrap();
+    std::fs::write(
+        run_dir.join("greedy_eval.jsonl"),
+        "{\"agent_steps\": 100, \"policy_version\": 1, \"success\": 50.0, \"score\": 0.25, \
+         \"ddp_success\": 60.0, \"ddp_score\": 0.3}\n{\"agent_steps\": 200, \"policy_version\": 2, \
+         \"success\": 70.0, \"score\": 0.35, \"ddp_success\": 60.0, \"ddp_score\": 0.3}\n",
+    )
+    .unwrap();
+    let resumed = adp(&["experiment", "--config", c, "--out", o, "--resume"]);
+    assert!(resumed.status.success(), "{}", stderr(&resumed));
+    let log = stderr(&resumed);
+    assert!(log.contains("0 to run") && !log.contains("adp train"), "{log}");
+    assert_eq!(std::fs::metadata(run_dir.join("trained.json")).unwrap().modified().unwrap(), marker);
+    assert_eq!(std::fs::metadata(&adp_file).unwrap().modified().unwrap(), evaluated);
+    assert!(is_png(&out.join("figures").join(format!("learning-{arm}.png"))));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
