@@ -94,15 +94,33 @@ fn tiny_experiment_reports_resumes_and_refuses_mixing() {
 
     // Starting again in the same directory is refused; so is resuming with another file.
     let again = adp(&["experiment", "--config", c, "--out", o]);
-    assert!(!again.status.success() && stderr(&again).contains("--resume"), "{}", stderr(&again));
+    assert!(
+        !again.status.success() && stderr(&again).contains("--resume"),
+        "{}",
+        stderr(&again)
+    );
     let changed = dir.join("changed.toml");
     std::fs::write(&changed, TINY.replace("candidates = 3", "candidates = 4")).unwrap();
-    let mixed = adp(&["experiment", "--config", changed.to_str().unwrap(), "--out", o, "--resume"]);
-    assert!(!mixed.status.success() && stderr(&mixed).contains("differs"), "{}", stderr(&mixed));
+    let mixed = adp(&[
+        "experiment",
+        "--config",
+        changed.to_str().unwrap(),
+        "--out",
+        o,
+        "--resume",
+    ]);
+    assert!(
+        !mixed.status.success() && stderr(&mixed).contains("differs"),
+        "{}",
+        stderr(&mixed)
+    );
 
     // A resumed experiment skips every finished stage: nothing is trained or evaluated again.
     let run_dir = out.join("runs").join(arm).join("seed-0");
-    let marker = std::fs::metadata(run_dir.join("trained.json")).unwrap().modified().unwrap();
+    let marker = std::fs::metadata(run_dir.join("trained.json"))
+        .unwrap()
+        .modified()
+        .unwrap();
     let adp_file = out.join("eval").join(arm).join("seed-0").join("adp.json");
     let evaluated = std::fs::metadata(&adp_file).unwrap().modified().unwrap();
     std::fs::write(
@@ -116,8 +134,17 @@ fn tiny_experiment_reports_resumes_and_refuses_mixing() {
     assert!(resumed.status.success(), "{}", stderr(&resumed));
     let log = stderr(&resumed);
     assert!(log.contains("0 to run") && !log.contains("adp train"), "{log}");
-    assert_eq!(std::fs::metadata(run_dir.join("trained.json")).unwrap().modified().unwrap(), marker);
-    assert_eq!(std::fs::metadata(&adp_file).unwrap().modified().unwrap(), evaluated);
+    assert_eq!(
+        std::fs::metadata(run_dir.join("trained.json"))
+            .unwrap()
+            .modified()
+            .unwrap(),
+        marker
+    );
+    assert_eq!(
+        std::fs::metadata(&adp_file).unwrap().modified().unwrap(),
+        evaluated
+    );
     assert!(is_png(&out.join("figures").join(format!("learning-{arm}.png"))));
     std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -357,8 +357,7 @@ impl<'w> Episode<'w> {
             let moved = pos.dist(before);
             self.distance += moved;
             self.undrifted += moved;
-            if self.clock_start.is_none()
-                && pos.dist(self.start.position()) >= self.cfg.clock_start_distance
+            if self.clock_start.is_none() && pos.dist(self.start.position()) >= self.cfg.clock_start_distance
             {
                 self.clock_start = Some(self.sim_time);
             }
@@ -639,10 +638,19 @@ mod tests {
         // The largest accepted jitter keeps the footprint free in every BARN world.
         let (j, jy) = (MAX_START_JITTER_M, MAX_START_JITTER_YAW_RAD);
         for world in crate::barn::worlds() {
-            for (sx, sy, sa) in [(1.0, 1.0, 1.0), (-1.0, 1.0, -1.0), (1.0, -1.0, -1.0), (-1.0, -1.0, 1.0)] {
+            for (sx, sy, sa) in [
+                (1.0, 1.0, 1.0),
+                (-1.0, 1.0, -1.0),
+                (1.0, -1.0, -1.0),
+                (-1.0, -1.0, 1.0),
+            ] {
                 let s = world.start;
                 let p = Pose::new(s.x + sx * j, s.y + sy * j, s.yaw + sa * jy);
-                assert!(!world.collides(&crate::geometry::Footprint::JACKAL, &p), "world {}", world.id);
+                assert!(
+                    !world.collides(&crate::geometry::Footprint::JACKAL, &p),
+                    "world {}",
+                    world.id
+                );
             }
         }
     }

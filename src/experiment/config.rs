@@ -331,8 +331,12 @@ impl Experiment {
             .planners
             .iter()
             .map(|p| {
-                <PlannerKind as clap::ValueEnum>::from_str(p, false)
-                    .map_err(|_| err("planners", format!("unknown planner `{p}` (dwa, mppi, log-mppi, system)")))
+                <PlannerKind as clap::ValueEnum>::from_str(p, false).map_err(|_| {
+                    err(
+                        "planners",
+                        format!("unknown planner `{p}` (dwa, mppi, log-mppi, system)"),
+                    )
+                })
             })
             .collect::<anyhow::Result<_>>()?;
         let spaces: Vec<ActionSpace> = ex
@@ -452,11 +456,9 @@ impl Experiment {
                 .iter()
                 .filter(|s| restrict.spaces.is_empty() || restrict.spaces.contains(s))
             {
-                for &speed in ex
-                    .speeds
-                    .iter()
-                    .filter(|v| restrict.speeds.is_empty() || restrict.speeds.iter().any(|x| (x - *v).abs() < 1e-9))
-                {
+                for &speed in ex.speeds.iter().filter(|v| {
+                    restrict.speeds.is_empty() || restrict.speeds.iter().any(|x| (x - *v).abs() < 1e-9)
+                }) {
                     for tw in &ex.train_worlds {
                         arms.push(Arm {
                             planner,
@@ -514,7 +516,9 @@ mod tests {
     #[test]
     fn shipped_experiments_parse() {
         for (file, arms) in [("table1.toml", 9), ("table2.toml", 3)] {
-            let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/experiments").join(file);
+            let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+                .join("configs/experiments")
+                .join(file);
             let ex = Experiment::load(&path, &Restrict::default()).unwrap();
             assert_eq!(ex.arms.len(), arms, "{file}");
             assert_eq!(ex.test_worlds.len(), 225);
@@ -543,7 +547,10 @@ mod tests {
             ("[shuffle]\npoool = 3\n", "poool"),
         ] {
             let e = parse(&format!("{MINIMAL}{extra}")).unwrap_err().to_string();
-            assert!(e.starts_with("x.toml") && e.contains(key) && !e.contains('\n'), "{e}");
+            assert!(
+                e.starts_with("x.toml") && e.contains(key) && !e.contains('\n'),
+                "{e}"
+            );
         }
         let e = parse("[experiment]\nname = \"t\"\nplanners = [\"dwa\"]\nspeeds = [1.5]\nfoo = 1\n")
             .unwrap_err()
@@ -553,10 +560,16 @@ mod tests {
 
     #[test]
     fn train_keys_flow_into_the_training_config() {
-        let ex = parse(&format!("{MINIMAL}[train.td3]\nactor_lr = 0.001\n[train.run]\nsteps = 200\n")).unwrap();
+        let ex = parse(&format!(
+            "{MINIMAL}[train.td3]\nactor_lr = 0.001\n[train.run]\nsteps = 200\n"
+        ))
+        .unwrap();
         assert_eq!(ex.train.td3.actor_lr, 0.001);
         assert_eq!(ex.train.run.steps, 200);
-        assert_eq!(ex.train.td3.batch_size, TrainConfig::load(None).unwrap().td3.batch_size);
+        assert_eq!(
+            ex.train.td3.batch_size,
+            TrainConfig::load(None).unwrap().td3.batch_size
+        );
     }
 
     #[test]
@@ -564,7 +577,10 @@ mod tests {
         let e = parse(&format!("{MINIMAL}[constant_search]\nworlds = \"0..10\"\n"))
             .unwrap_err()
             .to_string();
-        assert!(e.contains("[constant_search] worlds") && e.contains("test world"), "{e}");
+        assert!(
+            e.contains("[constant_search] worlds") && e.contains("test world"),
+            "{e}"
+        );
         let e = parse(&MINIMAL.replace("speeds", "train_worlds = [\"test\"]\nspeeds"))
             .unwrap_err()
             .to_string();
@@ -573,11 +589,15 @@ mod tests {
 
     #[test]
     fn bad_values_and_restrictions_are_refused() {
-        let e = parse(&format!("{MINIMAL}[eval]\nruns = 4\ntrim = 2\n")).unwrap_err().to_string();
+        let e = parse(&format!("{MINIMAL}[eval]\nruns = 4\ntrim = 2\n"))
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("[eval]") && e.contains("trim"), "{e}");
         let e = parse(&MINIMAL.replace("dwa", "dwaa")).unwrap_err().to_string();
         assert!(e.contains("dwaa"), "{e}");
-        let e = parse(&format!("{MINIMAL}[eval]\nstart_jitter_m = 3.0\n")).unwrap_err().to_string();
+        let e = parse(&format!("{MINIMAL}[eval]\nstart_jitter_m = 3.0\n"))
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("start_jitter_m"), "{e}");
         let r = Restrict {
             planners: vec![PlannerKind::Mppi],

@@ -16,7 +16,9 @@ use std::path::Path;
 use serde::{Deserialize, Serialize};
 
 use adp_learner::checkpoint::{Manifest, FORMAT, FORMAT_VERSION};
-use adp_learner::export::{actor_onnx, actor_safetensors, space_name, JSON_FILE, ONNX_FILE, SAFETENSORS_FILE};
+use adp_learner::export::{
+    actor_onnx, actor_safetensors, space_name, JSON_FILE, ONNX_FILE, SAFETENSORS_FILE,
+};
 use adp_learner::{Device, FitOptions, PolicyCard, Td3};
 use planner::ActionSpace;
 
@@ -160,7 +162,9 @@ mod tests {
         assert_eq!(c.len(), 20);
         assert_eq!(c[0], ActionSpace::Decremental.ddp_action());
         // DDP is at p = +1 and alpha = -1 already: 8 edge moves minus those 2 duplicates.
-        assert!(c[1..7].iter().all(|a| a.iter().filter(|v| v.abs() == 1.0).count() >= 1));
+        assert!(c[1..7]
+            .iter()
+            .all(|a| a.iter().filter(|v| v.abs() == 1.0).count() >= 1));
         assert!(c.iter().all(|a| a.iter().all(|v| (-1.0..=1.0).contains(v))));
         assert_eq!(c, candidates(ActionSpace::Decremental, 20, 1));
         assert_eq!(candidates(ActionSpace::Unconstrained, 3, 1).len(), 3);

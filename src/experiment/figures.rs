@@ -69,6 +69,12 @@ fn err<E: std::fmt::Debug>(e: E) -> anyhow::Error {
     anyhow::anyhow!("drawing failed: {e:?}")
 }
 
+/// A value of a greedy-evaluation line.
+type Field = fn(&GreedyPoint) -> f64;
+
+/// A physical value derived from a schedule's parameters.
+type Derived = Box<dyn Fn(&[f64]) -> f64>;
+
 /// Seed colours.
 fn colour(i: usize) -> RGBColor {
     const C: [RGBColor; 6] = [
@@ -88,9 +94,7 @@ pub fn learning_curves(curves: &[(String, Vec<GreedyPoint>)], title: &str, out: 
     fonts();
     let root = BitMapBackend::new(out, (1200, 500)).into_drawing_area();
     root.fill(&WHITE).map_err(err)?;
-    let root = root
-        .titled(title, (FAMILY, 22))
-        .map_err(err)?;
+    let root = root.titled(title, (FAMILY, 22)).map_err(err)?;
     let panels = root.split_evenly((1, 2));
     let max_x = curves
         .iter()
@@ -99,7 +103,7 @@ pub fn learning_curves(curves: &[(String, Vec<GreedyPoint>)], title: &str, out: 
         .unwrap_or(1)
         .max(1) as f64;
     for (k, panel) in panels.iter().enumerate() {
-        let (label, y_max, get, ddp): (&str, f64, fn(&GreedyPoint) -> f64, fn(&GreedyPoint) -> f64) = if k == 0 {
+        let (label, y_max, get, ddp): (&str, f64, Field, Field) = if k == 0 {
             ("greedy success (%)", 100.0, |p| p.success, |p| p.ddp_success)
         } else {
             ("greedy score", 0.5, |p| p.score, |p| p.ddp_score)
@@ -128,7 +132,10 @@ pub fn learning_curves(curves: &[(String, Vec<GreedyPoint>)], title: &str, out: 
                 .label(name.clone())
                 .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(2)));
             chart
-                .draw_series(pts.iter().map(|p| Circle::new((p.agent_steps as f64, get(p)), 3, c.filled())))
+                .draw_series(
+                    pts.iter()
+                        .map(|p| Circle::new((p.agent_steps as f64, get(p)), 3, c.filled())),
+                )
                 .map_err(err)?;
             // DDP's reference, dashed.
             let grey = RGBColor(120, 120, 120);
@@ -140,7 +147,10 @@ pub fn learning_curves(curves: &[(String, Vec<GreedyPoint>)], title: &str, out: 
                     if s % 2 == 0 {
                         let (a, b) = (s as f64 / 8.0, (s + 1) as f64 / 8.0);
                         dashes.push(PathElement::new(
-                            vec![(x0 + a * (x1 - x0), y0 + a * (y1 - y0)), (x0 + b * (x1 - x0), y0 + b * (y1 - y0))],
+                            vec![
+                                (x0 + a * (x1 - x0), y0 + a * (y1 - y0)),
+                                (x0 + b * (x1 - x0), y0 + b * (y1 - y0)),
+                            ],
                             grey.stroke_width(2),
                         ));
                     }
@@ -148,7 +158,11 @@ pub fn learning_curves(curves: &[(String, Vec<GreedyPoint>)], title: &str, out: 
             }
             if let [only] = &pts[..] {
                 chart
-                    .draw_series(std::iter::once(Cross::new((only.agent_steps as f64, ddp(only)), 5, grey.stroke_width(2))))
+                    .draw_series(std::iter::once(Cross::new(
+                        (only.agent_steps as f64, ddp(only)),
+                        5,
+                        grey.stroke_width(2),
+                    )))
                     .map_err(err)?;
             }
             let series = chart.draw_series(dashes).map_err(err)?;
@@ -167,7 +181,8 @@ pub fn learning_curves(curves: &[(String, Vec<GreedyPoint>)], title: &str, out: 
             .draw()
             .map_err(err)?;
     }
-    root.present().with_context(|| format!("cannot write {}", out.display()))
+    root.present()
+        .with_context(|| format!("cannot write {}", out.display()))
 }
 
 /// Per-world scatter of ADP's score (mean over seeds) against DDP's, with the diagonal;
@@ -208,27 +223,34 @@ pub fn world_scatter(points: &[(usize, f64, f64)], title: &str, out: &Path) -> a
     let wins = points.iter().filter(|p| p.2 > p.1 + 1e-9).count();
     let losses = points.iter().filter(|p| p.2 < p.1 - 1e-9).count();
     root.draw(&Text::new(
-        format!("ADP better on {wins} worlds (green), worse on {losses} (red), {} worlds", points.len()),
+        format!(
+            "ADP better on {wins} worlds (green), worse on {losses} (red), {} worlds",
+            points.len()
+        ),
         (80, 60),
         (FAMILY, 15),
     ))
     .map_err(err)?;
-    root.present().with_context(|| format!("cannot write {}", out.display()))
+    root.present()
+        .with_context(|| format!("cannot write {}", out.display()))
 }
 
 /// The physical parameters plotted against clutter for a space: (name, value of a point).
-fn panels(space: ActionSpace) -> Vec<(String, Box<dyn Fn(&[f64]) -> f64>)> {
+fn panels(space: ActionSpace) -> Vec<(String, Derived)> {
     match space {
         ActionSpace::Unconstrained => vec![
             ("first step dt (s)".into(), Box::new(|p: &[f64]| p[0])),
             ("last step dt (s)".into(), Box::new(|p: &[f64]| p[p.len() - 1])),
-            ("horizon (s, at most 2)".into(), Box::new(|p: &[f64]| p.iter().sum::<f64>().min(2.0))),
+            (
+                "horizon (s, at most 2)".into(),
+                Box::new(|p: &[f64]| p.iter().sum::<f64>().min(2.0)),
+            ),
         ],
         _ => space
             .ranges()
             .into_iter()
             .enumerate()
-            .map(|(i, (name, _, _))| -> (String, Box<dyn Fn(&[f64]) -> f64>) {
+            .map(|(i, (name, _, _))| -> (String, Derived) {
                 (name.to_string(), Box::new(move |p: &[f64]| p[i]))
             })
             .collect(),
@@ -283,7 +305,12 @@ pub fn binned(trace: &[TracePoint], value: &dyn Fn(&[f64]) -> f64) -> Vec<(f64, 
 
 /// The chosen schedule's parameters against local clutter: per parameter, every traced step
 /// (faint) and the binned mean ± sd.
-pub fn schedule_vs_clutter(trace: &[TracePoint], space: ActionSpace, title: &str, out: &Path) -> anyhow::Result<()> {
+pub fn schedule_vs_clutter(
+    trace: &[TracePoint],
+    space: ActionSpace,
+    title: &str,
+    out: &Path,
+) -> anyhow::Result<()> {
     fonts();
     let ps = panels(space);
     let root = BitMapBackend::new(out, (420 * ps.len() as u32, 460)).into_drawing_area();
@@ -312,11 +339,13 @@ pub fn schedule_vs_clutter(trace: &[TracePoint], space: ActionSpace, title: &str
             .draw()
             .map_err(err)?;
         chart
-            .draw_series(
-                trace
-                    .iter()
-                    .map(|t| Circle::new((t.clutter, value(&t.params)), 2, RGBColor(31, 119, 180).mix(0.15).filled())),
-            )
+            .draw_series(trace.iter().map(|t| {
+                Circle::new(
+                    (t.clutter, value(&t.params)),
+                    2,
+                    RGBColor(31, 119, 180).mix(0.15).filled(),
+                )
+            }))
             .map_err(err)?;
         let b = binned(trace, value.as_ref());
         let red = RGBColor(214, 39, 40);
@@ -324,12 +353,14 @@ pub fn schedule_vs_clutter(trace: &[TracePoint], space: ActionSpace, title: &str
             .draw_series(LineSeries::new(b.iter().map(|x| (x.0, x.1)), red.stroke_width(3)))
             .map_err(err)?;
         chart
-            .draw_series(b.iter().map(|x| {
-                PathElement::new(vec![(x.0, x.1 - x.2), (x.0, x.1 + x.2)], red.stroke_width(2))
-            }))
+            .draw_series(
+                b.iter()
+                    .map(|x| PathElement::new(vec![(x.0, x.1 - x.2), (x.0, x.1 + x.2)], red.stroke_width(2))),
+            )
             .map_err(err)?;
     }
-    root.present().with_context(|| format!("cannot write {}", out.display()))
+    root.present()
+        .with_context(|| format!("cannot write {}", out.display()))
 }
 
 /// One driven episode: world positions of the robot at every agent step with the schedule
@@ -343,7 +374,13 @@ pub struct Drive {
 
 /// Draws `drive` on `world`: cylinders, goal, and the path coloured by the chosen rollout
 /// horizon on the space's range (dark blue = shortest, yellow = longest).
-pub fn episode(world: &World, drive: &Drive, space: ActionSpace, title: &str, out: &Path) -> anyhow::Result<()> {
+pub fn episode(
+    world: &World,
+    drive: &Drive,
+    space: ActionSpace,
+    title: &str,
+    out: &Path,
+) -> anyhow::Result<()> {
     fonts();
     let root = BitMapBackend::new(out, (560, 1000)).into_drawing_area();
     root.fill(&WHITE).map_err(err)?;
@@ -379,9 +416,9 @@ pub fn episode(world: &World, drive: &Drive, space: ActionSpace, title: &str, ou
         .map_err(err)?;
     let hs: Vec<f64> = drive.steps.iter().map(|s| horizon(space, &s.1)).collect();
     let (lo, hi) = horizon_range(space);
-    let (hmin, hmax) = hs
-        .iter()
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |a, &h| (a.0.min(h), a.1.max(h)));
+    let (hmin, hmax) = hs.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |a, &h| {
+        (a.0.min(h), a.1.max(h))
+    });
     for (w, h) in drive.steps.windows(2).zip(&hs) {
         let f = ((h - lo) / (hi - lo)).clamp(0.0, 1.0);
         let c = RGBColor(
@@ -405,7 +442,8 @@ pub fn episode(world: &World, drive: &Drive, space: ActionSpace, title: &str, ou
         (FAMILY, 14),
     ))
     .map_err(err)?;
-    root.present().with_context(|| format!("cannot write {}", out.display()))
+    root.present()
+        .with_context(|| format!("cannot write {}", out.display()))
 }
 
 #[cfg(test)]

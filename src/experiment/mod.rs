@@ -80,9 +80,13 @@ pub fn run(args: &Args) -> anyhow::Result<PathBuf> {
             "{} already holds an experiment: pass --resume to continue it or choose another --out",
             dir.display()
         ),
-        (false, true) => bail!("--resume: {} holds no experiment ({CONFIG_COPY} is missing)", dir.display()),
+        (false, true) => bail!(
+            "--resume: {} holds no experiment ({CONFIG_COPY} is missing)",
+            dir.display()
+        ),
         (true, true) => {
-            let before = std::fs::read_to_string(&copy).with_context(|| format!("cannot read {}", copy.display()))?;
+            let before =
+                std::fs::read_to_string(&copy).with_context(|| format!("cannot read {}", copy.display()))?;
             if before != text {
                 bail!(
                     "--resume: {} differs from the experiment file {} was started with ({}); \
@@ -96,7 +100,9 @@ pub fn run(args: &Args) -> anyhow::Result<PathBuf> {
         (false, false) => write_atomic(&copy, text.as_bytes())?,
     }
     let mut cfg = EvalConfig::load(ex.eval.config.as_deref().map(Path::new))?;
-    cfg.episode = cfg.episode.with_profile(ex.train.env.profile, ex.train.env.dynamics);
+    cfg.episode = cfg
+        .episode
+        .with_profile(ex.train.env.profile, ex.train.env.dynamics);
     cfg.episode.start_jitter_m = ex.eval.start_jitter_m;
     cfg.episode.start_jitter_yaw_rad = ex.eval.start_jitter_yaw_rad;
     cfg.episode
@@ -130,7 +136,12 @@ pub fn run(args: &Args) -> anyhow::Result<PathBuf> {
             Stage::Train { arm, seed } => train(&ctx, *arm, *seed)?,
             _ => pool.install(|| run_stage(&ctx, stage))?,
         }
-        eprintln!("[{}/{}] done in {:.0} s", i + 1, todo.len(), t0.elapsed().as_secs_f64());
+        eprintln!(
+            "[{}/{}] done in {:.0} s",
+            i + 1,
+            todo.len(),
+            t0.elapsed().as_secs_f64()
+        );
     }
     let report = pool.install(|| write_report(&ctx))?;
     eprintln!("report: {}", report.display());
@@ -141,9 +152,16 @@ pub fn run(args: &Args) -> anyhow::Result<PathBuf> {
 fn describe(stage: &Stage, arms: &[Arm]) -> String {
     match *stage {
         Stage::Train { arm, seed } => format!("train {} seed {seed}", arms[arm].id()),
-        Stage::Search { arm } => format!("search the best constant of {} on the training worlds", arms[arm].id()),
+        Stage::Search { arm } => format!(
+            "search the best constant of {} on the training worlds",
+            arms[arm].id()
+        ),
         Stage::EvalDdp { planner, speed } => {
-            format!("evaluate DDP ({} at {} m/s)", planner_name(planner), speed_label(speed))
+            format!(
+                "evaluate DDP ({} at {} m/s)",
+                planner_name(planner),
+                speed_label(speed)
+            )
         }
         Stage::EvalConstant { arm } => format!("evaluate the best constant of {}", arms[arm].id()),
         Stage::EvalUntrained { arm } => format!("evaluate the untrained policy of {}", arms[arm].id()),
@@ -182,7 +200,12 @@ fn train(ctx: &Ctx<'_>, arm: usize, seed: usize) -> anyhow::Result<()> {
     let cfg = ctx.ex.train_config(a, seed);
     let run_dir = ctx.layout.run_dir(a, seed);
     let file = run_dir.join("experiment-train.toml");
-    write_atomic(&file, toml::to_string_pretty(&cfg).expect("configs serialize").as_bytes())?;
+    write_atomic(
+        &file,
+        toml::to_string_pretty(&cfg)
+            .expect("configs serialize")
+            .as_bytes(),
+    )?;
     let resume = has_checkpoint(&run_dir);
     crate::train::train(
         Some(&file),
@@ -290,7 +313,9 @@ fn run_stage(ctx: &Ctx<'_>, stage: &Stage) -> anyhow::Result<()> {
                     params: a.space.to_params(&action)?,
                     action,
                     score: runs.iter().map(|r| r.score).sum::<f64>() / n,
-                    success_pct: 100.0 * runs.iter().filter(|r| r.status == sim::Status::Succeeded).count() as f64 / n,
+                    success_pct: 100.0
+                        * runs.iter().filter(|r| r.status == sim::Status::Succeeded).count() as f64
+                        / n,
                 });
                 let c = found.last().expect("pushed");
                 eprintln!(
@@ -315,7 +340,10 @@ fn run_stage(ctx: &Ctx<'_>, stage: &Stage) -> anyhow::Result<()> {
                 .iter()
                 .find(|a| a.planner == planner && a.speed == speed)
                 .expect("a DDP stage comes from an arm");
-            let ev = evaluate(&test_spec(ctx, a, false), &Controller::Schedule(Schedule::ddp_default()))?;
+            let ev = evaluate(
+                &test_spec(ctx, a, false),
+                &Controller::Schedule(Schedule::ddp_default()),
+            )?;
             record(ctx, a, "ddp", ev).save(&out)
         }
         Stage::EvalConstant { arm } => {
@@ -323,10 +351,13 @@ fn run_stage(ctx: &Ctx<'_>, stage: &Stage) -> anyhow::Result<()> {
             let search_file = ctx.layout.output(&Stage::Search { arm }, &ex.arms);
             let text = std::fs::read_to_string(&search_file)
                 .with_context(|| format!("cannot read {}", search_file.display()))?;
-            let search: SearchResult =
-                serde_json::from_str(&text).with_context(|| format!("{}: not a search result", search_file.display()))?;
+            let search: SearchResult = serde_json::from_str(&text)
+                .with_context(|| format!("{}: not a search result", search_file.display()))?;
             let action = search.candidates[search.best].action.clone();
-            let ev = evaluate(&test_spec(ctx, a, false), &Controller::Schedule(a.space.schedule(&action, points)?))?;
+            let ev = evaluate(
+                &test_spec(ctx, a, false),
+                &Controller::Schedule(a.space.schedule(&action, points)?),
+            )?;
             let mut rec = record(ctx, a, "constant", ev);
             rec.action = Some(action);
             rec.save(&out)
@@ -414,7 +445,10 @@ fn arm_data(ctx: &Ctx<'_>, arm: usize) -> anyhow::Result<ArmData> {
     let search_file = ctx.layout.output(&Stage::Search { arm }, &ex.arms);
     let search = if search_file.exists() {
         let text = std::fs::read_to_string(&search_file)?;
-        Some(serde_json::from_str(&text).with_context(|| format!("{}: not a search result", search_file.display()))?)
+        Some(
+            serde_json::from_str(&text)
+                .with_context(|| format!("{}: not a search result", search_file.display()))?,
+        )
     } else {
         None
     };
@@ -456,7 +490,15 @@ fn drive(ctx: &Ctx<'_>, a: &Arm, p: &LearnedPolicy, world: usize) -> anyhow::Res
         max_agent_steps: u32::MAX,
         ..p.env
     };
-    let mut e = AdpEnv::new(&ctx.worlds[world], ctx.cfg.episode, planner, p.space, a.speed, env, seed)?;
+    let mut e = AdpEnv::new(
+        &ctx.worlds[world],
+        ctx.cfg.episode,
+        planner,
+        p.space,
+        a.speed,
+        env,
+        seed,
+    )?;
     let mut obs = vec![0.0f32; e.obs_dim()];
     let mut act = vec![0.0f32; p.space.dim()];
     let mut scratch = Scratch::default();
@@ -464,7 +506,9 @@ fn drive(ctx: &Ctx<'_>, a: &Arm, p: &LearnedPolicy, world: usize) -> anyhow::Res
     while e.end() == End::Continue {
         e.observation(&mut obs);
         p.net.act(&obs, &mut act, &mut scratch);
-        let params = p.space.to_params(&act.iter().map(|&x| f64::from(x)).collect::<Vec<_>>())?;
+        let params = p
+            .space
+            .to_params(&act.iter().map(|&x| f64::from(x)).collect::<Vec<_>>())?;
         steps.push((e.episode().state().pose.position(), params));
         e.step(&act)?;
     }
@@ -493,7 +537,9 @@ fn write_report(ctx: &Ctx<'_>) -> anyhow::Result<PathBuf> {
         let id = d.arm.id();
         // (i) learning curves.
         let curves: Vec<(String, Vec<figures::GreedyPoint>)> = (0..ex.seeds)
-            .filter_map(|s| figures::read_greedy(&ctx.layout.run_dir(&d.arm, s)).map(|g| (format!("seed {s}"), g)))
+            .filter_map(|s| {
+                figures::read_greedy(&ctx.layout.run_dir(&d.arm, s)).map(|g| (format!("seed {s}"), g))
+            })
             .filter(|(_, g)| !g.is_empty())
             .collect();
         if curves.is_empty() {
@@ -503,8 +549,15 @@ fn write_report(ctx: &Ctx<'_>) -> anyhow::Result<PathBuf> {
             ));
         } else {
             let file = format!("learning-{id}.png");
-            figures::learning_curves(&curves, &format!("{id}: greedy evaluation during training"), &fig_dir.join(&file))?;
-            figs.push((format!("{id}: greedy-evaluation learning curves"), format!("figures/{file}")));
+            figures::learning_curves(
+                &curves,
+                &format!("{id}: greedy evaluation during training"),
+                &fig_dir.join(&file),
+            )?;
+            figs.push((
+                format!("{id}: greedy-evaluation learning curves"),
+                format!("figures/{file}"),
+            ));
         }
         // (ii) per-world scatter against DDP.
         if let (Some(ddp), false) = (&d.ddp, d.adp.is_empty()) {
@@ -513,11 +566,24 @@ fn write_report(ctx: &Ctx<'_>) -> anyhow::Result<PathBuf> {
             let points: Vec<(usize, f64, f64)> = base
                 .iter()
                 .enumerate()
-                .map(|(i, &(w, _, s))| (w, s, stats::mean(&seeds.iter().map(|v| v[i].2).collect::<Vec<_>>())))
+                .map(|(i, &(w, _, s))| {
+                    (
+                        w,
+                        s,
+                        stats::mean(&seeds.iter().map(|v| v[i].2).collect::<Vec<_>>()),
+                    )
+                })
                 .collect();
             let file = format!("scatter-{id}.png");
-            figures::world_scatter(&points, &format!("{id}: score per test world"), &fig_dir.join(&file))?;
-            figs.push((format!("{id}: per-world ADP against DDP score"), format!("figures/{file}")));
+            figures::world_scatter(
+                &points,
+                &format!("{id}: score per test world"),
+                &fig_dir.join(&file),
+            )?;
+            figs.push((
+                format!("{id}: per-world ADP against DDP score"),
+                format!("figures/{file}"),
+            ));
         }
         // (iii) schedule against clutter.
         let trace: Vec<runner::TracePoint> = d.adp.iter().flat_map(|r| r.trace.iter().cloned()).collect();
@@ -526,7 +592,10 @@ fn write_report(ctx: &Ctx<'_>) -> anyhow::Result<PathBuf> {
             figures::schedule_vs_clutter(
                 &trace,
                 d.arm.space,
-                &format!("{id}: chosen schedule vs local clutter ({} agent steps)", trace.len()),
+                &format!(
+                    "{id}: chosen schedule vs local clutter ({} agent steps)",
+                    trace.len()
+                ),
                 &fig_dir.join(&file),
             )?;
             figs.push((
@@ -547,7 +616,10 @@ fn write_report(ctx: &Ctx<'_>) -> anyhow::Result<PathBuf> {
                 &fig_dir.join(&file),
             )?;
             figs.push((
-                format!("{id} seed 0 on test world {}: the path coloured by the chosen rollout horizon", ex.render_world),
+                format!(
+                    "{id} seed 0 on test world {}: the path coloured by the chosen rollout horizon",
+                    ex.render_world
+                ),
                 format!("figures/{file}"),
             ));
             rendered = true;
@@ -557,14 +629,20 @@ fn write_report(ctx: &Ctx<'_>) -> anyhow::Result<PathBuf> {
             .filter(|s| stage_arm(s, &ex.arms) == Some(arm))
             .count();
         if missing > 0 {
-            notes.push(format!("{id}: {missing} stage(s) not finished yet; their rows are missing"));
+            notes.push(format!(
+                "{id}: {missing} stage(s) not finished yet; their rows are missing"
+            ));
         }
     }
     let results: Vec<ArmResults> = data
         .iter()
         .map(|d| {
             let mut methods = Vec::new();
-            for (name, r) in [("ddp", &d.ddp), ("constant", &d.constant), ("untrained", &d.untrained)] {
+            for (name, r) in [
+                ("ddp", &d.ddp),
+                ("constant", &d.constant),
+                ("untrained", &d.untrained),
+            ] {
                 if let Some(r) = r {
                     methods.push((name.to_string(), None, r.summary()));
                 }
@@ -597,6 +675,8 @@ fn stage_arm(s: &Stage, arms: &[Arm]) -> Option<usize> {
         | Stage::EvalUntrained { arm }
         | Stage::EvalAdp { arm, .. }
         | Stage::EvalShuffled { arm, .. } => Some(arm),
-        Stage::EvalDdp { planner, speed } => arms.iter().position(|a| a.planner == planner && a.speed == speed),
+        Stage::EvalDdp { planner, speed } => {
+            arms.iter().position(|a| a.planner == planner && a.speed == speed)
+        }
     }
 }

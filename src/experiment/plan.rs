@@ -92,9 +92,11 @@ impl Layout {
 
     /// The DDP result of a planner and speed.
     pub fn ddp_file(&self, planner: PlannerKind, speed: f64) -> PathBuf {
-        self.dir
-            .join("eval")
-            .join(format!("ddp-{}-{}.json", planner_name(planner), speed_label(speed)))
+        self.dir.join("eval").join(format!(
+            "ddp-{}-{}.json",
+            planner_name(planner),
+            speed_label(speed)
+        ))
     }
 
     /// The file a stage writes (see the module docs).
@@ -137,7 +139,10 @@ pub fn stages(arms: &[Arm], seeds: usize) -> Vec<Stage> {
             ddp.push((a.planner, a.speed));
         }
     }
-    out.extend(ddp.into_iter().map(|(planner, speed)| Stage::EvalDdp { planner, speed }));
+    out.extend(
+        ddp.into_iter()
+            .map(|(planner, speed)| Stage::EvalDdp { planner, speed }),
+    );
     for arm in 0..arms.len() {
         out.push(Stage::EvalConstant { arm });
         out.push(Stage::EvalUntrained { arm });
@@ -167,7 +172,8 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
     }
     let tmp = path.with_extension(format!("tmp-{}", std::process::id()));
     std::fs::write(&tmp, bytes).with_context(|| format!("cannot write {}", tmp.display()))?;
-    std::fs::rename(&tmp, path).with_context(|| format!("cannot rename {} to {}", tmp.display(), path.display()))
+    std::fs::rename(&tmp, path)
+        .with_context(|| format!("cannot rename {} to {}", tmp.display(), path.display()))
 }
 
 #[cfg(test)]
@@ -176,15 +182,18 @@ mod tests {
     use planner::ActionSpace;
 
     fn arms() -> Vec<Arm> {
-        [(PlannerKind::Dwa, ActionSpace::Decremental), (PlannerKind::Dwa, ActionSpace::Incremental)]
-            .into_iter()
-            .map(|(planner, space)| Arm {
-                planner,
-                space,
-                speed: 1.5,
-                train_worlds: "train".into(),
-            })
-            .collect()
+        [
+            (PlannerKind::Dwa, ActionSpace::Decremental),
+            (PlannerKind::Dwa, ActionSpace::Incremental),
+        ]
+        .into_iter()
+        .map(|(planner, space)| Arm {
+            planner,
+            space,
+            speed: 1.5,
+            train_worlds: "train".into(),
+        })
+        .collect()
     }
 
     #[test]
@@ -192,7 +201,11 @@ mod tests {
         let s = stages(&arms(), 2);
         let count = |f: &dyn Fn(&Stage) -> bool| s.iter().filter(|x| f(x)).count();
         assert_eq!(count(&|x| matches!(x, Stage::Train { .. })), 4);
-        assert_eq!(count(&|x| matches!(x, Stage::EvalDdp { .. })), 1, "one DDP per planner and speed");
+        assert_eq!(
+            count(&|x| matches!(x, Stage::EvalDdp { .. })),
+            1,
+            "one DDP per planner and speed"
+        );
         assert_eq!(count(&|x| matches!(x, Stage::EvalAdp { .. })), 4);
         assert_eq!(s.len(), 4 + 2 + 1 + 2 * (2 + 4));
         // Every training comes before every evaluation of a policy.
@@ -240,7 +253,10 @@ mod tests {
             ]
         );
         // No temporary file is left behind.
-        let leftovers = walk(&dir).into_iter().filter(|p| p.to_string_lossy().contains(".tmp-")).count();
+        let leftovers = walk(&dir)
+            .into_iter()
+            .filter(|p| p.to_string_lossy().contains(".tmp-"))
+            .count();
         assert_eq!(leftovers, 0);
         std::fs::remove_dir_all(&dir).unwrap();
     }

@@ -60,7 +60,8 @@ pub struct Summary {
 impl EvalRecord {
     /// Reads a record.
     pub fn load(path: &Path) -> anyhow::Result<Self> {
-        let text = std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
+        let text =
+            std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
         serde_json::from_str(&text).with_context(|| format!("{}: not an evaluation record", path.display()))
     }
 

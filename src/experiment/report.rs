@@ -58,7 +58,12 @@ pub fn compare(
     if adp.is_empty() || control.is_empty() {
         return None;
     }
-    let worlds = |r: &EvalRecord| r.per_world.iter().map(|w| (w.world, w.runs.len())).collect::<Vec<_>>();
+    let worlds = |r: &EvalRecord| {
+        r.per_world
+            .iter()
+            .map(|w| (w.world, w.runs.len()))
+            .collect::<Vec<_>>()
+    };
     let shape = worlds(&adp[0]);
     if adp.iter().chain(control).any(|r| worlds(r) != shape) {
         return None;
@@ -117,7 +122,13 @@ fn pm(values: &[f64], decimals: usize) -> String {
     match values.len() {
         0 => "–".into(),
         1 => format!("{:.*}", decimals, values[0]),
-        _ => format!("{:.*} ± {:.*}", decimals, mean(values), decimals, sample_sd(values)),
+        _ => format!(
+            "{:.*} ± {:.*}",
+            decimals,
+            mean(values),
+            decimals,
+            sample_sd(values)
+        ),
     }
 }
 
@@ -202,7 +213,11 @@ pub fn render(ex: &Experiment, data: &[ArmData], figures: &[(String, String)], n
     for p in &planners {
         let arms: Vec<&ArmData> = data
             .iter()
-            .filter(|d| d.arm.planner == *p && d.arm.space == data[0].arm.space && d.arm.train_worlds == data[0].arm.train_worlds)
+            .filter(|d| {
+                d.arm.planner == *p
+                    && d.arm.space == data[0].arm.space
+                    && d.arm.train_worlds == data[0].arm.train_worlds
+            })
             .collect();
         let _ = writeln!(out, "### {}\n", planner_name(*p));
         let mut header = String::from("| method |");
@@ -245,7 +260,11 @@ pub fn render(ex: &Experiment, data: &[ArmData], figures: &[(String, String)], n
         }
         for (p, v) in keys {
             let _ = writeln!(out, "### {p}, {v} m/s\n");
-            let _ = writeln!(out, "| method | {} |\n|---|---|---|---|---|---|", METRICS.join(" | "));
+            let _ = writeln!(
+                out,
+                "| method | {} |\n|---|---|---|---|---|---|",
+                METRICS.join(" | ")
+            );
             let group: Vec<&ArmData> = data
                 .iter()
                 .filter(|d| planner_name(d.arm.planner) == p && speed_label(d.arm.speed) == v)
@@ -351,4 +370,66 @@ pub fn render(ex: &Experiment, data: &[ArmData], figures: &[(String, String)], n
         }
     }
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::experiment::runner::WorldOutcome;
+    use sim::{EpisodeResult, Status};
+
+    fn rec(name: &str, runs: &[(usize, bool, f64)]) -> EvalRecord {
+        EvalRecord {
+            controller: name.into(),
+            planner: "dwa".into(),
+            space: None,
+            speed: 1.5,
+            seed_index: None,
+            action: None,
+            policy: None,
+            runs: 1,
+            trim: 0,
+            seed: 0,
+            per_world: runs
+                .iter()
+                .map(|&(world, ok, score)| WorldOutcome {
+                    world,
+                    runs: vec![EpisodeResult {
+                        world,
+                        status: if ok { Status::Succeeded } else { Status::Collided },
+                        time_s: 10.0,
+                        sim_time_s: 10.0,
+                        score,
+                        distance_m: 0.0,
+                    }],
+                })
+                .collect(),
+            trace: vec![],
+        }
+    }
+
+    /// Two worlds, two ADP seeds, one control record, by hand: per-world ADP success 0.5 and
+    /// 1 against the control's 1 and 0 (Δ = -0.5, +1); scores 0.2 and 0.5 against 0.3 and 0
+    /// (Δ = -0.1, +0.5); pairs (seed, world): ADP only 2, control only 1.
+    #[test]
+    fn comparison_by_hand() {
+        let adp = [
+            rec("adp", &[(3, true, 0.4), (7, true, 0.5)]),
+            rec("adp", &[(3, false, 0.0), (7, true, 0.5)]),
+        ];
+        let control = [rec("ddp", &[(3, true, 0.3), (7, false, 0.0)])];
+        let c = compare("DDP", &adp, &control, 2000, 0.95, 1).unwrap();
+        assert!((c.d_success.mean - 0.25).abs() < 1e-12);
+        assert_eq!((c.d_success.lo, c.d_success.hi), (-0.5, 1.0));
+        assert!((c.d_score.mean - 0.2).abs() < 1e-12);
+        assert!((c.d_score.lo + 0.1).abs() < 1e-12 && (c.d_score.hi - 0.5).abs() < 1e-12);
+        let m = c.mcnemar;
+        assert_eq!((m.n, m.adp_only, m.control_only), (4, 2, 1));
+        // Exact: 2 (C(3,0) + C(3,1)) / 2^3 = 1; chi2: (|2 - 1| - 1)^2 / 3 = 0.
+        assert_eq!((m.p_exact, m.chi2), (1.0, 0.0));
+        // Other worlds cannot be paired.
+        let other = [rec("ddp", &[(4, true, 0.3), (7, false, 0.0)])];
+        assert!(compare("DDP", &adp, &other, 10, 0.95, 1).is_none());
+        assert!(compare("DDP", &adp, &[], 10, 0.95, 1).is_none());
+    }
 }

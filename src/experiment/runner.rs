@@ -136,9 +136,12 @@ pub fn observations(spec: &RunSpec<'_>, ctrl: &Controller<'_>) -> anyhow::Result
 
 fn run_all(spec: &RunSpec<'_>, ctrl: &Controller<'_>, collect: bool) -> anyhow::Result<Evaluation> {
     for &w in spec.world_ids {
-        spec.worlds
-            .get(w)
-            .with_context(|| format!("world {w} is not in the loaded data ({} worlds)", spec.worlds.len()))?;
+        spec.worlds.get(w).with_context(|| {
+            format!(
+                "world {w} is not in the loaded data ({} worlds)",
+                spec.worlds.len()
+            )
+        })?;
     }
     let jobs: Vec<(usize, usize)> = spec
         .world_ids
@@ -212,7 +215,15 @@ fn run_one(
         max_agent_steps: u32::MAX,
         ..env
     };
-    let mut e = AdpEnv::new(world, spec.cfg.episode, planner, space, spec.speed, eval_env, seed)?;
+    let mut e = AdpEnv::new(
+        world,
+        spec.cfg.episode,
+        planner,
+        space,
+        spec.speed,
+        eval_env,
+        seed,
+    )?;
     let mut obs = vec![0.0f32; e.obs_dim()];
     let mut action = vec![0.0f32; space.dim()];
     let mut trace = Vec::new();
@@ -311,7 +322,15 @@ mod tests {
             trace: true,
         };
         let env = EnvConfig::default();
-        let real = evaluate(&spec, &Controller::Policy { net: &net, env, space }).unwrap();
+        let real = evaluate(
+            &spec,
+            &Controller::Policy {
+                net: &net,
+                env,
+                space,
+            },
+        )
+        .unwrap();
         let pool = vec![vec![-1.0f32; 730]];
         let shuffled = evaluate(
             &spec,

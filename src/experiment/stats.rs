@@ -182,7 +182,9 @@ fn binomial_half_pmf(n: usize, k: usize) -> f64 {
 /// `ln C(n, k)` as a sum of logs (exact enough for the pair counts of an experiment).
 fn ln_choose(n: usize, k: usize) -> f64 {
     let k = k.min(n - k);
-    (0..k).map(|i| ((n - i) as f64).ln() - ((i + 1) as f64).ln()).sum()
+    (0..k)
+        .map(|i| ((n - i) as f64).ln() - ((i + 1) as f64).ln())
+        .sum()
 }
 
 /// Upper tail of the chi-square distribution with one degree of freedom:
@@ -206,7 +208,8 @@ fn erfc(x: f64) -> f64 {
                 + t * (0.096_784_18
                     + t * (-0.186_288_06
                         + t * (0.278_868_07
-                            + t * (-1.135_203_98 + t * (1.488_515_87 + t * (-0.822_152_23 + t * 0.170_872_77))))))));
+                            + t * (-1.135_203_98
+                                + t * (1.488_515_87 + t * (-0.822_152_23 + t * 0.170_872_77))))))));
     let r = t * poly.exp();
     if x >= 0.0 {
         r
@@ -252,9 +255,7 @@ mod tests {
         let i = bootstrap_mean(&[0.0, 1.0], 10_000, 0.95, 7);
         assert_eq!((i.mean, i.lo, i.hi), (0.5, 0.0, 1.0));
         let mut rng = SplitMix64::new(7);
-        let halves = (0..10_000)
-            .filter(|_| rng.below(2) + rng.below(2) == 1)
-            .count();
+        let halves = (0..10_000).filter(|_| rng.below(2) + rng.below(2) == 1).count();
         assert!((4800..5200).contains(&halves), "{halves}");
         // A 40 % interval (the 3000th to 7000th means) excludes both ends: [1/2, 1/2].
         let i = bootstrap_mean(&[0.0, 1.0], 10_000, 0.4, 7);
