@@ -334,6 +334,18 @@ enum Cmd {
         /// Worker threads of the evaluations (default: all cores).
         #[arg(long)]
         jobs: Option<usize>,
+        /// Evaluate only shard K of N of the test worlds (e.g. 0/8) of every pending
+        /// evaluation, into `<stage file>.shard-K-of-N`; a later run without --shard merges a
+        /// complete set. Training and constant searches must be finished.
+        #[arg(long, conflicts_with_all = ["no_eval", "emit_slurm"])]
+        shard: Option<experiment::shard::Shard>,
+        /// Run only the training and constant-search stages (no evaluation, no report).
+        #[arg(long, conflicts_with = "emit_slurm")]
+        no_eval: bool,
+        /// Print a SLURM job script that runs this experiment (training, evaluation sharded over
+        /// the [slurm] tasks, merge and report) and create --out with its experiment.toml.
+        #[arg(long, conflicts_with = "resume")]
+        emit_slurm: bool,
     },
     /// List or inspect worlds and splits.
     Worlds {
@@ -773,6 +785,9 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             seeds,
             steps,
             jobs,
+            shard,
+            no_eval,
+            emit_slurm,
         } => {
             let report = experiment::run(&experiment::Args {
                 config,
@@ -786,8 +801,13 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                     steps,
                 },
                 jobs,
+                shard,
+                no_eval,
+                emit_slurm,
             })?;
-            println!("{}", report.display());
+            if let Some(report) = report {
+                println!("{}", report.display());
+            }
             Ok(())
         }
         Cmd::Worlds { cmd } => match cmd {

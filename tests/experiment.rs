@@ -2,7 +2,8 @@
 //! training run, 3 runs per world with 1 trimmed from each end): the report, the results and
 //! PNG figures exist; a resumed experiment skips every finished stage (the trained arm is not
 //! trained again) and picks up a learning curve written since; a changed experiment file or a
-//! second start in the same directory is refused.
+//! second start in the same directory is refused; evaluation in two shards, merged, equals
+//! the unsharded one.
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
@@ -146,5 +147,55 @@ fn tiny_experiment_reports_resumes_and_refuses_mixing() {
         evaluated
     );
     assert!(is_png(&out.join("figures").join(format!("learning-{arm}.png"))));
+
+    // Sharded evaluation (as the SLURM job runs it) gives the same results once merged: a
+    // copy of the trained experiment evaluates in two shards, then merges and reports.
+    let out2 = dir.join("out2");
+    copy_tree(&out.join("runs"), &out2.join("runs"));
+    copy_tree(&out.join("search"), &out2.join("search"));
+    std::fs::copy(out.join("experiment.toml"), out2.join("experiment.toml")).unwrap();
+    let o2 = out2.to_str().unwrap();
+    for k in ["0/2", "1/2"] {
+        let s = adp(&["experiment", "--config", c, "--out", o2, "--shard", k]);
+        assert!(s.status.success(), "{}", stderr(&s));
+        assert!(!out2.join("report.md").exists());
+    }
+    let merged = adp(&["experiment", "--config", c, "--out", o2, "--resume"]);
+    assert!(merged.status.success(), "{}", stderr(&merged));
+    assert_eq!(
+        stderr(&merged).matches("merged 2 shards").count(),
+        5,
+        "{}",
+        stderr(&merged)
+    );
+    for file in [
+        "eval/ddp-dwa-1.5.json".to_string(),
+        format!("eval/{arm}/constant.json"),
+        format!("eval/{arm}/untrained.json"),
+        format!("eval/{arm}/seed-0/adp.json"),
+        format!("eval/{arm}/seed-0/shuffled.json"),
+    ] {
+        let read = |root: &Path| -> serde_json::Value {
+            serde_json::from_str(&std::fs::read_to_string(root.join(&file)).unwrap()).unwrap()
+        };
+        let (a, b) = (read(&out), read(&out2));
+        assert_eq!(a["per_world"], b["per_world"], "{file}");
+        assert_eq!(a["trace"], b["trace"], "{file}");
+    }
+    assert!(out2.join("report.md").exists());
     std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// Copies the regular files under `from` to `to`.
+fn copy_tree(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to).unwrap();
+    for e in std::fs::read_dir(from).unwrap() {
+        let e = e.unwrap();
+        let t = e.file_type().unwrap();
+        if t.is_dir() {
+            copy_tree(&e.path(), &to.join(e.file_name()));
+        } else if t.is_file() {
+            std::fs::copy(e.path(), to.join(e.file_name())).unwrap();
+        }
+    }
 }

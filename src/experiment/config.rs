@@ -180,6 +180,43 @@ pub struct FiguresSection {
     pub render_world: Option<usize>,
 }
 
+/// `[slurm]`: the job `adp experiment --emit-slurm` writes.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SlurmJob {
+    /// Nodes of the allocation.
+    pub nodes: u32,
+    /// Tasks: the evaluation shards (one per task).
+    pub tasks: u32,
+    /// CPUs per task.
+    pub cpus_per_task: u32,
+    /// Time limit `[D-]HH:MM:SS`.
+    pub time: String,
+    /// Partition; empty = the cluster's default.
+    pub partition: String,
+    /// Account; empty = the user's default.
+    pub account: String,
+    /// Shell lines run first (e.g. `module load ...`).
+    pub setup: Vec<String>,
+    /// The `adp` executable on the compute nodes; empty = the one that wrote the script.
+    pub adp: String,
+}
+
+impl Default for SlurmJob {
+    fn default() -> Self {
+        Self {
+            nodes: 1,
+            tasks: 8,
+            cpus_per_task: 1,
+            time: "24:00:00".into(),
+            partition: String::new(),
+            account: String::new(),
+            setup: Vec::new(),
+            adp: String::new(),
+        }
+    }
+}
+
 /// The file as written.
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -195,6 +232,8 @@ struct RawFile {
     stats: StatsSection,
     #[serde(default)]
     figures: FiguresSection,
+    #[serde(default)]
+    slurm: SlurmJob,
     #[serde(default)]
     train: toml::Table,
 }
@@ -275,6 +314,8 @@ pub struct Experiment {
     pub shuffle: ShuffleSection,
     /// `[stats]`.
     pub stats: StatsSection,
+    /// `[slurm]`.
+    pub slurm: SlurmJob,
     /// `[train]` over the embedded `configs/local.toml`.
     pub train: TrainConfig,
     /// The arms (after restrictions), planner-major.
@@ -402,6 +443,10 @@ impl Experiment {
         if raw.constant_search.candidates == 0 || raw.constant_search.runs == 0 {
             bail!("{name}: [constant_search] candidates and runs must be at least 1");
         }
+        let sl = &raw.slurm;
+        if sl.nodes == 0 || sl.tasks == 0 || sl.cpus_per_task == 0 || sl.time.is_empty() {
+            bail!("{name}: [slurm] nodes, tasks and cpus_per_task must be at least 1 and time set");
+        }
         if raw.shuffle.pool == 0 {
             bail!("{name}: [shuffle] pool must be at least 1");
         }
@@ -476,6 +521,7 @@ impl Experiment {
             search: raw.constant_search,
             shuffle: raw.shuffle,
             stats: raw.stats,
+            slurm: raw.slurm,
             train,
             arms,
             seeds,

@@ -29,7 +29,8 @@ use super::stats::SplitMix64;
 
 /// Writes the export directory `dir` of the untrained, DDP-initialized policy of the
 /// training configuration `cfg` (its `[td3]`, `[env]` and action space). The directory is
-/// written under a temporary name and renamed, so it exists only complete.
+/// written under a temporary name and renamed, so it exists only complete; when another
+/// process renamed its (identical) export there first, that one is kept.
 pub fn write_untrained_export(cfg: &TrainConfig, space: ActionSpace, dir: &Path) -> anyhow::Result<()> {
     let mut td3 = Td3::new(cfg.td3.clone(), &Device::flex())
         .map_err(|e| anyhow::anyhow!("untrained policy: [td3]: {e}"))?;
@@ -72,9 +73,19 @@ pub fn write_untrained_export(cfg: &TrainConfig, space: ActionSpace, dir: &Path)
     for (name, bytes) in [(ONNX_FILE, onnx), (SAFETENSORS_FILE, st), (JSON_FILE, json)] {
         write_atomic(&tmp.join(name), &bytes)?;
     }
-    let _ = std::fs::remove_dir_all(dir);
-    std::fs::rename(&tmp, dir)
-        .map_err(|e| anyhow::anyhow!("cannot rename {} to {}: {e}", tmp.display(), dir.display()))
+    match std::fs::rename(&tmp, dir) {
+        Ok(()) => Ok(()),
+        // Another process (an evaluation shard) wrote the same export first.
+        Err(_) if dir.join(JSON_FILE).exists() => {
+            let _ = std::fs::remove_dir_all(&tmp);
+            Ok(())
+        }
+        Err(e) => Err(anyhow::anyhow!(
+            "cannot rename {} to {}: {e}",
+            tmp.display(),
+            dir.display()
+        )),
+    }
 }
 
 /// The candidate constant actions of a search in `space`: the DDP action; then, for spaces of

@@ -16,6 +16,8 @@ pub mod plan;
 pub mod record;
 pub mod report;
 pub mod runner;
+pub mod shard;
+pub mod slurm;
 pub mod stats;
 
 use std::path::{Path, PathBuf};
@@ -38,6 +40,7 @@ use plan::{pending, stages, write_atomic, Layout, Stage};
 use record::{EvalRecord, Summary};
 use report::{comparisons, ArmData, Comparison};
 use runner::{evaluate, observations, Controller, RunSpec};
+use shard::Shard;
 
 /// The file in an experiment directory holding the experiment file it was started with.
 const CONFIG_COPY: &str = "experiment.toml";
@@ -55,6 +58,14 @@ pub struct Args {
     pub restrict: Restrict,
     /// Worker threads of the evaluations (default: all cores).
     pub jobs: Option<usize>,
+    /// Evaluate only this shard of the test worlds of every pending evaluation (implies
+    /// resume; training and searches must be finished).
+    pub shard: Option<Shard>,
+    /// Run the training and search stages only (no evaluation, no report).
+    pub no_eval: bool,
+    /// Print the SLURM job script of the experiment instead of running it (and create the
+    /// experiment directory with its `experiment.toml` and `logs/`).
+    pub emit_slurm: bool,
 }
 
 /// Everything a stage needs.
@@ -63,10 +74,63 @@ struct Ctx<'a> {
     layout: Layout,
     cfg: EvalConfig,
     worlds: &'a [World],
+    /// The test worlds this process evaluates (a shard's, or all).
+    test_worlds: Vec<usize>,
 }
 
-/// Runs the experiment; returns the path of its report.
-pub fn run(args: &Args) -> anyhow::Result<PathBuf> {
+/// Whether a stage is an evaluation on the test worlds.
+fn is_eval(s: &Stage) -> bool {
+    !matches!(s, Stage::Train { .. } | Stage::Search { .. })
+}
+
+/// Refuses to go on when `copy` (an experiment directory's `experiment.toml`) is not `text`.
+fn same_file(copy: &Path, text: &str, config: &Path, dir: &Path) -> anyhow::Result<()> {
+    let before = std::fs::read_to_string(copy).with_context(|| format!("cannot read {}", copy.display()))?;
+    if before != text {
+        bail!(
+            "{} differs from the experiment file {} was started with ({}); finished stages would \
+             mix settings: restore it or choose another --out",
+            config.display(),
+            dir.display(),
+            copy.display()
+        );
+    }
+    Ok(())
+}
+
+/// `--emit-slurm`: creates the experiment directory (its `experiment.toml` and `logs/`) and
+/// prints the job script.
+fn emit_slurm(ex: &Experiment, text: &str, dir: &Path, args: &Args) -> anyhow::Result<()> {
+    let dir = std::path::absolute(dir).with_context(|| format!("cannot resolve {}", dir.display()))?;
+    let logs = dir.join("logs");
+    std::fs::create_dir_all(&logs).with_context(|| format!("cannot create {}", logs.display()))?;
+    let copy = dir.join(CONFIG_COPY);
+    if copy.exists() {
+        same_file(&copy, text, &args.config, &dir)?;
+    } else {
+        write_atomic(&copy, text.as_bytes())?;
+    }
+    let adp = if ex.slurm.adp.is_empty() {
+        std::env::current_exe().context("cannot find this executable for the job script")?
+    } else {
+        PathBuf::from(&ex.slurm.adp)
+    };
+    print!(
+        "{}",
+        slurm::script(
+            &ex.section.name,
+            &ex.slurm,
+            &dir,
+            &adp,
+            &slurm::restrict_args(&args.restrict)
+        )
+    );
+    Ok(())
+}
+
+/// Runs the experiment; returns the path of its report (`None` when this process does not
+/// write one: `--emit-slurm`, `--shard`, `--no-eval`).
+pub fn run(args: &Args) -> anyhow::Result<Option<PathBuf>> {
     let ex = Experiment::load(&args.config, &args.restrict)?;
     let text = std::fs::read_to_string(&args.config)
         .with_context(|| format!("cannot read {}", args.config.display()))?;
@@ -74,8 +138,11 @@ pub fn run(args: &Args) -> anyhow::Result<PathBuf> {
         .out
         .clone()
         .unwrap_or_else(|| PathBuf::from("runs/experiments").join(&ex.section.name));
+    if args.emit_slurm {
+        return emit_slurm(&ex, &text, &dir, args).map(|()| None);
+    }
     let copy = dir.join(CONFIG_COPY);
-    match (copy.exists(), args.resume) {
+    match (copy.exists(), args.resume || args.shard.is_some()) {
         (true, false) => bail!(
             "{} already holds an experiment: pass --resume to continue it or choose another --out",
             dir.display()
@@ -113,6 +180,9 @@ pub fn run(args: &Args) -> anyhow::Result<PathBuf> {
         layout: Layout { dir: dir.clone() },
         cfg,
         worlds: sim::barn::worlds(),
+        test_worlds: args
+            .shard
+            .map_or_else(|| ex.test_worlds.clone(), |s| s.worlds(&ex.test_worlds)),
     };
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(args.jobs.unwrap_or(0))
@@ -129,23 +199,72 @@ pub fn run(args: &Args) -> anyhow::Result<PathBuf> {
         todo.len(),
         dir.display()
     );
+    if let (Some(sh), Some(first)) = (args.shard, todo.iter().find(|s| !is_eval(s))) {
+        bail!(
+            "--shard {}/{}: `{}` has not run yet; run the experiment with --no-eval first",
+            sh.index,
+            sh.count,
+            describe(first, &ex.arms)
+        );
+    }
     for (i, stage) in todo.iter().enumerate() {
         let t0 = Instant::now();
-        eprintln!("[{}/{}] {}", i + 1, todo.len(), describe(stage, &ex.arms));
+        let step = format!("[{}/{}]", i + 1, todo.len());
+        let out = ctx.layout.output(stage, &ex.arms);
+        if is_eval(stage) {
+            if args.no_eval {
+                continue;
+            }
+            if let Some(sh) = args.shard {
+                let file = sh.file(&out);
+                if file.exists() {
+                    eprintln!(
+                        "{step} shard {}/{} of `{}` exists",
+                        sh.index,
+                        sh.count,
+                        describe(stage, &ex.arms)
+                    );
+                    continue;
+                }
+                eprintln!(
+                    "{step} {} (shard {}/{})",
+                    describe(stage, &ex.arms),
+                    sh.index,
+                    sh.count
+                );
+                pool.install(|| run_stage(&ctx, stage, &file))?;
+                eprintln!("{step} done in {:.0} s", t0.elapsed().as_secs_f64());
+                continue;
+            }
+            if let Some(files) = shard::complete_set(&out) {
+                let records = files
+                    .iter()
+                    .map(|f| EvalRecord::load(f))
+                    .collect::<anyhow::Result<Vec<_>>>()?;
+                shard::merge(records, &ex.test_worlds)
+                    .with_context(|| format!("merging the shards of {}", out.display()))?
+                    .save(&out)?;
+                eprintln!(
+                    "{step} {}: merged {} shards",
+                    describe(stage, &ex.arms),
+                    files.len()
+                );
+                continue;
+            }
+        }
+        eprintln!("{step} {}", describe(stage, &ex.arms));
         match stage {
             Stage::Train { arm, seed } => train(&ctx, *arm, *seed)?,
-            _ => pool.install(|| run_stage(&ctx, stage))?,
+            _ => pool.install(|| run_stage(&ctx, stage, &out))?,
         }
-        eprintln!(
-            "[{}/{}] done in {:.0} s",
-            i + 1,
-            todo.len(),
-            t0.elapsed().as_secs_f64()
-        );
+        eprintln!("{step} done in {:.0} s", t0.elapsed().as_secs_f64());
+    }
+    if args.no_eval || args.shard.is_some() {
+        return Ok(None);
     }
     let report = pool.install(|| write_report(&ctx))?;
     eprintln!("report: {}", report.display());
-    Ok(report)
+    Ok(Some(report))
 }
 
 /// A stage in words.
@@ -260,7 +379,7 @@ fn test_spec<'a>(ctx: &'a Ctx<'_>, a: &Arm, trace: bool) -> RunSpec<'a> {
         worlds: ctx.worlds,
         planner: a.planner,
         speed: a.speed,
-        world_ids: &ctx.ex.test_worlds,
+        world_ids: &ctx.test_worlds,
         runs: ctx.ex.eval.runs,
         seed: ctx.ex.eval.seed,
         trace,
@@ -285,10 +404,9 @@ fn record(ctx: &Ctx<'_>, a: &Arm, controller: &str, ev: runner::Evaluation) -> E
     }
 }
 
-/// Runs an evaluation or search stage and writes its file.
-fn run_stage(ctx: &Ctx<'_>, stage: &Stage) -> anyhow::Result<()> {
+/// Runs an evaluation or search stage and writes its result to `out`.
+fn run_stage(ctx: &Ctx<'_>, stage: &Stage, out: &Path) -> anyhow::Result<()> {
     let ex = ctx.ex;
-    let out = ctx.layout.output(stage, &ex.arms);
     let points = planner::schedule::DEFAULT_BOUNDARY_POINTS;
     match *stage {
         Stage::Train { .. } => unreachable!("training runs outside the pool"),
@@ -332,7 +450,7 @@ fn run_stage(ctx: &Ctx<'_>, stage: &Stage) -> anyhow::Result<()> {
                 best: best_constant(&found),
                 candidates: found,
             };
-            write_atomic(&out, &serde_json::to_vec_pretty(&result).expect("serializes"))
+            write_atomic(out, &serde_json::to_vec_pretty(&result).expect("serializes"))
         }
         Stage::EvalDdp { planner, speed } => {
             let a = ex
@@ -344,7 +462,7 @@ fn run_stage(ctx: &Ctx<'_>, stage: &Stage) -> anyhow::Result<()> {
                 &test_spec(ctx, a, false),
                 &Controller::Schedule(Schedule::ddp_default()),
             )?;
-            record(ctx, a, "ddp", ev).save(&out)
+            record(ctx, a, "ddp", ev).save(out)
         }
         Stage::EvalConstant { arm } => {
             let a = &ex.arms[arm];
@@ -360,7 +478,7 @@ fn run_stage(ctx: &Ctx<'_>, stage: &Stage) -> anyhow::Result<()> {
             )?;
             let mut rec = record(ctx, a, "constant", ev);
             rec.action = Some(action);
-            rec.save(&out)
+            rec.save(out)
         }
         Stage::EvalUntrained { arm } => {
             let a = &ex.arms[arm];
@@ -376,7 +494,7 @@ fn run_stage(ctx: &Ctx<'_>, stage: &Stage) -> anyhow::Result<()> {
             };
             let mut rec = record(ctx, a, "untrained", evaluate(&test_spec(ctx, a, false), &ctrl)?);
             rec.policy = Some(dir.display().to_string());
-            rec.save(&out)
+            rec.save(out)
         }
         Stage::EvalAdp { arm, seed } | Stage::EvalShuffled { arm, seed } => {
             let a = &ex.arms[arm];
@@ -403,7 +521,7 @@ fn run_stage(ctx: &Ctx<'_>, stage: &Stage) -> anyhow::Result<()> {
             let mut rec = record(ctx, a, name, ev);
             rec.seed_index = Some(seed);
             rec.policy = Some(dir.display().to_string());
-            rec.save(&out)
+            rec.save(out)
         }
     }
 }
