@@ -199,3 +199,70 @@ fn copy_tree(from: &Path, to: &Path) {
         }
     }
 }
+
+/// Whether a SLURM cluster answers (`SLURM_CONF`, see tests/slurm.rs); panics when one is
+/// required (`ADP_REQUIRE_SLURM=1`, set by `.ci/run`) and does not.
+fn cluster() -> bool {
+    let conf = std::env::var_os("SLURM_CONF");
+    let answers = conf.is_some()
+        && Command::new("sinfo")
+            .arg("-h")
+            .output()
+            .is_ok_and(|o| o.status.success());
+    if !answers {
+        assert!(
+            std::env::var("ADP_REQUIRE_SLURM").as_deref() != Ok("1"),
+            "ADP_REQUIRE_SLURM=1 but no SLURM cluster answers"
+        );
+        eprintln!("SKIPPED: no SLURM cluster (start one with scripts/slurm-cluster.sh start DIR)");
+    }
+    answers
+}
+
+/// The job `adp experiment --emit-slurm` writes trains, evaluates in two shards, merges and
+/// reports on a real (single-host) cluster. `sbatch --wait` is bounded by the job's time
+/// limit.
+#[test]
+fn emitted_slurm_job_runs_the_experiment() {
+    if !cluster() {
+        return;
+    }
+    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("experiment-slurm");
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let config = dir.join("tiny.toml");
+    let text = TINY.replace(
+        "[stats]",
+        "[slurm]\ntasks = 2\ncpus_per_task = 1\ntime = \"00:10:00\"\n\n[stats]",
+    );
+    std::fs::write(&config, text).unwrap();
+    let out = dir.join("out");
+    let emitted = adp(&[
+        "experiment",
+        "--config",
+        config.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--emit-slurm",
+    ]);
+    assert!(emitted.status.success(), "{}", stderr(&emitted));
+    let script = dir.join("job.sbatch");
+    std::fs::write(&script, &emitted.stdout).unwrap();
+    let submitted = Command::new("sbatch")
+        .args(["--wait", "--parsable"])
+        .arg(&script)
+        .current_dir(&dir)
+        .output()
+        .unwrap();
+    let logs: String = std::fs::read_dir(out.join("logs"))
+        .map(|d| {
+            d.flatten()
+                .map(|e| std::fs::read_to_string(e.path()).unwrap_or_default())
+                .collect()
+        })
+        .unwrap_or_default();
+    assert!(submitted.status.success(), "{}\n{logs}", stderr(&submitted));
+    assert_eq!(logs.matches("merged 2 shards").count(), 5, "{logs}");
+    assert!(out.join("report.md").exists(), "{logs}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
