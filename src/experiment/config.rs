@@ -591,6 +591,8 @@ mod tests {
             ("[train.td3]\nactor_lrr = 1e-4\n", "actor_lrr"),
             ("[train.run]\nstepz = 3\n", "stepz"),
             ("[shuffle]\npoool = 3\n", "poool"),
+            ("[slurm]\ntaskz = 3\n", "taskz"),
+            ("[figures]\nrender = 3\n", "render"),
         ] {
             let e = parse(&format!("{MINIMAL}{extra}")).unwrap_err().to_string();
             assert!(
