@@ -357,6 +357,9 @@ impl Experiment {
     pub fn parse(name: &str, text: &str, restrict: &Restrict) -> anyhow::Result<Self> {
         let raw: RawFile =
             toml::from_str(text).map_err(|e| anyhow::anyhow!("{name}: {}", one_line(&e.to_string())))?;
+        // Unknown keys of [train] are named before the merge (whose text has other lines).
+        TrainConfig::deserialize(raw.train.clone())
+            .map_err(|e| anyhow::anyhow!("{name}: [train]: {}", one_line(&e.to_string())))?;
         let mut base: toml::Table = toml::from_str(LOCAL_TOML).expect("the embedded local.toml parses");
         merge(&mut base, raw.train);
         let mut train = TrainConfig::parse(

@@ -296,7 +296,10 @@ pub fn render(ex: &Experiment, data: &[ArmData], figures: &[(String, String)], n
                 .params
                 .iter()
                 .zip(&names)
-                .map(|(v, n)| format!("{n} = {v:.3}"))
+                .map(|(v, n)| match *n {
+                    "N" => format!("{n} = {v:.0}"),
+                    _ => format!("{n} = {v:.3}"),
+                })
                 .collect();
             let action: Vec<String> = b.action.iter().map(|v| format!("{v:.3}")).collect();
             let _ = writeln!(
