@@ -42,6 +42,9 @@ pub struct Comparison {
     pub d_score: Interval,
     /// McNemar's test on success, pairs (seed, world, run) with the same run seed.
     pub mcnemar: McNemar,
+    /// The same test for each seed alone (pairs (world, run); a control's runs are then used
+    /// once), in seed order.
+    pub per_seed: Vec<McNemar>,
 }
 
 /// Compares the seeds `adp` with `control` (one record shared by every seed, or one per
@@ -81,16 +84,23 @@ pub fn compare(
     let score = |x: &(usize, f64, f64)| x.2;
     let ds = paired_differences(&per_world_mean(adp, success), &per_world_mean(control, success));
     let dc = paired_differences(&per_world_mean(adp, score), &per_world_mean(control, score));
-    let mut pairs = Vec::new();
-    for (i, a) in adp.iter().enumerate() {
-        let c = &control[i % control.len()];
-        pairs.extend(a.outcomes().into_iter().zip(c.outcomes()));
-    }
+    let seed_pairs: Vec<Vec<(bool, bool)>> = adp
+        .iter()
+        .enumerate()
+        .map(|(i, a)| {
+            a.outcomes()
+                .into_iter()
+                .zip(control[i % control.len()].outcomes())
+                .collect()
+        })
+        .collect();
+    let pairs: Vec<(bool, bool)> = seed_pairs.iter().flatten().copied().collect();
     Some(Comparison {
         control: name.into(),
         d_success: bootstrap_mean(&ds, resamples, confidence, seed),
         d_score: bootstrap_mean(&dc, resamples, confidence, seed ^ 1),
         mcnemar: mcnemar(pairs),
+        per_seed: seed_pairs.into_iter().map(mcnemar).collect(),
     })
 }
 
@@ -323,9 +333,10 @@ pub fn render(ex: &Experiment, data: &[ArmData], figures: &[(String, String)], n
         "Per test world: ADP's success rate and score after trimming (mean over seeds) minus the \
          control's. Mean Δ over worlds with a {conf:.0} % percentile-bootstrap interval ({} \
          resamples, seeded). McNemar's test on success over every (seed, world, run) pair with the \
-         same run seed, untrimmed (a control's runs are paired with each seed's): n pairs, \
-         ADP-only and control-only successes, the exact binomial p-value and the chi-square with \
-         continuity correction.\n",
+         same run seed, untrimmed (a control's runs are paired with each seed's, so these pairs \
+         are not independent across seeds): n pairs, ADP-only and control-only successes, the \
+         exact binomial p-value and the chi-square with continuity correction; then the exact \
+         p-value of each seed alone (pairs (world, run), ADP-only/control-only).\n",
         ex.stats.resamples
     );
     for d in data {
@@ -336,12 +347,12 @@ pub fn render(ex: &Experiment, data: &[ArmData], figures: &[(String, String)], n
         let _ = writeln!(out, "### {}\n", d.arm.id());
         let _ = writeln!(
             out,
-            "| control | worlds | Δ success (pp) [{conf:.0} % CI] | Δ score [{conf:.0} % CI] | pairs | ADP only | control only | p exact | χ² | p χ² |\n|---|---|---|---|---|---|---|---|---|---|"
+            "| control | worlds | Δ success (pp) [{conf:.0} % CI] | Δ score [{conf:.0} % CI] | pairs | ADP only | control only | p exact | χ² | p χ² | p exact per seed |\n|---|---|---|---|---|---|---|---|---|---|---|"
         );
         for c in cmp {
             let _ = writeln!(
                 out,
-                "| {} | {} | {:+.2} [{:+.2}, {:+.2}] | {:+.4} [{:+.4}, {:+.4}] | {} | {} | {} | {:.4} | {:.3} | {:.4} |",
+                "| {} | {} | {:+.2} [{:+.2}, {:+.2}] | {:+.4} [{:+.4}, {:+.4}] | {} | {} | {} | {:.4} | {:.3} | {:.4} | {} |",
                 c.control,
                 c.d_success.n,
                 100.0 * c.d_success.mean,
@@ -355,7 +366,12 @@ pub fn render(ex: &Experiment, data: &[ArmData], figures: &[(String, String)], n
                 c.mcnemar.control_only,
                 c.mcnemar.p_exact,
                 c.mcnemar.chi2,
-                c.mcnemar.p_chi2
+                c.mcnemar.p_chi2,
+                c.per_seed
+                    .iter()
+                    .map(|m| format!("{:.4} ({}/{})", m.p_exact, m.adp_only, m.control_only))
+                    .collect::<Vec<_>>()
+                    .join(", ")
             );
         }
         out.push('\n');
@@ -430,6 +446,9 @@ mod tests {
         assert_eq!((m.n, m.adp_only, m.control_only), (4, 2, 1));
         // Exact: 2 (C(3,0) + C(3,1)) / 2^3 = 1; chi2: (|2 - 1| - 1)^2 / 3 = 0.
         assert_eq!((m.p_exact, m.chi2), (1.0, 0.0));
+        // Per seed: seed 0 wins world 7 only (1/0), seed 1 wins 7 and loses 3 (1/1).
+        let per: Vec<(usize, usize)> = c.per_seed.iter().map(|m| (m.adp_only, m.control_only)).collect();
+        assert_eq!(per, [(1, 0), (1, 1)]);
         // Other worlds cannot be paired.
         let other = [rec("ddp", &[(4, true, 0.3), (7, false, 0.0)])];
         assert!(compare("DDP", &adp, &other, 10, 0.95, 1).is_none());
