@@ -595,7 +595,12 @@ mod tests {
         let mut flat = vec![0.0; 730 * 4];
         flat.extend(bias);
         let net = MlpPolicy::from_flat(&[730, 4], flat).unwrap();
-        let action: Vec<f64> = bias.iter().map(|b| f64::from(b.tanh())).collect();
+        // The policy's output, mapped to the box by the environment's (DDP-centred) map.
+        let output: Vec<f64> = bias.iter().map(|b| f64::from(b.tanh())).collect();
+        let mut action = vec![0.0; 4];
+        EnvConfig::default()
+            .action_map
+            .map_into(&output, &space.ddp_action(), &mut action);
         let schedule = space
             .schedule(&action, planner::schedule::DEFAULT_BOUNDARY_POINTS)
             .unwrap();

@@ -6,6 +6,7 @@ mod config;
 mod eval;
 mod experiment;
 mod export;
+mod greedy;
 mod policy;
 mod render;
 mod slurm;

@@ -211,13 +211,16 @@ fn load_learned(card_path: &Path, requested: Option<ActionSpace>) -> anyhow::Res
             "activations {activations:?}: this build runs relu hidden layers and a tanh output"
         )));
     }
-    // Cards written before simulator profiles existed were trained on what is now `ideal`.
+    // Cards written before simulator profiles existed were trained on what is now `ideal`;
+    // before the action map and reward scale existed, on the affine box and raw rewards.
     let mut recorded = match &card.environment {
         serde_json::Value::Null => serde_json::json!({}),
         other => other.clone(),
     };
     if let Some(map) = recorded.as_object_mut() {
         map.entry("profile").or_insert_with(|| "ideal".into());
+        map.entry("action_map").or_insert_with(|| "affine".into());
+        map.entry("reward_scale").or_insert_with(|| 1.0.into());
     }
     let env = serde_json::from_value::<EnvConfig>(recorded)
         .map_err(|e| e.to_string())
@@ -450,8 +453,9 @@ mod tests {
     }
 
     /// The environment a card records is the one the policy is evaluated in; a card without
-    /// one gets the defaults on the `ideal` profile (cards before profiles were trained on
-    /// it), as does a recorded one without a profile; one that is not a valid `[env]` table
+    /// one gets the defaults on the `ideal` profile and the affine action map (what cards before
+    /// those settings were trained on), as does a recorded one without them; one that is not a
+    /// valid `[env]` table
     /// is refused.
     #[test]
     fn the_cards_environment_is_the_evaluation_environment() {
@@ -468,17 +472,22 @@ mod tests {
 
         let legacy = EnvConfig {
             profile: sim::Profile::Ideal,
+            action_map: planner::ActionMap::Affine,
+            reward_scale: 1.0,
             ..EnvConfig::default()
         };
         write_export(&dir, &actor, ActionSpace::Decremental);
         assert_eq!(learned(&dir, None).unwrap().env, legacy);
         let mut old = recorded.clone();
-        old.as_object_mut().unwrap().remove("profile");
+        for key in ["profile", "action_map"] {
+            old.as_object_mut().unwrap().remove(key);
+        }
         write_export_with(&dir, &actor, ActionSpace::Decremental, &old);
         assert_eq!(
             learned(&dir, None).unwrap().env,
             EnvConfig {
                 profile: sim::Profile::Ideal,
+                action_map: planner::ActionMap::Affine,
                 ..trained
             }
         );
@@ -576,22 +585,30 @@ mod tests {
     }
 
     /// DESIGN §5: the DDP-initialized actor (what `adp train` starts from) outputs the DDP
-    /// schedule for every observation, within rounding. The fit draws observations uniform in
-    /// [-1, 1]; this checks the loaded network on the observations of real closed-loop
-    /// episodes (raw velocities and goal distances of several metres), step by step.
+    /// schedule for every observation. Under the default DDP-centred action map it is exact:
+    /// the actor outputs 0, which the environment maps to DDP's box action. This checks the
+    /// loaded network on the observations of real closed-loop episodes (raw velocities and
+    /// goal distances of several metres), step by step.
     #[test]
     fn ddp_initialized_policy_picks_the_ddp_schedule_on_real_observations() {
         let dir = fresh_dir("ddp");
         let space = ActionSpace::Decremental;
+        let env_cfg = EnvConfig::default();
         let mut td3 = Td3::new(Td3Config::default(), &Device::flex()).unwrap();
-        let target: Vec<f32> = space.ddp_action().iter().map(|&a| a as f32).collect();
+        let target: Vec<f32> = env_cfg
+            .action_map
+            .ddp_policy_action(space)
+            .iter()
+            .map(|&a| a as f32)
+            .collect();
+        assert_eq!(target, vec![0.0; 4]);
         td3.init_actor_to_action(&target, &FitOptions::default()).unwrap();
         write_export(&dir, &td3.policy(), space);
         let l = learned(&dir, None).unwrap();
         let ddp = Schedule::ddp_default();
+        let ddp_box = space.ddp_action();
         let cfg = crate::config::EvalConfig::load(None).unwrap();
         let (mut obs, mut action, mut scratch) = (vec![0.0; 730], [0.0f32; 4], actor::Scratch::default());
-        let tolerance = FitOptions::default().tolerance;
         let mut steps = 0;
         for world in [0, 1, 20, 100, 250] {
             let mut env = AdpEnv::new(
@@ -600,37 +617,21 @@ mod tests {
                 Box::new(planner::Dwa::new(cfg.dwa)),
                 space,
                 1.5,
-                EnvConfig::default(),
+                env_cfg,
                 7,
             )
             .unwrap();
             while env.end() == End::Continue {
                 env.observation(&mut obs);
                 l.net.act(&obs, &mut action, &mut scratch);
-                for (a, t) in action.iter().zip(&target) {
-                    assert!(
-                        (a - t).abs() <= tolerance,
-                        "world {world}: action {action:?} vs DDP {target:?}"
-                    );
-                }
+                assert_eq!(action.to_vec(), target, "world {world}: exactly DDP's output");
                 let a64: Vec<f64> = action.iter().map(|&a| f64::from(a)).collect();
-                let schedule = space.schedule(&a64, ddp.boundary_points()).unwrap();
-                assert_eq!(schedule.len(), ddp.len(), "world {world}: N");
-                for (c, d) in schedule.checks().iter().zip(ddp.checks()) {
-                    assert!(
-                        c.abs_diff(*d) <= 1,
-                        "world {world}: checks {:?} vs {:?}",
-                        schedule.checks(),
-                        ddp.checks()
-                    );
-                }
+                let mut boxed = vec![0.0; 4];
+                env_cfg.action_map.map_into(&a64, &ddp_box, &mut boxed);
+                let schedule = space.schedule(&boxed, ddp.boundary_points()).unwrap();
+                assert_eq!(schedule.checks(), ddp.checks(), "world {world}");
                 for (x, y) in schedule.dts().iter().zip(ddp.dts()) {
-                    assert!(
-                        (x - y).abs() <= 2e-3,
-                        "world {world}: steps {:?} vs {:?}",
-                        schedule.dts(),
-                        ddp.dts()
-                    );
+                    assert!((x - y).abs() <= 1e-12, "world {world}: {x} vs {y}");
                 }
                 env.step(&action).unwrap();
                 steps += 1;

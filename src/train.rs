@@ -23,6 +23,7 @@ use scheduler::{
 
 use crate::config::{one_line, EvalConfig};
 use crate::eval::PlannerKind;
+use crate::greedy::{GreedyMonitor, GreedySection};
 use crate::slurm::SlurmSection;
 
 /// The embedded default of `configs/local.toml`.
@@ -54,7 +55,7 @@ impl Default for RunSection {
             name: "local".into(),
             steps: 40_000,
             actors: 0,
-            worlds: "train".into(),
+            worlds: "fit".into(),
             planner: "dwa".into(),
             action_space: "decremental".into(),
             max_speed: 1.5,
@@ -102,6 +103,8 @@ pub struct TrainConfig {
     pub service: ServiceConfig,
     /// The actor sandbox.
     pub sandbox: SandboxSection,
+    /// Greedy evaluation of the newest policy on held-out worlds during `adp train`.
+    pub greedy: GreedySection,
     /// The shape of a cluster job (`adp slurm`; ignored by `adp train`).
     pub slurm: SlurmSection,
 }
@@ -326,12 +329,29 @@ pub fn train(config: Option<&Path>, o: &Overrides, resume: bool) -> anyhow::Resu
     );
     let mut last = (Instant::now(), 0u64);
     let mut updates_per_s = 0.0;
+    let mut greedy = GreedyMonitor::new(
+        &cfg.greedy,
+        &out,
+        cfg.planner_kind()?,
+        cfg.space()?,
+        cfg.run.max_speed,
+        cfg.env,
+        cfg.td3.seed,
+        learner.status().inserts,
+    )?;
     while !learner.finished() {
         std::thread::sleep(Duration::from_millis(250));
         for event in supervisor.poll(Instant::now()) {
             bar.println(format!("supervisor: {}", describe(&event)));
         }
         let s = learner.status();
+        if let Some(g) = greedy.as_mut() {
+            match g.poll(s.inserts, || learner.latest_policy()) {
+                Some(Ok(r)) => bar.println(crate::greedy::describe(&r)),
+                Some(Err(e)) => bar.println(e),
+                None => {}
+            }
+        }
         let dt = last.0.elapsed().as_secs_f64();
         if dt >= 2.0 {
             updates_per_s = (s.updates - last.1) as f64 / dt;
@@ -349,6 +369,12 @@ pub fn train(config: Option<&Path>, o: &Overrides, resume: bool) -> anyhow::Resu
         ));
     }
     bar.finish();
+    if let Some(g) = greedy {
+        let inserts = learner.status().inserts;
+        for r in g.finish(inserts, || learner.latest_policy()) {
+            eprintln!("{}", r.map_or_else(|e| e, |r| crate::greedy::describe(&r)));
+        }
+    }
     let summary = learner.wait().map_err(anyhow::Error::msg)?;
     supervisor.shutdown(Duration::from_secs(3));
     print_summary(&summary, &out, &cfg.run.action_space, "train");

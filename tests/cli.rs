@@ -268,8 +268,11 @@ fn runs(row: &serde_json::Value) -> Vec<serde_json::Value> {
 fn eval_runs_an_exported_ddp_initialized_policy_like_ddp() {
     let dir = fresh_dir("eval-ddp-policy");
     let export = export_policy(&dir, &[512, 512], |td3| {
-        let target: Vec<f32> = planner::ActionSpace::Decremental
-            .ddp_action()
+        // The export records the default environment, whose DDP-centred action map puts DDP
+        // at output 0.
+        let target: Vec<f32> = actor::EnvConfig::default()
+            .action_map
+            .ddp_policy_action(planner::ActionSpace::Decremental)
             .iter()
             .map(|&a| a as f32)
             .collect();
@@ -323,6 +326,7 @@ fn eval_runs_an_exported_ddp_initialized_policy_like_ddp() {
         }
     }
     assert!(other_outcome <= 1 && same_time >= 5, "ddp {ddp:?} vs adp {adp:?}");
+    assert_eq!(ddp, adp, "output 0 is DDP exactly, run by run");
     std::fs::remove_dir_all(&dir).ok();
 }
 
@@ -333,15 +337,22 @@ fn eval_runs_an_exported_ddp_initialized_policy_like_ddp() {
 #[test]
 fn eval_policy_with_a_constant_output_matches_the_constant_action() {
     let dir = fresh_dir("eval-constant-policy");
-    // Coarse and fast-ending: p = 1.2, T = 1.7 s, N = 16, alpha = 0.5.
-    let bias: [f32; 4] = [-0.4, -0.6, -0.7, 0.6];
+    // Through the DDP-centred map: p = 1.42, T = 1.68 s, N = 17, alpha = 0.36.
+    let bias: [f32; 4] = [-0.4, -0.6, -0.6, 0.6];
     let export = export_policy(&dir, &[32], |td3| {
         let actor = td3.policy().with_output(0.0, &bias.map(f32::atanh));
         td3.set_actor(actor);
     });
+    // The environment maps the network's output to the box with its (DDP-centred) map.
+    let ddp = planner::ActionSpace::Decremental.ddp_action();
     let action: Vec<String> = bias
-        .map(|b| format!("{:?}", f64::from(b.atanh().tanh())))
-        .to_vec();
+        .iter()
+        .zip(&ddp)
+        .map(|(b, &d)| {
+            let box_action = planner::ActionMap::DdpCentred.to_box(f64::from(b.atanh().tanh()), d);
+            format!("{box_action:?}")
+        })
+        .collect();
     let toml = dir.join("x.toml");
     std::fs::write(&toml, format!("action = [{}]\n", action.join(", "))).unwrap();
     let common = ["--worlds", "0..6", "--runs", "2", "--max-speed", "2.0"];

@@ -1,26 +1,31 @@
 //! The RL environment: a BARN episode driven by a planner whose time-grid schedule is the
 //! agent's action. Pure (no I/O) and deterministic given the seed and the actions.
 //!
-//! One agent step applies one action for `agent_period_cycles` planner cycles (0.25 s at the
-//! 0.05 s control period), stopping early if the episode ends, then scores the step:
+//! One agent step maps the policy's output through the [`ActionMap`] to a schedule, applies it
+//! for `agent_period_cycles` planner cycles (0.25 s at the 0.05 s control period), stopping
+//! early if the episode ends, then scores the step. Every reward below is multiplied by
+//! `reward_scale`:
 //!
 //! * collision: `collision_reward` (replaces the shaping terms), [`End::Terminal`];
 //! * success: shaping + `success_reward`, [`End::Terminal`];
-//! * the simulator's own timeout or the agent step cap: `timeout_reward` (replaces the
-//!   shaping terms), [`End::Truncated`];
+//! * the simulator's own timeout or the agent step cap: shaping + `timeout_reward` (default
+//!   0), [`End::Truncated`]. A time limit is not part of the task's state (the observation
+//!   has no clock), so the learner bootstraps through it and it carries no penalty of its
+//!   own: a stuck robot is already paying `step_penalty` and earning no progress;
 //! * otherwise the shaping terms, [`End::Continue`]: `progress_scale * (d_prev - d)` with `d`
 //!   the Euclidean distance of the robot to the global goal, plus `step_penalty`, plus the
-//!   obstacle penalty of [`crate::reward::obstacle_penalty`].
+//!   obstacle penalty of [`crate::reward::obstacle_penalty`] on the clearance between the
+//!   robot's footprint and its lidar returns.
 
 use planner::action::ActionError;
 use planner::schedule::DEFAULT_BOUNDARY_POINTS;
-use planner::{ActionSpace, PlanInput, Planner, Prediction};
+use planner::{ActionMap, ActionSpace, PlanInput, Planner, Prediction};
 use serde::{Deserialize, Serialize};
 use sim::episode::{Episode, EpisodeConfig, EpisodeResult, Status};
 use sim::{Dynamics, Profile, World};
 
 use crate::observation::{self, DEFAULT_LASER_CLIP_M, LASER_BEAMS};
-use crate::reward::obstacle_penalty;
+use crate::reward::{footprint_clearance, obstacle_penalty};
 
 /// Environment parameters: agent rate, step cap, laser clip and the reward terms.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -36,18 +41,29 @@ pub struct EnvConfig {
     pub progress_scale: f64,
     /// Reward added every step (default -0.5).
     pub step_penalty: f64,
-    /// The obstacle penalty applies when the mean of the 10 smallest ranges is below this
-    /// (m; default 0.05).
+    /// The obstacle penalty applies when the robot's clearance (the mean of the 10 smallest
+    /// distances from its footprint's boundary to the lidar returns) is below this (m; default
+    /// 0.2: about half the Jackal's width, where DWA's and MPPI's obstacle costs start).
     pub obstacle_threshold_m: f64,
-    /// Obstacle penalty at zero distance; it falls quadratically to 0 at the threshold
-    /// (default -1.0).
+    /// Obstacle penalty at zero clearance; it falls quadratically to 0 at the threshold
+    /// (default -5.0: a twentieth of a collision per 0.25 s touching).
     pub obstacle_scale: f64,
     /// Reward of the step that collides (default -100.0).
     pub collision_reward: f64,
-    /// Reward of the step that hits the step cap or the simulator's timeout (default -100.0).
+    /// Added to the shaping reward of the step that hits the step cap or the simulator's
+    /// timeout (default 0.0). The learner bootstraps through such a step (the state has no
+    /// clock), so a non-zero value is noise to the critic; it is kept for ablations.
     pub timeout_reward: f64,
     /// Added to the shaping reward of the step that reaches the goal (default 50.0).
     pub success_reward: f64,
+    /// Every reward is multiplied by this before it is stored (default 0.01: collision -1,
+    /// success +0.5, a metre of progress +0.1), so returns are O(1) at the learning rates of
+    /// `[td3]`, which the authors tuned on normalized rewards. Episode returns in reports and
+    /// status are in these scaled units.
+    pub reward_scale: f64,
+    /// How the policy's output becomes a schedule (`ddp-centred` (default): output 0 is the
+    /// DDP schedule; `affine`: the paper's box, where DDP is a corner). See [`ActionMap`].
+    pub action_map: ActionMap,
     /// The simulator profile the episodes run on (`ideal`, `gazebo-jackal` (default) or
     /// `custom`): the robot's true response and the planners' rollout model. It overrides the
     /// episode settings' profile, so checkpoints and the policy card record what the policy
@@ -66,11 +82,13 @@ impl Default for EnvConfig {
             laser_clip_m: DEFAULT_LASER_CLIP_M,
             progress_scale: 10.0,
             step_penalty: -0.5,
-            obstacle_threshold_m: 0.05,
-            obstacle_scale: -1.0,
+            obstacle_threshold_m: 0.2,
+            obstacle_scale: -5.0,
             collision_reward: -100.0,
-            timeout_reward: -100.0,
+            timeout_reward: 0.0,
             success_reward: 50.0,
+            reward_scale: 0.01,
+            action_map: ActionMap::DdpCentred,
             profile: Profile::default(),
             dynamics: None,
         }
@@ -106,6 +124,12 @@ impl EnvConfig {
             if !v.is_finite() {
                 return bad(format!("{name} = {v} must be finite"));
             }
+        }
+        if !(self.reward_scale.is_finite() && self.reward_scale > 0.0) {
+            return bad(format!(
+                "reward_scale = {} must be finite and > 0",
+                self.reward_scale
+            ));
         }
         self.profile
             .resolve(self.dynamics.as_ref(), "env.dynamics")
@@ -180,6 +204,10 @@ pub struct AdpEnv<'w> {
     prediction: Prediction,
     cfg: EnvConfig,
     previous_action: Vec<f32>,
+    /// The space's DDP action in box units (for the action map).
+    ddp_box: Vec<f64>,
+    /// The policy's output as f64, then its box action.
+    policy_f64: Vec<f64>,
     action_f64: Vec<f64>,
     goal_distance: f64,
     agent_steps: u32,
@@ -190,7 +218,7 @@ pub struct AdpEnv<'w> {
 impl<'w> AdpEnv<'w> {
     /// Starts an episode on `world` with `episode_cfg` under the profile of `cfg` (which
     /// replaces the episode settings' own); `seed` drives the sensor noise and drift. The
-    /// previous action starts as the space's DDP action. Refuses invalid configurations, a lidar without
+    /// previous action starts as the policy output that selects DDP under the action map. Refuses invalid configurations, a lidar without
     /// [`LASER_BEAMS`] beams (the observation layout needs them) and a non-positive speed cap.
     pub fn new(
         world: &'w World,
@@ -226,8 +254,15 @@ impl<'w> AdpEnv<'w> {
             max_speed,
             prediction: Prediction::for_profile(cfg.profile),
             cfg,
-            previous_action: space.ddp_action().into_iter().map(|a| a as f32).collect(),
-            action_f64: Vec::with_capacity(space.dim()),
+            previous_action: cfg
+                .action_map
+                .ddp_policy_action(space)
+                .into_iter()
+                .map(|a| a as f32)
+                .collect(),
+            ddp_box: space.ddp_action(),
+            policy_f64: Vec::with_capacity(space.dim()),
+            action_f64: vec![0.0; space.dim()],
             goal_distance,
             agent_steps: 0,
             episode_return: 0.0,
@@ -290,8 +325,19 @@ impl<'w> AdpEnv<'w> {
                 agent_steps: self.agent_steps,
             });
         }
-        self.action_f64.clear();
-        self.action_f64.extend(action.iter().map(|&a| f64::from(a)));
+        if action.len() != self.space.dim() {
+            return Err(ActionError::Dim {
+                space: self.space,
+                expected: self.space.dim(),
+                got: action.len(),
+            }
+            .into());
+        }
+        self.policy_f64.clear();
+        self.policy_f64.extend(action.iter().map(|&a| f64::from(a)));
+        self.cfg
+            .action_map
+            .map_into(&self.policy_f64, &self.ddp_box, &mut self.action_f64);
         let schedule = self.space.schedule(&self.action_f64, DEFAULT_BOUNDARY_POINTS)?;
         for _ in 0..self.cfg.agent_period_cycles {
             let cmd = self.planner.plan(&PlanInput {
@@ -318,23 +364,24 @@ impl<'w> AdpEnv<'w> {
         self.goal_distance = distance;
         let cfg = &self.cfg;
         let shaping = || {
+            let clearance = footprint_clearance(
+                self.episode.perception().points,
+                &self.episode.config().robot.footprint,
+            );
             cfg.progress_scale * progress
                 + cfg.step_penalty
-                + obstacle_penalty(
-                    self.episode.perception().ranges,
-                    cfg.obstacle_threshold_m,
-                    cfg.obstacle_scale,
-                )
+                + obstacle_penalty(clearance, cfg.obstacle_threshold_m, cfg.obstacle_scale)
         };
         let (reward, end) = match self.episode.status() {
             Status::Collided => (cfg.collision_reward, End::Terminal),
             Status::Succeeded => (shaping() + cfg.success_reward, End::Terminal),
-            Status::TimedOut => (cfg.timeout_reward, End::Truncated),
+            Status::TimedOut => (shaping() + cfg.timeout_reward, End::Truncated),
             Status::Running if self.agent_steps >= cfg.max_agent_steps => {
-                (cfg.timeout_reward, End::Truncated)
+                (shaping() + cfg.timeout_reward, End::Truncated)
             }
             Status::Running => (shaping(), End::Continue),
         };
+        let reward = reward * cfg.reward_scale;
         if end == End::Truncated {
             // Marks a step-cap cut as a timeout in the result; no-op after the sim's own.
             self.episode.abandon();
@@ -432,12 +479,17 @@ mod tests {
         .unwrap()
     }
 
+    /// The policy output that selects DDP under the default (DDP-centred) action map.
     fn ddp() -> Vec<f32> {
-        ActionSpace::Decremental
-            .ddp_action()
-            .into_iter()
-            .map(|a| a as f32)
-            .collect()
+        vec![0.0; 4]
+    }
+
+    /// Default rewards in the configured units, before `reward_scale`.
+    fn unscaled() -> EnvConfig {
+        EnvConfig {
+            reward_scale: 1.0,
+            ..EnvConfig::default()
+        }
     }
 
     #[test]
@@ -480,7 +532,8 @@ mod tests {
             let after = e.episode().state().pose.position().dist(world.goal);
             assert_eq!(out.end, End::Continue);
             assert!(after < before, "DWA drives toward the goal");
-            let want = 10.0 * (before - after) - 0.5;
+            // Scaled by the default reward_scale 0.01.
+            let want = 0.1 * (before - after) - 0.005;
             assert!(
                 (f64::from(out.reward) - want).abs() < 1e-5,
                 "{} vs {want}",
@@ -500,7 +553,7 @@ mod tests {
         // slower).
         let ideal = EnvConfig {
             profile: sim::Profile::Ideal,
-            ..EnvConfig::default()
+            ..unscaled()
         };
         let mut e = env(&world, constant(1.0), ideal, 1);
         let action = [0.3, -0.2, 0.5, 0.9];
@@ -534,11 +587,50 @@ mod tests {
     }
 
     #[test]
-    fn step_cap_truncates_with_the_timeout_reward() {
+    fn obstacle_penalty_fires_by_footprint_clearance() {
+        // Creeping at the wall (its near surface at y = 1.425): once the front bumper is
+        // within 0.2 m the step's reward drops below progress + step penalty, by the
+        // quadratic penalty of the footprint's clearance.
+        let world = open_field(true);
+        let cfg = EnvConfig {
+            profile: sim::Profile::Ideal,
+            ..unscaled()
+        };
+        let mut e = env(&world, constant(0.3), cfg, 1);
+        let mut penalized = Vec::new();
+        while e.end() == End::Continue {
+            let before = e.episode().state().pose.position().dist(world.goal);
+            let out = e.step(&ddp()).unwrap();
+            if out.end != End::Continue {
+                break;
+            }
+            let after = e.episode().state().pose.position().dist(world.goal);
+            let front = e.episode().state().pose.y + 0.254;
+            let shortfall = 10.0 * (before - after) - 0.5 - f64::from(out.reward);
+            let gap = 1.425 - front;
+            if gap > 0.25 {
+                assert!(shortfall.abs() < 1e-4, "gap {gap}: shortfall {shortfall}");
+            } else if gap < 0.1 {
+                assert!(shortfall > 0.1, "gap {gap}: shortfall {shortfall}");
+            }
+            if shortfall > 1e-4 {
+                penalized.push(shortfall);
+            }
+        }
+        assert!(penalized.len() >= 2, "{penalized:?}");
+        assert!(
+            penalized.windows(2).all(|w| w[1] > w[0]),
+            "grows as the robot closes in: {penalized:?}"
+        );
+    }
+
+    #[test]
+    fn step_cap_truncates_with_the_shaping_and_timeout_reward() {
         let world = open_field(false);
         let cfg = EnvConfig {
             max_agent_steps: 3,
-            ..EnvConfig::default()
+            timeout_reward: -100.0,
+            ..unscaled()
         };
         let mut e = env(&world, constant(0.0), cfg, 1);
         let rewards: Vec<_> = (0..3).map(|_| e.step(&ddp()).unwrap()).collect();
@@ -554,20 +646,21 @@ mod tests {
         assert_eq!(
             rewards[2],
             StepOutcome {
-                reward: -100.0,
+                reward: -100.5,
                 end: End::Truncated
-            }
+            },
+            "the cut step keeps its shaping and adds timeout_reward"
         );
         let r = e.result();
         assert_eq!(
             (r.episode.status, r.agent_steps, r.episode_return),
-            (Status::TimedOut, 3, -101.0)
+            (Status::TimedOut, 3, -101.5)
         );
         assert!(e.step(&ddp()).is_err());
     }
 
     #[test]
-    fn sim_timeout_truncates_with_the_timeout_reward() {
+    fn sim_timeout_truncates_without_a_penalty_by_default() {
         let world = open_field(false);
         let ep = EpisodeConfig {
             timeout_s: 0.3,
@@ -587,9 +680,10 @@ mod tests {
         assert_eq!(
             e.step(&ddp()).unwrap(),
             StepOutcome {
-                reward: -100.0,
+                reward: (-0.5f64 * 0.01) as f32,
                 end: End::Truncated
-            }
+            },
+            "standing still: the step penalty only, scaled"
         );
         let r = e.result().episode;
         assert_eq!(r.status, Status::TimedOut);
@@ -692,7 +786,11 @@ mod tests {
         // World 1: DWA with the DDP grid at 1.5 m/s succeeds in about 7.5 s. (World 0 is not
         // usable here: DWA gets stuck in it and times out with any schedule driver.)
         let world = sim::barn::world(1).unwrap();
-        let mut e = env(world, dwa(), EnvConfig::default(), 11);
+        let cfg = EnvConfig {
+            obstacle_scale: 0.0,
+            ..unscaled()
+        };
+        let mut e = env(world, dwa(), cfg, 11);
         let action = ddp();
         let mut last = None;
         while e.end() == End::Continue {
@@ -709,7 +807,7 @@ mod tests {
         );
         assert!(r.episode.score > 0.0 && r.agent_steps < 200);
         // Shaping telescopes: the return is 10 x the distance covered toward the goal, minus
-        // 0.5 per step, plus 50 (no obstacle penalty: the lidar reads at least 0.1 m).
+        // 0.5 per step, plus 50 (the obstacle term is off here).
         let start = world.start.position().dist(world.goal);
         let end = e.episode().state().pose.position().dist(world.goal);
         let want = 10.0 * (start - end) - 0.5 * f64::from(r.agent_steps) + 50.0;

@@ -63,9 +63,15 @@ pub struct Td3Config {
     pub exploration_start: f64,
     /// Exploration noise standard deviation at and after `exploration_steps`.
     pub exploration_end: f64,
-    /// Agent steps over which exploration decays linearly from start to end (the reference
-    /// `max_step`).
+    /// Agent steps over which exploration decays linearly from start to end; 0 (the default)
+    /// means the run's own step budget, so a short run ends exploiting as a long one does (the
+    /// reference code's fixed 1M `max_step` barely decays inside a 40K-step run).
     pub exploration_steps: u64,
+    /// Critic-only warm-up: the actor (and the target actor) is not updated until this many
+    /// critic updates are done, so the first actor steps follow a critic that has seen data
+    /// rather than its random initialization. 0 updates the actor from the first
+    /// `policy_delay`-th update, as plain TD3.
+    pub actor_warmup_updates: u64,
     /// Gradient updates per inserted agent step once warm-up is over (Reverb's samples per
     /// insert, counted in updates).
     pub updates_per_insert: f64,
@@ -98,7 +104,8 @@ impl Default for Td3Config {
             warmup_steps: 1024,
             exploration_start: 0.2,
             exploration_end: 0.05,
-            exploration_steps: 1_000_000,
+            exploration_steps: 0,
+            actor_warmup_updates: 2_000,
             updates_per_insert: 1.0,
             rate_tolerance: 1024.0,
             seed: 14,
@@ -268,12 +275,6 @@ impl Td3Config {
                 "must be finite and >= 0",
             )?;
         }
-        check(
-            self.exploration_steps > 0,
-            "exploration_steps",
-            self.exploration_steps,
-            "must be > 0",
-        )?;
         check(
             self.updates_per_insert.is_finite() && self.updates_per_insert > 0.0,
             "updates_per_insert",

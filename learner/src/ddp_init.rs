@@ -85,7 +85,8 @@ pub enum FitError {
     },
 }
 
-/// Fit `actor` (on an autodiff device) by MSE on the pre-tanh output against `atanh(target)`,
+/// Fit `actor` (on an autodiff device) by MSE on the pre-tanh output against `atanh(target)`
+/// (a target of zeros is set exactly instead: zero output weights and bias),
 /// so that `actor(obs) ≈ target` for observations uniform in [-1, 1], drawing observations from `rng`. Returns the fitted actor; the caller
 /// installs it (e.g. with [`crate::td3::Td3::set_actor`], which also resets the targets).
 /// Deterministic given the actor, the target and the RNG state.
@@ -107,6 +108,18 @@ pub fn fit_actor_to_action(
     }
     if let Some(i) = target.iter().position(|v| !(v.is_finite() && v.abs() <= 1.0)) {
         return Err(bad(i, target[i]));
+    }
+    if target.iter().all(|&t| t == 0.0) {
+        // The DDP-centred action map's DDP: zero output weights and bias give tanh(0) = 0 for
+        // every observation, exactly, where the actor's gradient is unsaturated.
+        let zeros = vec![0.0; act_dim];
+        return Ok((
+            actor.with_output(0.0, &zeros),
+            FitReport {
+                steps: 0,
+                max_error: 0.0,
+            },
+        ));
     }
     let device = actor.device();
     // Start from an output layer that is nearly the answer, then fit the residual.
@@ -209,6 +222,44 @@ mod tests {
             params(td3.actor()),
             "the target actor is reset to the fit"
         );
+    }
+
+    #[test]
+    fn a_zero_target_is_exact_and_unsaturated_and_trains() {
+        // The DDP-centred map puts DDP at 0: the initial actor outputs exactly 0 on any
+        // observation, where tanh' = 1, so every action dimension gets the critic's full
+        // gradient, and the first actor step moves every dimension.
+        let config = crate::test_util::tiny_config();
+        let config = Td3Config { act_dim: 4, ..config };
+        let mut td3 = Td3::new(config.clone(), &Device::flex()).unwrap();
+        let report = td3
+            .init_actor_to_action(&[0.0; 4], &FitOptions::default())
+            .unwrap();
+        assert_eq!(report.steps, 0);
+        assert_eq!(max_error_on_random_obs(&td3.policy(), &[0.0; 4], 512, 5), 0.0);
+        let mut rng = seeded_rng(0, 0);
+        let obs: Vec<f32> = (0..64 * config.obs_dim)
+            .map(|_| rng.random_range(-1.0..=1.0))
+            .collect();
+        let pre = td3
+            .policy()
+            .pre_tanh(tensor2(&obs, 64, config.obs_dim, &td3.policy().device()));
+        assert_eq!(
+            pre.abs().max().into_scalar::<f32>(),
+            0.0,
+            "tanh'(0) = 1: unsaturated"
+        );
+        for _ in 0..2 {
+            td3.update(&crate::test_util::random_batch(&config, 32, &mut rng))
+                .unwrap();
+        }
+        let moved = td3.policy().valid().act(&obs, 0.0, &mut rng);
+        for d in 0..4 {
+            assert!(
+                moved.iter().skip(d).step_by(4).any(|&a| a != 0.0),
+                "dimension {d} moved after one actor step"
+            );
+        }
     }
 
     #[test]

@@ -20,13 +20,18 @@ pub struct ExplorationSchedule {
 }
 
 impl ExplorationSchedule {
-    /// The schedule of a (valid) config: `exploration_start -> exploration_end` over
-    /// `exploration_steps`.
-    pub fn new(config: &Td3Config) -> Self {
+    /// The schedule of a (valid) config in a run of `budget` agent steps:
+    /// `exploration_start -> exploration_end` over `exploration_steps`, or over the budget when
+    /// that is 0.
+    pub fn new(config: &Td3Config, budget: u64) -> Self {
+        let steps = match config.exploration_steps {
+            0 => budget,
+            n => n,
+        };
         Self {
             start: config.exploration_start,
             end: config.exploration_end,
-            steps: config.exploration_steps,
+            steps: steps.max(1),
         }
     }
 
@@ -43,10 +48,13 @@ mod tests {
 
     #[test]
     fn decays_linearly_from_start_to_end_then_stays() {
-        let s = ExplorationSchedule::new(&Td3Config {
-            exploration_steps: 1000,
-            ..Td3Config::default()
-        });
+        let s = ExplorationSchedule::new(
+            &Td3Config {
+                exploration_steps: 1000,
+                ..Td3Config::default()
+            },
+            40_000,
+        );
         let close = |a: f64, b: f64| assert!((a - b).abs() < 1e-12, "{a} vs {b}");
         close(s.sigma(0), 0.2);
         close(s.sigma(250), 0.1625);
@@ -54,5 +62,14 @@ mod tests {
         close(s.sigma(1000), 0.05);
         close(s.sigma(1_000_000), 0.05);
         assert!((0..1000).all(|t| s.sigma(t + 1) < s.sigma(t)));
+    }
+
+    #[test]
+    fn zero_steps_decay_over_the_run_budget() {
+        let s = ExplorationSchedule::new(&Td3Config::default(), 40_000);
+        assert_eq!(s.steps, 40_000);
+        assert!((s.sigma(20_000) - 0.125).abs() < 1e-12);
+        assert!((s.sigma(40_000) - 0.05).abs() < 1e-12);
+        assert_eq!(ExplorationSchedule::new(&Td3Config::default(), 0).steps, 1);
     }
 }

@@ -160,7 +160,8 @@ impl Td3 {
     /// 2. target `y = R + discount * (1 - done) * min(Q1'(s', a'), Q2'(s', a'))`;
     /// 3. critic step on `MSE(Q1(s, a), y) + MSE(Q2(s, a), y)`;
     /// 4. every `policy_delay`-th update: actor step on `-mean Q1(s, pi(s))` (with the critic just
-    ///    updated), then Polyak updates of the target actor and both target critics.
+    ///    updated), then Polyak updates of the target actor and both target critics; during the
+    ///    first `actor_warmup_updates` updates only the target critics move.
     ///
     /// The twin critics share no parameters, so their halves of steps 2 and 3 run in parallel
     /// (rayon); the sum of the two MSEs has the same gradients as two separate losses, and Adam is
@@ -186,27 +187,32 @@ impl Td3 {
         let critic_grad_norm = opt1.last_grad_norm().hypot(opt2.last_grad_norm());
 
         // 4. Delayed actor step and target updates. The critic's weights get no gradient here.
+        // During the critic-only warm-up the critic targets still track the critics.
         let mut actor_loss = None;
         let mut actor_grad_norm = None;
         if self.updates.is_multiple_of(c.policy_delay) {
-            let obs = tensor2(&batch.obs, batch.len(), c.obs_dim, &self.device);
-            let q1_frozen = self.critic.q1.clone().no_grad();
-            let loss = q1_frozen
-                .forward_frozen(obs.clone(), self.actor.forward(obs))
-                .mean()
-                .neg();
-            let grads = GradientsParams::from_grads(loss.backward(), &self.actor);
-            self.actor = self.actor_opt.step(c.actor_lr, self.actor.take(), grads);
-            actor_loss = Some(loss.into_scalar::<f32>());
-            actor_grad_norm = Some(self.actor_opt.last_grad_norm());
-
             let tau = c.tau;
-            let (actor_target, critic_target) = (self.actor_target.take(), self.critic_target.take());
-            let (actor, critic) = (&self.actor, &self.critic);
-            (self.actor_target, self.critic_target) = rayon::join(
-                || actor_target.polyak(actor, tau),
-                || critic_target.polyak(critic, tau),
-            );
+            if self.updates > c.actor_warmup_updates {
+                let obs = tensor2(&batch.obs, batch.len(), c.obs_dim, &self.device);
+                let q1_frozen = self.critic.q1.clone().no_grad();
+                let loss = q1_frozen
+                    .forward_frozen(obs.clone(), self.actor.forward(obs))
+                    .mean()
+                    .neg();
+                let grads = GradientsParams::from_grads(loss.backward(), &self.actor);
+                self.actor = self.actor_opt.step(c.actor_lr, self.actor.take(), grads);
+                actor_loss = Some(loss.into_scalar::<f32>());
+                actor_grad_norm = Some(self.actor_opt.last_grad_norm());
+
+                let (actor_target, critic_target) = (self.actor_target.take(), self.critic_target.take());
+                let (actor, critic) = (&self.actor, &self.critic);
+                (self.actor_target, self.critic_target) = rayon::join(
+                    || actor_target.polyak(actor, tau),
+                    || critic_target.polyak(critic, tau),
+                );
+            } else {
+                self.critic_target = self.critic_target.take().polyak(&self.critic, tau);
+            }
         }
 
         Ok(UpdateStats {
@@ -397,6 +403,32 @@ mod tests {
                 assert!((t - (0.75 * o + 0.25 * n)).abs() < 1e-6);
             }
         }
+    }
+
+    #[test]
+    fn critic_only_warm_up_holds_the_actor_but_moves_the_critic_targets() {
+        let config = Td3Config {
+            actor_warmup_updates: 4,
+            ..tiny_config()
+        };
+        let mut td3 = Td3::new(config.clone(), &Device::flex()).unwrap();
+        let mut rng = seeded_rng(3, 9);
+        let (actor0, critic_t0) = (params(&td3.actor), params(&td3.critic_target));
+        for k in 1..=4 {
+            let stats = td3.update(&random_batch(&config, 32, &mut rng)).unwrap();
+            assert!(stats.actor_loss.is_none(), "update {k} is critic-only");
+        }
+        assert_eq!(params(&td3.actor), actor0);
+        assert_eq!(params(&td3.actor_target), actor0);
+        assert_ne!(params(&td3.critic_target), critic_t0, "critic targets track");
+        assert!(td3
+            .update(&random_batch(&config, 32, &mut rng))
+            .unwrap()
+            .actor_loss
+            .is_none());
+        let stats = td3.update(&random_batch(&config, 32, &mut rng)).unwrap();
+        assert!(stats.actor_loss.is_some(), "update 6: the first actor step");
+        assert_ne!(params(&td3.actor), actor0);
     }
 
     #[test]

@@ -31,6 +31,7 @@ pub(crate) fn tiny_config() -> Td3Config {
         critic_lr: 1e-3,
         batch_size: 64,
         replay_capacity: 8192,
+        actor_warmup_updates: 0,
         seed: 7,
         ..Td3Config::default()
     }

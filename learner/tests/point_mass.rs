@@ -88,6 +88,7 @@ fn td3_learns_to_reach_the_goal_with_a_point_mass() {
         exploration_start: 0.5,
         exploration_end: 0.1,
         exploration_steps: 4_000,
+        actor_warmup_updates: 0,
         rate_tolerance: 8.0,
         seed: 3,
         ..Td3Config::default()
@@ -95,7 +96,7 @@ fn td3_learns_to_reach_the_goal_with_a_point_mass() {
     let mut td3 = Td3::new(config.clone(), &Device::flex()).unwrap();
     let mut replay = ReplayBuffer::new(&config);
     let mut rate = RateLimiter::new(&config);
-    let schedule = ExplorationSchedule::new(&config);
+    let schedule = ExplorationSchedule::new(&config, 5_000);
     let mut env_rng = seeded_rng(config.seed, 20);
     let mut act_rng = seeded_rng(config.seed, 21);
     let mut sampler = seeded_rng(config.seed, 2);

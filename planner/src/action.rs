@@ -178,6 +178,95 @@ impl ActionSpace {
     }
 }
 
+/// How a policy's output `u` in [-1, 1]^k becomes the box action `a` that
+/// [`ActionSpace::schedule`] reads.
+///
+/// The paper's physical ranges put the DDP schedule on a corner of the decremental box
+/// (p = 1.7 and alpha = 0 are range ends), where a tanh actor is saturated: its gradient there
+/// is `1 - tanh^2`, about 1 % at the 0.995 clip a fit can reach, and half of the exploration
+/// noise is clipped away. [`ActionMap::DdpCentred`] keeps the ranges but moves DDP to `u = 0`,
+/// the actor's unsaturated centre. Plain data (`Copy`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ActionMap {
+    /// `a = u`: the box maps affinely onto the ranges (the paper's parametrization; DDP is
+    /// [`ActionSpace::ddp_action`]).
+    Affine,
+    /// Piecewise affine about DDP, per dimension with `d` its DDP value in box units:
+    /// `a = d + u (1 - d)` for `u >= 0`, `a = d + u (1 + d)` for `u < 0`. So `u = 0` is DDP,
+    /// `u = ±1` are the range ends, and a dimension whose DDP value is a range end (p, alpha)
+    /// keeps DDP's value on one side: the policy reaches every schedule of the box, and DDP is
+    /// an interior point of what it outputs.
+    #[default]
+    DdpCentred,
+}
+
+impl std::str::FromStr for ActionMap {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "affine" => Ok(ActionMap::Affine),
+            "ddp-centred" => Ok(ActionMap::DdpCentred),
+            _ => Err(format!(
+                "unknown action map `{s}` (expected ddp-centred or affine)"
+            )),
+        }
+    }
+}
+
+impl ActionMap {
+    /// The box action of one policy output `u` (clamped to [-1, 1]) of a dimension whose DDP
+    /// value is `ddp` (box units). Non-finite `u` passes through, for
+    /// [`ActionSpace::schedule`] to refuse.
+    pub fn to_box(self, u: f64, ddp: f64) -> f64 {
+        if !u.is_finite() {
+            return u;
+        }
+        let u = u.clamp(-1.0, 1.0);
+        match self {
+            ActionMap::Affine => u,
+            ActionMap::DdpCentred if u >= 0.0 => ddp + u * (1.0 - ddp),
+            ActionMap::DdpCentred => ddp + u * (1.0 + ddp),
+        }
+    }
+
+    /// The policy output of a box action `a` (the inverse of [`ActionMap::to_box`] where it is
+    /// one-to-one; a box value equal to a one-sided DDP value maps to 0).
+    pub fn to_policy(self, a: f64, ddp: f64) -> f64 {
+        let a = a.clamp(-1.0, 1.0);
+        match self {
+            ActionMap::Affine => a,
+            ActionMap::DdpCentred if a > ddp => (a - ddp) / (1.0 - ddp),
+            ActionMap::DdpCentred if a < ddp => (a - ddp) / (1.0 + ddp),
+            ActionMap::DdpCentred => 0.0,
+        }
+    }
+
+    /// Writes the box action of the policy output `u` into `out` (same length), with
+    /// `ddp = space.ddp_action()` precomputed by the caller. Allocation-free.
+    ///
+    /// # Panics
+    /// If the three lengths differ.
+    pub fn map_into(self, u: &[f64], ddp: &[f64], out: &mut [f64]) {
+        assert!(
+            u.len() == ddp.len() && u.len() == out.len(),
+            "action map: length mismatch"
+        );
+        for ((o, &x), &d) in out.iter_mut().zip(u).zip(ddp) {
+            *o = self.to_box(x, d);
+        }
+    }
+
+    /// The policy output that selects the DDP schedule in `space`: zeros for
+    /// [`ActionMap::DdpCentred`], [`ActionSpace::ddp_action`] for [`ActionMap::Affine`].
+    pub fn ddp_policy_action(self, space: ActionSpace) -> Vec<f64> {
+        match self {
+            ActionMap::Affine => space.ddp_action(),
+            ActionMap::DdpCentred => vec![0.0; space.dim()],
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -306,5 +395,46 @@ mod tests {
                 ..
             })
         ));
+    }
+
+    #[test]
+    fn ddp_centred_map_puts_ddp_at_zero_and_keeps_the_box() {
+        let space = ActionSpace::Decremental;
+        let ddp = space.ddp_action();
+        let map = ActionMap::DdpCentred;
+        let mut a = vec![0.0; 4];
+        map.map_into(&[0.0; 4], &ddp, &mut a);
+        assert_eq!(a, ddp, "u = 0 is DDP exactly");
+        // Hand-computed: T's DDP value 2.0 in [1.6, 2.2] is d = 1/3 in box units; u = 0.5 is
+        // halfway from 2.0 to 2.2 = 2.1 s, u = -0.5 halfway from 2.0 to 1.6 = 1.8 s.
+        let t = |u: f64| space.to_params(&[0.0, map.to_box(u, ddp[1]), 0.0, 0.0]).unwrap()[1];
+        assert!((t(0.5) - 2.1).abs() < 1e-12 && (t(-0.5) - 1.8).abs() < 1e-12);
+        assert!((t(1.0) - 2.2).abs() < 1e-12 && (t(-1.0) - 1.6).abs() < 1e-12);
+        // p (DDP at the top of its range): u >= 0 keeps 1.7, u = -1 reaches 1.0, u = -0.5 1.35.
+        let p = |u: f64| space.to_params(&[map.to_box(u, ddp[0]), 0.0, 0.0, 0.0]).unwrap()[0];
+        assert!((p(0.7) - 1.7).abs() < 1e-12 && (p(-1.0) - 1.0).abs() < 1e-12);
+        assert!((p(-0.5) - 1.35).abs() < 1e-12);
+        // Monotone, continuous at 0, and the inverse where one-to-one.
+        for d in [-1.0, -0.2, 1.0 / 3.0, 1.0] {
+            let mut last = f64::NEG_INFINITY;
+            for k in -100..=100 {
+                let u = k as f64 / 100.0;
+                let b = map.to_box(u, d);
+                assert!(b >= last - 1e-15 && (-1.0..=1.0).contains(&b));
+                last = b;
+                if b != d {
+                    assert!((map.to_policy(b, d) - u).abs() < 1e-12, "d {d} u {u}");
+                }
+            }
+        }
+        assert!(map.to_box(f64::NAN, 0.0).is_nan());
+        assert_eq!(ActionMap::Affine.to_box(0.3, 0.9), 0.3);
+        assert_eq!(map.ddp_policy_action(space), vec![0.0; 4]);
+        assert_eq!(ActionMap::Affine.ddp_policy_action(space), ddp);
+        assert_eq!("affine".parse::<ActionMap>(), Ok(ActionMap::Affine));
+        assert!("x"
+            .parse::<ActionMap>()
+            .unwrap_err()
+            .contains("ddp-centred or affine"));
     }
 }

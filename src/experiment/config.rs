@@ -37,7 +37,8 @@ pub struct ExperimentSection {
     pub action_spaces: Vec<String>,
     /// Speed caps (m/s).
     pub speeds: Vec<f64>,
-    /// Training-world selections, one arm per entry (split names, ranges or lists).
+    /// Training-world selections, one arm per entry (split names, ranges or lists; default
+    /// `fit`, which leaves `val` to the greedy evaluation of `[train.greedy]`).
     #[serde(default = "default_train_worlds")]
     pub train_worlds: Vec<String>,
     /// The held-out worlds every policy and control is evaluated on.
@@ -55,7 +56,7 @@ fn default_spaces() -> Vec<String> {
     vec!["decremental".into()]
 }
 fn default_train_worlds() -> Vec<String> {
-    vec!["train".into()]
+    vec!["fit".into()]
 }
 fn default_test_worlds() -> String {
     "test".into()
@@ -423,6 +424,9 @@ impl Experiment {
         for tw in &ex.train_worlds {
             disjoint("experiment", "train_worlds", tw)?;
         }
+        if train.greedy.every_steps > 0 {
+            disjoint("train.greedy", "worlds", &train.greedy.worlds)?;
+        }
         let search_worlds = disjoint("constant_search", "worlds", &raw.constant_search.worlds)?;
         let mut pool_worlds = disjoint("shuffle", "worlds", &raw.shuffle.worlds)?;
         pool_worlds.truncate(raw.shuffle.max_worlds.max(1));
@@ -579,7 +583,7 @@ mod tests {
     fn minimal_file_takes_the_defaults() {
         let ex = parse(MINIMAL).unwrap();
         assert_eq!(ex.arms.len(), 1);
-        assert_eq!(ex.arms[0].id(), "dwa-decremental-1.5-train");
+        assert_eq!(ex.arms[0].id(), "dwa-decremental-1.5-fit");
         assert_eq!(ex.seeds, 3);
         assert_eq!(ex.train, TrainConfig::load(None).unwrap());
         let c = ex.train_config(&ex.arms[0], 2);
@@ -636,6 +640,10 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("train_worlds"), "{e}");
+        let e = parse(&format!("{MINIMAL}[train.greedy]\nworlds = \"hardest50\"\n"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("[train.greedy] worlds"), "{e}");
     }
 
     #[test]

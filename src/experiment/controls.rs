@@ -35,7 +35,14 @@ pub fn write_untrained_export(cfg: &TrainConfig, space: ActionSpace, dir: &Path)
     let mut td3 = Td3::new(cfg.td3.clone(), &Device::flex())
         .map_err(|e| anyhow::anyhow!("untrained policy: [td3]: {e}"))?;
     if cfg.service.ddp_init {
-        let target: Vec<f32> = space.ddp_action().iter().map(|&a| a as f32).collect();
+        // The output that selects DDP under the run's action map (as the learner does).
+        let target: Vec<f32> = cfg
+            .env
+            .action_map
+            .ddp_policy_action(space)
+            .iter()
+            .map(|&a| a as f32)
+            .collect();
         td3.init_actor_to_action(&target, &FitOptions::default())
             .map_err(|e| anyhow::anyhow!("untrained policy: DDP initialization: {e}"))?;
     }
@@ -211,10 +218,8 @@ mod tests {
         let obs = vec![0.1f32; 730];
         let mut out = vec![0.0f32; 4];
         p.net.act(&obs, &mut out, &mut actor::Scratch::default());
+        let got = crate::experiment::runner::chosen_params(ActionSpace::Decremental, &p.env, &out).unwrap();
         let ddp = ActionSpace::Decremental.ddp_action();
-        let got = ActionSpace::Decremental
-            .to_params(&out.iter().map(|&x| f64::from(x)).collect::<Vec<_>>())
-            .unwrap();
         let want = ActionSpace::Decremental.to_params(&ddp).unwrap();
         for (g, w) in got.iter().zip(&want) {
             assert!((g - w).abs() < 0.02 * w.abs().max(0.1), "{got:?} vs {want:?}");

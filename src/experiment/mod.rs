@@ -624,9 +624,7 @@ fn drive(ctx: &Ctx<'_>, a: &Arm, p: &LearnedPolicy, world: usize) -> anyhow::Res
     while e.end() == End::Continue {
         e.observation(&mut obs);
         p.net.act(&obs, &mut act, &mut scratch);
-        let params = p
-            .space
-            .to_params(&act.iter().map(|&x| f64::from(x)).collect::<Vec<_>>())?;
+        let params = runner::chosen_params(p.space, &p.env, &act)?;
         steps.push((e.episode().state().pose.position(), params));
         e.step(&act)?;
     }

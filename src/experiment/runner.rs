@@ -33,6 +33,16 @@ pub fn clutter(obs: &[f32], laser_clip_m: f64) -> f64 {
     laser.iter().filter(|&&e| e < threshold).count() as f64 / LASER_BEAMS as f64
 }
 
+/// The physical parameters of the schedule a network output `u` chooses under the
+/// environment's action map (the output is mapped to the box action the environment runs,
+/// then [`ActionSpace::to_params`]).
+pub fn chosen_params(space: ActionSpace, env: &EnvConfig, u: &[f32]) -> anyhow::Result<Vec<f64>> {
+    let u: Vec<f64> = u.iter().map(|&x| f64::from(x)).collect();
+    let mut a = vec![0.0; u.len()];
+    env.action_map.map_into(&u, &space.ddp_action(), &mut a);
+    Ok(space.to_params(&a)?)
+}
+
 /// What chooses the schedule.
 pub enum Controller<'a> {
     /// One schedule for the whole run.
@@ -238,11 +248,10 @@ fn run_one(
         };
         net.act(input, &mut action, scratch);
         if record {
-            let a: Vec<f64> = action.iter().map(|&x| f64::from(x)).collect();
             trace.push(TracePoint {
                 world: w,
                 clutter: clutter(&obs, env.laser_clip_m),
-                params: space.to_params(&a)?,
+                params: chosen_params(space, &env, &action)?,
             });
         }
         if collect {
@@ -346,8 +355,8 @@ mod tests {
         let t = |e: &Evaluation| e.trace.iter().map(|p| p.params[1]).collect::<Vec<_>>();
         let (a, b) = (t(&real), t(&shuffled));
         assert!(!a.is_empty() && !b.is_empty());
-        // Fed only the pool's observation, every step picks T = 1.6 + 0.3 (1 + tanh(-1.44)).
-        let want = 1.6 + 0.3 * (1.0 + (-1.44f64).tanh());
+        // Fed only the pool's observation, every step's output is tanh(-1.44) on T.
+        let want = chosen_params(space, &env, &[0.0, (-1.44f32).tanh(), 0.0, 0.0]).unwrap()[1];
         assert!(b.iter().all(|&x| (x - want).abs() < 1e-4), "{b:?}");
         assert!(a.iter().all(|&x| (x - want).abs() > 0.05), "{a:?}");
         assert_eq!(real.per_world[0].runs.len(), 1);

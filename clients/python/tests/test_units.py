@@ -9,7 +9,7 @@ import sys
 import numpy as np
 import pytest
 
-from adp_client import ActionError, ActionSpace, MlpPolicy, PolicyError, param_count, step_checksum
+from adp_client import ActionMap, ActionError, ActionSpace, MlpPolicy, PolicyError, param_count, step_checksum
 from adp_client.checksum import f32_bytes
 
 HERE = pathlib.Path(__file__).resolve().parent
@@ -122,6 +122,24 @@ def test_incremental_unconstrained_fixed():
         for i, (x, y) in enumerate(zip(a, back)):
             if sp.ranges()[i][0] != "N":
                 assert abs(x - y) < 1e-12
+
+
+def test_ddp_centred_map_matches_the_rust_values():
+    # planner/src/action.rs ddp_centred_map_puts_ddp_at_zero_and_keeps_the_box.
+    sp = ActionSpace("decremental")
+    m = ActionMap("ddp-centred")
+    ddp = sp.ddp_action()
+    assert m.box_action(sp, [0.0] * 4) == ddp
+    t = lambda u: sp.to_params([0.0, m.to_box(u, ddp[1]), 0.0, 0.0])[1]
+    assert abs(t(0.5) - 2.1) < 1e-12 and abs(t(-0.5) - 1.8) < 1e-12
+    p = lambda u: sp.to_params([m.to_box(u, ddp[0]), 0.0, 0.0, 0.0])[0]
+    assert abs(p(0.7) - 1.7) < 1e-12 and abs(p(-0.5) - 1.35) < 1e-12 and abs(p(-1.0) - 1.0) < 1e-12
+    assert m.schedule(sp, [0.0] * 4, 20).checks == sp.schedule(ddp, 20).checks
+    assert ActionMap("affine").box_action(sp, [0.3, 0.1, -0.2, 0.9]) == [0.3, 0.1, -0.2, 0.9]
+    assert ActionMap.from_env_toml('reward_scale = 0.01\naction_map = "affine"\n').name == "affine"
+    assert ActionMap.from_env_toml("").name == "ddp-centred"
+    with pytest.raises(ActionError, match="unknown action map"):
+        ActionMap("bogus")
 
 
 def test_action_errors():

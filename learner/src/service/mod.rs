@@ -63,6 +63,8 @@ pub struct Learner {
         tokio::task::JoinHandle<Result<(), tonic::transport::Error>>,
     )>,
     heartbeat_ms: u32,
+    /// The newest published policy (what `WatchPolicy` streams).
+    policy: watch::Receiver<Arc<pb::PolicySnapshot>>,
 }
 
 /// Binds a Unix socket at `path` (replacing a stale one from an earlier learner of the run),
@@ -172,7 +174,11 @@ impl Learner {
             (false, None) => {
                 let mut td3 = Td3::new(opts.td3.clone(), &Device::flex()).map_err(|e| e.to_string())?;
                 if svc.ddp_init {
-                    let target: Vec<f32> = opts.space.ddp_action().iter().map(|&a| a as f32).collect();
+                    let target: Vec<f32> = action_map(&opts.env_toml)?
+                        .ddp_policy_action(opts.space)
+                        .iter()
+                        .map(|&a| a as f32)
+                        .collect();
                     let report = td3
                         .init_actor_to_action(&target, &FitOptions::default())
                         .map_err(|e| format!("DDP initialization: {e}"))?;
@@ -280,6 +286,7 @@ impl Learner {
             }),
             auth.clone(),
         );
+        let latest_policy = policy_rx.clone();
         let data = tonic::service::interceptor::InterceptedService::new(
             pb::data_server::DataServer::new(data::DataService {
                 shared: shared.clone(),
@@ -389,6 +396,7 @@ impl Learner {
             server,
             unix_server,
             heartbeat_ms: svc.heartbeat_ms,
+            policy: latest_policy,
         })
     }
 
@@ -406,6 +414,18 @@ impl Learner {
     /// The run id.
     pub fn run_id(&self) -> &str {
         &self.shared.validator.run_id
+    }
+
+    /// The newest published policy: its version (0 before the first publish), exploration
+    /// sigma and flat weights (decoded), with the layer sizes of the run's actor, as
+    /// `MlpPolicy::from_flat` takes them. For in-process evaluation of the greedy policy.
+    pub fn latest_policy(&self) -> Result<(u64, Vec<usize>, Vec<f32>), String> {
+        let snapshot = self.policy.borrow().clone();
+        let dims = self.shared.spec.policy_dims.iter().map(|&d| d as usize).collect();
+        let mut weights = Vec::new();
+        proto::floats::decode_into("weights", &snapshot.weights, &mut weights)
+            .map_err(|e| format!("policy version {}: {e}", snapshot.version))?;
+        Ok((snapshot.version, dims, weights))
     }
 
     /// Current counters.
@@ -458,6 +478,20 @@ impl Learner {
 /// The observation size actors produce for `space` (720 laser, previous action, 6 state values).
 pub fn actor_obs_dim(space: planner::ActionSpace) -> usize {
     crate::export::observation_layout(space, crate::export::LASER_CLIP_M).dim
+}
+
+/// The action map of the environment settings (`action_map` in `env_toml`; the environment's
+/// default, DDP-centred, when absent): it decides which policy output is the DDP schedule.
+fn action_map(env_toml: &str) -> Result<planner::ActionMap, String> {
+    let table: toml::Table = toml::from_str(env_toml)
+        .map_err(|e| format!("the environment settings (env_toml) are not a TOML table: {e}"))?;
+    match table.get("action_map") {
+        None => Ok(planner::ActionMap::default()),
+        Some(v) => v
+            .as_str()
+            .ok_or_else(|| format!("env.action_map = {v} must be a string"))?
+            .parse(),
+    }
 }
 
 /// Reads the learner address a running learner wrote into `run_dir`.

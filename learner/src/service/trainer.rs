@@ -76,7 +76,7 @@ impl Trainer {
             },
             None => None,
         };
-        let exploration = ExplorationSchedule::new(self.td3.config());
+        let exploration = ExplorationSchedule::new(self.td3.config(), self.shared.budget);
         let cfg = self.td3.config().clone();
         let mut batch = Batch::new(cfg.obs_dim, cfg.act_dim);
         let mut published: Option<u64> = None;

@@ -3,7 +3,7 @@
 Implement an `Environment` (reset/step) and run `Actor(address, env, token_file=...).run()`.
 """
 
-from .action import ActionError, ActionSpace, Schedule
+from .action import ActionError, ActionMap, ActionSpace, Schedule
 from .actor import (
     Actor,
     AdpError,
@@ -21,7 +21,7 @@ from .checksum import step_checksum
 from .policy import MlpPolicy, PolicyError, param_count
 
 __all__ = [
-    "ActionError", "ActionSpace", "Actor", "AdpError", "ConfigError", "Connection", "Environment",
+    "ActionError", "ActionMap", "ActionSpace", "Actor", "AdpError", "ConfigError", "Connection", "Environment",
     "EnvironmentFault", "LearnerUnreachable", "MlpPolicy", "PolicyError", "RunInfo", "Schedule",
     "Session", "StepsRefused", "param_count", "read_token_file", "step_checksum",
 ]

@@ -1,11 +1,13 @@
 """Action spaces: how a normalized action in [-1, 1]^k becomes a planner's rollout schedule
-(a Python port of planner/src/action.rs and the schedule constructors it uses).
+(a Python port of planner/src/action.rs and the schedule constructors it uses), and the
+action map that turns a policy's output into that box action.
 
 A schedule is a list of step lengths `dts` (seconds) and, per step, how many footprint
 boundary points are collision-checked (`checks`, at most `n`).
 """
 
 import math
+import re
 from dataclasses import dataclass
 from typing import List
 
@@ -103,6 +105,15 @@ class ActionSpace:
         """The normalized action of physical parameters (clamped to their ranges)."""
         return [2.0 * (min(max(v, lo), hi) - lo) / (hi - lo) - 1.0 for v, (_, lo, hi) in zip(params, _RANGES[self.name])]
 
+    def ddp_action(self) -> List[float]:
+        """The box action closest to the DDP schedule (p = 1.7, T = 2 s, N = 20, alpha = 0)."""
+        if self.name in ("decremental", "incremental"):
+            return self.to_action([1.7, 2.0, 20.0, 0.0])
+        if self.name == "unconstrained":
+            ddp = _decremental(1.7, 2.0, 20, 0.0, 20)
+            return self.to_action(ddp.dts)
+        return self.to_action([0.1, 1.0])
+
     def schedule(self, action, n: int) -> Schedule:
         """The schedule an action selects, with up to `n` footprint boundary points per check."""
         q = self.to_params(action)
@@ -125,3 +136,45 @@ class ActionSpace:
         steps = int(max(_round(FIXED_HORIZON / q[0]), 1.0))
         c = int(_round(q[1] * n))
         return _from_parts([q[0]] * steps, [c] * steps, n)
+
+
+ACTION_MAPS = ("ddp-centred", "affine")
+
+
+class ActionMap:
+    """How a policy's output u in [-1, 1]^k becomes the box action that `ActionSpace.schedule`
+    reads (planner/src/action.rs `ActionMap`): "affine" is the identity; "ddp-centred" (the
+    learner's default) is piecewise affine about DDP, per dimension with d its DDP box value,
+    a = d + u (1 - d) for u >= 0 and a = d + u (1 + d) for u < 0, so output 0 is DDP."""
+
+    def __init__(self, name: str = "ddp-centred"):
+        if name not in ACTION_MAPS:
+            raise ActionError(f"unknown action map `{name}` (expected ddp-centred or affine)")
+        self.name = name
+
+    @classmethod
+    def from_env_toml(cls, env_toml: str) -> "ActionMap":
+        """The map of a run's `[env]` settings (the RunSpec's env_toml); the default when absent."""
+        m = re.search(r'^action_map\s*=\s*"([^"]*)"', env_toml or "", re.MULTILINE)
+        return cls(m.group(1) if m else "ddp-centred")
+
+    def to_box(self, u: float, ddp: float) -> float:
+        """The box value of one output `u` (clamped to [-1, 1]) whose DDP box value is `ddp`."""
+        u = float(u)
+        if not math.isfinite(u):
+            return u
+        u = min(max(u, -1.0), 1.0)
+        if self.name == "affine":
+            return u
+        return ddp + u * (1.0 - ddp) if u >= 0.0 else ddp + u * (1.0 + ddp)
+
+    def box_action(self, space: ActionSpace, output) -> List[float]:
+        """The box action of a policy output in `space`."""
+        output = [float(u) for u in output]
+        if len(output) != space.dim:
+            raise ActionError(f"{space.name} action needs {space.dim} values, got {len(output)}")
+        return [self.to_box(u, d) for u, d in zip(output, space.ddp_action())]
+
+    def schedule(self, space: ActionSpace, output, n: int) -> Schedule:
+        """The schedule a policy output selects in `space` (what the Rust environment runs)."""
+        return space.schedule(self.box_action(space, output), n)

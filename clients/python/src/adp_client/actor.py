@@ -16,7 +16,7 @@ import numpy as np
 from . import checksum as ck
 from ._proto import adp_pb2 as pb
 from ._proto import adp_pb2_grpc as rpc
-from .action import ActionSpace
+from .action import ActionMap, ActionSpace
 from .policy import MlpPolicy
 
 MAX_MESSAGE_BYTES = 64 << 20
@@ -69,6 +69,16 @@ class RunInfo:
     heartbeat_ms: int
     lease_ttl_ms: int
     env_toml: str
+
+    @property
+    def action_map(self) -> ActionMap:
+        """How the policy's output becomes a box action (the run's `[env] action_map`)."""
+        return ActionMap.from_env_toml(self.env_toml)
+
+    def schedule(self, action, n: int = 20):
+        """The rollout schedule a policy output selects: the action map, then the action
+        space (exactly what the Rust actors' environment runs)."""
+        return self.action_map.schedule(self.action_space, action, n)
 
 
 def read_token_file(path) -> str:

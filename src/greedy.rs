@@ -1,0 +1,549 @@
+//! Greedy evaluation while `adp train` runs: every `[greedy] every_steps` agent steps the
+//! newest published policy drives the run's planner, without exploration noise, on held-out
+//! worlds (the `val` split by default: training on `fit` never sees them), next to DDP on the
+//! same worlds and seeds. Each evaluation also summarizes the schedules the policy chose:
+//! per physical parameter its mean and spread, its mean in open and in cluttered scenes, and
+//! its correlation with clutter (the share of lidar beams within [`CLUTTER_RADIUS_M`]).
+//!
+//! Results go to TensorBoard (a `greedy/` run next to the learner's: `greedy/success`,
+//! `greedy/score`, the DDP reference lines `greedy/ddp_success` and `greedy/ddp_score`, and
+//! `schedule/<param>_{mean,sd,open,cluttered,clutter_corr}`), and one JSON line per
+//! evaluation to `greedy_eval.jsonl` in the run directory. Evaluations run on one background
+//! thread, so the actors keep (almost) both cores; DDP is evaluated once.
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::thread::JoinHandle;
+
+use anyhow::Context;
+use serde::{Deserialize, Serialize};
+
+use actor::{AdpEnv, End, EnvConfig, MlpPolicy, Scratch};
+use adp_learner::tensorboard::EventWriter;
+use planner::{ActionSpace, Schedule};
+use sim::Status;
+
+use crate::config::EvalConfig;
+use crate::eval::{run_seed, PlannerKind};
+
+/// A beam whose range is below this counts toward a scene's clutter (m).
+pub const CLUTTER_RADIUS_M: f64 = 1.0;
+
+/// `[greedy]` of a training config: how the run's greedy policy is monitored.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct GreedySection {
+    /// Evaluate the newest policy every this many agent steps, and the final one at the end
+    /// (default 5000; 0 = never).
+    pub every_steps: u64,
+    /// Evaluation worlds: a split, range or list (default `val`, held out of the `fit`
+    /// training split).
+    pub worlds: String,
+    /// Runs per world (default 1); run r of world w has the same seed in every evaluation and
+    /// for DDP, so the curves are paired.
+    pub runs: usize,
+}
+
+impl Default for GreedySection {
+    fn default() -> Self {
+        Self {
+            every_steps: 5000,
+            worlds: "val".into(),
+            runs: 1,
+        }
+    }
+}
+
+/// How one physical schedule parameter varied over an evaluation's agent steps.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ParamStats {
+    /// The parameter (`p`, `T`, `N`, `alpha`, `dt`, ...).
+    pub name: String,
+    /// Mean over all steps.
+    pub mean: f64,
+    /// Standard deviation over all steps.
+    pub sd: f64,
+    /// Mean over the steps at or below the median clutter.
+    pub open: f64,
+    /// Mean over the steps above the median clutter.
+    pub cluttered: f64,
+    /// Pearson correlation with clutter (0 when either does not vary).
+    pub clutter_corr: f64,
+}
+
+/// One greedy evaluation: a line of `greedy_eval.jsonl`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct GreedyResult {
+    /// Agent steps inserted when the policy was taken.
+    pub agent_steps: u64,
+    /// Its version.
+    pub policy_version: u64,
+    /// Success rate (%).
+    pub success: f64,
+    /// Mean BARN score.
+    pub score: f64,
+    /// DDP's success rate on the same worlds and seeds (%).
+    pub ddp_success: f64,
+    /// DDP's mean score.
+    pub ddp_score: f64,
+    /// Mean clutter of the steps (share of beams within [`CLUTTER_RADIUS_M`]).
+    pub clutter_mean: f64,
+    /// The chosen schedules, per physical parameter.
+    pub schedule: Vec<ParamStats>,
+}
+
+/// One agent step of an evaluation: the scene's clutter and the chosen physical parameters.
+pub type StepRecord = (f64, Vec<f64>);
+
+/// Summarizes per-step `(clutter, params)` records into one [`ParamStats`] per name. Steps at
+/// or below the median clutter are "open", the others "cluttered". Pure.
+pub fn schedule_stats(records: &[StepRecord], names: &[&str]) -> Vec<ParamStats> {
+    let n = records.len();
+    let mean = |f: &dyn Fn(&StepRecord) -> f64, rows: &[&StepRecord]| {
+        if rows.is_empty() {
+            f64::NAN
+        } else {
+            rows.iter().map(|r| f(r)).sum::<f64>() / rows.len() as f64
+        }
+    };
+    let all: Vec<&StepRecord> = records.iter().collect();
+    let mut clutter: Vec<f64> = records.iter().map(|r| r.0).collect();
+    clutter.sort_by(f64::total_cmp);
+    let median = if n == 0 {
+        0.0
+    } else if n % 2 == 1 {
+        clutter[n / 2]
+    } else {
+        0.5 * (clutter[n / 2 - 1] + clutter[n / 2])
+    };
+    let open: Vec<&StepRecord> = records.iter().filter(|r| r.0 <= median).collect();
+    let busy: Vec<&StepRecord> = records.iter().filter(|r| r.0 > median).collect();
+    let c_mean = mean(&|r| r.0, &all);
+    names
+        .iter()
+        .enumerate()
+        .map(|(k, name)| {
+            let v = |r: &StepRecord| r.1[k];
+            let m = mean(&v, &all);
+            let var = mean(&|r| (v(r) - m).powi(2), &all);
+            let c_var = mean(&|r| (r.0 - c_mean).powi(2), &all);
+            let cov = mean(&|r| (v(r) - m) * (r.0 - c_mean), &all);
+            let corr = if var > 1e-18 && c_var > 1e-18 {
+                cov / (var * c_var).sqrt()
+            } else {
+                0.0
+            };
+            ParamStats {
+                name: (*name).to_string(),
+                mean: m,
+                sd: var.sqrt(),
+                open: mean(&v, &open),
+                cluttered: mean(&v, &busy),
+                clutter_corr: corr,
+            }
+        })
+        .collect()
+}
+
+/// Share of `ranges` below [`CLUTTER_RADIUS_M`] (0 when empty).
+pub fn clutter(ranges: &[f64]) -> f64 {
+    if ranges.is_empty() {
+        return 0.0;
+    }
+    ranges.iter().filter(|&&r| r < CLUTTER_RADIUS_M).count() as f64 / ranges.len() as f64
+}
+
+/// Everything an evaluation needs besides the policy; shared with the background thread.
+struct Setup {
+    worlds: Vec<usize>,
+    runs: usize,
+    planner: PlannerKind,
+    space: ActionSpace,
+    max_speed: f64,
+    env: EnvConfig,
+    eval: EvalConfig,
+    seed: u64,
+}
+
+/// Success %, mean score, and the per-step (clutter, params) records of the policy.
+type Outcome = (f64, f64, Vec<StepRecord>);
+
+impl Setup {
+    fn seeds(&self) -> impl Iterator<Item = (usize, u64)> + '_ {
+        self.worlds
+            .iter()
+            .flat_map(move |&w| (0..self.runs).map(move |r| (w, run_seed(self.seed, w, r))))
+    }
+
+    /// The greedy policy closed-loop through the training environment (no step cap: the BARN
+    /// clock of `[episode]` ends runs, as in `adp eval`).
+    fn policy(&self, net: &MlpPolicy) -> anyhow::Result<Outcome> {
+        let env_cfg = EnvConfig {
+            max_agent_steps: u32::MAX,
+            ..self.env
+        };
+        let ddp_box = self.space.ddp_action();
+        let (mut obs, mut out, mut scratch) =
+            (Vec::new(), vec![0.0f32; self.space.dim()], Scratch::default());
+        let (mut u, mut boxed) = (vec![0.0; self.space.dim()], vec![0.0; self.space.dim()]);
+        let (mut wins, mut score, mut n) = (0usize, 0.0, 0usize);
+        let mut records = Vec::new();
+        for (w, seed) in self.seeds() {
+            let world = sim::barn::world(w).with_context(|| format!("world {w}"))?;
+            let mut env = AdpEnv::new(
+                world,
+                self.eval.episode,
+                self.planner.build(&self.eval, seed),
+                self.space,
+                self.max_speed,
+                env_cfg,
+                seed,
+            )?;
+            obs.resize(env.obs_dim(), 0.0);
+            while env.end() == End::Continue {
+                env.observation(&mut obs);
+                net.act(&obs, &mut out, &mut scratch);
+                for (x, &a) in u.iter_mut().zip(&out) {
+                    *x = f64::from(a);
+                }
+                self.env.action_map.map_into(&u, &ddp_box, &mut boxed);
+                let c = clutter(env.episode().perception().ranges);
+                records.push((c, self.space.to_params(&boxed)?));
+                env.step(&out)?;
+            }
+            let r = env.result().episode;
+            wins += usize::from(r.status == Status::Succeeded);
+            score += r.score;
+            n += 1;
+        }
+        Ok((
+            100.0 * wins as f64 / n.max(1) as f64,
+            score / n.max(1) as f64,
+            records,
+        ))
+    }
+
+    /// DDP through the plain episode driver on the same worlds and seeds.
+    fn ddp(&self) -> (f64, f64) {
+        let episode = self
+            .eval
+            .episode
+            .with_profile(self.env.profile, self.env.dynamics);
+        let schedule = Schedule::ddp_default();
+        let (mut wins, mut score, mut n) = (0usize, 0.0, 0usize);
+        for (w, seed) in self.seeds() {
+            let Ok(world) = sim::barn::world(w) else {
+                continue;
+            };
+            let mut planner = self.planner.build(&self.eval, seed);
+            let (r, _) = planner::run::run_episode(
+                world,
+                episode,
+                planner.as_mut(),
+                &schedule,
+                self.max_speed,
+                seed,
+                |_, _, _| {},
+            );
+            wins += usize::from(r.status == Status::Succeeded);
+            score += r.score;
+            n += 1;
+        }
+        (100.0 * wins as f64 / n.max(1) as f64, score / n.max(1) as f64)
+    }
+}
+
+/// What a background evaluation returns: the result, and DDP's numbers when it computed them.
+type Job = JoinHandle<anyhow::Result<(GreedyResult, (f64, f64))>>;
+
+/// Drives the greedy evaluations of one training run (owned by the `adp train` loop; not
+/// shared between threads).
+pub struct GreedyMonitor {
+    setup: Arc<Setup>,
+    every: u64,
+    next_at: u64,
+    ddp: Option<(f64, f64)>,
+    job: Option<Job>,
+    run_dir: PathBuf,
+    writer: Option<EventWriter>,
+}
+
+impl GreedyMonitor {
+    /// A monitor for a run in `run_dir`, or `None` when `section.every_steps` is 0. Refuses
+    /// unknown worlds and zero runs. `resumed_at` is the run's agent steps so far.
+    #[allow(clippy::too_many_arguments)]
+    pub fn new(
+        section: &GreedySection,
+        run_dir: &Path,
+        planner: PlannerKind,
+        space: ActionSpace,
+        max_speed: f64,
+        env: EnvConfig,
+        seed: u64,
+        resumed_at: u64,
+    ) -> anyhow::Result<Option<Self>> {
+        if section.every_steps == 0 {
+            return Ok(None);
+        }
+        anyhow::ensure!(section.runs >= 1, "[greedy] runs must be at least 1");
+        let worlds = sim::splits::SplitFile::embedded()
+            .select(&section.worlds)
+            .map_err(|e| anyhow::anyhow!("[greedy] worlds = {:?}: {e}", section.worlds))?;
+        let setup = Setup {
+            worlds,
+            runs: section.runs,
+            planner,
+            space,
+            max_speed,
+            env,
+            eval: EvalConfig::load(None)?,
+            // Its own stream: not the seeds of training episodes.
+            seed: seed ^ 0x6772_6565_6479,
+        };
+        Ok(Some(Self {
+            setup: Arc::new(setup),
+            every: section.every_steps,
+            next_at: (resumed_at / section.every_steps + 1) * section.every_steps,
+            ddp: None,
+            job: None,
+            run_dir: run_dir.to_owned(),
+            writer: None,
+        }))
+    }
+
+    /// Call often from the training loop with the run's agent steps and a way to take the
+    /// newest policy `(version, layer sizes, flat weights)`: collects a finished evaluation
+    /// (returning it for display) and starts the next one when due. A failed evaluation is
+    /// reported and skipped; training goes on.
+    pub fn poll(
+        &mut self,
+        inserts: u64,
+        latest: impl FnOnce() -> Result<(u64, Vec<usize>, Vec<f32>), String>,
+    ) -> Option<Result<GreedyResult, String>> {
+        let done = self.collect(false);
+        if self.job.is_none() && inserts >= self.next_at {
+            self.next_at = (inserts / self.every + 1) * self.every;
+            if let Err(e) = self.start(inserts, latest) {
+                return Some(Err(e));
+            }
+        }
+        done
+    }
+
+    /// Evaluates the newest policy now and waits for it (and for one still running): the
+    /// final point of the curve.
+    pub fn finish(
+        mut self,
+        inserts: u64,
+        latest: impl FnOnce() -> Result<(u64, Vec<usize>, Vec<f32>), String>,
+    ) -> Vec<Result<GreedyResult, String>> {
+        let mut out: Vec<_> = self.collect(true).into_iter().collect();
+        match self.start(inserts, latest) {
+            Ok(()) => out.extend(self.collect(true)),
+            Err(e) => out.push(Err(e)),
+        }
+        out
+    }
+
+    fn start(
+        &mut self,
+        inserts: u64,
+        latest: impl FnOnce() -> Result<(u64, Vec<usize>, Vec<f32>), String>,
+    ) -> Result<(), String> {
+        let (version, dims, weights) = latest()?;
+        if version == 0 {
+            return Ok(()); // nothing published yet
+        }
+        let net = MlpPolicy::from_flat(&dims, weights)
+            .map_err(|e| format!("greedy evaluation: policy {version}: {e}"))?;
+        let setup = self.setup.clone();
+        let ddp = self.ddp;
+        self.job = Some(std::thread::spawn(move || {
+            let ddp = ddp.unwrap_or_else(|| setup.ddp());
+            let (success, score, records) = setup.policy(&net)?;
+            let names: Vec<&str> = setup.space.ranges().iter().map(|r| r.0).collect();
+            let clutter_mean = records.iter().map(|r| r.0).sum::<f64>() / records.len().max(1) as f64;
+            Ok((
+                GreedyResult {
+                    agent_steps: inserts,
+                    policy_version: version,
+                    success,
+                    score,
+                    ddp_success: ddp.0,
+                    ddp_score: ddp.1,
+                    clutter_mean,
+                    schedule: schedule_stats(&records, &names),
+                },
+                ddp,
+            ))
+        }));
+        Ok(())
+    }
+
+    /// Takes a finished job's result (waiting for it when `wait`), and records it.
+    fn collect(&mut self, wait: bool) -> Option<Result<GreedyResult, String>> {
+        if !wait && !self.job.as_ref().is_some_and(JoinHandle::is_finished) {
+            return None;
+        }
+        let job = self.job.take()?;
+        let result = match job.join() {
+            Ok(Ok((r, ddp))) => {
+                self.ddp = Some(ddp);
+                self.record(&r)
+                    .map(|()| r)
+                    .map_err(|e| format!("greedy evaluation: {e:#}"))
+            }
+            Ok(Err(e)) => Err(format!("greedy evaluation failed: {e:#}")),
+            Err(_) => Err("greedy evaluation panicked".into()),
+        };
+        Some(result)
+    }
+
+    /// Appends `r` to `greedy_eval.jsonl` and to the `greedy/` TensorBoard run.
+    fn record(&mut self, r: &GreedyResult) -> anyhow::Result<()> {
+        let path = self.run_dir.join("greedy_eval.jsonl");
+        std::fs::create_dir_all(&self.run_dir)
+            .with_context(|| format!("cannot create {}", self.run_dir.display()))?;
+        let mut file = std::fs::OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(&path)
+            .with_context(|| format!("cannot open {}", path.display()))?;
+        writeln!(file, "{}", serde_json::to_string(r)?)
+            .with_context(|| format!("cannot write {}", path.display()))?;
+        if self.writer.is_none() {
+            self.writer = Some(EventWriter::create(&self.run_dir.join("greedy"))?);
+        }
+        let w = self.writer.as_mut().expect("just created");
+        let mut values: Vec<(String, f64)> = vec![
+            ("greedy/success".into(), r.success),
+            ("greedy/score".into(), r.score),
+            ("greedy/ddp_success".into(), r.ddp_success),
+            ("greedy/ddp_score".into(), r.ddp_score),
+            ("schedule/clutter_mean".into(), r.clutter_mean),
+        ];
+        for p in &r.schedule {
+            for (what, v) in [
+                ("mean", p.mean),
+                ("sd", p.sd),
+                ("open", p.open),
+                ("cluttered", p.cluttered),
+                ("clutter_corr", p.clutter_corr),
+            ] {
+                values.push((format!("schedule/{}_{what}", p.name), v));
+            }
+        }
+        let refs: Vec<(&str, f64)> = values.iter().map(|(t, v)| (t.as_str(), *v)).collect();
+        w.scalars(r.agent_steps, &refs)?;
+        w.flush()?;
+        Ok(())
+    }
+}
+
+/// One line for the progress display.
+pub fn describe(r: &GreedyResult) -> String {
+    let params: Vec<String> = r
+        .schedule
+        .iter()
+        .map(|p| {
+            format!(
+                "{} {:.2}±{:.2} (open {:.2}, cluttered {:.2})",
+                p.name, p.mean, p.sd, p.open, p.cluttered
+            )
+        })
+        .collect();
+    format!(
+        "greedy v{} at {} steps: success {:.1}% score {:.3} (DDP {:.1}% {:.3}); {}",
+        r.policy_version,
+        r.agent_steps,
+        r.success,
+        r.score,
+        r.ddp_success,
+        r.ddp_score,
+        params.join(", ")
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn schedule_statistics_by_hand() {
+        // Four steps: clutter 0.1, 0.2, 0.3, 0.4 (median 0.25); T = 2.2, 2.0, 1.8, 1.6 falls
+        // with clutter (correlation -1); p constant (sd 0, correlation 0).
+        let records: Vec<(f64, Vec<f64>)> = [(0.1, 2.2), (0.2, 2.0), (0.3, 1.8), (0.4, 1.6)]
+            .iter()
+            .map(|&(c, t)| (c, vec![1.7, t]))
+            .collect();
+        let s = schedule_stats(&records, &["p", "T"]);
+        let close = |a: f64, b: f64| assert!((a - b).abs() < 1e-12, "{a} vs {b}");
+        close(s[0].mean, 1.7);
+        close(s[0].sd, 0.0);
+        assert_eq!(s[0].clutter_corr, 0.0);
+        close(s[1].mean, 1.9);
+        close(s[1].sd, 0.05f64.sqrt()); // deviations ±0.3, ±0.1: (0.09 + 0.01) * 2 / 4
+        close(s[1].open, 2.1);
+        close(s[1].cluttered, 1.7);
+        close(s[1].clutter_corr, -1.0);
+        assert!(schedule_stats(&[], &["p"])[0].mean.is_nan());
+    }
+
+    #[test]
+    fn clutter_is_the_share_of_close_beams() {
+        assert_eq!(clutter(&[0.5, 2.0, 0.99, 3.0]), 0.5);
+        assert_eq!(clutter(&[]), 0.0);
+    }
+
+    #[test]
+    fn evaluations_are_due_every_k_steps_and_record_a_json_line() {
+        let dir = std::env::temp_dir().join(format!("adp-greedy-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let section = GreedySection {
+            every_steps: 100,
+            worlds: "1".into(),
+            runs: 1,
+        };
+        let env = EnvConfig::default();
+        let mut m = GreedyMonitor::new(
+            &section,
+            &dir,
+            PlannerKind::Dwa,
+            ActionSpace::Decremental,
+            1.5,
+            env,
+            3,
+            250,
+        )
+        .unwrap()
+        .unwrap();
+        assert_eq!(m.next_at, 300, "a resumed run continues the grid");
+        // The DDP-initialized output (zeros) is DDP: same success and score as DDP's row.
+        let mut flat = vec![0.0f32; 730 * 4];
+        flat.extend([0.0f32; 4]);
+        let latest = || Ok((7, vec![730, 4], flat.clone()));
+        assert!(m.poll(299, latest).is_none() && m.job.is_none(), "not due yet");
+        assert!(m.poll(300, latest).is_none() && m.job.is_some(), "started");
+        let results = m.finish(300, latest);
+        assert_eq!(results.len(), 2);
+        let r = results[0].as_ref().unwrap();
+        assert_eq!((r.agent_steps, r.policy_version), (300, 7));
+        assert_eq!((r.success, r.score), (r.ddp_success, r.ddp_score));
+        assert_eq!(r.success, 100.0, "DWA-DDP solves world 1");
+        let t = r.schedule.iter().find(|p| p.name == "T").unwrap();
+        assert!(
+            (t.mean - 2.0).abs() < 1e-12 && t.sd < 1e-12,
+            "DDP's T = 2 s: {t:?}"
+        );
+        let lines = std::fs::read_to_string(dir.join("greedy_eval.jsonl")).unwrap();
+        assert_eq!(lines.lines().count(), 2);
+        let back: GreedyResult = serde_json::from_str(lines.lines().next().unwrap()).unwrap();
+        assert_eq!(&back, r);
+        assert!(
+            std::fs::read_dir(dir.join("greedy")).unwrap().count() == 1,
+            "one event file"
+        );
+        std::fs::remove_dir_all(&dir).ok();
+    }
+}
