@@ -4,6 +4,7 @@ mod bench;
 mod calibrate;
 mod config;
 mod eval;
+mod experiment;
 mod export;
 mod greedy;
 mod policy;
@@ -301,6 +302,51 @@ enum Cmd {
         /// The adp executable on the compute nodes (default: [slurm] adp, else this one).
         #[arg(long)]
         adp: Option<PathBuf>,
+    },
+    /// Run an experiment (configs/experiments/NAME.toml): train S seeds per arm, evaluate
+    /// every policy with the papers' protocol against DDP, the best constant schedule, the
+    /// untrained policy and the state-shuffled policy, and write report.md with tables,
+    /// paired statistics and figures. Resumable.
+    Experiment {
+        /// The experiment file.
+        #[arg(long)]
+        config: PathBuf,
+        /// Experiment directory (default: runs/experiments/<name>).
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Continue the experiment in --out, skipping the stages whose results exist.
+        #[arg(long)]
+        resume: bool,
+        /// Only these planners (comma-separated; a subset of the file's).
+        #[arg(long, value_enum, value_delimiter = ',')]
+        planners: Vec<PlannerKind>,
+        /// Only these action spaces (comma-separated; a subset of the file's).
+        #[arg(long, value_delimiter = ',')]
+        spaces: Vec<ActionSpace>,
+        /// Only these speed caps (comma-separated; a subset of the file's).
+        #[arg(long, value_delimiter = ',')]
+        speeds: Vec<f64>,
+        /// Only the first this many training seeds of each arm.
+        #[arg(long)]
+        seeds: Option<usize>,
+        /// Agent steps per training run (overrides [train.run] steps).
+        #[arg(long)]
+        steps: Option<u64>,
+        /// Worker threads of the evaluations (default: all cores).
+        #[arg(long)]
+        jobs: Option<usize>,
+        /// Evaluate only shard K of N of the test worlds (e.g. 0/8) of every pending
+        /// evaluation, into `<stage file>.shard-K-of-N`; a later run without --shard merges a
+        /// complete set. Training and constant searches must be finished.
+        #[arg(long, conflicts_with_all = ["no_eval", "emit_slurm"])]
+        shard: Option<experiment::shard::Shard>,
+        /// Run only the training and constant-search stages (no evaluation, no report).
+        #[arg(long, conflicts_with = "emit_slurm")]
+        no_eval: bool,
+        /// Print a SLURM job script that runs this experiment (training, evaluation sharded over
+        /// the [slurm] tasks, merge and report) and create --out with its experiment.toml.
+        #[arg(long, conflicts_with = "resume")]
+        emit_slurm: bool,
     },
     /// List or inspect worlds and splits.
     Worlds {
@@ -730,6 +776,41 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             out,
             action,
         } => export::run(&checkpoint, &out, action),
+        Cmd::Experiment {
+            config,
+            out,
+            resume,
+            planners,
+            spaces,
+            speeds,
+            seeds,
+            steps,
+            jobs,
+            shard,
+            no_eval,
+            emit_slurm,
+        } => {
+            let report = experiment::run(&experiment::Args {
+                config,
+                out,
+                resume,
+                restrict: experiment::config::Restrict {
+                    planners,
+                    spaces,
+                    speeds,
+                    seeds,
+                    steps,
+                },
+                jobs,
+                shard,
+                no_eval,
+                emit_slurm,
+            })?;
+            if let Some(report) = report {
+                println!("{}", report.display());
+            }
+            Ok(())
+        }
         Cmd::Worlds { cmd } => match cmd {
             WorldsCmd::List { split } => {
                 for id in SplitFile::embedded().select(&split)? {

@@ -4,7 +4,7 @@
 //! The episode is stepped by its caller one control period at a time, so the same type
 //! serves evaluation (a planner every 0.05 s) and RL (an agent every 0.25 s on top).
 
-use rand::SeedableRng;
+use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 use serde::{Deserialize, Serialize};
 
@@ -20,6 +20,27 @@ use crate::world::World;
 /// Seed offset of the localization-drift stream (kept apart from the sensor noise, so the
 /// `ideal` profile draws exactly the noise it always did).
 const DRIFT_STREAM: u64 = 0x5eed_d41f_7000_0001;
+/// Seed offset of the start-jitter stream (apart from noise and drift, so a zero jitter draws
+/// nothing and changes nothing).
+const JITTER_STREAM: u64 = 0x5eed_517a_7000_0002;
+/// Largest accepted start-position jitter (m): the BARN start corridor leaves the Jackal's
+/// footprint about this much room on each side.
+pub const MAX_START_JITTER_M: f64 = 0.2;
+/// Largest accepted start-heading jitter (rad).
+pub const MAX_START_JITTER_YAW_RAD: f64 = 0.3;
+
+/// The start pose of a run: `start` moved by the seeded jitter of `cfg` (unchanged without
+/// jitter).
+fn jittered_start(start: Pose, cfg: &EpisodeConfig, seed: u64) -> Pose {
+    if cfg.start_jitter_m == 0.0 && cfg.start_jitter_yaw_rad == 0.0 {
+        return start;
+    }
+    let mut rng = Pcg64Mcg::seed_from_u64(seed ^ JITTER_STREAM);
+    let mut draw = |j: f64| if j > 0.0 { rng.random_range(-j..=j) } else { 0.0 };
+    let (dx, dy) = (draw(cfg.start_jitter_m), draw(cfg.start_jitter_m));
+    let dyaw = draw(cfg.start_jitter_yaw_rad);
+    Pose::new(start.x + dx, start.y + dy, start.yaw + dyaw)
+}
 
 /// Episode parameters. Defaults follow the BARN protocol (DESIGN §3).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -48,6 +69,13 @@ pub struct EpisodeConfig {
     pub profile: Profile,
     /// The response parameters of `profile = "custom"` (must be absent otherwise).
     pub dynamics: Option<Dynamics>,
+    /// Start-pose jitter (m): the robot starts at the world's start moved by an offset drawn
+    /// uniformly from [-j, j] along x and along y (its own seeded stream, so runs of one world
+    /// start at different poses). 0 (the default) keeps the world's exact start.
+    pub start_jitter_m: f64,
+    /// Start-heading jitter (rad): the start yaw is moved by an angle drawn uniformly from
+    /// [-j, j]. 0 (the default) keeps the world's start heading.
+    pub start_jitter_yaw_rad: f64,
 }
 
 impl Default for EpisodeConfig {
@@ -64,6 +92,8 @@ impl Default for EpisodeConfig {
             robot: RobotLimits::JACKAL,
             profile: Profile::default(),
             dynamics: None,
+            start_jitter_m: 0.0,
+            start_jitter_yaw_rad: 0.0,
         }
     }
 }
@@ -82,6 +112,18 @@ impl EpisodeConfig {
         }
         if self.replan_every == 0 {
             return Err("replan_every must be >= 1".into());
+        }
+        if !(0.0..=MAX_START_JITTER_M).contains(&self.start_jitter_m) {
+            return Err(format!(
+                "start_jitter_m = {} must be in [0, {MAX_START_JITTER_M}] m",
+                self.start_jitter_m
+            ));
+        }
+        if !(0.0..=MAX_START_JITTER_YAW_RAD).contains(&self.start_jitter_yaw_rad) {
+            return Err(format!(
+                "start_jitter_yaw_rad = {} must be in [0, {MAX_START_JITTER_YAW_RAD}] rad",
+                self.start_jitter_yaw_rad
+            ));
         }
         self.resolved_dynamics()?;
         self.lidar.validate()
@@ -162,6 +204,8 @@ pub struct Episode<'w> {
     localization: Localization,
     /// Distance driven since the last drift update (m).
     undrifted: f64,
+    /// Where this run started (the world's start, jittered when configured).
+    start: Pose,
     state: RobotState,
     sim_time: f64,
     clock_start: Option<f64>,
@@ -190,7 +234,8 @@ impl<'w> Episode<'w> {
             .resolved_dynamics()
             .unwrap_or_else(|e| panic!("invalid episode configuration: {e}"));
         let lidar = Lidar::new(cfg.lidar);
-        let costmap = Costmap::around(cfg.costmap, world.start.position(), world.goal);
+        let start = jittered_start(world.start, &cfg, seed);
+        let costmap = Costmap::around(cfg.costmap, start.position(), world.goal);
         let mut ep = Self {
             world,
             cfg,
@@ -200,8 +245,9 @@ impl<'w> Episode<'w> {
             drive: Drive::new(dynamics, cfg.robot, cfg.physics_dt),
             localization: Localization::default(),
             undrifted: 0.0,
+            start,
             state: RobotState {
-                pose: world.start,
+                pose: start,
                 vel: Twist::default(),
             },
             sim_time: 0.0,
@@ -226,6 +272,11 @@ impl<'w> Episode<'w> {
     /// The world being driven.
     pub fn world(&self) -> &'w World {
         self.world
+    }
+
+    /// Where this run started: the world's start, moved by the configured start jitter.
+    pub fn start(&self) -> Pose {
+        self.start
     }
 
     /// The configuration.
@@ -306,8 +357,7 @@ impl<'w> Episode<'w> {
             let moved = pos.dist(before);
             self.distance += moved;
             self.undrifted += moved;
-            if self.clock_start.is_none()
-                && pos.dist(self.world.start.position()) >= self.cfg.clock_start_distance
+            if self.clock_start.is_none() && pos.dist(self.start.position()) >= self.cfg.clock_start_distance
             {
                 self.clock_start = Some(self.sim_time);
             }
@@ -563,5 +613,45 @@ mod tests {
         // A config naming a custom profile without its table is refused.
         let bad = EpisodeConfig::default().with_profile(Profile::Custom, None);
         assert!(bad.validate().unwrap_err().contains("[episode.dynamics]"));
+    }
+    #[test]
+    fn start_jitter_is_seeded_bounded_and_off_by_default() {
+        let w = crate::barn::world(0).unwrap();
+        let exact = Episode::new(w, EpisodeConfig::default(), 3);
+        assert_eq!(exact.start(), w.start);
+        assert_eq!(exact.state().pose, w.start);
+        let cfg = EpisodeConfig {
+            start_jitter_m: 0.1,
+            start_jitter_yaw_rad: 0.1,
+            ..EpisodeConfig::default()
+        };
+        let a = Episode::new(w, cfg, 3).start();
+        assert_eq!(a, Episode::new(w, cfg, 3).start(), "same seed, same start");
+        assert_ne!(a, Episode::new(w, cfg, 4).start(), "another seed, another start");
+        assert!((a.x - w.start.x).abs() <= 0.1 && (a.y - w.start.y).abs() <= 0.1);
+        assert!((a.yaw - w.start.yaw).abs() <= 0.1 && a != w.start);
+        let bad = EpisodeConfig {
+            start_jitter_m: 0.5,
+            ..EpisodeConfig::default()
+        };
+        assert!(bad.validate().unwrap_err().contains("start_jitter_m"));
+        // The largest accepted jitter keeps the footprint free in every BARN world.
+        let (j, jy) = (MAX_START_JITTER_M, MAX_START_JITTER_YAW_RAD);
+        for world in crate::barn::worlds() {
+            for (sx, sy, sa) in [
+                (1.0, 1.0, 1.0),
+                (-1.0, 1.0, -1.0),
+                (1.0, -1.0, -1.0),
+                (-1.0, -1.0, 1.0),
+            ] {
+                let s = world.start;
+                let p = Pose::new(s.x + sx * j, s.y + sy * j, s.yaw + sa * jy);
+                assert!(
+                    !world.collides(&crate::geometry::Footprint::JACKAL, &p),
+                    "world {}",
+                    world.id
+                );
+            }
+        }
     }
 }

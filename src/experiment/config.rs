@@ -1,0 +1,675 @@
+//! The experiment file (`configs/experiments/NAME.toml`): arms, seeds, world splits, the
+//! evaluation protocol, the controls, the statistics and the training configuration.
+//!
+//! Every table refuses keys it does not know, naming the key and the file. `[train]` is a
+//! training configuration in the format of `configs/local.toml` (`[train.run]`,
+//! `[train.env]`, `[train.td3]`, `[train.service]`, `[train.sandbox]`), laid over the embedded
+//! `configs/local.toml` and checked by [`TrainConfig::parse`], so every key `adp train`
+//! knows is available here. Per arm and seed the experiment sets `[run] planner`,
+//! `action_space`, `max_speed`, `worlds` and `name`, `[td3] seed`, `obs_dim` and `act_dim`
+//! (see [`Experiment::train_config`]).
+
+use std::path::Path;
+
+use anyhow::{bail, Context};
+use serde::{Deserialize, Serialize};
+
+use planner::ActionSpace;
+use sim::splits::SplitFile;
+
+use crate::config::one_line;
+use crate::eval::PlannerKind;
+use crate::train::TrainConfig;
+
+/// The embedded training defaults that `[train]` is laid over.
+const LOCAL_TOML: &str = include_str!("../../configs/local.toml");
+
+/// `[experiment]`: what is compared.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ExperimentSection {
+    /// Name (default output directory `runs/experiments/<name>`).
+    pub name: String,
+    /// Planners (dwa, mppi, log-mppi, system).
+    pub planners: Vec<String>,
+    /// ADP action spaces (decremental, incremental, unconstrained, fixed).
+    #[serde(default = "default_spaces")]
+    pub action_spaces: Vec<String>,
+    /// Speed caps (m/s).
+    pub speeds: Vec<f64>,
+    /// Training-world selections, one arm per entry (split names, ranges or lists; default
+    /// `fit`, which leaves `val` to the greedy evaluation of `[train.greedy]`).
+    #[serde(default = "default_train_worlds")]
+    pub train_worlds: Vec<String>,
+    /// The held-out worlds every policy and control is evaluated on.
+    #[serde(default = "default_test_worlds")]
+    pub test_worlds: String,
+    /// Training seeds per arm.
+    #[serde(default = "default_seeds")]
+    pub seeds: usize,
+    /// `[td3] seed` of the first training seed; seed k trains with `first_seed + k`.
+    #[serde(default = "default_first_seed")]
+    pub first_seed: u64,
+}
+
+fn default_spaces() -> Vec<String> {
+    vec!["decremental".into()]
+}
+fn default_train_worlds() -> Vec<String> {
+    vec!["fit".into()]
+}
+fn default_test_worlds() -> String {
+    "test".into()
+}
+fn default_seeds() -> usize {
+    3
+}
+fn default_first_seed() -> u64 {
+    1
+}
+
+/// `[eval]`: the papers' protocol on the test worlds.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct EvalSection {
+    /// Runs per world.
+    pub runs: usize,
+    /// Fastest and slowest runs dropped per world.
+    pub trim: usize,
+    /// Base seed of every run (shared by all controllers, so runs pair by seed).
+    pub seed: u64,
+    /// Start-position jitter (m), see `[episode] start_jitter_m` of `configs/eval.toml`.
+    pub start_jitter_m: f64,
+    /// Start-heading jitter (rad).
+    pub start_jitter_yaw_rad: f64,
+    /// An evaluation configuration (planner tunables; default: the embedded
+    /// `configs/eval.toml`). Its `[episode] profile` is replaced by `[train.env] profile`.
+    pub config: Option<String>,
+}
+
+impl Default for EvalSection {
+    fn default() -> Self {
+        Self {
+            runs: 20,
+            trim: 5,
+            seed: 0,
+            start_jitter_m: 0.1,
+            start_jitter_yaw_rad: 0.1,
+            config: None,
+        }
+    }
+}
+
+/// `[constant_search]`: the best constant schedule, searched on training worlds only.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SearchSection {
+    /// Worlds searched on (must not meet the test worlds).
+    pub worlds: String,
+    /// Candidate actions: DDP's, then DDP with one dimension at either end (for spaces of at
+    /// most 8 dimensions), then seeded uniform draws, up to this many.
+    pub candidates: usize,
+    /// Runs per world and candidate.
+    pub runs: usize,
+    /// Seed of the draws and of the runs.
+    pub seed: u64,
+}
+
+impl Default for SearchSection {
+    fn default() -> Self {
+        Self {
+            worlds: "train".into(),
+            candidates: 24,
+            runs: 1,
+            seed: 1,
+        }
+    }
+}
+
+/// `[shuffle]`: the state-shuffled control.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ShuffleSection {
+    /// Worlds whose observations fill the pool (must not meet the test worlds).
+    pub worlds: String,
+    /// At most this many of them are driven (the first ones of the selection).
+    pub max_worlds: usize,
+    /// Observations kept (seeded reservoir sample over every agent step driven).
+    pub pool: usize,
+    /// Seed of the reservoir and of the per-step draws.
+    pub seed: u64,
+}
+
+impl Default for ShuffleSection {
+    fn default() -> Self {
+        Self {
+            worlds: "train".into(),
+            max_worlds: 10,
+            pool: 4096,
+            seed: 2,
+        }
+    }
+}
+
+/// `[stats]`: the paired statistics.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct StatsSection {
+    /// Bootstrap resamples.
+    pub resamples: usize,
+    /// Confidence of the intervals.
+    pub confidence: f64,
+    /// Seed of the resampling.
+    pub seed: u64,
+}
+
+impl Default for StatsSection {
+    fn default() -> Self {
+        Self {
+            resamples: 10_000,
+            confidence: 0.95,
+            seed: 3,
+        }
+    }
+}
+
+/// `[figures]`.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct FiguresSection {
+    /// Test world of the rendered ADP episode (default: the last test world, the hardest).
+    pub render_world: Option<usize>,
+}
+
+/// `[slurm]`: the job `adp experiment --emit-slurm` writes.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SlurmJob {
+    /// Nodes of the allocation.
+    pub nodes: u32,
+    /// Tasks: the evaluation shards (one per task).
+    pub tasks: u32,
+    /// CPUs per task.
+    pub cpus_per_task: u32,
+    /// Time limit `[D-]HH:MM:SS`.
+    pub time: String,
+    /// Partition; empty = the cluster's default.
+    pub partition: String,
+    /// Account; empty = the user's default.
+    pub account: String,
+    /// Shell lines run first (e.g. `module load ...`).
+    pub setup: Vec<String>,
+    /// The `adp` executable on the compute nodes; empty = the one that wrote the script.
+    pub adp: String,
+}
+
+impl Default for SlurmJob {
+    fn default() -> Self {
+        Self {
+            nodes: 1,
+            tasks: 8,
+            cpus_per_task: 1,
+            time: "24:00:00".into(),
+            partition: String::new(),
+            account: String::new(),
+            setup: Vec::new(),
+            adp: String::new(),
+        }
+    }
+}
+
+/// The file as written.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawFile {
+    experiment: ExperimentSection,
+    #[serde(default)]
+    eval: EvalSection,
+    #[serde(default)]
+    constant_search: SearchSection,
+    #[serde(default)]
+    shuffle: ShuffleSection,
+    #[serde(default)]
+    stats: StatsSection,
+    #[serde(default)]
+    figures: FiguresSection,
+    #[serde(default)]
+    slurm: SlurmJob,
+    #[serde(default)]
+    train: toml::Table,
+}
+
+/// One arm: a planner, an action space, a speed cap and a set of training worlds.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Arm {
+    /// The planner.
+    pub planner: PlannerKind,
+    /// The ADP action space.
+    pub space: ActionSpace,
+    /// Speed cap (m/s).
+    pub speed: f64,
+    /// Training-world selection as written.
+    pub train_worlds: String,
+}
+
+impl Arm {
+    /// A file-name-safe id, e.g. `dwa-decremental-1.5-train`.
+    pub fn id(&self) -> String {
+        let worlds: String = self
+            .train_worlds
+            .chars()
+            .map(|c| if c.is_ascii_alphanumeric() { c } else { '_' })
+            .collect();
+        format!(
+            "{}-{}-{}-{worlds}",
+            planner_name(self.planner),
+            space_label(self.space),
+            speed_label(self.speed)
+        )
+    }
+}
+
+/// The planner's name as on the command line (`log-mppi`).
+pub fn planner_name(p: PlannerKind) -> String {
+    serde_json::to_value(p)
+        .ok()
+        .and_then(|v| v.as_str().map(str::to_string))
+        .unwrap_or_default()
+}
+
+/// The action space's name (`decremental`).
+pub fn space_label(s: ActionSpace) -> String {
+    adp_learner::export::space_name(s)
+}
+
+/// A speed as in file names and tables (`1.5`, `2.0`).
+pub fn speed_label(v: f64) -> String {
+    format!("{v:.1}")
+}
+
+/// Command-line restrictions of an experiment (each must be a subset of the file's).
+#[derive(Clone, Debug, Default)]
+pub struct Restrict {
+    /// Only these planners.
+    pub planners: Vec<PlannerKind>,
+    /// Only these action spaces.
+    pub spaces: Vec<ActionSpace>,
+    /// Only these speeds.
+    pub speeds: Vec<f64>,
+    /// Only the first this many seeds.
+    pub seeds: Option<usize>,
+    /// Agent steps per training run (overrides `[train.run] steps`).
+    pub steps: Option<u64>,
+}
+
+/// A checked experiment.
+#[derive(Clone, Debug)]
+pub struct Experiment {
+    /// `[experiment]`.
+    pub section: ExperimentSection,
+    /// `[eval]`.
+    pub eval: EvalSection,
+    /// `[constant_search]`.
+    pub search: SearchSection,
+    /// `[shuffle]`.
+    pub shuffle: ShuffleSection,
+    /// `[stats]`.
+    pub stats: StatsSection,
+    /// `[slurm]`.
+    pub slurm: SlurmJob,
+    /// `[train]` over the embedded `configs/local.toml`.
+    pub train: TrainConfig,
+    /// The arms (after restrictions), planner-major.
+    pub arms: Vec<Arm>,
+    /// Seeds per arm (after restrictions).
+    pub seeds: usize,
+    /// Test world ids.
+    pub test_worlds: Vec<usize>,
+    /// Constant-search world ids.
+    pub search_worlds: Vec<usize>,
+    /// Shuffle-pool world ids (at most `max_worlds`).
+    pub pool_worlds: Vec<usize>,
+    /// The world of the rendered episode.
+    pub render_world: usize,
+}
+
+/// Deep merge: `over`'s values replace `base`'s, tables merge key by key.
+fn merge(base: &mut toml::Table, over: toml::Table) {
+    for (k, v) in over {
+        match (base.get_mut(&k), v) {
+            (Some(toml::Value::Table(b)), toml::Value::Table(o)) => merge(b, o),
+            (_, v) => {
+                base.insert(k, v);
+            }
+        }
+    }
+}
+
+impl Experiment {
+    /// Reads and checks the experiment file `path`.
+    pub fn load(path: &Path, restrict: &Restrict) -> anyhow::Result<Self> {
+        let text = std::fs::read_to_string(path)
+            .with_context(|| format!("cannot read experiment config {}", path.display()))?;
+        Self::parse(&path.display().to_string(), &text, restrict)
+    }
+
+    /// Parses and checks the experiment file `text`; every error is one line starting with
+    /// `name`.
+    pub fn parse(name: &str, text: &str, restrict: &Restrict) -> anyhow::Result<Self> {
+        let raw: RawFile =
+            toml::from_str(text).map_err(|e| anyhow::anyhow!("{name}: {}", one_line(&e.to_string())))?;
+        // Unknown keys of [train] are named before the merge (whose text has other lines).
+        TrainConfig::deserialize(raw.train.clone())
+            .map_err(|e| anyhow::anyhow!("{name}: [train]: {}", one_line(&e.to_string())))?;
+        let mut base: toml::Table = toml::from_str(LOCAL_TOML).expect("the embedded local.toml parses");
+        merge(&mut base, raw.train);
+        let mut train = TrainConfig::parse(
+            &format!("{name}: [train]"),
+            &toml::to_string(&base).expect("a TOML table serializes"),
+        )?;
+        if let Some(steps) = restrict.steps {
+            train.run.steps = steps;
+        }
+        let ex = &raw.experiment;
+        let err = |key: &str, what: String| anyhow::anyhow!("{name}: [experiment] {key}: {what}");
+        let planners: Vec<PlannerKind> = ex
+            .planners
+            .iter()
+            .map(|p| {
+                <PlannerKind as clap::ValueEnum>::from_str(p, false).map_err(|_| {
+                    err(
+                        "planners",
+                        format!("unknown planner `{p}` (dwa, mppi, log-mppi, system)"),
+                    )
+                })
+            })
+            .collect::<anyhow::Result<_>>()?;
+        let spaces: Vec<ActionSpace> = ex
+            .action_spaces
+            .iter()
+            .map(|s| s.parse().map_err(|e: String| err("action_spaces", e)))
+            .collect::<anyhow::Result<_>>()?;
+        if planners.is_empty() || spaces.is_empty() || ex.speeds.is_empty() || ex.train_worlds.is_empty() {
+            bail!("{name}: [experiment] planners, action_spaces, speeds and train_worlds must not be empty");
+        }
+        for &v in &ex.speeds {
+            if !(v.is_finite() && v > 0.0 && v <= 2.0) {
+                return Err(err("speeds", format!("{v} must be in (0, 2] m/s")));
+            }
+        }
+        if ex.seeds == 0 {
+            return Err(err("seeds", "must be at least 1".into()));
+        }
+        let splits = SplitFile::embedded();
+        let select = |section: &str, key: &str, sel: &str| {
+            splits
+                .select(sel)
+                .map_err(|e| anyhow::anyhow!("{name}: [{section}] {key} = {sel:?}: {e}"))
+        };
+        let test_worlds = select("experiment", "test_worlds", &ex.test_worlds)?;
+        let disjoint = |section: &str, key: &str, sel: &str| -> anyhow::Result<Vec<usize>> {
+            let ids = select(section, key, sel)?;
+            if let Some(w) = ids.iter().find(|w| test_worlds.contains(w)) {
+                bail!(
+                    "{name}: [{section}] {key} = {sel:?} includes test world {w}: the test worlds \
+                     ({}) are never used for training or selection",
+                    ex.test_worlds
+                );
+            }
+            if ids.is_empty() {
+                bail!("{name}: [{section}] {key} = {sel:?} selects no world");
+            }
+            Ok(ids)
+        };
+        for tw in &ex.train_worlds {
+            disjoint("experiment", "train_worlds", tw)?;
+        }
+        if train.greedy.every_steps > 0 {
+            disjoint("train.greedy", "worlds", &train.greedy.worlds)?;
+        }
+        let search_worlds = disjoint("constant_search", "worlds", &raw.constant_search.worlds)?;
+        let mut pool_worlds = disjoint("shuffle", "worlds", &raw.shuffle.worlds)?;
+        pool_worlds.truncate(raw.shuffle.max_worlds.max(1));
+        let ev = &raw.eval;
+        if ev.runs == 0 || 2 * ev.trim >= ev.runs {
+            bail!(
+                "{name}: [eval] runs = {} and trim = {}: runs must be at least 1 and trim less than \
+                 half of runs",
+                ev.runs,
+                ev.trim
+            );
+        }
+        let jitter = sim::EpisodeConfig {
+            start_jitter_m: ev.start_jitter_m,
+            start_jitter_yaw_rad: ev.start_jitter_yaw_rad,
+            ..sim::EpisodeConfig::default()
+        };
+        jitter
+            .validate()
+            .map_err(|e| anyhow::anyhow!("{name}: [eval] {e}"))?;
+        if raw.constant_search.candidates == 0 || raw.constant_search.runs == 0 {
+            bail!("{name}: [constant_search] candidates and runs must be at least 1");
+        }
+        let sl = &raw.slurm;
+        if sl.nodes == 0 || sl.tasks == 0 || sl.cpus_per_task == 0 || sl.time.is_empty() {
+            bail!("{name}: [slurm] nodes, tasks and cpus_per_task must be at least 1 and time set");
+        }
+        if raw.shuffle.pool == 0 {
+            bail!("{name}: [shuffle] pool must be at least 1");
+        }
+        let st = &raw.stats;
+        if !(st.confidence > 0.0 && st.confidence < 1.0) || st.resamples == 0 {
+            bail!(
+                "{name}: [stats] confidence = {} must be in (0, 1) and resamples = {} at least 1",
+                st.confidence,
+                st.resamples
+            );
+        }
+        let render_world = match raw.figures.render_world {
+            Some(w) if !test_worlds.contains(&w) => {
+                bail!("{name}: [figures] render_world = {w} is not one of the test worlds")
+            }
+            Some(w) => w,
+            None => *test_worlds.last().context("no test worlds")?,
+        };
+        // Restrictions: each a subset of what the file declares.
+        let keep = |flag: &str, listed: bool, value: String| -> anyhow::Result<()> {
+            if listed {
+                Ok(())
+            } else {
+                bail!("{flag} {value}: not in the experiment's {name}")
+            }
+        };
+        for p in &restrict.planners {
+            keep("--planners", planners.contains(p), planner_name(*p))?;
+        }
+        for s in &restrict.spaces {
+            keep("--spaces", spaces.contains(s), space_label(*s))?;
+        }
+        for v in &restrict.speeds {
+            keep(
+                "--speeds",
+                ex.speeds.iter().any(|x| (x - v).abs() < 1e-9),
+                speed_label(*v),
+            )?;
+        }
+        let seeds = match restrict.seeds {
+            Some(0) => bail!("--seeds must be at least 1"),
+            Some(s) if s > ex.seeds => bail!("--seeds {s}: the experiment declares {} seeds", ex.seeds),
+            Some(s) => s,
+            None => ex.seeds,
+        };
+        let mut arms = Vec::new();
+        for &planner in planners
+            .iter()
+            .filter(|p| restrict.planners.is_empty() || restrict.planners.contains(p))
+        {
+            for &space in spaces
+                .iter()
+                .filter(|s| restrict.spaces.is_empty() || restrict.spaces.contains(s))
+            {
+                for &speed in ex.speeds.iter().filter(|v| {
+                    restrict.speeds.is_empty() || restrict.speeds.iter().any(|x| (x - *v).abs() < 1e-9)
+                }) {
+                    for tw in &ex.train_worlds {
+                        arms.push(Arm {
+                            planner,
+                            space,
+                            speed,
+                            train_worlds: tw.clone(),
+                        });
+                    }
+                }
+            }
+        }
+        Ok(Self {
+            section: raw.experiment,
+            eval: raw.eval,
+            search: raw.constant_search,
+            shuffle: raw.shuffle,
+            stats: raw.stats,
+            slurm: raw.slurm,
+            train,
+            arms,
+            seeds,
+            test_worlds,
+            search_worlds,
+            pool_worlds,
+            render_world,
+        })
+    }
+
+    /// The training configuration of `arm`'s seed `seed` (0-based): `[train]` with the arm's
+    /// planner, action space (and the observation and action sizes it needs), speed cap and
+    /// training worlds, and `[td3] seed = first_seed + seed`.
+    pub fn train_config(&self, arm: &Arm, seed: usize) -> TrainConfig {
+        let mut cfg = self.train.clone();
+        cfg.run.name = format!("{}-seed{seed}", arm.id());
+        cfg.run.planner = planner_name(arm.planner);
+        cfg.run.action_space = space_label(arm.space);
+        cfg.run.max_speed = arm.speed;
+        cfg.run.worlds = arm.train_worlds.clone();
+        cfg.td3.obs_dim = actor::obs_dim(arm.space);
+        cfg.td3.act_dim = arm.space.dim();
+        cfg.td3.seed = self.section.first_seed + seed as u64;
+        cfg
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const MINIMAL: &str = "[experiment]\nname = \"t\"\nplanners = [\"dwa\"]\nspeeds = [1.5]\n";
+
+    fn parse(text: &str) -> anyhow::Result<Experiment> {
+        Experiment::parse("x.toml", text, &Restrict::default())
+    }
+
+    #[test]
+    fn shipped_experiments_parse() {
+        for (file, arms) in [("table1.toml", 9), ("table2.toml", 3)] {
+            let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+                .join("configs/experiments")
+                .join(file);
+            let ex = Experiment::load(&path, &Restrict::default()).unwrap();
+            assert_eq!(ex.arms.len(), arms, "{file}");
+            assert_eq!(ex.test_worlds.len(), 225);
+            assert_eq!((ex.eval.runs, ex.eval.trim), (20, 5));
+        }
+    }
+
+    #[test]
+    fn minimal_file_takes_the_defaults() {
+        let ex = parse(MINIMAL).unwrap();
+        assert_eq!(ex.arms.len(), 1);
+        assert_eq!(ex.arms[0].id(), "dwa-decremental-1.5-fit");
+        assert_eq!(ex.seeds, 3);
+        assert_eq!(ex.train, TrainConfig::load(None).unwrap());
+        let c = ex.train_config(&ex.arms[0], 2);
+        assert_eq!((c.td3.seed, c.run.max_speed, c.td3.act_dim), (3, 1.5, 4));
+    }
+
+    #[test]
+    fn unknown_keys_are_named_with_the_file() {
+        for (extra, key) in [
+            ("[experiment2]\n", "experiment2"),
+            ("[eval]\nrunz = 3\n", "runz"),
+            ("[train.td3]\nactor_lrr = 1e-4\n", "actor_lrr"),
+            ("[train.run]\nstepz = 3\n", "stepz"),
+            ("[shuffle]\npoool = 3\n", "poool"),
+            ("[slurm]\ntaskz = 3\n", "taskz"),
+            ("[figures]\nrender = 3\n", "render"),
+        ] {
+            let e = parse(&format!("{MINIMAL}{extra}")).unwrap_err().to_string();
+            assert!(
+                e.starts_with("x.toml") && e.contains(key) && !e.contains('\n'),
+                "{e}"
+            );
+        }
+        let e = parse("[experiment]\nname = \"t\"\nplanners = [\"dwa\"]\nspeeds = [1.5]\nfoo = 1\n")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("foo"), "{e}");
+    }
+
+    #[test]
+    fn train_keys_flow_into_the_training_config() {
+        let ex = parse(&format!(
+            "{MINIMAL}[train.td3]\nactor_lr = 0.001\n[train.run]\nsteps = 200\n"
+        ))
+        .unwrap();
+        assert_eq!(ex.train.td3.actor_lr, 0.001);
+        assert_eq!(ex.train.run.steps, 200);
+        assert_eq!(
+            ex.train.td3.batch_size,
+            TrainConfig::load(None).unwrap().td3.batch_size
+        );
+    }
+
+    #[test]
+    fn test_worlds_are_never_used_for_selection() {
+        let e = parse(&format!("{MINIMAL}[constant_search]\nworlds = \"0..10\"\n"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("[constant_search] worlds") && e.contains("test world"),
+            "{e}"
+        );
+        let e = parse(&MINIMAL.replace("speeds", "train_worlds = [\"test\"]\nspeeds"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("train_worlds"), "{e}");
+        let e = parse(&format!("{MINIMAL}[train.greedy]\nworlds = \"hardest50\"\n"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("[train.greedy] worlds"), "{e}");
+    }
+
+    #[test]
+    fn bad_values_and_restrictions_are_refused() {
+        let e = parse(&format!("{MINIMAL}[eval]\nruns = 4\ntrim = 2\n"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("[eval]") && e.contains("trim"), "{e}");
+        let e = parse(&MINIMAL.replace("dwa", "dwaa")).unwrap_err().to_string();
+        assert!(e.contains("dwaa"), "{e}");
+        let e = parse(&format!("{MINIMAL}[eval]\nstart_jitter_m = 3.0\n"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("start_jitter_m"), "{e}");
+        let r = Restrict {
+            planners: vec![PlannerKind::Mppi],
+            ..Restrict::default()
+        };
+        let e = Experiment::parse("x.toml", MINIMAL, &r).unwrap_err().to_string();
+        assert!(e.contains("--planners mppi"), "{e}");
+        let r = Restrict {
+            seeds: Some(1),
+            steps: Some(50),
+            ..Restrict::default()
+        };
+        let ex = Experiment::parse("x.toml", MINIMAL, &r).unwrap();
+        assert_eq!((ex.seeds, ex.train.run.steps), (1, 50));
+    }
+}

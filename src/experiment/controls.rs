@@ -1,0 +1,229 @@
+//! The controls ADP is compared with, besides DDP itself:
+//!
+//! * **untrained**: the DDP-initialized policy before any update, made by the learner's own
+//!   code path (`Td3::new` with the arm's `[td3]`, then `init_actor_to_action` to the space's
+//!   DDP action when `[service] ddp_init` is on, as the learner does at step 0) and written as
+//!   an export directory (`policy.onnx`, `policy.safetensors`, `policy.json`), so it is loaded
+//!   and run exactly like a trained policy;
+//! * **best constant**: the constant action with the best mean score over a search on the
+//!   training worlds only ([`candidates`], [`best_constant`]);
+//! * **state-shuffled**: the trained network fed observations of other steps
+//!   ([`shuffle_pool`]), which shows whether the policy uses what it sees.
+
+use std::collections::{BTreeMap, HashMap};
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+
+use adp_learner::checkpoint::{Manifest, FORMAT, FORMAT_VERSION};
+use adp_learner::export::{
+    actor_onnx, actor_safetensors, space_name, JSON_FILE, ONNX_FILE, SAFETENSORS_FILE,
+};
+use adp_learner::{Device, FitOptions, PolicyCard, Td3};
+use planner::ActionSpace;
+
+use crate::train::TrainConfig;
+
+use super::plan::write_atomic;
+use super::stats::SplitMix64;
+
+/// Writes the export directory `dir` of the untrained, DDP-initialized policy of the
+/// training configuration `cfg` (its `[td3]`, `[env]` and action space). The directory is
+/// written under a temporary name and renamed, so it exists only complete; when another
+/// process renamed its (identical) export there first, that one is kept.
+pub fn write_untrained_export(cfg: &TrainConfig, space: ActionSpace, dir: &Path) -> anyhow::Result<()> {
+    let mut td3 = Td3::new(cfg.td3.clone(), &Device::flex())
+        .map_err(|e| anyhow::anyhow!("untrained policy: [td3]: {e}"))?;
+    if cfg.service.ddp_init {
+        // The output that selects DDP under the run's action map (as the learner does).
+        let target: Vec<f32> = cfg
+            .env
+            .action_map
+            .ddp_policy_action(space)
+            .iter()
+            .map(|&a| a as f32)
+            .collect();
+        td3.init_actor_to_action(&target, &FitOptions::default())
+            .map_err(|e| anyhow::anyhow!("untrained policy: DDP initialization: {e}"))?;
+    }
+    let manifest = Manifest {
+        format: FORMAT.into(),
+        format_version: FORMAT_VERSION,
+        run_id: format!("untrained-ddp-init-seed{}", cfg.td3.seed),
+        updates: 0,
+        inserts: 0,
+        policy_version: 0,
+        config: cfg.td3.clone(),
+        files: BTreeMap::new(),
+    };
+    let environment = serde_json::to_value(cfg.env).expect("EnvConfig serializes");
+    let card = PolicyCard::new(space, &manifest, &environment)
+        .map_err(|e| anyhow::anyhow!("untrained policy: {e}"))?;
+    let actor = td3.policy();
+    let metadata = [
+        ("adp.action_space", space_name(space)),
+        ("adp.run_id", manifest.run_id.clone()),
+        ("adp.updates", "0".to_string()),
+    ];
+    let onnx = actor_onnx(&actor, &metadata);
+    let st = actor_safetensors(
+        &actor,
+        metadata
+            .iter()
+            .map(|(k, v)| (k.to_string(), v.clone()))
+            .collect::<HashMap<_, _>>(),
+    )
+    .map_err(|e| anyhow::anyhow!("untrained policy: safetensors: {e}"))?;
+    let json = serde_json::to_vec_pretty(&card).expect("the card serializes");
+    let tmp = dir.with_extension(format!("tmp-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&tmp);
+    for (name, bytes) in [(ONNX_FILE, onnx), (SAFETENSORS_FILE, st), (JSON_FILE, json)] {
+        write_atomic(&tmp.join(name), &bytes)?;
+    }
+    match std::fs::rename(&tmp, dir) {
+        Ok(()) => Ok(()),
+        // Another process (an evaluation shard) wrote the same export first.
+        Err(_) if dir.join(JSON_FILE).exists() => {
+            let _ = std::fs::remove_dir_all(&tmp);
+            Ok(())
+        }
+        Err(e) => Err(anyhow::anyhow!(
+            "cannot rename {} to {}: {e}",
+            tmp.display(),
+            dir.display()
+        )),
+    }
+}
+
+/// The candidate constant actions of a search in `space`: the DDP action; then, for spaces of
+/// at most 8 dimensions, the DDP action with one dimension moved to -1 or to +1; then seeded
+/// uniform draws in [-1, 1]; `count` in all (duplicates of DDP's are skipped).
+pub fn candidates(space: ActionSpace, count: usize, seed: u64) -> Vec<Vec<f64>> {
+    let ddp = space.ddp_action();
+    let mut out = vec![ddp.clone()];
+    if space.dim() <= 8 {
+        for d in 0..space.dim() {
+            for end in [-1.0, 1.0] {
+                let mut a = ddp.clone();
+                a[d] = end;
+                if !out.contains(&a) {
+                    out.push(a);
+                }
+            }
+        }
+    }
+    let mut rng = SplitMix64::new(seed);
+    while out.len() < count {
+        let a = (0..space.dim())
+            .map(|_| (rng.next_u64() >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0)
+            .collect();
+        out.push(a);
+    }
+    out.truncate(count);
+    out
+}
+
+/// One candidate's result on the search worlds.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Candidate {
+    /// The normalized action.
+    pub action: Vec<f64>,
+    /// Its physical parameters.
+    pub params: Vec<f64>,
+    /// Mean BARN score over every search run.
+    pub score: f64,
+    /// Success rate over every search run (%).
+    pub success_pct: f64,
+}
+
+/// The search's record (`search/ARM.json`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SearchResult {
+    /// The action space.
+    pub space: ActionSpace,
+    /// Worlds searched on (training worlds only).
+    pub worlds: Vec<usize>,
+    /// Runs per world and candidate.
+    pub runs: usize,
+    /// Every candidate, in search order.
+    pub candidates: Vec<Candidate>,
+    /// Index of the winner in `candidates`.
+    pub best: usize,
+}
+
+/// The index of the best candidate: highest mean score, then highest success, then the
+/// earliest (DDP's first, so DDP wins ties).
+pub fn best_constant(c: &[Candidate]) -> usize {
+    let mut best = 0;
+    for (i, x) in c.iter().enumerate().skip(1) {
+        let b = &c[best];
+        if x.score > b.score || (x.score == b.score && x.success_pct > b.success_pct) {
+            best = i;
+        }
+    }
+    best
+}
+
+/// A seeded reservoir of `k` observations out of `seen`, the pool of the state-shuffled
+/// control.
+pub fn shuffle_pool(seen: &[Vec<f32>], k: usize, seed: u64) -> Vec<Vec<f32>> {
+    super::runner::reservoir(seen, k, seed)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn candidates_start_with_ddp_and_its_edges_then_draws() {
+        let c = candidates(ActionSpace::Decremental, 20, 1);
+        assert_eq!(c.len(), 20);
+        assert_eq!(c[0], ActionSpace::Decremental.ddp_action());
+        // DDP is at p = +1 and alpha = -1 already: 8 edge moves minus those 2 duplicates.
+        assert!(c[1..7]
+            .iter()
+            .all(|a| a.iter().filter(|v| v.abs() == 1.0).count() >= 1));
+        assert!(c.iter().all(|a| a.iter().all(|v| (-1.0..=1.0).contains(v))));
+        assert_eq!(c, candidates(ActionSpace::Decremental, 20, 1));
+        assert_eq!(candidates(ActionSpace::Unconstrained, 3, 1).len(), 3);
+        for a in &c {
+            ActionSpace::Decremental
+                .schedule(a, planner::schedule::DEFAULT_BOUNDARY_POINTS)
+                .unwrap();
+        }
+    }
+
+    #[test]
+    fn best_constant_prefers_score_then_success_then_ddp() {
+        let c = |score, success_pct| Candidate {
+            action: vec![],
+            params: vec![],
+            score,
+            success_pct,
+        };
+        assert_eq!(best_constant(&[c(0.4, 90.0), c(0.45, 80.0), c(0.45, 85.0)]), 2);
+        assert_eq!(best_constant(&[c(0.4, 90.0), c(0.4, 90.0)]), 0);
+    }
+
+    /// The untrained export loads like a trained one and outputs DDP's action.
+    #[test]
+    fn untrained_export_loads_and_reproduces_ddp() {
+        let dir = std::env::temp_dir().join(format!("adp-untrained-{}", std::process::id()));
+        let cfg = TrainConfig::load(None).unwrap();
+        write_untrained_export(&cfg, ActionSpace::Decremental, &dir).unwrap();
+        let crate::policy::EvalPolicy::Learned(p) = crate::policy::load(&dir, None).unwrap() else {
+            panic!("a learned policy")
+        };
+        assert_eq!(p.space, ActionSpace::Decremental);
+        let obs = vec![0.1f32; 730];
+        let mut out = vec![0.0f32; 4];
+        p.net.act(&obs, &mut out, &mut actor::Scratch::default());
+        let got = crate::experiment::runner::chosen_params(ActionSpace::Decremental, &p.env, &out).unwrap();
+        let ddp = ActionSpace::Decremental.ddp_action();
+        let want = ActionSpace::Decremental.to_params(&ddp).unwrap();
+        for (g, w) in got.iter().zip(&want) {
+            assert!((g - w).abs() < 0.02 * w.abs().max(0.1), "{got:?} vs {want:?}");
+        }
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}

@@ -1,0 +1,484 @@
+//! The report's PNG figures (plotters, bitmap backend; text in DejaVu Sans, embedded from
+//! `assets/fonts/` with its license):
+//!
+//! * greedy-evaluation learning curves read from each run's `greedy_eval.jsonl`
+//!   ([`GreedyPoint`]; a run without the file is skipped);
+//! * per-world ADP against DDP score (ADP: mean over seeds);
+//! * the chosen schedule's physical parameters against local clutter (binned means and
+//!   standard deviations over every traced agent step);
+//! * one episode driven with the ADP schedule: the world, the path coloured by the rollout
+//!   horizon the policy chose at each agent step.
+
+use std::path::Path;
+use std::sync::Once;
+
+use anyhow::Context;
+use plotters::prelude::*;
+use serde::Deserialize;
+
+use planner::ActionSpace;
+use sim::geometry::Vec2;
+use sim::World;
+
+use super::runner::TracePoint;
+
+/// DejaVu Sans (Bitstream Vera license, see `assets/fonts/LICENSE-DejaVu.txt`).
+const FONT: &[u8] = include_bytes!("../../assets/fonts/DejaVuSans.ttf");
+/// The family name every figure asks for.
+const FAMILY: &str = "sans-serif";
+
+/// Registers the embedded font once per process.
+fn fonts() {
+    static ONCE: Once = Once::new();
+    ONCE.call_once(|| {
+        plotters::style::register_font(FAMILY, FontStyle::Normal, FONT)
+            .unwrap_or_else(|_| panic!("the embedded DejaVu Sans is a valid font"));
+    });
+}
+
+/// One line of a run's `greedy_eval.jsonl` (written by the learner's periodic greedy
+/// evaluation); unknown fields are ignored.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+pub struct GreedyPoint {
+    /// Agent steps collected when the evaluated policy was published.
+    pub agent_steps: u64,
+    /// Its version.
+    pub policy_version: u64,
+    /// Greedy success (%).
+    pub success: f64,
+    /// Greedy mean score.
+    pub score: f64,
+    /// DDP's success on the same worlds (%).
+    pub ddp_success: f64,
+    /// DDP's mean score on the same worlds.
+    pub ddp_score: f64,
+}
+
+/// Reads `greedy_eval.jsonl` of a run directory: `None` when there is none; lines that do not
+/// parse are skipped (a line being written when the run stopped).
+pub fn read_greedy(run_dir: &Path) -> Option<Vec<GreedyPoint>> {
+    let text = std::fs::read_to_string(run_dir.join("greedy_eval.jsonl")).ok()?;
+    Some(
+        text.lines()
+            .filter_map(|l| serde_json::from_str(l).ok())
+            .collect(),
+    )
+}
+
+fn err<E: std::fmt::Debug>(e: E) -> anyhow::Error {
+    anyhow::anyhow!("drawing failed: {e:?}")
+}
+
+/// A value of a greedy-evaluation line.
+type Field = fn(&GreedyPoint) -> f64;
+
+/// A physical value derived from a schedule's parameters.
+type Derived = Box<dyn Fn(&[f64]) -> f64>;
+
+/// Seed colours.
+fn colour(i: usize) -> RGBColor {
+    const C: [RGBColor; 6] = [
+        RGBColor(31, 119, 180),
+        RGBColor(214, 39, 40),
+        RGBColor(44, 160, 44),
+        RGBColor(148, 103, 189),
+        RGBColor(255, 127, 14),
+        RGBColor(23, 190, 207),
+    ];
+    C[i % C.len()]
+}
+
+/// Learning curves: success (left) and score (right) of the greedy evaluations against agent
+/// steps, one colour per seed, the DDP reference dashed (grey).
+pub fn learning_curves(curves: &[(String, Vec<GreedyPoint>)], title: &str, out: &Path) -> anyhow::Result<()> {
+    fonts();
+    let root = BitMapBackend::new(out, (1200, 500)).into_drawing_area();
+    root.fill(&WHITE).map_err(err)?;
+    let root = root.titled(title, (FAMILY, 22)).map_err(err)?;
+    let panels = root.split_evenly((1, 2));
+    let max_x = curves
+        .iter()
+        .flat_map(|c| c.1.iter().map(|p| p.agent_steps))
+        .max()
+        .unwrap_or(1)
+        .max(1) as f64;
+    for (k, panel) in panels.iter().enumerate() {
+        let (label, y_max, get, ddp): (&str, f64, Field, Field) = if k == 0 {
+            ("greedy success (%)", 100.0, |p| p.success, |p| p.ddp_success)
+        } else {
+            ("greedy score", 0.5, |p| p.score, |p| p.ddp_score)
+        };
+        let mut chart = ChartBuilder::on(panel)
+            .margin(15)
+            .x_label_area_size(40)
+            .y_label_area_size(55)
+            .build_cartesian_2d(0.0..max_x, 0.0..y_max)
+            .map_err(err)?;
+        chart
+            .configure_mesh()
+            .x_desc("agent steps")
+            .y_desc(label)
+            .label_style((FAMILY, 14))
+            .draw()
+            .map_err(err)?;
+        for (i, (name, pts)) in curves.iter().enumerate() {
+            let c = colour(i);
+            chart
+                .draw_series(LineSeries::new(
+                    pts.iter().map(|p| (p.agent_steps as f64, get(p))),
+                    c.stroke_width(2),
+                ))
+                .map_err(err)?
+                .label(name.clone())
+                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(2)));
+            chart
+                .draw_series(
+                    pts.iter()
+                        .map(|p| Circle::new((p.agent_steps as f64, get(p)), 3, c.filled())),
+                )
+                .map_err(err)?;
+            // DDP's reference, dashed.
+            let grey = RGBColor(120, 120, 120);
+            let mut dashes = Vec::new();
+            for w in pts.windows(2) {
+                let (x0, y0) = (w[0].agent_steps as f64, ddp(&w[0]));
+                let (x1, y1) = (w[1].agent_steps as f64, ddp(&w[1]));
+                for s in 0..8 {
+                    if s % 2 == 0 {
+                        let (a, b) = (s as f64 / 8.0, (s + 1) as f64 / 8.0);
+                        dashes.push(PathElement::new(
+                            vec![
+                                (x0 + a * (x1 - x0), y0 + a * (y1 - y0)),
+                                (x0 + b * (x1 - x0), y0 + b * (y1 - y0)),
+                            ],
+                            grey.stroke_width(2),
+                        ));
+                    }
+                }
+            }
+            if let [only] = &pts[..] {
+                chart
+                    .draw_series(std::iter::once(Cross::new(
+                        (only.agent_steps as f64, ddp(only)),
+                        5,
+                        grey.stroke_width(2),
+                    )))
+                    .map_err(err)?;
+            }
+            let series = chart.draw_series(dashes).map_err(err)?;
+            if i == 0 {
+                series
+                    .label("DDP (same worlds)")
+                    .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], grey.stroke_width(2)));
+            }
+        }
+        chart
+            .configure_series_labels()
+            .label_font((FAMILY, 13))
+            .background_style(WHITE.mix(0.8))
+            .border_style(BLACK)
+            .position(SeriesLabelPosition::LowerRight)
+            .draw()
+            .map_err(err)?;
+    }
+    root.present()
+        .with_context(|| format!("cannot write {}", out.display()))
+}
+
+/// Per-world scatter of ADP's score (mean over seeds) against DDP's, with the diagonal;
+/// `points` are (world, DDP, ADP).
+pub fn world_scatter(points: &[(usize, f64, f64)], title: &str, out: &Path) -> anyhow::Result<()> {
+    fonts();
+    let root = BitMapBackend::new(out, (700, 700)).into_drawing_area();
+    root.fill(&WHITE).map_err(err)?;
+    let mut chart = ChartBuilder::on(&root)
+        .caption(title, (FAMILY, 20))
+        .margin(15)
+        .x_label_area_size(45)
+        .y_label_area_size(55)
+        .build_cartesian_2d(0.0..0.5, 0.0..0.5)
+        .map_err(err)?;
+    chart
+        .configure_mesh()
+        .x_desc("DDP score (per world, trimmed)")
+        .y_desc("ADP score (per world, mean over seeds)")
+        .label_style((FAMILY, 14))
+        .draw()
+        .map_err(err)?;
+    chart
+        .draw_series(LineSeries::new([(0.0, 0.0), (0.5, 0.5)], BLACK.mix(0.5)))
+        .map_err(err)?;
+    chart
+        .draw_series(points.iter().map(|&(_, x, y)| {
+            let c = if y > x + 1e-9 {
+                RGBColor(44, 160, 44)
+            } else if y < x - 1e-9 {
+                RGBColor(214, 39, 40)
+            } else {
+                RGBColor(100, 100, 100)
+            };
+            Circle::new((x, y), 4, c.mix(0.7).filled())
+        }))
+        .map_err(err)?;
+    let wins = points.iter().filter(|p| p.2 > p.1 + 1e-9).count();
+    let losses = points.iter().filter(|p| p.2 < p.1 - 1e-9).count();
+    root.draw(&Text::new(
+        format!(
+            "ADP better on {wins} worlds (green), worse on {losses} (red), {} worlds",
+            points.len()
+        ),
+        (80, 60),
+        (FAMILY, 15),
+    ))
+    .map_err(err)?;
+    root.present()
+        .with_context(|| format!("cannot write {}", out.display()))
+}
+
+/// The physical parameters plotted against clutter for a space: (name, value of a point).
+fn panels(space: ActionSpace) -> Vec<(String, Derived)> {
+    match space {
+        ActionSpace::Unconstrained => vec![
+            ("first step dt (s)".into(), Box::new(|p: &[f64]| p[0])),
+            ("last step dt (s)".into(), Box::new(|p: &[f64]| p[p.len() - 1])),
+            (
+                "horizon (s, at most 2)".into(),
+                Box::new(|p: &[f64]| p.iter().sum::<f64>().min(2.0)),
+            ),
+        ],
+        _ => space
+            .ranges()
+            .into_iter()
+            .enumerate()
+            .map(|(i, (name, _, _))| -> (String, Derived) {
+                (name.to_string(), Box::new(move |p: &[f64]| p[i]))
+            })
+            .collect(),
+    }
+}
+
+/// The rollout horizon a schedule's parameters give (s): what colours the episode's path.
+fn horizon(space: ActionSpace, p: &[f64]) -> f64 {
+    match space {
+        ActionSpace::Decremental | ActionSpace::Incremental => p[1],
+        ActionSpace::Unconstrained => p.iter().sum::<f64>().min(2.0),
+        ActionSpace::Fixed => p[0] * (2.0 / p[0]).round().max(1.0),
+    }
+}
+
+/// The colour scale of [`horizon`] in a space (s): the range its actions can reach.
+fn horizon_range(space: ActionSpace) -> (f64, f64) {
+    match space {
+        ActionSpace::Decremental | ActionSpace::Incremental => {
+            let r = space.ranges();
+            (r[1].1, r[1].2)
+        }
+        ActionSpace::Unconstrained => (0.4, 2.0),
+        ActionSpace::Fixed => (1.8, 2.2),
+    }
+}
+
+/// Bins of clutter for [`schedule_vs_clutter`].
+const BINS: usize = 10;
+
+/// Per clutter bin (width 1/[`BINS`]): (bin centre, mean, sd, count) of `value` over the
+/// trace points in it; empty bins are left out.
+pub fn binned(trace: &[TracePoint], value: &dyn Fn(&[f64]) -> f64) -> Vec<(f64, f64, f64, usize)> {
+    let mut bins: Vec<Vec<f64>> = vec![Vec::new(); BINS];
+    for t in trace {
+        let b = ((t.clutter * BINS as f64) as usize).min(BINS - 1);
+        bins[b].push(value(&t.params));
+    }
+    bins.iter()
+        .enumerate()
+        .filter(|(_, v)| !v.is_empty())
+        .map(|(i, v)| {
+            (
+                (i as f64 + 0.5) / BINS as f64,
+                super::stats::mean(v),
+                super::stats::sample_sd(v),
+                v.len(),
+            )
+        })
+        .collect()
+}
+
+/// The chosen schedule's parameters against local clutter: per parameter, every traced step
+/// (faint) and the binned mean ± sd.
+pub fn schedule_vs_clutter(
+    trace: &[TracePoint],
+    space: ActionSpace,
+    title: &str,
+    out: &Path,
+) -> anyhow::Result<()> {
+    fonts();
+    let ps = panels(space);
+    let root = BitMapBackend::new(out, (420 * ps.len() as u32, 460)).into_drawing_area();
+    root.fill(&WHITE).map_err(err)?;
+    let root = root.titled(title, (FAMILY, 20)).map_err(err)?;
+    let areas = root.split_evenly((1, ps.len()));
+    let ranges = space.ranges();
+    for (k, ((name, value), area)) in ps.iter().zip(areas.iter()).enumerate() {
+        let (lo, hi) = match space {
+            ActionSpace::Unconstrained if k == 2 => (0.0, 2.2),
+            ActionSpace::Unconstrained => (ranges[0].1, ranges[0].2),
+            _ => (ranges[k].1, ranges[k].2),
+        };
+        let pad = 0.05 * (hi - lo);
+        let mut chart = ChartBuilder::on(area)
+            .margin(12)
+            .x_label_area_size(40)
+            .y_label_area_size(50)
+            .build_cartesian_2d(0.0..1.0, (lo - pad)..(hi + pad))
+            .map_err(err)?;
+        chart
+            .configure_mesh()
+            .x_desc("clutter (share of beams < 1 m)")
+            .y_desc(name.as_str())
+            .label_style((FAMILY, 13))
+            .draw()
+            .map_err(err)?;
+        chart
+            .draw_series(trace.iter().map(|t| {
+                Circle::new(
+                    (t.clutter, value(&t.params)),
+                    2,
+                    RGBColor(31, 119, 180).mix(0.15).filled(),
+                )
+            }))
+            .map_err(err)?;
+        let b = binned(trace, value.as_ref());
+        let red = RGBColor(214, 39, 40);
+        chart
+            .draw_series(LineSeries::new(b.iter().map(|x| (x.0, x.1)), red.stroke_width(3)))
+            .map_err(err)?;
+        chart
+            .draw_series(
+                b.iter()
+                    .map(|x| PathElement::new(vec![(x.0, x.1 - x.2), (x.0, x.1 + x.2)], red.stroke_width(2))),
+            )
+            .map_err(err)?;
+    }
+    root.present()
+        .with_context(|| format!("cannot write {}", out.display()))
+}
+
+/// One driven episode: world positions of the robot at every agent step with the schedule
+/// parameters chosen there.
+pub struct Drive {
+    /// (position, parameters) per agent step.
+    pub steps: Vec<(Vec2, Vec<f64>)>,
+    /// How it ended (e.g. `Succeeded, 12.3 s`).
+    pub outcome: String,
+}
+
+/// Draws `drive` on `world`: cylinders, goal, and the path coloured by the chosen rollout
+/// horizon on the space's range (dark blue = shortest, yellow = longest).
+pub fn episode(
+    world: &World,
+    drive: &Drive,
+    space: ActionSpace,
+    title: &str,
+    out: &Path,
+) -> anyhow::Result<()> {
+    fonts();
+    let root = BitMapBackend::new(out, (560, 1000)).into_drawing_area();
+    root.fill(&WHITE).map_err(err)?;
+    let mut chart = ChartBuilder::on(&root)
+        .caption(title, (FAMILY, 17))
+        .margin(12)
+        .x_label_area_size(35)
+        .y_label_area_size(45)
+        .build_cartesian_2d(-5.0..0.5, 1.5..14.2)
+        .map_err(err)?;
+    chart
+        .configure_mesh()
+        .x_desc("x (m)")
+        .y_desc("y (m)")
+        .label_style((FAMILY, 13))
+        .disable_mesh()
+        .draw()
+        .map_err(err)?;
+    chart
+        .draw_series(std::iter::once(Circle::new(
+            (world.goal.x, world.goal.y),
+            (world.goal_radius * 70.0) as i32,
+            RGBColor(200, 240, 200).filled(),
+        )))
+        .map_err(err)?;
+    chart
+        .draw_series(
+            world
+                .cylinders
+                .iter()
+                .map(|c| Circle::new((c.c.x, c.c.y), 5, RGBColor(90, 90, 90).filled())),
+        )
+        .map_err(err)?;
+    let hs: Vec<f64> = drive.steps.iter().map(|s| horizon(space, &s.1)).collect();
+    let (lo, hi) = horizon_range(space);
+    let (hmin, hmax) = hs.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |a, &h| {
+        (a.0.min(h), a.1.max(h))
+    });
+    for (w, h) in drive.steps.windows(2).zip(&hs) {
+        let f = ((h - lo) / (hi - lo)).clamp(0.0, 1.0);
+        let c = RGBColor(
+            (30.0 + 220.0 * f) as u8,
+            (40.0 + 180.0 * f) as u8,
+            (140.0 - 110.0 * f) as u8,
+        );
+        chart
+            .draw_series(std::iter::once(PathElement::new(
+                vec![(w[0].0.x, w[0].0.y), (w[1].0.x, w[1].0.y)],
+                c.stroke_width(4),
+            )))
+            .map_err(err)?;
+    }
+    root.draw(&Text::new(
+        format!(
+            "{}; horizon {hmin:.2}..{hmax:.2} s; colour {lo:.1} s (blue) .. {hi:.1} s (yellow)",
+            drive.outcome
+        ),
+        (60, 40),
+        (FAMILY, 14),
+    ))
+    .map_err(err)?;
+    root.present()
+        .with_context(|| format!("cannot write {}", out.display()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn binned_means_by_hand() {
+        let t = |clutter, v| TracePoint {
+            world: 0,
+            clutter,
+            params: vec![v],
+        };
+        let trace = [t(0.01, 1.0), t(0.05, 3.0), t(0.95, 2.0), t(1.0, 4.0)];
+        let b = binned(&trace, &|p: &[f64]| p[0]);
+        assert_eq!(b.len(), 2);
+        assert!((b[0].0 - 0.05).abs() < 1e-12 && b[0].1 == 2.0 && b[0].3 == 2);
+        assert!((b[0].2 - 2f64.sqrt()).abs() < 1e-12);
+        assert!((b[1].0 - 0.95).abs() < 1e-12 && b[1].1 == 3.0);
+    }
+
+    #[test]
+    fn greedy_lines_parse_and_bad_lines_are_skipped() {
+        let dir = std::env::temp_dir().join(format!("adp-greedy-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        assert!(read_greedy(&dir).is_none());
+        std::fs::write(
+            dir.join("greedy_eval.jsonl"),
+            "{\"agent_steps\": 100, \"policy_version\": 2, \"success\": 80.0, \"score\": 0.4, \
+             \"ddp_success\": 75.0, \"ddp_score\": 0.38, \"extra\": 1}\n{\"agent_st",
+        )
+        .unwrap();
+        let g = read_greedy(&dir).unwrap();
+        assert_eq!(g.len(), 1);
+        assert_eq!((g[0].agent_steps, g[0].success), (100, 80.0));
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}

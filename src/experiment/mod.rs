@@ -1,0 +1,798 @@
+//! `adp experiment --config configs/experiments/NAME.toml [--out DIR] [--resume]`: train S
+//! seeds per arm (planner x action space x speed x training worlds), evaluate every greedy
+//! policy with the papers' protocol against DDP and three controls (the untrained
+//! DDP-initialized policy, the best constant schedule found on the training worlds, the
+//! state-shuffled policy), and write `report.md` with paper-style tables, paired statistics
+//! and figures.
+//!
+//! The work is a list of stages ([`plan`]), each writing one file atomically; `--resume`
+//! skips the stages whose file exists. Evaluation runs in parallel over (world, run) on the
+//! local cores; training uses `adp train` with the configured actors.
+
+pub mod config;
+pub mod controls;
+pub mod figures;
+pub mod plan;
+pub mod record;
+pub mod report;
+pub mod runner;
+pub mod shard;
+pub mod slurm;
+pub mod stats;
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::{bail, Context};
+use serde::Serialize;
+
+use actor::{AdpEnv, End, EnvConfig, Scratch};
+use planner::{ActionSpace, Schedule};
+use sim::World;
+
+use crate::config::EvalConfig;
+use crate::eval::run_seed;
+use crate::policy::{EvalPolicy, LearnedPolicy};
+
+use config::{planner_name, space_label, speed_label, Arm, Experiment, Restrict};
+use controls::{best_constant, candidates, shuffle_pool, write_untrained_export, Candidate, SearchResult};
+use plan::{pending, stages, write_atomic, Layout, Stage};
+use record::{EvalRecord, Summary};
+use report::{comparisons, ArmData, Comparison};
+use runner::{evaluate, observations, Controller, RunSpec};
+use shard::Shard;
+
+/// The file in an experiment directory holding the experiment file it was started with.
+const CONFIG_COPY: &str = "experiment.toml";
+
+/// What `adp experiment` was asked.
+#[derive(Clone, Debug)]
+pub struct Args {
+    /// The experiment file.
+    pub config: PathBuf,
+    /// The experiment directory (default `runs/experiments/<name>`).
+    pub out: Option<PathBuf>,
+    /// Continue an existing experiment directory, skipping finished stages.
+    pub resume: bool,
+    /// Command-line restrictions.
+    pub restrict: Restrict,
+    /// Worker threads of the evaluations (default: all cores).
+    pub jobs: Option<usize>,
+    /// Evaluate only this shard of the test worlds of every pending evaluation (implies
+    /// resume; training and searches must be finished).
+    pub shard: Option<Shard>,
+    /// Run the training and search stages only (no evaluation, no report).
+    pub no_eval: bool,
+    /// Print the SLURM job script of the experiment instead of running it (and create the
+    /// experiment directory with its `experiment.toml` and `logs/`).
+    pub emit_slurm: bool,
+}
+
+/// Everything a stage needs.
+struct Ctx<'a> {
+    ex: &'a Experiment,
+    layout: Layout,
+    cfg: EvalConfig,
+    worlds: &'a [World],
+    /// The test worlds this process evaluates (a shard's, or all).
+    test_worlds: Vec<usize>,
+}
+
+/// Whether a stage is an evaluation on the test worlds.
+fn is_eval(s: &Stage) -> bool {
+    !matches!(s, Stage::Train { .. } | Stage::Search { .. })
+}
+
+/// Refuses to go on when `copy` (an experiment directory's `experiment.toml`) is not `text`.
+fn same_file(copy: &Path, text: &str, config: &Path, dir: &Path) -> anyhow::Result<()> {
+    let before = std::fs::read_to_string(copy).with_context(|| format!("cannot read {}", copy.display()))?;
+    if before != text {
+        bail!(
+            "{} differs from the experiment file {} was started with ({}); finished stages would \
+             mix settings: restore it or choose another --out",
+            config.display(),
+            dir.display(),
+            copy.display()
+        );
+    }
+    Ok(())
+}
+
+/// `--emit-slurm`: creates the experiment directory (its `experiment.toml` and `logs/`) and
+/// prints the job script.
+fn emit_slurm(ex: &Experiment, text: &str, dir: &Path, args: &Args) -> anyhow::Result<()> {
+    let dir = std::path::absolute(dir).with_context(|| format!("cannot resolve {}", dir.display()))?;
+    let logs = dir.join("logs");
+    std::fs::create_dir_all(&logs).with_context(|| format!("cannot create {}", logs.display()))?;
+    let copy = dir.join(CONFIG_COPY);
+    if copy.exists() {
+        same_file(&copy, text, &args.config, &dir)?;
+    } else {
+        write_atomic(&copy, text.as_bytes())?;
+    }
+    let adp = if ex.slurm.adp.is_empty() {
+        std::env::current_exe().context("cannot find this executable for the job script")?
+    } else {
+        PathBuf::from(&ex.slurm.adp)
+    };
+    print!(
+        "{}",
+        slurm::script(
+            &ex.section.name,
+            &ex.slurm,
+            &dir,
+            &adp,
+            &slurm::restrict_args(&args.restrict)
+        )
+    );
+    Ok(())
+}
+
+/// Runs the experiment; returns the path of its report (`None` when this process does not
+/// write one: `--emit-slurm`, `--shard`, `--no-eval`).
+pub fn run(args: &Args) -> anyhow::Result<Option<PathBuf>> {
+    let ex = Experiment::load(&args.config, &args.restrict)?;
+    let text = std::fs::read_to_string(&args.config)
+        .with_context(|| format!("cannot read {}", args.config.display()))?;
+    let dir = args
+        .out
+        .clone()
+        .unwrap_or_else(|| PathBuf::from("runs/experiments").join(&ex.section.name));
+    if args.emit_slurm {
+        return emit_slurm(&ex, &text, &dir, args).map(|()| None);
+    }
+    let copy = dir.join(CONFIG_COPY);
+    match (copy.exists(), args.resume || args.shard.is_some()) {
+        (true, false) => bail!(
+            "{} already holds an experiment: pass --resume to continue it or choose another --out",
+            dir.display()
+        ),
+        (false, true) => bail!(
+            "--resume: {} holds no experiment ({CONFIG_COPY} is missing)",
+            dir.display()
+        ),
+        (true, true) => {
+            let before =
+                std::fs::read_to_string(&copy).with_context(|| format!("cannot read {}", copy.display()))?;
+            if before != text {
+                bail!(
+                    "--resume: {} differs from the experiment file {} was started with ({}); \
+                     finished stages would mix settings: restore it or choose another --out",
+                    args.config.display(),
+                    dir.display(),
+                    copy.display()
+                );
+            }
+        }
+        (false, false) => write_atomic(&copy, text.as_bytes())?,
+    }
+    let mut cfg = EvalConfig::load(ex.eval.config.as_deref().map(Path::new))?;
+    cfg.episode = cfg
+        .episode
+        .with_profile(ex.train.env.profile, ex.train.env.dynamics);
+    cfg.episode.start_jitter_m = ex.eval.start_jitter_m;
+    cfg.episode.start_jitter_yaw_rad = ex.eval.start_jitter_yaw_rad;
+    cfg.episode
+        .validate()
+        .map_err(|e| anyhow::anyhow!("[eval] with [train.env] profile: {e}"))?;
+    let ctx = Ctx {
+        ex: &ex,
+        layout: Layout { dir: dir.clone() },
+        cfg,
+        worlds: sim::barn::worlds(),
+        test_worlds: args
+            .shard
+            .map_or_else(|| ex.test_worlds.clone(), |s| s.worlds(&ex.test_worlds)),
+    };
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(args.jobs.unwrap_or(0))
+        .build()
+        .context("cannot start worker threads")?;
+    let all = stages(&ex.arms, ex.seeds);
+    let todo = pending(&all, &ctx.layout, &ex.arms, Path::exists);
+    eprintln!(
+        "adp experiment {}: {} arm(s) x {} seed(s), {} stage(s), {} to run, in {}",
+        ex.section.name,
+        ex.arms.len(),
+        ex.seeds,
+        all.len(),
+        todo.len(),
+        dir.display()
+    );
+    if let (Some(sh), Some(first)) = (args.shard, todo.iter().find(|s| !is_eval(s))) {
+        bail!(
+            "--shard {}/{}: `{}` has not run yet; run the experiment with --no-eval first",
+            sh.index,
+            sh.count,
+            describe(first, &ex.arms)
+        );
+    }
+    for (i, stage) in todo.iter().enumerate() {
+        let t0 = Instant::now();
+        let step = format!("[{}/{}]", i + 1, todo.len());
+        let out = ctx.layout.output(stage, &ex.arms);
+        if is_eval(stage) {
+            if args.no_eval {
+                continue;
+            }
+            if let Some(sh) = args.shard {
+                let file = sh.file(&out);
+                if file.exists() {
+                    eprintln!(
+                        "{step} shard {}/{} of `{}` exists",
+                        sh.index,
+                        sh.count,
+                        describe(stage, &ex.arms)
+                    );
+                    continue;
+                }
+                eprintln!(
+                    "{step} {} (shard {}/{})",
+                    describe(stage, &ex.arms),
+                    sh.index,
+                    sh.count
+                );
+                pool.install(|| run_stage(&ctx, stage, &file))?;
+                eprintln!("{step} done in {:.0} s", t0.elapsed().as_secs_f64());
+                continue;
+            }
+            if let Some(files) = shard::complete_set(&out) {
+                let records = files
+                    .iter()
+                    .map(|f| EvalRecord::load(f))
+                    .collect::<anyhow::Result<Vec<_>>>()?;
+                shard::merge(records, &ex.test_worlds)
+                    .with_context(|| format!("merging the shards of {}", out.display()))?
+                    .save(&out)?;
+                eprintln!(
+                    "{step} {}: merged {} shards",
+                    describe(stage, &ex.arms),
+                    files.len()
+                );
+                continue;
+            }
+        }
+        eprintln!("{step} {}", describe(stage, &ex.arms));
+        match stage {
+            Stage::Train { arm, seed } => train(&ctx, *arm, *seed)?,
+            _ => pool.install(|| run_stage(&ctx, stage, &out))?,
+        }
+        eprintln!("{step} done in {:.0} s", t0.elapsed().as_secs_f64());
+    }
+    if args.no_eval || args.shard.is_some() {
+        return Ok(None);
+    }
+    let report = pool.install(|| write_report(&ctx))?;
+    eprintln!("report: {}", report.display());
+    Ok(Some(report))
+}
+
+/// A stage in words.
+fn describe(stage: &Stage, arms: &[Arm]) -> String {
+    match *stage {
+        Stage::Train { arm, seed } => format!("train {} seed {seed}", arms[arm].id()),
+        Stage::Search { arm } => format!(
+            "search the best constant of {} on the training worlds",
+            arms[arm].id()
+        ),
+        Stage::EvalDdp { planner, speed } => {
+            format!(
+                "evaluate DDP ({} at {} m/s)",
+                planner_name(planner),
+                speed_label(speed)
+            )
+        }
+        Stage::EvalConstant { arm } => format!("evaluate the best constant of {}", arms[arm].id()),
+        Stage::EvalUntrained { arm } => format!("evaluate the untrained policy of {}", arms[arm].id()),
+        Stage::EvalAdp { arm, seed } => format!("evaluate {} seed {seed}", arms[arm].id()),
+        Stage::EvalShuffled { arm, seed } => {
+            format!("evaluate the state-shuffled {} seed {seed}", arms[arm].id())
+        }
+    }
+}
+
+/// Whether a run directory has a checkpoint to resume from.
+fn has_checkpoint(run_dir: &Path) -> bool {
+    std::fs::read_dir(run_dir.join("checkpoints")).is_ok_and(|entries| {
+        entries
+            .flatten()
+            .any(|e| !e.file_name().to_string_lossy().contains("tmp"))
+    })
+}
+
+/// The marker of a finished training run.
+#[derive(Serialize)]
+struct Trained {
+    arm: String,
+    seed_index: usize,
+    td3_seed: u64,
+    steps: u64,
+    agent_steps: u64,
+    updates: u64,
+    export: PathBuf,
+}
+
+/// Trains one seed of one arm with `adp train` in its run directory (resuming a run that
+/// stopped), then checks its export and writes the marker.
+fn train(ctx: &Ctx<'_>, arm: usize, seed: usize) -> anyhow::Result<()> {
+    let a = &ctx.ex.arms[arm];
+    let cfg = ctx.ex.train_config(a, seed);
+    let run_dir = ctx.layout.run_dir(a, seed);
+    let file = run_dir.join("experiment-train.toml");
+    write_atomic(
+        &file,
+        toml::to_string_pretty(&cfg)
+            .expect("configs serialize")
+            .as_bytes(),
+    )?;
+    let resume = has_checkpoint(&run_dir);
+    crate::train::train(
+        Some(&file),
+        &crate::train::Overrides {
+            steps: None,
+            actors: None,
+            out: Some(run_dir.clone()),
+            listen: None,
+        },
+        resume,
+    )
+    .with_context(|| format!("training {} seed {seed} in {}", a.id(), run_dir.display()))?;
+    let export = run_dir.join("export");
+    let policy = load_policy(&export, a.space)?;
+    let src = &policy.card.source;
+    if src.inserts < cfg.run.steps {
+        bail!(
+            "training {} seed {seed} stopped after {} of {} agent steps; run the experiment again \
+             with --resume to continue it",
+            a.id(),
+            src.inserts,
+            cfg.run.steps
+        );
+    }
+    let marker = Trained {
+        arm: a.id(),
+        seed_index: seed,
+        td3_seed: cfg.td3.seed,
+        steps: cfg.run.steps,
+        agent_steps: src.inserts,
+        updates: src.updates,
+        export,
+    };
+    write_atomic(
+        &ctx.layout.output(&Stage::Train { arm, seed }, &ctx.ex.arms),
+        &serde_json::to_vec_pretty(&marker).expect("serializes"),
+    )
+}
+
+/// The trained (or untrained) policy of an export directory, in `space`.
+fn load_policy(dir: &Path, space: ActionSpace) -> anyhow::Result<LearnedPolicy> {
+    match crate::policy::load(dir, Some(space))? {
+        EvalPolicy::Learned(p) => Ok(*p),
+        EvalPolicy::Constant { .. } => bail!("{}: not an export directory", dir.display()),
+    }
+}
+
+/// The run settings of an arm on the test worlds.
+fn test_spec<'a>(ctx: &'a Ctx<'_>, a: &Arm, trace: bool) -> RunSpec<'a> {
+    RunSpec {
+        cfg: &ctx.cfg,
+        worlds: ctx.worlds,
+        planner: a.planner,
+        speed: a.speed,
+        world_ids: &ctx.test_worlds,
+        runs: ctx.ex.eval.runs,
+        seed: ctx.ex.eval.seed,
+        trace,
+    }
+}
+
+/// A record of `ev` for arm `a`.
+fn record(ctx: &Ctx<'_>, a: &Arm, controller: &str, ev: runner::Evaluation) -> EvalRecord {
+    EvalRecord {
+        controller: controller.into(),
+        planner: planner_name(a.planner),
+        space: (controller != "ddp").then(|| space_label(a.space)),
+        speed: a.speed,
+        seed_index: None,
+        action: None,
+        policy: None,
+        runs: ctx.ex.eval.runs,
+        trim: ctx.ex.eval.trim,
+        seed: ctx.ex.eval.seed,
+        per_world: ev.per_world,
+        trace: ev.trace,
+    }
+}
+
+/// Runs an evaluation or search stage and writes its result to `out`.
+fn run_stage(ctx: &Ctx<'_>, stage: &Stage, out: &Path) -> anyhow::Result<()> {
+    let ex = ctx.ex;
+    let points = planner::schedule::DEFAULT_BOUNDARY_POINTS;
+    match *stage {
+        Stage::Train { .. } => unreachable!("training runs outside the pool"),
+        Stage::Search { arm } => {
+            let a = &ex.arms[arm];
+            let mut found = Vec::new();
+            for action in candidates(a.space, ex.search.candidates, ex.search.seed) {
+                let spec = RunSpec {
+                    cfg: &ctx.cfg,
+                    worlds: ctx.worlds,
+                    planner: a.planner,
+                    speed: a.speed,
+                    world_ids: &ex.search_worlds,
+                    runs: ex.search.runs,
+                    seed: ex.search.seed,
+                    trace: false,
+                };
+                let ev = evaluate(&spec, &Controller::Schedule(a.space.schedule(&action, points)?))?;
+                let runs: Vec<_> = ev.per_world.iter().flat_map(|w| w.runs.iter()).collect();
+                let n = runs.len().max(1) as f64;
+                found.push(Candidate {
+                    params: a.space.to_params(&action)?,
+                    action,
+                    score: runs.iter().map(|r| r.score).sum::<f64>() / n,
+                    success_pct: 100.0
+                        * runs.iter().filter(|r| r.status == sim::Status::Succeeded).count() as f64
+                        / n,
+                });
+                let c = found.last().expect("pushed");
+                eprintln!(
+                    "  candidate {}: score {:.3}, success {:.1} %",
+                    found.len(),
+                    c.score,
+                    c.success_pct
+                );
+            }
+            let result = SearchResult {
+                space: a.space,
+                worlds: ex.search_worlds.clone(),
+                runs: ex.search.runs,
+                best: best_constant(&found),
+                candidates: found,
+            };
+            write_atomic(out, &serde_json::to_vec_pretty(&result).expect("serializes"))
+        }
+        Stage::EvalDdp { planner, speed } => {
+            let a = ex
+                .arms
+                .iter()
+                .find(|a| a.planner == planner && a.speed == speed)
+                .expect("a DDP stage comes from an arm");
+            let ev = evaluate(
+                &test_spec(ctx, a, false),
+                &Controller::Schedule(Schedule::ddp_default()),
+            )?;
+            record(ctx, a, "ddp", ev).save(out)
+        }
+        Stage::EvalConstant { arm } => {
+            let a = &ex.arms[arm];
+            let search_file = ctx.layout.output(&Stage::Search { arm }, &ex.arms);
+            let text = std::fs::read_to_string(&search_file)
+                .with_context(|| format!("cannot read {}", search_file.display()))?;
+            let search: SearchResult = serde_json::from_str(&text)
+                .with_context(|| format!("{}: not a search result", search_file.display()))?;
+            let action = search.candidates[search.best].action.clone();
+            let ev = evaluate(
+                &test_spec(ctx, a, false),
+                &Controller::Schedule(a.space.schedule(&action, points)?),
+            )?;
+            let mut rec = record(ctx, a, "constant", ev);
+            rec.action = Some(action);
+            rec.save(out)
+        }
+        Stage::EvalUntrained { arm } => {
+            let a = &ex.arms[arm];
+            let dir = ctx.layout.untrained_export(a);
+            if !dir.join(adp_learner::export::JSON_FILE).exists() {
+                write_untrained_export(&ex.train_config(a, 0), a.space, &dir)?;
+            }
+            let p = load_policy(&dir, a.space)?;
+            let ctrl = Controller::Policy {
+                net: &p.net,
+                env: p.env,
+                space: p.space,
+            };
+            let mut rec = record(ctx, a, "untrained", evaluate(&test_spec(ctx, a, false), &ctrl)?);
+            rec.policy = Some(dir.display().to_string());
+            rec.save(out)
+        }
+        Stage::EvalAdp { arm, seed } | Stage::EvalShuffled { arm, seed } => {
+            let a = &ex.arms[arm];
+            let dir = ctx.layout.run_dir(a, seed).join("export");
+            let p = load_policy(&dir, a.space)?;
+            let policy = Controller::Policy {
+                net: &p.net,
+                env: p.env,
+                space: p.space,
+            };
+            let (name, ev) = if matches!(stage, Stage::EvalAdp { .. }) {
+                ("adp", evaluate(&test_spec(ctx, a, true), &policy)?)
+            } else {
+                let pool = shuffle_observations(ctx, a, &p)?;
+                let ctrl = Controller::Shuffled {
+                    net: &p.net,
+                    env: p.env,
+                    space: p.space,
+                    pool: &pool,
+                    seed: ex.shuffle.seed,
+                };
+                ("shuffled", evaluate(&test_spec(ctx, a, false), &ctrl)?)
+            };
+            let mut rec = record(ctx, a, name, ev);
+            rec.seed_index = Some(seed);
+            rec.policy = Some(dir.display().to_string());
+            rec.save(out)
+        }
+    }
+}
+
+/// The observation pool of the state-shuffled control: the policy's own observations on the
+/// pool worlds (training worlds, one run each), reservoir-sampled.
+fn shuffle_observations(ctx: &Ctx<'_>, a: &Arm, p: &LearnedPolicy) -> anyhow::Result<Vec<Vec<f32>>> {
+    let spec = RunSpec {
+        cfg: &ctx.cfg,
+        worlds: ctx.worlds,
+        planner: a.planner,
+        speed: a.speed,
+        world_ids: &ctx.ex.pool_worlds,
+        runs: 1,
+        seed: ctx.ex.shuffle.seed,
+        trace: false,
+    };
+    let ctrl = Controller::Policy {
+        net: &p.net,
+        env: p.env,
+        space: p.space,
+    };
+    let seen = observations(&spec, &ctrl)?.observations;
+    Ok(shuffle_pool(&seen, ctx.ex.shuffle.pool, ctx.ex.shuffle.seed))
+}
+
+/// Reads what the stages of arm `arm` wrote (a missing file is a stage not run yet).
+fn arm_data(ctx: &Ctx<'_>, arm: usize) -> anyhow::Result<ArmData> {
+    let ex = ctx.ex;
+    let a = &ex.arms[arm];
+    let read = |stage: Stage| -> anyhow::Result<Option<EvalRecord>> {
+        let path = ctx.layout.output(&stage, &ex.arms);
+        if path.exists() {
+            EvalRecord::load(&path).map(Some)
+        } else {
+            Ok(None)
+        }
+    };
+    let search_file = ctx.layout.output(&Stage::Search { arm }, &ex.arms);
+    let search = if search_file.exists() {
+        let text = std::fs::read_to_string(&search_file)?;
+        Some(
+            serde_json::from_str(&text)
+                .with_context(|| format!("{}: not a search result", search_file.display()))?,
+        )
+    } else {
+        None
+    };
+    let mut adp = Vec::new();
+    let mut shuffled = Vec::new();
+    for seed in 0..ex.seeds {
+        adp.extend(read(Stage::EvalAdp { arm, seed })?);
+        shuffled.extend(read(Stage::EvalShuffled { arm, seed })?);
+    }
+    Ok(ArmData {
+        arm: a.clone(),
+        ddp: read(Stage::EvalDdp {
+            planner: a.planner,
+            speed: a.speed,
+        })?,
+        constant: read(Stage::EvalConstant { arm })?,
+        search,
+        untrained: read(Stage::EvalUntrained { arm })?,
+        adp,
+        shuffled,
+    })
+}
+
+/// The machine-readable summary beside the report (`results.json`).
+#[derive(Serialize)]
+struct ArmResults {
+    arm: String,
+    /// (method, seed index or none, table values).
+    methods: Vec<(String, Option<usize>, Summary)>,
+    comparisons: Vec<Comparison>,
+}
+
+/// Drives `policy` once on `world` (run 0's seed) and records where the robot was and what
+/// schedule it chose at every agent step.
+fn drive(ctx: &Ctx<'_>, a: &Arm, p: &LearnedPolicy, world: usize) -> anyhow::Result<figures::Drive> {
+    let seed = run_seed(ctx.ex.eval.seed, world, 0);
+    let planner = a.planner.build(&ctx.cfg, seed ^ 0x5eed_91a2);
+    let env = EnvConfig {
+        max_agent_steps: u32::MAX,
+        ..p.env
+    };
+    let mut e = AdpEnv::new(
+        &ctx.worlds[world],
+        ctx.cfg.episode,
+        planner,
+        p.space,
+        a.speed,
+        env,
+        seed,
+    )?;
+    let mut obs = vec![0.0f32; e.obs_dim()];
+    let mut act = vec![0.0f32; p.space.dim()];
+    let mut scratch = Scratch::default();
+    let mut steps = Vec::new();
+    while e.end() == End::Continue {
+        e.observation(&mut obs);
+        p.net.act(&obs, &mut act, &mut scratch);
+        let params = runner::chosen_params(p.space, &p.env, &act)?;
+        steps.push((e.episode().state().pose.position(), params));
+        e.step(&act)?;
+    }
+    if let Some(last) = steps.last().map(|s| s.1.clone()) {
+        steps.push((e.episode().state().pose.position(), last));
+    }
+    let r = e.result().episode;
+    Ok(figures::Drive {
+        steps,
+        outcome: format!("world {world}: {:?} after {:.1} s", r.status, r.time_s),
+    })
+}
+
+/// Writes the figures, `results.json` and `report.md`; returns the report's path.
+fn write_report(ctx: &Ctx<'_>) -> anyhow::Result<PathBuf> {
+    let ex = ctx.ex;
+    let data: Vec<ArmData> = (0..ex.arms.len())
+        .map(|i| arm_data(ctx, i))
+        .collect::<anyhow::Result<_>>()?;
+    let fig_dir = ctx.layout.dir.join("figures");
+    std::fs::create_dir_all(&fig_dir).with_context(|| format!("cannot create {}", fig_dir.display()))?;
+    let mut figs: Vec<(String, String)> = Vec::new();
+    let mut notes: Vec<String> = Vec::new();
+    let mut rendered = false;
+    for (arm, d) in data.iter().enumerate() {
+        let id = d.arm.id();
+        // (i) learning curves.
+        let curves: Vec<(String, Vec<figures::GreedyPoint>)> = (0..ex.seeds)
+            .filter_map(|s| {
+                figures::read_greedy(&ctx.layout.run_dir(&d.arm, s)).map(|g| (format!("seed {s}"), g))
+            })
+            .filter(|(_, g)| !g.is_empty())
+            .collect();
+        if curves.is_empty() {
+            notes.push(format!(
+                "{id}: no run wrote greedy_eval.jsonl (the learner's periodic greedy evaluation), so \
+                 there is no learning-curve figure"
+            ));
+        } else {
+            let file = format!("learning-{id}.png");
+            figures::learning_curves(
+                &curves,
+                &format!("{id}: greedy evaluation during training"),
+                &fig_dir.join(&file),
+            )?;
+            figs.push((
+                format!("{id}: greedy-evaluation learning curves"),
+                format!("figures/{file}"),
+            ));
+        }
+        // (ii) per-world scatter against DDP.
+        if let (Some(ddp), false) = (&d.ddp, d.adp.is_empty()) {
+            let base = ddp.per_world_values();
+            let seeds: Vec<Vec<(usize, f64, f64)>> = d.adp.iter().map(EvalRecord::per_world_values).collect();
+            let points: Vec<(usize, f64, f64)> = base
+                .iter()
+                .enumerate()
+                .map(|(i, &(w, _, s))| {
+                    (
+                        w,
+                        s,
+                        stats::mean(&seeds.iter().map(|v| v[i].2).collect::<Vec<_>>()),
+                    )
+                })
+                .collect();
+            let file = format!("scatter-{id}.png");
+            figures::world_scatter(
+                &points,
+                &format!("{id}: score per test world"),
+                &fig_dir.join(&file),
+            )?;
+            figs.push((
+                format!("{id}: per-world ADP against DDP score"),
+                format!("figures/{file}"),
+            ));
+        }
+        // (iii) schedule against clutter.
+        let trace: Vec<runner::TracePoint> = d.adp.iter().flat_map(|r| r.trace.iter().cloned()).collect();
+        if !trace.is_empty() {
+            let file = format!("clutter-{id}.png");
+            figures::schedule_vs_clutter(
+                &trace,
+                d.arm.space,
+                &format!(
+                    "{id}: chosen schedule vs local clutter ({} agent steps)",
+                    trace.len()
+                ),
+                &fig_dir.join(&file),
+            )?;
+            figs.push((
+                format!("{id}: the chosen schedule's parameters against local clutter (run 0 of every test world, every seed)"),
+                format!("figures/{file}"),
+            ));
+        }
+        // (iv) one rendered episode, of the first arm with a trained policy.
+        if !rendered && !d.adp.is_empty() {
+            let p = load_policy(&ctx.layout.run_dir(&d.arm, 0).join("export"), d.arm.space)?;
+            let dr = drive(ctx, &d.arm, &p, ex.render_world)?;
+            let file = format!("episode-{id}.png");
+            figures::episode(
+                &ctx.worlds[ex.render_world],
+                &dr,
+                d.arm.space,
+                &format!("{id} seed 0, world {}", ex.render_world),
+                &fig_dir.join(&file),
+            )?;
+            figs.push((
+                format!(
+                    "{id} seed 0 on test world {}: the path coloured by the chosen rollout horizon",
+                    ex.render_world
+                ),
+                format!("figures/{file}"),
+            ));
+            rendered = true;
+        }
+        let missing = pending(&stages(&ex.arms, ex.seeds), &ctx.layout, &ex.arms, Path::exists)
+            .into_iter()
+            .filter(|s| stage_arm(s, &ex.arms) == Some(arm))
+            .count();
+        if missing > 0 {
+            notes.push(format!(
+                "{id}: {missing} stage(s) not finished yet; their rows are missing"
+            ));
+        }
+    }
+    let results: Vec<ArmResults> = data
+        .iter()
+        .map(|d| {
+            let mut methods = Vec::new();
+            for (name, r) in [
+                ("ddp", &d.ddp),
+                ("constant", &d.constant),
+                ("untrained", &d.untrained),
+            ] {
+                if let Some(r) = r {
+                    methods.push((name.to_string(), None, r.summary()));
+                }
+            }
+            for r in d.adp.iter().chain(&d.shuffled) {
+                methods.push((r.controller.clone(), r.seed_index, r.summary()));
+            }
+            ArmResults {
+                arm: d.arm.id(),
+                methods,
+                comparisons: comparisons(d, ex),
+            }
+        })
+        .collect();
+    write_atomic(
+        &ctx.layout.dir.join("results.json"),
+        &serde_json::to_vec_pretty(&results).expect("serializes"),
+    )?;
+    let path = ctx.layout.dir.join("report.md");
+    write_atomic(&path, report::render(ex, &data, &figs, &notes).as_bytes())?;
+    Ok(path)
+}
+
+/// The arm a stage belongs to (a DDP stage to the first arm of its planner and speed).
+fn stage_arm(s: &Stage, arms: &[Arm]) -> Option<usize> {
+    match *s {
+        Stage::Train { arm, .. }
+        | Stage::Search { arm }
+        | Stage::EvalConstant { arm }
+        | Stage::EvalUntrained { arm }
+        | Stage::EvalAdp { arm, .. }
+        | Stage::EvalShuffled { arm, .. } => Some(arm),
+        Stage::EvalDdp { planner, speed } => {
+            arms.iter().position(|a| a.planner == planner && a.speed == speed)
+        }
+    }
+}

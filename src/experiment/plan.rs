@@ -1,0 +1,276 @@
+//! The stages of an experiment and where each writes its result: pure bookkeeping, so that
+//! `--resume` can skip what is finished.
+//!
+//! Every stage writes one file (through a temporary file and a rename, so a file that exists
+//! is complete); a training run's file is a marker written after its export exists. Layout of
+//! an experiment directory:
+//!
+//! | stage | output |
+//! |---|---|
+//! | train arm A, seed k | `runs/A/seed-k/` (the `adp train` run dir), marker `runs/A/seed-k/trained.json` |
+//! | constant search for A (training worlds) | `search/A.json` |
+//! | DDP on the test worlds (per planner and speed) | `eval/ddp-PLANNER-SPEED.json` |
+//! | best constant, untrained policy | `eval/A/constant.json`, `eval/A/untrained.json` (and its export `eval/A/untrained-policy/`) |
+//! | trained policy and its state-shuffled twin, seed k | `eval/A/seed-k/adp.json`, `eval/A/seed-k/shuffled.json` |
+
+use std::path::{Path, PathBuf};
+
+use crate::eval::PlannerKind;
+
+use super::config::{planner_name, speed_label, Arm};
+
+/// One unit of work.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Stage {
+    /// Train seed `seed` of arm `arm` (an index into the arms).
+    Train {
+        /// Arm index.
+        arm: usize,
+        /// Seed index.
+        seed: usize,
+    },
+    /// Search the best constant action of an arm on the training worlds.
+    Search {
+        /// Arm index.
+        arm: usize,
+    },
+    /// Evaluate DDP for a planner and speed.
+    EvalDdp {
+        /// The planner.
+        planner: PlannerKind,
+        /// The speed cap (m/s).
+        speed: f64,
+    },
+    /// Evaluate an arm's best constant action.
+    EvalConstant {
+        /// Arm index.
+        arm: usize,
+    },
+    /// Evaluate an arm's untrained, DDP-initialized policy.
+    EvalUntrained {
+        /// Arm index.
+        arm: usize,
+    },
+    /// Evaluate a trained policy.
+    EvalAdp {
+        /// Arm index.
+        arm: usize,
+        /// Seed index.
+        seed: usize,
+    },
+    /// Evaluate a trained policy fed other steps' observations.
+    EvalShuffled {
+        /// Arm index.
+        arm: usize,
+        /// Seed index.
+        seed: usize,
+    },
+}
+
+/// Where the files of an experiment directory live.
+#[derive(Clone, Debug)]
+pub struct Layout {
+    /// The experiment directory.
+    pub dir: PathBuf,
+}
+
+impl Layout {
+    /// The training run directory of an arm's seed.
+    pub fn run_dir(&self, arm: &Arm, seed: usize) -> PathBuf {
+        self.dir.join("runs").join(arm.id()).join(format!("seed-{seed}"))
+    }
+
+    /// The evaluation directory of an arm.
+    pub fn arm_eval_dir(&self, arm: &Arm) -> PathBuf {
+        self.dir.join("eval").join(arm.id())
+    }
+
+    /// The export directory of an arm's untrained policy.
+    pub fn untrained_export(&self, arm: &Arm) -> PathBuf {
+        self.arm_eval_dir(arm).join("untrained-policy")
+    }
+
+    /// The DDP result of a planner and speed.
+    pub fn ddp_file(&self, planner: PlannerKind, speed: f64) -> PathBuf {
+        self.dir.join("eval").join(format!(
+            "ddp-{}-{}.json",
+            planner_name(planner),
+            speed_label(speed)
+        ))
+    }
+
+    /// The file a stage writes (see the module docs).
+    pub fn output(&self, stage: &Stage, arms: &[Arm]) -> PathBuf {
+        match *stage {
+            Stage::Train { arm, seed } => self.run_dir(&arms[arm], seed).join("trained.json"),
+            Stage::Search { arm } => self.dir.join("search").join(format!("{}.json", arms[arm].id())),
+            Stage::EvalDdp { planner, speed } => self.ddp_file(planner, speed),
+            Stage::EvalConstant { arm } => self.arm_eval_dir(&arms[arm]).join("constant.json"),
+            Stage::EvalUntrained { arm } => self.arm_eval_dir(&arms[arm]).join("untrained.json"),
+            Stage::EvalAdp { arm, seed } => self
+                .arm_eval_dir(&arms[arm])
+                .join(format!("seed-{seed}"))
+                .join("adp.json"),
+            Stage::EvalShuffled { arm, seed } => self
+                .arm_eval_dir(&arms[arm])
+                .join(format!("seed-{seed}"))
+                .join("shuffled.json"),
+        }
+    }
+}
+
+/// Every stage of `arms` x `seeds`, in an order that respects their dependencies: all
+/// training first (the longest work, so a job that stops early has its policies), then the
+/// constant searches, then the evaluations. DDP runs once per (planner, speed), shared by the
+/// arms that differ only in action space or training worlds.
+pub fn stages(arms: &[Arm], seeds: usize) -> Vec<Stage> {
+    let mut out = Vec::new();
+    for arm in 0..arms.len() {
+        for seed in 0..seeds {
+            out.push(Stage::Train { arm, seed });
+        }
+    }
+    for arm in 0..arms.len() {
+        out.push(Stage::Search { arm });
+    }
+    let mut ddp: Vec<(PlannerKind, f64)> = Vec::new();
+    for a in arms {
+        if !ddp.iter().any(|&(p, v)| p == a.planner && v == a.speed) {
+            ddp.push((a.planner, a.speed));
+        }
+    }
+    out.extend(
+        ddp.into_iter()
+            .map(|(planner, speed)| Stage::EvalDdp { planner, speed }),
+    );
+    for arm in 0..arms.len() {
+        out.push(Stage::EvalConstant { arm });
+        out.push(Stage::EvalUntrained { arm });
+        for seed in 0..seeds {
+            out.push(Stage::EvalAdp { arm, seed });
+            out.push(Stage::EvalShuffled { arm, seed });
+        }
+    }
+    out
+}
+
+/// The stages whose output `done` does not report as finished, in order.
+pub fn pending(stages: &[Stage], layout: &Layout, arms: &[Arm], done: impl Fn(&Path) -> bool) -> Vec<Stage> {
+    stages
+        .iter()
+        .filter(|s| !done(&layout.output(s, arms)))
+        .cloned()
+        .collect()
+}
+
+/// Writes `bytes` to `path` through a temporary file in the same directory and a rename, so
+/// `path` exists only complete. Creates the parent directory.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
+    use anyhow::Context;
+    if let Some(parent) = path.parent() {
+        std::fs::create_dir_all(parent).with_context(|| format!("cannot create {}", parent.display()))?;
+    }
+    let tmp = path.with_extension(format!("tmp-{}", std::process::id()));
+    std::fs::write(&tmp, bytes).with_context(|| format!("cannot write {}", tmp.display()))?;
+    std::fs::rename(&tmp, path)
+        .with_context(|| format!("cannot rename {} to {}", tmp.display(), path.display()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use planner::ActionSpace;
+
+    fn arms() -> Vec<Arm> {
+        [
+            (PlannerKind::Dwa, ActionSpace::Decremental),
+            (PlannerKind::Dwa, ActionSpace::Incremental),
+        ]
+        .into_iter()
+        .map(|(planner, space)| Arm {
+            planner,
+            space,
+            speed: 1.5,
+            train_worlds: "train".into(),
+        })
+        .collect()
+    }
+
+    #[test]
+    fn stages_cover_every_arm_and_seed_once_with_ddp_shared() {
+        let s = stages(&arms(), 2);
+        let count = |f: &dyn Fn(&Stage) -> bool| s.iter().filter(|x| f(x)).count();
+        assert_eq!(count(&|x| matches!(x, Stage::Train { .. })), 4);
+        assert_eq!(
+            count(&|x| matches!(x, Stage::EvalDdp { .. })),
+            1,
+            "one DDP per planner and speed"
+        );
+        assert_eq!(count(&|x| matches!(x, Stage::EvalAdp { .. })), 4);
+        assert_eq!(s.len(), 4 + 2 + 1 + 2 * (2 + 4));
+        // Every training comes before every evaluation of a policy.
+        let last_train = s.iter().rposition(|x| matches!(x, Stage::Train { .. })).unwrap();
+        let first_adp = s.iter().position(|x| matches!(x, Stage::EvalAdp { .. })).unwrap();
+        assert!(last_train < first_adp);
+        let layout = Layout { dir: "/e".into() };
+        let mut outputs: Vec<PathBuf> = s.iter().map(|x| layout.output(x, &arms())).collect();
+        outputs.sort();
+        outputs.dedup();
+        assert_eq!(outputs.len(), s.len(), "distinct outputs");
+    }
+
+    /// A resumed experiment skips the stages whose files exist (here: the first arm's whole
+    /// training and evaluation, written atomically) and keeps the rest in order.
+    #[test]
+    fn resume_skips_finished_stages() {
+        let dir = std::env::temp_dir().join(format!("adp-plan-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let layout = Layout { dir: dir.clone() };
+        let arms = arms();
+        let all = stages(&arms, 1);
+        let first_arm = |s: &Stage| match *s {
+            Stage::Train { arm, .. }
+            | Stage::Search { arm }
+            | Stage::EvalConstant { arm }
+            | Stage::EvalUntrained { arm }
+            | Stage::EvalAdp { arm, .. }
+            | Stage::EvalShuffled { arm, .. } => arm == 0,
+            Stage::EvalDdp { .. } => true,
+        };
+        for s in all.iter().filter(|s| first_arm(s)) {
+            write_atomic(&layout.output(s, &arms), b"{}").unwrap();
+        }
+        let todo = pending(&all, &layout, &arms, Path::exists);
+        assert_eq!(
+            todo,
+            vec![
+                Stage::Train { arm: 1, seed: 0 },
+                Stage::Search { arm: 1 },
+                Stage::EvalConstant { arm: 1 },
+                Stage::EvalUntrained { arm: 1 },
+                Stage::EvalAdp { arm: 1, seed: 0 },
+                Stage::EvalShuffled { arm: 1, seed: 0 },
+            ]
+        );
+        // No temporary file is left behind.
+        let leftovers = walk(&dir)
+            .into_iter()
+            .filter(|p| p.to_string_lossy().contains(".tmp-"))
+            .count();
+        assert_eq!(leftovers, 0);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    fn walk(dir: &Path) -> Vec<PathBuf> {
+        let mut out = Vec::new();
+        for e in std::fs::read_dir(dir).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                out.extend(walk(&p));
+            } else {
+                out.push(p);
+            }
+        }
+        out
+    }
+}

@@ -1,0 +1,151 @@
+//! The file one evaluation stage writes (`eval/...json`) and what is derived from it: the
+//! per-world values after trimming and the row of a table.
+
+use std::path::Path;
+
+use anyhow::Context;
+use serde::{Deserialize, Serialize};
+
+use sim::Status;
+
+use crate::eval::summarize;
+
+use super::plan::write_atomic;
+use super::runner::{TracePoint, WorldOutcome};
+
+/// One controller's evaluation on the test worlds.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct EvalRecord {
+    /// `ddp`, `constant`, `untrained`, `adp` or `shuffled`.
+    pub controller: String,
+    /// Planner name.
+    pub planner: String,
+    /// Action space name (not for DDP).
+    pub space: Option<String>,
+    /// Speed cap (m/s).
+    pub speed: f64,
+    /// Training seed index (trained policies and their shuffled twins).
+    pub seed_index: Option<usize>,
+    /// The constant normalized action (constant controls).
+    pub action: Option<Vec<f64>>,
+    /// Where the policy came from (network controls).
+    pub policy: Option<String>,
+    /// Runs per world.
+    pub runs: usize,
+    /// Runs trimmed from each end per world.
+    pub trim: usize,
+    /// Base seed of the runs.
+    pub seed: u64,
+    /// Every run of every world.
+    pub per_world: Vec<WorldOutcome>,
+    /// Agent steps of run 0 of every world (trained policies only).
+    pub trace: Vec<TracePoint>,
+}
+
+/// The table values of a set of runs after trimming.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Summary {
+    /// Successful runs (%).
+    pub success_pct: f64,
+    /// Mean time (s), failures counted as 50 s.
+    pub time_s: f64,
+    /// Mean BARN score.
+    pub score: f64,
+    /// Collisions (%).
+    pub collision_pct: f64,
+    /// Timeouts (%).
+    pub timeout_pct: f64,
+}
+
+impl EvalRecord {
+    /// Reads a record.
+    pub fn load(path: &Path) -> anyhow::Result<Self> {
+        let text =
+            std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
+        serde_json::from_str(&text).with_context(|| format!("{}: not an evaluation record", path.display()))
+    }
+
+    /// Writes the record atomically.
+    pub fn save(&self, path: &Path) -> anyhow::Result<()> {
+        write_atomic(path, &serde_json::to_vec(self).expect("records serialize"))
+    }
+
+    /// Table values over every world, after trimming each world's runs.
+    pub fn summary(&self) -> Summary {
+        let runs: Vec<_> = self.per_world.iter().map(WorldOutcome::to_world_runs).collect();
+        let (success_pct, time_s, score, collision_pct, timeout_pct, _) = summarize(&runs, self.trim);
+        Summary {
+            success_pct,
+            time_s,
+            score,
+            collision_pct,
+            timeout_pct,
+        }
+    }
+
+    /// Per world (in record order): (world, success rate in [0, 1], mean score) after
+    /// trimming.
+    pub fn per_world_values(&self) -> Vec<(usize, f64, f64)> {
+        self.per_world
+            .iter()
+            .map(|w| {
+                let (s, _, score, _, _, _) = summarize(&[w.to_world_runs()], self.trim);
+                (w.world, s / 100.0, score)
+            })
+            .collect()
+    }
+
+    /// Success of every run, (world, run) in order, untrimmed: the paired outcomes of
+    /// McNemar's test.
+    pub fn outcomes(&self) -> Vec<bool> {
+        self.per_world
+            .iter()
+            .flat_map(|w| w.runs.iter().map(|r| r.status == Status::Succeeded))
+            .collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use sim::EpisodeResult;
+
+    #[test]
+    fn per_world_values_trim_like_the_table() {
+        let run = |status, time_s, score| EpisodeResult {
+            world: 4,
+            status,
+            time_s,
+            sim_time_s: time_s,
+            score,
+            distance_m: 0.0,
+        };
+        let rec = EvalRecord {
+            controller: "ddp".into(),
+            planner: "dwa".into(),
+            space: None,
+            speed: 1.5,
+            seed_index: None,
+            action: None,
+            policy: None,
+            runs: 4,
+            trim: 1,
+            seed: 0,
+            per_world: vec![WorldOutcome {
+                world: 4,
+                runs: vec![
+                    run(Status::Succeeded, 10.0, 0.4),
+                    run(Status::Collided, 3.0, 0.0),
+                    run(Status::Succeeded, 8.0, 0.5),
+                    run(Status::TimedOut, 100.0, 0.0),
+                ],
+            }],
+            trace: vec![],
+        };
+        // Charged times 10, 50, 8, 50: trim 1 drops 8 and one 50; kept: 10 (success), 50.
+        assert_eq!(rec.per_world_values(), vec![(4, 0.5, 0.2)]);
+        assert_eq!(rec.outcomes(), vec![true, false, true, false]);
+        let s = rec.summary();
+        assert_eq!((s.success_pct, s.time_s), (50.0, 30.0));
+    }
+}

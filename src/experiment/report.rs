@@ -1,0 +1,457 @@
+//! `report.md`: paper-style tables (the ADP paper's Table I rows per planner and speed with
+//! the controls; Table II's action-space ablation), the paired statistics of every
+//! comparison and the figures. Pure: it formats what the stages wrote.
+
+use std::fmt::Write as _;
+
+use serde::Serialize;
+
+use super::config::{planner_name, space_label, speed_label, Arm, Experiment};
+use super::controls::SearchResult;
+use super::record::{EvalRecord, Summary};
+use super::stats::{bootstrap_mean, mcnemar, mean, paired_differences, sample_sd, Interval, McNemar};
+
+/// Everything evaluated for one arm (missing stages are `None` or absent).
+#[derive(Clone, Debug)]
+pub struct ArmData {
+    /// The arm.
+    pub arm: Arm,
+    /// DDP of the arm's planner and speed.
+    pub ddp: Option<EvalRecord>,
+    /// The best constant action.
+    pub constant: Option<EvalRecord>,
+    /// The search that chose it.
+    pub search: Option<SearchResult>,
+    /// The untrained, DDP-initialized policy.
+    pub untrained: Option<EvalRecord>,
+    /// The trained policies, one per finished seed.
+    pub adp: Vec<EvalRecord>,
+    /// Their state-shuffled twins.
+    pub shuffled: Vec<EvalRecord>,
+}
+
+/// ADP against one control, paired over worlds and runs.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Comparison {
+    /// The control's name.
+    pub control: String,
+    /// Mean over worlds of ADP's success rate minus the control's (in [-1, 1]), with its
+    /// bootstrap interval. ADP's per-world value is the mean over its seeds.
+    pub d_success: Interval,
+    /// The same for the BARN score.
+    pub d_score: Interval,
+    /// McNemar's test on success, pairs (seed, world, run) with the same run seed.
+    pub mcnemar: McNemar,
+    /// The same test for each seed alone (pairs (world, run); a control's runs are then used
+    /// once), in seed order.
+    pub per_seed: Vec<McNemar>,
+}
+
+/// Compares the seeds `adp` with `control` (one record shared by every seed, or one per
+/// seed, paired in order). `None` when either side is missing or they ran other worlds or
+/// run counts.
+pub fn compare(
+    name: &str,
+    adp: &[EvalRecord],
+    control: &[EvalRecord],
+    resamples: usize,
+    confidence: f64,
+    seed: u64,
+) -> Option<Comparison> {
+    if adp.is_empty() || control.is_empty() {
+        return None;
+    }
+    let worlds = |r: &EvalRecord| {
+        r.per_world
+            .iter()
+            .map(|w| (w.world, w.runs.len()))
+            .collect::<Vec<_>>()
+    };
+    let shape = worlds(&adp[0]);
+    if adp.iter().chain(control).any(|r| worlds(r) != shape) {
+        return None;
+    }
+    let per_world_mean = |recs: &[EvalRecord], pick: fn(&(usize, f64, f64)) -> f64| -> Vec<f64> {
+        let vals: Vec<Vec<f64>> = recs
+            .iter()
+            .map(|r| r.per_world_values().iter().map(pick).collect())
+            .collect();
+        (0..shape.len())
+            .map(|i| mean(&vals.iter().map(|v| v[i]).collect::<Vec<_>>()))
+            .collect()
+    };
+    let success = |x: &(usize, f64, f64)| x.1;
+    let score = |x: &(usize, f64, f64)| x.2;
+    let ds = paired_differences(&per_world_mean(adp, success), &per_world_mean(control, success));
+    let dc = paired_differences(&per_world_mean(adp, score), &per_world_mean(control, score));
+    let seed_pairs: Vec<Vec<(bool, bool)>> = adp
+        .iter()
+        .enumerate()
+        .map(|(i, a)| {
+            a.outcomes()
+                .into_iter()
+                .zip(control[i % control.len()].outcomes())
+                .collect()
+        })
+        .collect();
+    let pairs: Vec<(bool, bool)> = seed_pairs.iter().flatten().copied().collect();
+    Some(Comparison {
+        control: name.into(),
+        d_success: bootstrap_mean(&ds, resamples, confidence, seed),
+        d_score: bootstrap_mean(&dc, resamples, confidence, seed ^ 1),
+        mcnemar: mcnemar(pairs),
+        per_seed: seed_pairs.into_iter().map(mcnemar).collect(),
+    })
+}
+
+/// Every comparison of an arm: ADP against DDP, the best constant, the untrained policy and
+/// the state-shuffled policy.
+pub fn comparisons(d: &ArmData, ex: &Experiment) -> Vec<Comparison> {
+    let st = &ex.stats;
+    let one = |r: &Option<EvalRecord>| r.iter().cloned().collect::<Vec<_>>();
+    [
+        ("DDP", one(&d.ddp)),
+        ("best constant", one(&d.constant)),
+        ("untrained (DDP init)", one(&d.untrained)),
+        ("state-shuffled", d.shuffled.clone()),
+    ]
+    .into_iter()
+    .filter_map(|(name, control)| {
+        let adp = if name == "state-shuffled" {
+            &d.adp[..d.adp.len().min(control.len())]
+        } else {
+            &d.adp[..]
+        };
+        compare(name, adp, &control, st.resamples, st.confidence, st.seed)
+    })
+    .collect()
+}
+
+/// A mean over seeds with its sample standard deviation (`x` alone for one seed).
+fn pm(values: &[f64], decimals: usize) -> String {
+    match values.len() {
+        0 => "–".into(),
+        1 => format!("{:.*}", decimals, values[0]),
+        _ => format!(
+            "{:.*} ± {:.*}",
+            decimals,
+            mean(values),
+            decimals,
+            sample_sd(values)
+        ),
+    }
+}
+
+/// The table cells of a method: one record, or several seeds.
+fn cells(recs: &[&EvalRecord]) -> [String; 5] {
+    let s: Vec<Summary> = recs.iter().map(|r| r.summary()).collect();
+    let col = |f: fn(&Summary) -> f64, d| pm(&s.iter().map(f).collect::<Vec<_>>(), d);
+    [
+        col(|x| x.success_pct, 2),
+        col(|x| x.time_s, 2),
+        col(|x| x.score, 3),
+        col(|x| x.collision_pct, 2),
+        col(|x| x.timeout_pct, 2),
+    ]
+}
+
+/// The methods of an arm with their records, in table order.
+fn methods(d: &ArmData) -> Vec<(String, Vec<&EvalRecord>)> {
+    let space = space_label(d.arm.space);
+    vec![
+        ("DDP".to_string(), d.ddp.iter().collect()),
+        (format!("best constant ({space})"), d.constant.iter().collect()),
+        ("untrained (DDP init)".to_string(), d.untrained.iter().collect()),
+        ("state-shuffled ADP".to_string(), d.shuffled.iter().collect()),
+        (format!("ADP-{space}"), d.adp.iter().collect()),
+    ]
+}
+
+const METRICS: [&str; 5] = [
+    "success (%) ↑",
+    "avg time (s) ↓",
+    "avg score ↑",
+    "collision (%) ↓",
+    "timeout (%) ↓",
+];
+
+/// The report's markdown. `figures` are (caption, file name relative to the report).
+pub fn render(ex: &Experiment, data: &[ArmData], figures: &[(String, String)], notes: &[String]) -> String {
+    let mut out = String::new();
+    let sec = &ex.section;
+    let _ = writeln!(out, "# Experiment `{}`\n", sec.name);
+    let _ = writeln!(
+        out,
+        "Protocol (the ADP paper's): every policy and control runs {} times on each of the {} test \
+         worlds (`{}`), the {} fastest and {} slowest runs of each world are dropped, failed runs \
+         count 50 s. The start pose is jittered by U(±{} m) in x and y and U(±{} rad) in heading, \
+         seeded per (world, run), and run r of world w has the same seed for every controller, so \
+         runs pair by seed. Simulator profile `{}`. ADP: {} seed(s) per arm, {} agent steps each \
+         (`[td3] seed` {}..), trained on `{}`; the test worlds are used for nothing but these \
+         numbers.\n",
+        ex.eval.runs,
+        ex.test_worlds.len(),
+        sec.test_worlds,
+        ex.eval.trim,
+        ex.eval.trim,
+        ex.eval.start_jitter_m,
+        ex.eval.start_jitter_yaw_rad,
+        ex.train.env.profile.name(),
+        ex.seeds,
+        ex.train.run.steps,
+        sec.first_seed,
+        sec.train_worlds.join("`, `"),
+    );
+    let _ = writeln!(
+        out,
+        "Controls: **DDP** (p = 1.7, T = 2 s, N = 20); the **best constant** action of a search of {} \
+         candidates x {} run(s) on {} training worlds (`{}`), ranked by mean score; the \
+         **untrained** DDP-initialized policy (the learner at step 0); the **state-shuffled** \
+         trained policy, whose every action is computed from an observation drawn from a seeded \
+         reservoir of {} observations of its own runs on training worlds. ADP cells are mean ± sd \
+         over seeds.\n",
+        ex.search.candidates,
+        ex.search.runs,
+        ex.search_worlds.len(),
+        ex.search.worlds,
+        ex.shuffle.pool,
+    );
+    // Table I: per planner, methods x (metric x speed), for the first action space.
+    let mut planners: Vec<_> = data.iter().map(|d| d.arm.planner).collect();
+    planners.dedup();
+    let _ = writeln!(out, "## Table I: ADP against DDP and the controls\n");
+    for p in &planners {
+        let arms: Vec<&ArmData> = data
+            .iter()
+            .filter(|d| {
+                d.arm.planner == *p
+                    && d.arm.space == data[0].arm.space
+                    && d.arm.train_worlds == data[0].arm.train_worlds
+            })
+            .collect();
+        let _ = writeln!(out, "### {}\n", planner_name(*p));
+        let mut header = String::from("| method |");
+        let mut rule = String::from("|---|");
+        for m in METRICS {
+            for d in &arms {
+                let _ = write!(header, " {m} {} |", speed_label(d.arm.speed));
+                rule.push_str("---|");
+            }
+        }
+        let _ = writeln!(out, "{header}\n{rule}");
+        let rows: Vec<Vec<(String, [String; 5])>> = arms
+            .iter()
+            .map(|d| methods(d).into_iter().map(|(n, r)| (n, cells(&r))).collect())
+            .collect();
+        if let Some(first) = rows.first() {
+            for (k, (name, _)) in first.iter().enumerate() {
+                let mut line = format!("| {name} |");
+                for m in 0..METRICS.len() {
+                    for r in &rows {
+                        let _ = write!(line, " {} |", r[k].1[m]);
+                    }
+                }
+                let _ = writeln!(out, "{line}");
+            }
+        }
+        out.push('\n');
+    }
+    // Table II: action spaces side by side per planner and speed.
+    let mut spaces: Vec<_> = data.iter().map(|d| d.arm.space).collect();
+    spaces.dedup();
+    if spaces.len() > 1 {
+        let _ = writeln!(out, "## Table II: action-space ablation\n");
+        let mut keys: Vec<(String, String)> = Vec::new();
+        for d in data {
+            let k = (planner_name(d.arm.planner), speed_label(d.arm.speed));
+            if !keys.contains(&k) {
+                keys.push(k);
+            }
+        }
+        for (p, v) in keys {
+            let _ = writeln!(out, "### {p}, {v} m/s\n");
+            let _ = writeln!(
+                out,
+                "| method | {} |\n|---|---|---|---|---|---|",
+                METRICS.join(" | ")
+            );
+            let group: Vec<&ArmData> = data
+                .iter()
+                .filter(|d| planner_name(d.arm.planner) == p && speed_label(d.arm.speed) == v)
+                .collect();
+            if let Some(ddp) = group.iter().find_map(|d| d.ddp.as_ref()) {
+                let _ = writeln!(out, "| DDP | {} |", cells(&[ddp]).join(" | "));
+            }
+            for d in group {
+                let recs: Vec<&EvalRecord> = d.adp.iter().collect();
+                let _ = writeln!(
+                    out,
+                    "| ADP-{} ({}) | {} |",
+                    space_label(d.arm.space),
+                    d.arm.train_worlds,
+                    cells(&recs).join(" | ")
+                );
+            }
+            out.push('\n');
+        }
+    }
+    // The constants found.
+    let _ = writeln!(out, "## Best constant schedules (searched on training worlds)\n");
+    let _ = writeln!(out, "| arm | action (normalized) | physical parameters | search score | search success (%) | candidates |\n|---|---|---|---|---|---|");
+    for d in data {
+        if let Some(s) = &d.search {
+            let b = &s.candidates[s.best];
+            let names: Vec<&str> = d.arm.space.ranges().iter().map(|r| r.0).collect();
+            let params: Vec<String> = b
+                .params
+                .iter()
+                .zip(&names)
+                .map(|(v, n)| match *n {
+                    "N" => format!("{n} = {v:.0}"),
+                    _ => format!("{n} = {v:.3}"),
+                })
+                .collect();
+            let action: Vec<String> = b.action.iter().map(|v| format!("{v:.3}")).collect();
+            let _ = writeln!(
+                out,
+                "| {} | [{}] | {} | {:.3} | {:.1} | {} |",
+                d.arm.id(),
+                action.join(", "),
+                params.join(", "),
+                b.score,
+                b.success_pct,
+                s.candidates.len()
+            );
+        }
+    }
+    out.push('\n');
+    // Paired statistics.
+    let conf = ex.stats.confidence * 100.0;
+    let _ = writeln!(out, "## Paired statistics (ADP − control)\n");
+    let _ = writeln!(
+        out,
+        "Per test world: ADP's success rate and score after trimming (mean over seeds) minus the \
+         control's. Mean Δ over worlds with a {conf:.0} % percentile-bootstrap interval ({} \
+         resamples, seeded). McNemar's test on success over every (seed, world, run) pair with the \
+         same run seed, untrimmed (a control's runs are paired with each seed's, so these pairs \
+         are not independent across seeds): n pairs, ADP-only and control-only successes, the \
+         exact binomial p-value and the chi-square with continuity correction; then the exact \
+         p-value of each seed alone (pairs (world, run), ADP-only/control-only).\n",
+        ex.stats.resamples
+    );
+    for d in data {
+        let cmp = comparisons(d, ex);
+        if cmp.is_empty() {
+            continue;
+        }
+        let _ = writeln!(out, "### {}\n", d.arm.id());
+        let _ = writeln!(
+            out,
+            "| control | worlds | Δ success (pp) [{conf:.0} % CI] | Δ score [{conf:.0} % CI] | pairs | ADP only | control only | p exact | χ² | p χ² | p exact per seed |\n|---|---|---|---|---|---|---|---|---|---|---|"
+        );
+        for c in cmp {
+            let _ = writeln!(
+                out,
+                "| {} | {} | {:+.2} [{:+.2}, {:+.2}] | {:+.4} [{:+.4}, {:+.4}] | {} | {} | {} | {:.4} | {:.3} | {:.4} | {} |",
+                c.control,
+                c.d_success.n,
+                100.0 * c.d_success.mean,
+                100.0 * c.d_success.lo,
+                100.0 * c.d_success.hi,
+                c.d_score.mean,
+                c.d_score.lo,
+                c.d_score.hi,
+                c.mcnemar.n,
+                c.mcnemar.adp_only,
+                c.mcnemar.control_only,
+                c.mcnemar.p_exact,
+                c.mcnemar.chi2,
+                c.mcnemar.p_chi2,
+                c.per_seed
+                    .iter()
+                    .map(|m| format!("{:.4} ({}/{})", m.p_exact, m.adp_only, m.control_only))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            );
+        }
+        out.push('\n');
+    }
+    if !figures.is_empty() {
+        let _ = writeln!(out, "## Figures\n");
+        for (caption, file) in figures {
+            let _ = writeln!(out, "**{caption}**\n\n![{caption}]({file})\n");
+        }
+    }
+    if !notes.is_empty() {
+        let _ = writeln!(out, "## Notes\n");
+        for n in notes {
+            let _ = writeln!(out, "- {n}");
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::experiment::runner::WorldOutcome;
+    use sim::{EpisodeResult, Status};
+
+    fn rec(name: &str, runs: &[(usize, bool, f64)]) -> EvalRecord {
+        EvalRecord {
+            controller: name.into(),
+            planner: "dwa".into(),
+            space: None,
+            speed: 1.5,
+            seed_index: None,
+            action: None,
+            policy: None,
+            runs: 1,
+            trim: 0,
+            seed: 0,
+            per_world: runs
+                .iter()
+                .map(|&(world, ok, score)| WorldOutcome {
+                    world,
+                    runs: vec![EpisodeResult {
+                        world,
+                        status: if ok { Status::Succeeded } else { Status::Collided },
+                        time_s: 10.0,
+                        sim_time_s: 10.0,
+                        score,
+                        distance_m: 0.0,
+                    }],
+                })
+                .collect(),
+            trace: vec![],
+        }
+    }
+
+    /// Two worlds, two ADP seeds, one control record, by hand: per-world ADP success 0.5 and
+    /// 1 against the control's 1 and 0 (Δ = -0.5, +1); scores 0.2 and 0.5 against 0.3 and 0
+    /// (Δ = -0.1, +0.5); pairs (seed, world): ADP only 2, control only 1.
+    #[test]
+    fn comparison_by_hand() {
+        let adp = [
+            rec("adp", &[(3, true, 0.4), (7, true, 0.5)]),
+            rec("adp", &[(3, false, 0.0), (7, true, 0.5)]),
+        ];
+        let control = [rec("ddp", &[(3, true, 0.3), (7, false, 0.0)])];
+        let c = compare("DDP", &adp, &control, 2000, 0.95, 1).unwrap();
+        assert!((c.d_success.mean - 0.25).abs() < 1e-12);
+        assert_eq!((c.d_success.lo, c.d_success.hi), (-0.5, 1.0));
+        assert!((c.d_score.mean - 0.2).abs() < 1e-12);
+        assert!((c.d_score.lo + 0.1).abs() < 1e-12 && (c.d_score.hi - 0.5).abs() < 1e-12);
+        let m = c.mcnemar;
+        assert_eq!((m.n, m.adp_only, m.control_only), (4, 2, 1));
+        // Exact: 2 (C(3,0) + C(3,1)) / 2^3 = 1; chi2: (|2 - 1| - 1)^2 / 3 = 0.
+        assert_eq!((m.p_exact, m.chi2), (1.0, 0.0));
+        // Per seed: seed 0 wins world 7 only (1/0), seed 1 wins 7 and loses 3 (1/1).
+        let per: Vec<(usize, usize)> = c.per_seed.iter().map(|m| (m.adp_only, m.control_only)).collect();
+        assert_eq!(per, [(1, 0), (1, 1)]);
+        // Other worlds cannot be paired.
+        let other = [rec("ddp", &[(4, true, 0.3), (7, false, 0.0)])];
+        assert!(compare("DDP", &adp, &other, 10, 0.95, 1).is_none());
+        assert!(compare("DDP", &adp, &[], 10, 0.95, 1).is_none());
+    }
+}

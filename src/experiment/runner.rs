@@ -1,0 +1,364 @@
+//! Runs one controller on a set of worlds with the papers' protocol, in parallel over
+//! (world, run) with rayon like `adp eval`: run r of world w uses the seed
+//! [`crate::eval::run_seed`]`(seed, w, r)` whatever the controller, so the runs of two
+//! controllers pair by seed (the same sensor noise, drift and start jitter).
+//!
+//! A controller is a schedule held for the whole run (DDP, a constant action: the plain
+//! episode driver) or a network choosing the schedule every agent step through the RL
+//! environment, either from the step's own observation ([`Controller::Policy`]) or from an
+//! observation drawn from a pool of other steps' ([`Controller::Shuffled`]).
+
+use anyhow::Context;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use actor::{AdpEnv, End, EnvConfig, MlpPolicy, Scratch, LASER_BEAMS};
+use planner::{run::run_episode, ActionSpace, Schedule};
+use sim::{EpisodeResult, World};
+
+use crate::config::EvalConfig;
+use crate::eval::{run_seed, PlannerKind, WorldRuns};
+
+use super::stats::SplitMix64;
+
+/// A beam reading closer than this counts toward the local clutter (m).
+pub const CLUTTER_RANGE_M: f64 = 1.0;
+
+/// Local clutter of an observation: the fraction of its laser beams reading less than
+/// [`CLUTTER_RANGE_M`], decoded from the observation's laser part (ranges clipped at
+/// `laser_clip_m` and mapped to [-1, 1]).
+pub fn clutter(obs: &[f32], laser_clip_m: f64) -> f64 {
+    let threshold = (2.0 * CLUTTER_RANGE_M / laser_clip_m - 1.0) as f32;
+    let laser = &obs[..LASER_BEAMS];
+    laser.iter().filter(|&&e| e < threshold).count() as f64 / LASER_BEAMS as f64
+}
+
+/// The physical parameters of the schedule a network output `u` chooses under the
+/// environment's action map (the output is mapped to the box action the environment runs,
+/// then [`ActionSpace::to_params`]).
+pub fn chosen_params(space: ActionSpace, env: &EnvConfig, u: &[f32]) -> anyhow::Result<Vec<f64>> {
+    let u: Vec<f64> = u.iter().map(|&x| f64::from(x)).collect();
+    let mut a = vec![0.0; u.len()];
+    env.action_map.map_into(&u, &space.ddp_action(), &mut a);
+    Ok(space.to_params(&a)?)
+}
+
+/// What chooses the schedule.
+pub enum Controller<'a> {
+    /// One schedule for the whole run.
+    Schedule(Schedule),
+    /// A network run greedily on each step's observation.
+    Policy {
+        /// The network.
+        net: &'a MlpPolicy,
+        /// The environment settings it was trained with.
+        env: EnvConfig,
+        /// Its action space.
+        space: ActionSpace,
+    },
+    /// A network run greedily on observations drawn (seeded per run) from `pool` instead of
+    /// the step's own.
+    Shuffled {
+        /// The network.
+        net: &'a MlpPolicy,
+        /// The environment settings it was trained with.
+        env: EnvConfig,
+        /// Its action space.
+        space: ActionSpace,
+        /// Observations of other steps.
+        pool: &'a [Vec<f32>],
+        /// Seed of the draws.
+        seed: u64,
+    },
+}
+
+/// Where and how often to run.
+pub struct RunSpec<'a> {
+    /// Planner tunables and the episode protocol.
+    pub cfg: &'a EvalConfig,
+    /// Every world, indexed by id.
+    pub worlds: &'a [World],
+    /// The planner.
+    pub planner: PlannerKind,
+    /// Speed cap (m/s).
+    pub speed: f64,
+    /// World ids to run.
+    pub world_ids: &'a [usize],
+    /// Runs per world.
+    pub runs: usize,
+    /// Base seed.
+    pub seed: u64,
+    /// Record the chosen schedule and the clutter of every agent step of run 0 of every
+    /// world (network controllers only).
+    pub trace: bool,
+}
+
+/// Every run of one world, in run order.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct WorldOutcome {
+    /// World id.
+    pub world: usize,
+    /// Runs in run order.
+    pub runs: Vec<EpisodeResult>,
+}
+
+impl WorldOutcome {
+    /// As `adp eval`'s type, for [`crate::eval::summarize`].
+    pub fn to_world_runs(&self) -> WorldRuns {
+        WorldRuns {
+            world: self.world,
+            runs: self.runs.clone(),
+        }
+    }
+}
+
+/// One agent step of a traced run.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TracePoint {
+    /// World id.
+    pub world: usize,
+    /// Local clutter of the step's observation ([`clutter`]).
+    pub clutter: f64,
+    /// The chosen schedule's physical parameters ([`ActionSpace::to_params`]).
+    pub params: Vec<f64>,
+}
+
+/// Results of one controller.
+pub struct Evaluation {
+    /// Per world, every run.
+    pub per_world: Vec<WorldOutcome>,
+    /// The traced steps (empty unless asked for).
+    pub trace: Vec<TracePoint>,
+    /// Observations seen (when collecting; see [`observations`]).
+    pub observations: Vec<Vec<f32>>,
+}
+
+/// Runs `ctrl` on every world and run of `spec`.
+pub fn evaluate(spec: &RunSpec<'_>, ctrl: &Controller<'_>) -> anyhow::Result<Evaluation> {
+    run_all(spec, ctrl, false)
+}
+
+/// Runs `ctrl` (a network) on every world and run of `spec` and returns, besides the
+/// results, every observation it saw, in (world, run, step) order.
+pub fn observations(spec: &RunSpec<'_>, ctrl: &Controller<'_>) -> anyhow::Result<Evaluation> {
+    run_all(spec, ctrl, true)
+}
+
+fn run_all(spec: &RunSpec<'_>, ctrl: &Controller<'_>, collect: bool) -> anyhow::Result<Evaluation> {
+    for &w in spec.world_ids {
+        spec.worlds.get(w).with_context(|| {
+            format!(
+                "world {w} is not in the loaded data ({} worlds)",
+                spec.worlds.len()
+            )
+        })?;
+    }
+    let jobs: Vec<(usize, usize)> = spec
+        .world_ids
+        .iter()
+        .flat_map(|&w| (0..spec.runs).map(move |r| (w, r)))
+        .collect();
+    type RunOut = (EpisodeResult, Vec<TracePoint>, Vec<Vec<f32>>);
+    let results: Vec<RunOut> = jobs
+        .par_iter()
+        .map_init(Scratch::default, |scratch, &(w, r)| {
+            run_one(spec, ctrl, w, r, collect, scratch).with_context(|| format!("world {w}, run {r}"))
+        })
+        .collect::<anyhow::Result<_>>()?;
+    let mut per_world: Vec<WorldOutcome> = Vec::new();
+    let mut trace = Vec::new();
+    let mut observations = Vec::new();
+    for (&(w, _), (res, tr, obs)) in jobs.iter().zip(results) {
+        match per_world.last_mut() {
+            Some(last) if last.world == w => last.runs.push(res),
+            _ => per_world.push(WorldOutcome {
+                world: w,
+                runs: vec![res],
+            }),
+        }
+        trace.extend(tr);
+        observations.extend(obs);
+    }
+    Ok(Evaluation {
+        per_world,
+        trace,
+        observations,
+    })
+}
+
+/// One run; returns its result, its trace (run 0 with `spec.trace`) and, with `collect`,
+/// its observations.
+fn run_one(
+    spec: &RunSpec<'_>,
+    ctrl: &Controller<'_>,
+    w: usize,
+    r: usize,
+    collect: bool,
+    scratch: &mut Scratch,
+) -> anyhow::Result<(EpisodeResult, Vec<TracePoint>, Vec<Vec<f32>>)> {
+    let seed = run_seed(spec.seed, w, r);
+    let world = &spec.worlds[w];
+    let mut planner = spec.planner.build(spec.cfg, seed ^ 0x5eed_91a2);
+    let (net, env, space, pool) = match ctrl {
+        Controller::Schedule(s) => {
+            let (res, _) = run_episode(
+                world,
+                spec.cfg.episode,
+                planner.as_mut(),
+                s,
+                spec.speed,
+                seed,
+                |_, _, _| {},
+            );
+            return Ok((res, Vec::new(), Vec::new()));
+        }
+        Controller::Policy { net, env, space } => (*net, *env, *space, None),
+        Controller::Shuffled {
+            net,
+            env,
+            space,
+            pool,
+            seed: s,
+        } => (*net, *env, *space, Some((*pool, SplitMix64::new(*s ^ seed)))),
+    };
+    let eval_env = EnvConfig {
+        max_agent_steps: u32::MAX,
+        ..env
+    };
+    let mut e = AdpEnv::new(
+        world,
+        spec.cfg.episode,
+        planner,
+        space,
+        spec.speed,
+        eval_env,
+        seed,
+    )?;
+    let mut obs = vec![0.0f32; e.obs_dim()];
+    let mut action = vec![0.0f32; space.dim()];
+    let mut trace = Vec::new();
+    let mut seen = Vec::new();
+    let mut pool = pool;
+    let record = spec.trace && r == 0;
+    while e.end() == End::Continue {
+        e.observation(&mut obs);
+        let input: &[f32] = match &mut pool {
+            Some((p, rng)) if !p.is_empty() => &p[rng.below(p.len())],
+            _ => &obs,
+        };
+        net.act(input, &mut action, scratch);
+        if record {
+            trace.push(TracePoint {
+                world: w,
+                clutter: clutter(&obs, env.laser_clip_m),
+                params: chosen_params(space, &env, &action)?,
+            });
+        }
+        if collect {
+            seen.push(obs.clone());
+        }
+        e.step(&action)?;
+    }
+    Ok((e.result().episode, trace, seen))
+}
+
+/// A seeded reservoir sample (algorithm R) of at most `k` of `items`, in draw order.
+pub fn reservoir<T: Clone>(items: &[T], k: usize, seed: u64) -> Vec<T> {
+    let mut rng = SplitMix64::new(seed);
+    let mut out: Vec<T> = Vec::with_capacity(k.min(items.len()));
+    for (i, item) in items.iter().enumerate() {
+        if out.len() < k {
+            out.push(item.clone());
+        } else {
+            let j = rng.below(i + 1);
+            if j < k {
+                out[j] = item.clone();
+            }
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn clutter_counts_beams_closer_than_a_metre() {
+        let clip = 3.0;
+        let mut obs = vec![actor::observation::encode_range(2.0, clip); 730];
+        for v in obs.iter_mut().take(180) {
+            *v = actor::observation::encode_range(0.5, clip);
+        }
+        // The tail of the observation is not laser.
+        obs[725] = -1.0;
+        assert!((clutter(&obs, clip) - 0.25).abs() < 1e-12);
+    }
+
+    #[test]
+    fn reservoir_keeps_k_distinct_items_reproducibly() {
+        let items: Vec<usize> = (0..1000).collect();
+        let a = reservoir(&items, 10, 5);
+        assert_eq!(a.len(), 10);
+        assert_eq!(a, reservoir(&items, 10, 5));
+        assert_ne!(a, reservoir(&items, 10, 6));
+        assert!(a.iter().any(|&x| x >= 10), "later items get in");
+        assert_eq!(reservoir(&items[..3], 10, 5), vec![0, 1, 2]);
+    }
+
+    /// The state-shuffled policy acts on pool observations, not on its own: a network whose
+    /// output follows the laser chooses other schedules when fed a pool of one
+    /// all-obstacles-close observation.
+    #[test]
+    fn shuffled_policy_differs_from_the_real_one() {
+        let cfg = EvalConfig::load(None).unwrap();
+        let space = ActionSpace::Decremental;
+        // Layer 730 -> 4: output 1 (T) = tanh(0.002 x sum of the laser encodings).
+        let mut flat = vec![0.0f32; 730 * 4];
+        for i in 0..LASER_BEAMS {
+            flat[i * 4 + 1] = 0.002;
+        }
+        flat.extend([0.0f32; 4]);
+        let net = MlpPolicy::from_flat(&[730, 4], flat).unwrap();
+        let spec = RunSpec {
+            cfg: &cfg,
+            worlds: sim::barn::worlds(),
+            planner: PlannerKind::Dwa,
+            speed: 1.5,
+            world_ids: &[3],
+            runs: 1,
+            seed: 9,
+            trace: true,
+        };
+        let env = EnvConfig::default();
+        let real = evaluate(
+            &spec,
+            &Controller::Policy {
+                net: &net,
+                env,
+                space,
+            },
+        )
+        .unwrap();
+        let pool = vec![vec![-1.0f32; 730]];
+        let shuffled = evaluate(
+            &spec,
+            &Controller::Shuffled {
+                net: &net,
+                env,
+                space,
+                pool: &pool,
+                seed: 1,
+            },
+        )
+        .unwrap();
+        let t = |e: &Evaluation| e.trace.iter().map(|p| p.params[1]).collect::<Vec<_>>();
+        let (a, b) = (t(&real), t(&shuffled));
+        assert!(!a.is_empty() && !b.is_empty());
+        // Fed only the pool's observation, every step's output is tanh(-1.44) on T.
+        let want = chosen_params(space, &env, &[0.0, (-1.44f32).tanh(), 0.0, 0.0]).unwrap()[1];
+        assert!(b.iter().all(|&x| (x - want).abs() < 1e-4), "{b:?}");
+        assert!(a.iter().all(|&x| (x - want).abs() > 0.05), "{a:?}");
+        assert_eq!(real.per_world[0].runs.len(), 1);
+    }
+}

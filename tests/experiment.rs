@@ -1,0 +1,264 @@
+//! `adp experiment` end to end on a tiny configuration (2 test worlds, 1 seed, a 200-step
+//! training run, 3 runs per world with 1 trimmed from each end): the report, the results and
+//! PNG figures exist; a resumed experiment skips every finished stage (the trained arm is not
+//! trained again); the learner's greedy evaluations make the learning curves; a changed
+//! experiment file or a second start in the same directory is refused; evaluation in two
+//! shards, merged, equals the unsharded one.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn adp(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_adp"))
+        .args(args)
+        .output()
+        .expect("adp binary runs")
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+const TINY: &str = r#"
+[experiment]
+name = "tiny"
+planners = ["dwa"]
+speeds = [1.5]
+train_worlds = ["150,153"]
+test_worlds = "0,1"
+seeds = 1
+
+[eval]
+runs = 3
+trim = 1
+
+[constant_search]
+worlds = "150,153"
+candidates = 3
+
+[shuffle]
+worlds = "150"
+pool = 64
+
+[stats]
+resamples = 200
+
+[train.run]
+steps = 200
+actors = 1
+
+[train.greedy]
+every_steps = 100
+worlds = "153"
+
+[train.td3]
+actor_hidden = [64, 64]
+critic_hidden = [64, 64]
+batch_size = 32
+warmup_steps = 100
+"#;
+
+fn is_png(path: &Path) -> bool {
+    std::fs::read(path).is_ok_and(|b| b.starts_with(b"\x89PNG\r\n\x1a\n") && b.len() > 1000)
+}
+
+#[test]
+fn tiny_experiment_reports_resumes_and_refuses_mixing() {
+    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("experiment-tiny");
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let config = dir.join("tiny.toml");
+    std::fs::write(&config, TINY).unwrap();
+    let out = dir.join("out");
+    let (c, o) = (config.to_str().unwrap(), out.to_str().unwrap());
+
+    let first = adp(&["experiment", "--config", c, "--out", o]);
+    assert!(first.status.success(), "{}", stderr(&first));
+    assert!(stderr(&first).contains("7 to run"), "{}", stderr(&first));
+    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    for needle in [
+        "## Table I",
+        "| DDP |",
+        "best constant",
+        "untrained (DDP init)",
+        "state-shuffled",
+        "ADP-decremental",
+        "## Paired statistics",
+        "greedy-evaluation learning curves",
+    ] {
+        assert!(report.contains(needle), "report lacks {needle:?}:\n{report}");
+    }
+    let arm = "dwa-decremental-1.5-150_153";
+    for fig in ["learning", "scatter", "clutter", "episode"] {
+        let p = out.join("figures").join(format!("{fig}-{arm}.png"));
+        assert!(is_png(&p), "{} is not a PNG", p.display());
+    }
+    let results: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("results.json")).unwrap()).unwrap();
+    assert_eq!(results[0]["comparisons"].as_array().unwrap().len(), 4);
+
+    // Starting again in the same directory is refused; so is resuming with another file.
+    let again = adp(&["experiment", "--config", c, "--out", o]);
+    assert!(
+        !again.status.success() && stderr(&again).contains("--resume"),
+        "{}",
+        stderr(&again)
+    );
+    let changed = dir.join("changed.toml");
+    std::fs::write(&changed, TINY.replace("candidates = 3", "candidates = 4")).unwrap();
+    let mixed = adp(&[
+        "experiment",
+        "--config",
+        changed.to_str().unwrap(),
+        "--out",
+        o,
+        "--resume",
+    ]);
+    assert!(
+        !mixed.status.success() && stderr(&mixed).contains("differs"),
+        "{}",
+        stderr(&mixed)
+    );
+
+    // A resumed experiment skips every finished stage: nothing is trained or evaluated again.
+    let run_dir = out.join("runs").join(arm).join("seed-0");
+    let marker = std::fs::metadata(run_dir.join("trained.json"))
+        .unwrap()
+        .modified()
+        .unwrap();
+    let adp_file = out.join("eval").join(arm).join("seed-0").join("adp.json");
+    let evaluated = std::fs::metadata(&adp_file).unwrap().modified().unwrap();
+    let resumed = adp(&["experiment", "--config", c, "--out", o, "--resume"]);
+    assert!(resumed.status.success(), "{}", stderr(&resumed));
+    let log = stderr(&resumed);
+    assert!(log.contains("0 to run") && !log.contains("adp train"), "{log}");
+    assert_eq!(
+        std::fs::metadata(run_dir.join("trained.json"))
+            .unwrap()
+            .modified()
+            .unwrap(),
+        marker
+    );
+    assert_eq!(
+        std::fs::metadata(&adp_file).unwrap().modified().unwrap(),
+        evaluated
+    );
+
+    // Sharded evaluation (as the SLURM job runs it) gives the same results once merged: a
+    // copy of the trained experiment evaluates in two shards, then merges and reports.
+    let out2 = dir.join("out2");
+    copy_tree(&out.join("runs"), &out2.join("runs"));
+    copy_tree(&out.join("search"), &out2.join("search"));
+    std::fs::copy(out.join("experiment.toml"), out2.join("experiment.toml")).unwrap();
+    let o2 = out2.to_str().unwrap();
+    for k in ["0/2", "1/2"] {
+        let s = adp(&["experiment", "--config", c, "--out", o2, "--shard", k]);
+        assert!(s.status.success(), "{}", stderr(&s));
+        assert!(!out2.join("report.md").exists());
+    }
+    let merged = adp(&["experiment", "--config", c, "--out", o2, "--resume"]);
+    assert!(merged.status.success(), "{}", stderr(&merged));
+    assert_eq!(
+        stderr(&merged).matches("merged 2 shards").count(),
+        5,
+        "{}",
+        stderr(&merged)
+    );
+    for file in [
+        "eval/ddp-dwa-1.5.json".to_string(),
+        format!("eval/{arm}/constant.json"),
+        format!("eval/{arm}/untrained.json"),
+        format!("eval/{arm}/seed-0/adp.json"),
+        format!("eval/{arm}/seed-0/shuffled.json"),
+    ] {
+        let read = |root: &Path| -> serde_json::Value {
+            serde_json::from_str(&std::fs::read_to_string(root.join(&file)).unwrap()).unwrap()
+        };
+        let (a, b) = (read(&out), read(&out2));
+        assert_eq!(a["per_world"], b["per_world"], "{file}");
+        assert_eq!(a["trace"], b["trace"], "{file}");
+    }
+    assert!(out2.join("report.md").exists());
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// Copies the regular files under `from` to `to`.
+fn copy_tree(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to).unwrap();
+    for e in std::fs::read_dir(from).unwrap() {
+        let e = e.unwrap();
+        let t = e.file_type().unwrap();
+        if t.is_dir() {
+            copy_tree(&e.path(), &to.join(e.file_name()));
+        } else if t.is_file() {
+            std::fs::copy(e.path(), to.join(e.file_name())).unwrap();
+        }
+    }
+}
+
+/// Whether a SLURM cluster answers (`SLURM_CONF`, see tests/slurm.rs); panics when one is
+/// required (`ADP_REQUIRE_SLURM=1`, set by `.ci/run`) and does not.
+fn cluster() -> bool {
+    let conf = std::env::var_os("SLURM_CONF");
+    let answers = conf.is_some()
+        && Command::new("sinfo")
+            .arg("-h")
+            .output()
+            .is_ok_and(|o| o.status.success());
+    if !answers {
+        assert!(
+            std::env::var("ADP_REQUIRE_SLURM").as_deref() != Ok("1"),
+            "ADP_REQUIRE_SLURM=1 but no SLURM cluster answers"
+        );
+        eprintln!("SKIPPED: no SLURM cluster (start one with scripts/slurm-cluster.sh start DIR)");
+    }
+    answers
+}
+
+/// The job `adp experiment --emit-slurm` writes trains, evaluates in two shards, merges and
+/// reports on a real (single-host) cluster. `sbatch --wait` is bounded by the job's time
+/// limit.
+#[test]
+fn emitted_slurm_job_runs_the_experiment() {
+    if !cluster() {
+        return;
+    }
+    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("experiment-slurm");
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let config = dir.join("tiny.toml");
+    let text = TINY.replace(
+        "[stats]",
+        "[slurm]\ntasks = 2\ncpus_per_task = 1\ntime = \"00:10:00\"\n\n[stats]",
+    );
+    std::fs::write(&config, text).unwrap();
+    let out = dir.join("out");
+    let emitted = adp(&[
+        "experiment",
+        "--config",
+        config.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--emit-slurm",
+    ]);
+    assert!(emitted.status.success(), "{}", stderr(&emitted));
+    let script = dir.join("job.sbatch");
+    std::fs::write(&script, &emitted.stdout).unwrap();
+    let submitted = Command::new("sbatch")
+        .args(["--wait", "--parsable"])
+        .arg(&script)
+        .current_dir(&dir)
+        .output()
+        .unwrap();
+    let logs: String = std::fs::read_dir(out.join("logs"))
+        .map(|d| {
+            d.flatten()
+                .map(|e| std::fs::read_to_string(e.path()).unwrap_or_default())
+                .collect()
+        })
+        .unwrap_or_default();
+    assert!(submitted.status.success(), "{}\n{logs}", stderr(&submitted));
+    assert_eq!(logs.matches("merged 2 shards").count(), 5, "{logs}");
+    assert!(out.join("report.md").exists(), "{logs}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
