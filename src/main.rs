@@ -231,6 +231,10 @@ enum Cmd {
         /// Address to listen on (overrides [service] listen), e.g. 0.0.0.0:50051.
         #[arg(long)]
         listen: Option<String>,
+        /// Allow --listen on a non-loopback address without [service.tls] (the token then
+        /// crosses the network in clear text); for trusted networks only.
+        #[arg(long)]
+        allow_insecure_listen: bool,
         /// The run's token file (mode 0600; default: <out>/token, created if missing).
         #[arg(long)]
         token_file: Option<PathBuf>,
@@ -488,6 +492,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 actors,
                 out,
                 listen: None,
+                allow_insecure_listen: false,
             },
             resume,
         ),
@@ -496,6 +501,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             steps,
             out,
             listen,
+            allow_insecure_listen,
             token_file,
             resume,
         } => train::learner(
@@ -505,6 +511,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 actors: None,
                 out,
                 listen,
+                allow_insecure_listen,
             },
             resume,
             token_file.as_deref(),

@@ -361,12 +361,13 @@ pub fn script(input: &ScriptInput<'_>) -> String {
     let _ = writeln!(w, "OTHER_NODES=$((SLURM_JOB_NUM_NODES - 1))\n");
     let _ = writeln!(
         w,
-        "# 4. A requeued job (SLURM_RESTART_COUNT > 0) continues the run from its newest valid\n\
-         #    checkpoint: same run id, step counters and TensorBoard curves."
+        "# 4. A run directory with a complete checkpoint is continued from its newest valid one (a\n\
+         #    requeued job, and also a fresh sbatch on a cancelled or finished run): same run id,\n\
+         #    step counters and TensorBoard curves. A finished run stops at once unless --steps grew."
     );
     let _ = writeln!(
         w,
-        "RESUME=()\nif [ \"${{SLURM_RESTART_COUNT:-0}}\" -gt 0 ] && compgen -G \"$RUN_DIR/checkpoints/ckpt-*\" > /dev/null; then\n    RESUME=(--resume)\nfi\n\
+        "RESUME=()\nif compgen -G \"$RUN_DIR/checkpoints/ckpt-*/COMPLETE\" > /dev/null; then\n    RESUME=(--resume)\nfi\n\
          echo \"adp job $SLURM_JOB_ID (restart ${{SLURM_RESTART_COUNT:-0}}): learner on $LEARNER_HOST:$PORT ${{RESUME[*]}}\"\n"
     );
     if s.requeue {
@@ -392,13 +393,23 @@ pub fn script(input: &ScriptInput<'_>) -> String {
             "on_time_limit() {{\n    echo \"time limit near: stopping the learner\"\n    kill -TERM \"$LEARNER_PID\"\n}}\ntrap on_time_limit USR1\n"
         );
     }
-    let _ = writeln!(w, "# 6. The learner: one task on the first node.");
+    let insecure = if cfg.service.tls.is_none() {
+        let _ = writeln!(
+            w,
+            "# 6. The learner: one task on the first node. No [service.tls]: the token crosses the\n\
+             #    cluster network in clear text (--allow-insecure-listen); configure TLS on shared networks."
+        );
+        " --allow-insecure-listen"
+    } else {
+        let _ = writeln!(w, "# 6. The learner: one task on the first node.");
+        ""
+    };
     let _ = writeln!(
         w,
         "RAYON_NUM_THREADS=$LEARNER_CPUS srun --nodes=1 --ntasks=1 --nodelist=\"$LEARNER_HOST\" \\\n    \
          --cpus-per-task=\"$LEARNER_CPUS\" --mem={}M --output=\"$RUN_DIR/logs/learner.log\" \\\n    \
          \"$ADP\" learner --config \"$RUN_DIR/job-config.toml\" --out \"$RUN_DIR\" \\\n    \
-         --listen \"0.0.0.0:$PORT\" --token-file \"$RUN_DIR/token\" \"${{RESUME[@]}}\" &\nLEARNER_PID=$!\n",
+         --listen \"0.0.0.0:$PORT\"{insecure} --token-file \"$RUN_DIR/token\" \"${{RESUME[@]}}\" &\nLEARNER_PID=$!\n",
         s.learner_mem_mb
     );
     let _ = writeln!(
@@ -693,6 +704,29 @@ mod tests {
         let start = text.find("<<'ADP_CONFIG'\n").unwrap() + "<<'ADP_CONFIG'\n".len();
         let end = text[start..].find("ADP_CONFIG\n").unwrap() + start;
         assert_eq!(TrainConfig::parse("embedded", &text[start..end]).unwrap(), c);
+    }
+
+    #[test]
+    fn any_job_on_a_run_with_a_checkpoint_resumes_and_plain_listen_is_explicit() {
+        let mut c = cfg();
+        let text = gen(&c);
+        // A fresh sbatch on a cancelled or finished run resumes too (not only a requeue).
+        assert!(
+            text.contains("if compgen -G \"$RUN_DIR/checkpoints/ckpt-*/COMPLETE\""),
+            "{text}"
+        );
+        assert!(!text.contains("SLURM_RESTART_COUNT:-0}\" -gt 0"), "{text}");
+        assert!(
+            text.contains("--listen \"0.0.0.0:$PORT\" --allow-insecure-listen"),
+            "{text}"
+        );
+        c.service.tls = Some(proto::auth::TlsFiles {
+            cert: Some("/etc/adp/learner.pem".into()),
+            key: Some("/etc/adp/learner.key".into()),
+            ca: None,
+            domain: None,
+        });
+        assert!(!gen(&c).contains("--allow-insecure-listen"));
     }
 
     #[test]

@@ -225,6 +225,8 @@ pub struct Overrides {
     pub out: Option<PathBuf>,
     /// `--listen` (learner only).
     pub listen: Option<String>,
+    /// `--allow-insecure-listen` (learner only).
+    pub allow_insecure_listen: bool,
 }
 
 fn prepare(config: Option<&Path>, o: &Overrides, resume: bool) -> anyhow::Result<(TrainConfig, PathBuf)> {
@@ -238,6 +240,9 @@ fn prepare(config: Option<&Path>, o: &Overrides, resume: bool) -> anyhow::Result
     if let Some(l) = &o.listen {
         cfg.service.listen = l.clone();
     }
+    cfg.service.allow_insecure_listen |= o.allow_insecure_listen;
+    // Refuse an unusable [service] before anything is created.
+    cfg.service.check().map_err(anyhow::Error::msg)?;
     let out = o
         .out
         .clone()

@@ -31,6 +31,7 @@ use std::sync::{Mutex, MutexGuard};
 use std::time::Duration;
 
 use adp_learner::service::{read_addr, read_status, Status};
+use proto::pb;
 
 mod common;
 use common::{adp, fresh_dir, refused, status};
@@ -310,10 +311,15 @@ impl Drop for Procs {
     }
 }
 
-/// Checks that hold at the end of every run: each stored step was counted once, every verified
-/// episode matched its actor's checksum.
+/// Checks that hold at the end of every run: each stored step is in the replay buffer, every
+/// verified episode matched its actor's checksum, and no episode is both verified and refused.
 fn assert_consistent(s: &Status, procs: &Procs) {
-    assert_eq!(s.steps_received, s.inserts, "{}", procs.report());
+    assert!(s.replay_len as u64 >= s.inserts, "{}", procs.report());
+    assert!(
+        s.episodes_verified + s.episodes_mismatched <= s.episodes,
+        "{}",
+        procs.report()
+    );
     assert_eq!(s.episodes_mismatched, 0, "{}", procs.report());
     assert!(s.episodes_verified > 0, "{}", procs.report());
     assert!(s.inserts >= s.budget && s.finished, "{}", procs.report());
@@ -679,4 +685,338 @@ fn learner_and_actors_in_two_network_namespaces_train_over_grpc() {
     }
     assert_eq!(refused_total(&s), 0, "{}", procs.report());
     assert_eq!(s.leases_expired, 0, "{}", procs.report());
+}
+
+/// A hand-made actor (what a third-party client could send), for the data-refusal tests.
+mod fake {
+    use proto::grpc::{ControlClient, DataClient, LearnerAddress};
+    use proto::pb;
+    use proto::StepView;
+    use std::time::Duration;
+
+    pub const OBS_DIM: usize = 730;
+
+    pub struct Actor {
+        pub control: ControlClient,
+        pub data: DataClient,
+        pub run: pb::RunRef,
+        pub id: u64,
+    }
+
+    pub async fn register(addr: &str, token: &str, rank: u32) -> Actor {
+        let a = LearnerAddress {
+            addr: addr.to_owned(),
+            token: Some(token.to_owned()),
+            tls: None,
+        };
+        let (mut control, data) = a.connect().await.unwrap();
+        let reply = control
+            .register(pb::RegisterRequest {
+                rank,
+                host: "test".into(),
+                pid: 1,
+                ..Default::default()
+            })
+            .await
+            .unwrap()
+            .into_inner();
+        Actor {
+            control,
+            data,
+            run: reply.run.unwrap(),
+            id: reply.actor_id,
+        }
+    }
+
+    impl Actor {
+        /// Asks until an assignment comes (a watchdog of `polls` tries).
+        pub async fn assignment(&mut self, polls: u32) -> pb::Assignment {
+            for _ in 0..polls {
+                let r = self
+                    .control
+                    .next_assignment(pb::AssignmentRequest {
+                        run: Some(self.run.clone()),
+                        actor_id: self.id,
+                    })
+                    .await
+                    .unwrap()
+                    .into_inner();
+                if let Some(pb::assignment_reply::Decision::Assign(a)) = r.decision {
+                    return a;
+                }
+                tokio::time::sleep(Duration::from_millis(100)).await;
+            }
+            panic!("watchdog: no assignment");
+        }
+
+        /// Sends `steps` under `lease` in one batch; returns the learner's ack.
+        pub async fn push(&mut self, lease: u64, steps: Vec<pb::StepRecord>) -> pb::Ack {
+            let batch = pb::StepBatch {
+                run: Some(self.run.clone()),
+                actor_id: self.id,
+                lease_id: lease,
+                steps,
+            };
+            self.data
+                .push_steps(tokio_stream::iter(vec![batch]))
+                .await
+                .unwrap()
+                .into_inner()
+        }
+
+        pub async fn heartbeat(&mut self, lease: u64) -> pb::HeartbeatReply {
+            self.control
+                .heartbeat(pb::HeartbeatRequest {
+                    run: Some(self.run.clone()),
+                    actor_id: self.id,
+                    lease_id: lease,
+                })
+                .await
+                .unwrap()
+                .into_inner()
+        }
+
+        pub async fn report(&mut self, r: pb::EpisodeReport) -> Result<pb::Ack, tonic::Status> {
+            self.control
+                .report_episode(pb::EpisodeReport {
+                    run: Some(self.run.clone()),
+                    actor_id: self.id,
+                    ..r
+                })
+                .await
+                .map(|r| r.into_inner())
+        }
+    }
+
+    /// Step `index` of `episode` (reward -0.5 unless given) and its checksum.
+    pub fn step(episode: u64, index: u32, reward: f32, terminal: bool) -> (pb::StepRecord, u64) {
+        let obs = vec![0.25f32; OBS_DIM];
+        let action = [0.1f32; 4];
+        let sum = proto::checksum::step_checksum(&StepView {
+            episode_id: episode,
+            step_index: index,
+            policy_version: 0,
+            obs: &obs,
+            action: &action,
+            reward,
+            terminal,
+            truncated: false,
+            final_obs: &[],
+        });
+        let record = pb::StepRecord {
+            episode_id: episode,
+            step_index: index,
+            policy_version: 0,
+            obs: proto::floats::encode(&obs).into(),
+            action: proto::floats::encode(&action).into(),
+            reward,
+            terminal,
+            truncated: false,
+            final_obs: Vec::new().into(),
+        };
+        (record, sum)
+    }
+
+    /// A whole episode of `n` steps ending in a terminal step, and its checksum.
+    pub fn episode(episode: u64, n: u32) -> (Vec<pb::StepRecord>, u64) {
+        let mut sum = 0u64;
+        let steps = (0..n)
+            .map(|i| {
+                let (r, s) = step(episode, i, -0.5, i + 1 == n);
+                sum = sum.wrapping_add(s);
+                r
+            })
+            .collect();
+        (steps, sum)
+    }
+}
+
+/// Issue 16's two user scenarios, plus the run directory's guards: a NaN report is refused and
+/// the run resumes; a lease with a refused step ends (its actor is told why, the cycle
+/// advances) although its actor keeps heartbeating; a checksum mismatch is produced and
+/// detected; a second learner on the run directory and a plain-text non-loopback listen are
+/// refused; the replay buffer comes back whole on resume.
+#[test]
+fn refused_data_and_nan_reports_neither_stall_nor_break_the_run() {
+    let _turn = take_turn();
+    let dir = fresh_dir("faults-refused-data");
+    let run = dir.join("run");
+    let cfg = write_config(
+        &dir,
+        &TestConfig {
+            shared_memory: false,
+            lease_ttl_ms: 2000,
+            checkpoint_every_s: 600.0,
+        },
+    );
+    // A non-loopback address without TLS: one line naming the flag that allows it.
+    let out = learner_cmd(&[], &cfg, &dir.join("insecure"), 1000, "0.0.0.0:0", false)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{err}");
+    assert!(
+        err.contains("--allow-insecure-listen") && err.trim().lines().count() == 1,
+        "{err}"
+    );
+    assert!(
+        !dir.join("insecure").exists(),
+        "nothing is created for a refused start"
+    );
+
+    let mut procs = Procs::new(&dir, &run);
+    let learner = procs.spawn(
+        "learner",
+        learner_cmd(&[], &cfg, &run, 100_000, "127.0.0.1:0", false),
+    );
+    procs.wait_for("learner.addr", PATIENCE, |_| run.join("learner.addr").is_file());
+    procs.wait_for("the first status", PATIENCE, |_| status(&run).is_some());
+    let addr = read_addr(&run).unwrap();
+    let token = proto::auth::read_token_file(&run.join("token")).unwrap();
+
+    // A second learner on the same run directory is refused and leaves the first one's socket.
+    let second = learner_cmd(&[], &cfg, &run, 100_000, "127.0.0.1:0", true)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&second.stderr);
+    assert!(!second.status.success(), "{err}");
+    assert!(err.contains("in use by another learner"), "{err}");
+    assert!(
+        run.join("learner.sock").exists(),
+        "the first learner's socket was removed"
+    );
+
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    rt.block_on(async {
+        // Scenario 2: one refused step, an actor that keeps heartbeating.
+        let mut a = fake::register(&addr, &token, 90).await;
+        let lease = a.assignment(PATIENCE).await;
+        let first = lease.first_episode_id;
+        let ack = a
+            .push(
+                lease.lease_id,
+                vec![
+                    fake::step(first, 0, -0.5, false).0,
+                    fake::step(first, 1, f32::NAN, false).0,
+                ],
+            )
+            .await;
+        assert_eq!((ack.accepted, ack.refused), (1, 1), "{ack:?}");
+        let mut told = None;
+        for _ in 0..PATIENCE {
+            let r = a.heartbeat(lease.lease_id).await;
+            if !r.lease_valid {
+                told = Some(r.lease_lost_reason);
+                break;
+            }
+            tokio::time::sleep(POLL).await;
+        }
+        let told = told.unwrap_or_else(|| panic!("watchdog: the lease stayed valid{}", procs.report()));
+        assert!(told.contains("not finite"), "{told}");
+
+        // A checksum mismatch is detected; a NaN report is refused; a good one verifies.
+        let mut b = fake::register(&addr, &token, 91).await;
+        let lease = b.assignment(PATIENCE).await;
+        let first = lease.first_episode_id;
+        let report = |episode_id, steps, steps_checksum, episode_return| pb::EpisodeReport {
+            lease_id: lease.lease_id,
+            episode_id,
+            steps,
+            steps_checksum,
+            episode_return,
+            score: 0.0,
+            time_s: 5.0,
+            outcome: pb::Outcome::Collision as i32,
+            ..Default::default()
+        };
+        let (steps, sum) = fake::episode(first, 3);
+        assert_eq!(b.push(lease.lease_id, steps).await.accepted, 3);
+        b.report(report(first, 3, sum ^ 1, -1.5)).await.unwrap();
+        let (steps, sum) = fake::episode(first + 1, 2);
+        assert_eq!(b.push(lease.lease_id, steps).await.accepted, 2);
+        let e = b.report(report(first + 1, 2, sum, f64::NAN)).await.unwrap_err();
+        assert_eq!(e.code(), tonic::Code::InvalidArgument, "{e}");
+        assert!(e.message().contains("episode_return"), "{e}");
+        b.report(report(first + 1, 2, sum, -1.0)).await.unwrap();
+    });
+    procs.wait_for("the counters of the refusals", PATIENCE, |_| {
+        status(&run).is_some_and(|s| {
+            s.leases_dropped == 1
+                && s.episodes_mismatched == 1
+                && s.episodes_verified == 1
+                && s.open_leases == 0
+                && s.cycle >= 1
+                && refused(&s, "not_finite") == 2
+        })
+    });
+    let before = status(&run).unwrap();
+    assert_eq!(before.leases_expired, 0, "{before:?}");
+    assert!(before.mean_return.is_some_and(f64::is_finite), "{before:?}");
+
+    // SIGTERM: checkpoint and exit; the run resumes with its buffer.
+    procs.signal(learner, libc::SIGTERM);
+    let code = procs.wait_exit(learner, PATIENCE);
+    assert!(code.success(), "{code:?}{}", procs.report());
+    let stopped = read_status(&run).unwrap();
+    let resumed = procs.spawn(
+        "learner-resumed",
+        learner_cmd(&[], &cfg, &run, 100_000, "127.0.0.1:0", true),
+    );
+    procs.wait_for("the resumed learner's status", PATIENCE, |_| {
+        status(&run).is_some_and(|s| s.incarnation != stopped.incarnation)
+    });
+    let s = read_status(&run).unwrap();
+    assert_eq!(s.run_id, stopped.run_id);
+    assert_eq!(s.replay_len, stopped.replay_len, "the replay buffer is restored");
+    assert!(s.replay_len >= 6, "{s:?}");
+    assert_eq!((s.episodes_mismatched, s.episodes_verified), (1, 1), "{s:?}");
+    assert!(s.resume_warnings.is_empty(), "{s:?}");
+    procs.signal(resumed, libc::SIGTERM);
+    let code = procs.wait_exit(resumed, PATIENCE);
+    assert!(code.success(), "{code:?}{}", procs.report());
+}
+
+/// A checkpoint on a slow filesystem (stood in for by `ADP_TEST_SLOW_CHECKPOINT_MS`, longer
+/// than a lease's TTL) no longer stops heartbeats: no lease expires across checkpoints.
+#[test]
+fn no_lease_expires_across_a_slow_checkpoint() {
+    let _turn = take_turn();
+    let dir = fresh_dir("faults-slow-checkpoint");
+    let run = dir.join("run");
+    let cfg = write_config(
+        &dir,
+        &TestConfig {
+            shared_memory: false,
+            lease_ttl_ms: 1500,
+            checkpoint_every_s: 1.0,
+        },
+    );
+    let mut procs = Procs::new(&dir, &run);
+    let mut cmd = learner_cmd(&[], &cfg, &run, 100_000, "127.0.0.1:0", false);
+    cmd.env("ADP_TEST_SLOW_CHECKPOINT_MS", "4000");
+    let learner = procs.spawn("learner", cmd);
+    procs.wait_for("learner.addr", PATIENCE, |_| run.join("learner.addr").is_file());
+    let addr = read_addr(&run).unwrap();
+    let token = run.join("token");
+    for rank in 0..2 {
+        procs.spawn(
+            &format!("actor{rank}"),
+            actor_cmd(&[], &addr, &token, rank, "grpc"),
+        );
+    }
+    let checkpoints = |_: &Procs| {
+        adp_learner::retention::complete_checkpoints(&run.join("checkpoints")).map_or(0, |c| c.len())
+    };
+    procs.wait_for("steps", PATIENCE, |_| {
+        status(&run).is_some_and(|s| s.steps_received > 0)
+    });
+    procs.wait_for("two slow checkpoints", PATIENCE, |p| checkpoints(p) >= 2);
+    let s = read_status(&run).unwrap();
+    assert_eq!(s.leases_expired, 0, "{}", procs.report());
+    assert_eq!(s.leases_dropped, 0, "{}", procs.report());
+    procs.may_exit(1);
+    procs.may_exit(2);
+    procs.signal(learner, libc::SIGTERM);
+    let code = procs.wait_exit(learner, PATIENCE);
+    assert!(code.success(), "{code:?}{}", procs.report());
 }

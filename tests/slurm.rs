@@ -156,7 +156,8 @@ fn slurm_job_trains_with_every_actor_task_and_exports() {
     wait_completed(&id, &run, 0);
     let s = read_status(&run).unwrap();
     assert!(s.finished && s.inserts >= 600, "{s:?}");
-    assert_eq!(s.steps_received, s.inserts);
+    assert!(s.replay_len as u64 >= s.inserts, "{s:?}");
+    assert_eq!(s.episodes_verified, s.episodes, "{s:?}");
     assert_eq!(s.episodes_mismatched, 0, "{s:?}");
     assert_every_rank_sent_steps(&s, 3, &run);
     let checkpoints: Vec<_> = std::fs::read_dir(run.join("checkpoints"))
@@ -214,9 +215,9 @@ fn requeued_slurm_job_resumes_the_same_run() {
         "a new learner process served it"
     );
     assert!(after.finished && after.inserts >= budget, "{after:?}");
-    assert_eq!(
-        after.steps_received, after.inserts,
-        "the step counters continued: {after:?}"
+    assert!(
+        after.steps_received > before.steps_received && after.replay_len >= before.replay_len,
+        "the step counters and the replay buffer continued: {after:?}"
     );
     assert_every_rank_sent_steps(&after, 3, &run);
     let learner_log = std::fs::read_to_string(run.join("logs/learner.log")).unwrap();

@@ -193,6 +193,7 @@ fn session(
             host: proto::hostname(),
             pid: std::process::id(),
             run_id: String::new(),
+            actor_kind: "rust".into(),
         }))
         .map_err(|s| format!("register: {}", status_text(&s)))?
         .into_inner();

@@ -26,6 +26,14 @@ use crate::validate::StepView;
 /// 64 records about 190 KB).
 pub const MAX_MESSAGE_BYTES: usize = 64 << 20;
 
+/// Largest data-plane request the learner accepts: a `StepBatch` of [`BATCH_RECORDS`] records is
+/// about 190 KB (twice that if every record is truncated and carries `final_obs`).
+pub const MAX_REQUEST_BYTES: usize = 1 << 20;
+
+/// Largest control-plane request the learner accepts (registrations, heartbeats, reports are
+/// a few hundred bytes).
+pub const MAX_CONTROL_REQUEST_BYTES: usize = 64 << 10;
+
 /// Step records per `StepBatch` message.
 pub const BATCH_RECORDS: usize = 64;
 

@@ -152,6 +152,14 @@ pub enum Refusal {
         /// What it should be.
         expected: &'static str,
     },
+    /// A free-text field of a registration that is too long or not printable.
+    #[error("field `{field}`: {why}")]
+    Name {
+        /// The field.
+        field: &'static str,
+        /// What is wrong.
+        why: String,
+    },
     /// `terminal` and `truncated` together, or `final_obs` without `truncated`.
     #[error("incoherent episode end: {0}")]
     BadEnd(&'static str),
@@ -225,7 +233,7 @@ impl Refusal {
             Self::UnknownActor(..) => RefusalKind::Actor,
             Self::Lease(..) => RefusalKind::Lease,
             Self::Episode(..) => RefusalKind::Episode,
-            Self::Shape { .. } | Self::Malformed(_) => RefusalKind::Shape,
+            Self::Shape { .. } | Self::Malformed(_) | Self::Name { .. } => RefusalKind::Shape,
             Self::NotFinite { .. } => RefusalKind::NotFinite,
             Self::Report { value, .. } if !value.is_finite() => RefusalKind::NotFinite,
             Self::OutOfRange { .. }
@@ -382,6 +390,46 @@ fn check_obs(field: &'static str, obs: &[f32], s: &Spaces) -> Result<(), Refusal
         }),
         other => other,
     }
+}
+
+/// Longest `host` (and other free-text identity strings) a registration may carry.
+pub const MAX_NAME_BYTES: usize = 255;
+
+/// Checks a free-text identity string of a registration (`host`): at most
+/// [`MAX_NAME_BYTES`] bytes, printable ASCII without control characters (it ends up in logs).
+pub fn check_name(field: &'static str, value: &str) -> Result<(), Refusal> {
+    if value.len() > MAX_NAME_BYTES {
+        return Err(Refusal::Name {
+            field,
+            why: format!("{} bytes, at most {MAX_NAME_BYTES} allowed", value.len()),
+        });
+    }
+    if let Some(c) = value.chars().find(|c| !(c.is_ascii_graphic() || *c == ' ')) {
+        return Err(Refusal::Name {
+            field,
+            why: format!("contains {c:?}; only printable ASCII is allowed"),
+        });
+    }
+    Ok(())
+}
+
+/// Longest `actor_kind` a registration may carry.
+pub const MAX_KIND_BYTES: usize = 32;
+
+/// The actor kind a registration names: `"unknown"` when empty, else checked to be at most
+/// [`MAX_KIND_BYTES`] printable ASCII bytes without spaces.
+pub fn actor_kind(value: &str) -> Result<&str, Refusal> {
+    if value.is_empty() {
+        return Ok("unknown");
+    }
+    check_name("actor_kind", value)?;
+    if value.len() > MAX_KIND_BYTES || value.contains(' ') {
+        return Err(Refusal::Name {
+            field: "actor_kind",
+            why: format!("{value:?}: at most {MAX_KIND_BYTES} bytes without spaces"),
+        });
+    }
+    Ok(value)
 }
 
 /// Checks the numbers of an episode report (run, actor and lease are checked by the learner):
@@ -603,6 +651,22 @@ mod tests {
             let e = check_report(&r).unwrap_err();
             assert_eq!(e.kind(), kind, "{e}");
             assert!(e.to_string().contains(&format!("`{field}`")), "{e}");
+        }
+    }
+
+    #[test]
+    fn registration_names_are_short_and_printable() {
+        check_name("host", "node-17.cluster").unwrap();
+        check_name("host", "").unwrap();
+        let e = check_name("host", &"x".repeat(300)).unwrap_err();
+        assert!(e.to_string().contains("300 bytes"), "{e}");
+        let e = check_name("host", "evil\nlearner: fake log line").unwrap_err();
+        assert!(e.to_string().contains("printable"), "{e}");
+        assert_eq!(actor_kind("").unwrap(), "unknown");
+        assert_eq!(actor_kind("python").unwrap(), "python");
+        for bad in ["two words", "x\u{7}", &"k".repeat(33)] {
+            let e = actor_kind(bad).unwrap_err();
+            assert!(e.to_string().contains("actor_kind"), "{e}");
         }
     }
 

@@ -8,6 +8,7 @@ import json
 import os
 import signal
 import struct
+import subprocess
 import time
 
 import grpc
@@ -20,7 +21,7 @@ from adp_client import ConfigError, Connection, MlpPolicy, Session, StepsRefused
 from adp_client._proto import adp_pb2 as pb
 from adp_client.actor import _Reconnect
 
-from conftest import Learner, free_port, refused, spawn_actor, wait_exit, wait_for
+from conftest import Learner, adp_bin, free_port, refused, spawn_actor, wait_exit, wait_for
 
 
 @pytest.fixture(scope="module")
@@ -265,3 +266,45 @@ def test_lease_loss_and_refused_data(tmp_path):
     logs = [(tmp_path / f"actor{r}.log").read_text() for r in range(2)]
     assert codes == [0, 0], logs
     assert "lease" in logs[1] or "reconnecting" in logs[1], logs[1]
+
+
+def test_mixed_fleet_counts_per_actor_kind(tmp_path):
+    """A Rust actor (`adp actor`) and a Python actor in the same run: status.json counts
+    registrations, live actors, episodes and steps per actor kind."""
+    learner = Learner(tmp_path, steps=400)
+    rust_log = open(tmp_path / "rust-actor.log", "w")
+    rust = subprocess.Popen(
+        [str(adp_bin()), "actor", "--learner", learner.addr, "--data-plane", "grpc", "--rank", "1",
+         "--token-file", str(learner.token)],
+        stdout=rust_log, stderr=subprocess.STDOUT,
+    )
+    python = spawn_actor(learner.addr, learner.token, 0, tmp_path / "python-actor.log")
+
+    def kinds(s):
+        return {k["kind"]: k for k in (s or {}).get("actor_kinds", [])}
+
+    try:
+        wait_for("both kinds registered and live",
+                 lambda: (k := kinds(learner.status())) and all(
+                     k.get(kind, {}).get("active") == 1 for kind in ("rust", "python")))
+        wait_for("episodes from both kinds",
+                 lambda: (k := kinds(learner.status())) and all(
+                     k.get(kind, {}).get("episodes", 0) >= 1 for kind in ("rust", "python")))
+        s = learner.wait_finished()
+        assert wait_exit(python, "the Python actor to exit") == 0, (tmp_path / "python-actor.log").read_text()
+        assert wait_exit(rust, "the Rust actor to exit") == 0, (tmp_path / "rust-actor.log").read_text()
+    finally:
+        for p in (rust, python):
+            if p.poll() is None:
+                p.kill()
+                p.wait()
+        rust_log.close()
+        learner.stop()
+    k = kinds(s)
+    assert set(k) == {"rust", "python"}, s["actor_kinds"]
+    for kind in ("rust", "python"):
+        assert k[kind]["registered"] >= 1 and k[kind]["steps"] > 0 and k[kind]["episodes"] >= 1, k
+    # Every stored step and every accepted episode is counted under exactly one kind.
+    assert sum(x["steps"] for x in k.values()) == s["steps_received"], s
+    assert sum(x["episodes"] for x in k.values()) == s["episodes"], s
+    assert s["episodes_mismatched"] == 0, s

@@ -71,14 +71,24 @@ impl Control for ControlService {
             self.shared.refuse(&why, 1);
             return Err(refusal_status(&why));
         }
+        let kind = match proto::validate::check_name("host", &r.host)
+            .and_then(|()| proto::validate::actor_kind(&r.actor_kind))
+        {
+            Ok(kind) => kind,
+            Err(why) => {
+                self.shared.refuse(&why, 1);
+                return Err(refusal_status(&why));
+            }
+        };
         let now = self.shared.now_ms();
-        let actor_id = self
-            .shared
-            .lock()
-            .registry
-            .register(r.rank, r.host.clone(), r.pid, now);
+        let actor_id = {
+            let mut core = self.shared.lock();
+            let id = core.registry.register(r.rank, r.host.clone(), r.pid, now);
+            core.registered(id, kind);
+            id
+        };
         eprintln!(
-            "learner: actor {actor_id} registered (rank {}, {} pid {})",
+            "learner: actor {actor_id} registered (rank {}, {kind} actor, {} pid {})",
             r.rank, r.host, r.pid
         );
         Ok(Response::new(pb::RegisterReply {

@@ -47,6 +47,19 @@ struct LeaseTrack {
     progress_ms: u64,
     /// Why the lease can no longer finish (a step of one of its episodes was refused), if so.
     broken: Option<String>,
+    /// The actor's kind (`rust`, `python`, ...).
+    kind: String,
+}
+
+/// Counters of one actor kind (checkpointed with [`Totals`]).
+#[derive(Debug, Clone, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct KindTotals {
+    /// Registrations (a re-registration after a learner restart counts again).
+    pub registered: u64,
+    /// Episodes reported and accepted.
+    pub episodes: u64,
+    /// Step records stored.
+    pub steps: u64,
 }
 
 /// Dropped leases remembered with the reason (told to their actors on their next heartbeat).
@@ -102,6 +115,9 @@ pub struct Totals {
     /// Step records stored per actor rank (every task of a cluster job shows up here).
     #[serde(default)]
     pub rank_steps: BTreeMap<u32, u64>,
+    /// Counters per actor kind (`rust`, `python`, `unknown`, ...).
+    #[serde(default)]
+    pub kinds: BTreeMap<String, KindTotals>,
 }
 
 impl Totals {
@@ -137,6 +153,8 @@ pub struct Core {
     leases: HashMap<u64, LeaseTrack>,
     /// Recently dropped leases and why, oldest first (bounded by [`DROPPED_REMEMBERED`]).
     dropped: VecDeque<(u64, String)>,
+    /// The kind of every actor registered with this learner process, by actor id.
+    actor_kinds: HashMap<u64, String>,
     /// No more assignments: the budget is stored or a stop was requested.
     pub stopping: bool,
     /// Stop now (signal, shutdown call) rather than after the owed updates.
@@ -306,6 +324,7 @@ impl Shared {
     pub fn open_lease(core: &mut Core, lease_id: u64, actor: u64, episodes: u32, now_ms: u64) -> u64 {
         let first = first_episode_id(lease_id, episodes);
         let rank = core.registry.rank_of(actor).unwrap_or(u32::MAX);
+        let kind = core.kind_of(actor).to_owned();
         core.leases.insert(
             lease_id,
             LeaseTrack {
@@ -315,6 +334,7 @@ impl Shared {
                 episodes,
                 progress_ms: now_ms,
                 broken: None,
+                kind,
             },
         );
         first
@@ -374,6 +394,14 @@ impl Shared {
         }
         if let Some(lease) = core.leases.get_mut(&r.lease_id) {
             lease.progress_ms = now;
+        }
+        let core = &mut *core;
+        if let Some(kind) = core
+            .leases
+            .get(&r.lease_id)
+            .and_then(|l| core.totals.kinds.get_mut(l.kind.as_str()))
+        {
+            kind.episodes += 1;
         }
         core.verify_episode(r.episode_id);
         core.try_finish(r.lease_id, now);
@@ -460,6 +488,7 @@ impl Core {
             episodes: HashMap::new(),
             leases: HashMap::new(),
             dropped: VecDeque::new(),
+            actor_kinds: HashMap::new(),
             stopping: false,
             abort: false,
         }
@@ -555,6 +584,9 @@ impl Core {
         self.lag.1 += 1;
         if let Some(lease) = self.leases.get_mut(&header.lease_id) {
             lease.progress_ms = now;
+            if let Some(kind) = self.totals.kinds.get_mut(lease.kind.as_str()) {
+                kind.steps += 1;
+            }
         }
         Ok(ended)
     }
@@ -574,6 +606,26 @@ impl Core {
                 lease.broken = Some(why.to_string());
             }
         }
+    }
+
+    /// Records a registration of `actor` as `kind`.
+    pub fn registered(&mut self, actor: u64, kind: &str) {
+        self.actor_kinds.insert(actor, kind.to_owned());
+        self.totals.kinds.entry(kind.to_owned()).or_default().registered += 1;
+    }
+
+    /// The kind `actor` registered as (`unknown` if it is not known here).
+    pub fn kind_of(&self, actor: u64) -> &str {
+        self.actor_kinds.get(&actor).map_or("unknown", String::as_str)
+    }
+
+    /// Live actors per kind.
+    pub fn active_by_kind(&self) -> BTreeMap<String, usize> {
+        let mut active = BTreeMap::new();
+        for a in self.registry.actors().iter().filter(|a| a.live) {
+            *active.entry(self.kind_of(a.id).to_owned()).or_default() += 1;
+        }
+        active
     }
 
     fn remember_dropped(&mut self, lease: u64, why: String) {

@@ -28,7 +28,7 @@ use scheduler::{Registry, RegistryConfig, RegistrySnapshot};
 use tokio::sync::watch;
 
 pub use config::{LearnerOptions, ServiceConfig};
-pub use status::{read_status, Status, STATUS_FILE};
+pub use status::{read_status, KindStatus, Status, STATUS_FILE};
 pub use trainer::TrainSummary;
 
 use self::core::{Core, Shared, Totals};
@@ -110,6 +110,33 @@ fn load_resume_state(ckpt: &Path, registry_cfg: &RegistryConfig) -> Result<Resum
         totals,
         replay,
     })
+}
+
+/// Loads the newest of `candidates` (complete checkpoints, oldest first) that loads fully;
+/// each one skipped is logged as a warning and returned with the reason.
+fn newest_usable(
+    candidates: &[(u64, PathBuf)],
+    registry_cfg: &RegistryConfig,
+) -> Result<(PathBuf, ResumeState, Vec<String>), String> {
+    let mut warnings = Vec::new();
+    for (_, ckpt) in candidates.iter().rev() {
+        match load_resume_state(ckpt, registry_cfg) {
+            Ok(state) => return Ok((ckpt.clone(), state, warnings)),
+            Err(e) => {
+                let warning = format!(
+                    "checkpoint {} is unusable ({e}); falling back to the previous one",
+                    ckpt.display()
+                );
+                eprintln!("learner: WARNING: {warning}");
+                warnings.push(warning);
+            }
+        }
+    }
+    Err(format!(
+        "none of the {} checkpoints is usable: {}",
+        candidates.len(),
+        warnings.join("; ")
+    ))
 }
 
 /// The lock file a learner holds in its run directory.
@@ -248,32 +275,9 @@ impl Learner {
                 ))
             }
             (true, Some(_)) => {
-                // Newest first; a checkpoint that does not load is skipped, loudly.
-                let mut loaded = None;
-                for (_, ckpt) in candidates.iter().rev() {
-                    match load_resume_state(ckpt, &registry_cfg) {
-                        Ok(state) => {
-                            loaded = Some((ckpt, state));
-                            break;
-                        }
-                        Err(e) => {
-                            let warning = format!(
-                                "checkpoint {} is unusable ({e}); falling back to the previous one",
-                                ckpt.display()
-                            );
-                            eprintln!("learner: WARNING: {warning}");
-                            resume_warnings.push(warning);
-                        }
-                    }
-                }
-                let Some((ckpt, r)) = loaded else {
-                    return Err(format!(
-                        "--resume: none of the {} checkpoints under {} is usable: {}",
-                        candidates.len(),
-                        checkpoints.display(),
-                        resume_warnings.join("; ")
-                    ));
-                };
+                let (ckpt, r, warnings) = newest_usable(&candidates, &registry_cfg)
+                    .map_err(|e| format!("--resume under {}: {e}", checkpoints.display()))?;
+                resume_warnings = warnings;
                 eprintln!(
                     "learner: resuming run {} from {} ({} steps, {} updates)",
                     r.run_id,
@@ -447,7 +451,8 @@ impl Learner {
         let control = tonic::service::interceptor::InterceptedService::new(
             pb::control_server::ControlServer::new(control::ControlService {
                 shared: shared.clone(),
-            }),
+            })
+            .max_decoding_message_size(proto::grpc::MAX_CONTROL_REQUEST_BYTES),
             auth.clone(),
         );
         let latest_policy = policy_rx.clone();
@@ -456,7 +461,8 @@ impl Learner {
                 shared: shared.clone(),
                 policy: policy_rx,
             })
-            .max_decoding_message_size(proto::grpc::MAX_MESSAGE_BYTES)
+            // Requests are step batches (bounded); replies carry policy snapshots.
+            .max_decoding_message_size(proto::grpc::MAX_REQUEST_BYTES)
             .max_encoding_message_size(proto::grpc::MAX_MESSAGE_BYTES),
             auth,
         );
@@ -655,4 +661,58 @@ pub fn read_addr(run_dir: &Path) -> Result<String, String> {
     std::fs::read_to_string(&p)
         .map(|s| s.trim().to_owned())
         .map_err(|e| format!("cannot read {}: {e}", p.display()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::test_util::{random_batch, temp_dir, tiny_config};
+
+    #[test]
+    fn a_corrupt_newest_checkpoint_falls_back_to_the_previous_one() {
+        let config = tiny_config();
+        let registry_cfg = RegistryConfig {
+            lease_ttl_ms: 1000,
+            episodes_per_assignment: 2,
+            run_seed: 1,
+        };
+        let registry = Registry::new(registry_cfg, vec![1, 2]).unwrap();
+        let mut td3 = Td3::new(config.clone(), &Device::flex()).unwrap();
+        let run = checkpoint::RunState {
+            run_id: "r".into(),
+            rate: RateLimiter::new(&config),
+            sampler_rng: seeded_rng(0, 2),
+            policy_version: 0,
+            extra: serde_json::json!({ "registry": registry.snapshot(), "totals": Totals::default() }),
+            environment: serde_json::Value::Null,
+        };
+        let root = temp_dir("resume-fallback");
+        let mut rng = seeded_rng(0, 0);
+        for name in ["ckpt-1", "ckpt-2"] {
+            td3.update(&random_batch(&config, 4, &mut rng)).unwrap();
+            checkpoint::save(&root.join(name), &td3, &run).unwrap();
+        }
+        // One flipped byte in a network file (the manifest still verifies).
+        let flip = |file: &Path| {
+            let mut bytes = std::fs::read(file).unwrap();
+            let mid = bytes.len() / 2;
+            bytes[mid] ^= 0xff;
+            std::fs::write(file, bytes).unwrap();
+        };
+        flip(&root.join("ckpt-2").join("actor.bpk"));
+        let candidates = retention::complete_checkpoints(&root).unwrap();
+        assert_eq!(candidates.len(), 2, "the damage is only found by a full load");
+        let (ckpt, state, warnings) = newest_usable(&candidates, &registry_cfg).unwrap();
+        assert_eq!(ckpt, root.join("ckpt-1"));
+        assert_eq!(state.td3.updates, 1);
+        assert_eq!(warnings.len(), 1);
+        assert!(warnings[0].contains("ckpt-2"), "{warnings:?}");
+        // Nothing usable: the error names every checkpoint tried.
+        flip(&root.join("ckpt-1").join("critic.bpk"));
+        let e = newest_usable(&retention::complete_checkpoints(&root).unwrap(), &registry_cfg)
+            .err()
+            .unwrap();
+        assert!(e.contains("ckpt-1") && e.contains("ckpt-2"), "{e}");
+        std::fs::remove_dir_all(&root).unwrap();
+    }
 }

@@ -10,6 +10,21 @@ use super::core::{Core, Shared};
 /// Name of the status file in the run directory.
 pub const STATUS_FILE: &str = "status.json";
 
+/// The counters of one actor kind in `status.json`.
+#[derive(Debug, Clone, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct KindStatus {
+    /// The kind (`rust`, `python`, `unknown`, ...).
+    pub kind: String,
+    /// Registrations over the run.
+    pub registered: u64,
+    /// Live actors of this kind now.
+    pub active: usize,
+    /// Episodes reported and accepted over the run.
+    pub episodes: u64,
+    /// Step records stored over the run.
+    pub steps: u64,
+}
+
 /// A snapshot of the learner's counters. Plain data.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct Status {
@@ -67,6 +82,8 @@ pub struct Status {
     pub world_episodes: Vec<(usize, u64)>,
     /// Step records stored per actor rank `(rank, steps)`, over the whole run.
     pub rank_steps: Vec<(u32, u64)>,
+    /// Counters per actor kind (`rust`, `python`, `unknown`, ...), a mixed fleet's view.
+    pub actor_kinds: Vec<KindStatus>,
     /// Checkpoints the resume of this learner skipped as unusable, with the reason.
     pub resume_warnings: Vec<String>,
     /// Why the shared-memory data plane was offered but is not in use (actors use gRPC).
@@ -121,6 +138,19 @@ impl Status {
                 .collect(),
             world_episodes: reg.worlds.iter().map(|w| (w.world, w.completed)).collect(),
             rank_steps: t.rank_steps.iter().map(|(&r, &n)| (r, n)).collect(),
+            actor_kinds: {
+                let active = core.active_by_kind();
+                t.kinds
+                    .iter()
+                    .map(|(kind, k)| KindStatus {
+                        kind: kind.clone(),
+                        registered: k.registered,
+                        active: active.get(kind).copied().unwrap_or(0),
+                        episodes: k.episodes,
+                        steps: k.steps,
+                    })
+                    .collect()
+            },
             resume_warnings: shared.resume_warnings.clone(),
             shm_unavailable: shared.shm_unavailable.lock().expect("shm note lock").clone(),
             finished: super::core::is_set(&shared.finished),

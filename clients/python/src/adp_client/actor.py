@@ -22,6 +22,9 @@ from .policy import MlpPolicy
 MAX_MESSAGE_BYTES = 64 << 20
 BATCH_RECORDS = 64
 OUTCOMES = {"success": pb.OUTCOME_SUCCESS, "collision": pb.OUTCOME_COLLISION, "timeout": pb.OUTCOME_TIMEOUT}
+# What this client registers as (`actor_kind`): the learner's status.json counts actors,
+# episodes and steps per kind, so a mixed fleet of Rust and Python actors can be told apart.
+ACTOR_KIND = "python"
 
 
 class AdpError(Exception):
@@ -172,7 +175,8 @@ class Session:
         self.conn, self.rank, self.log = conn, rank, log
         reply = conn.call(
             conn.control.Register,
-            pb.RegisterRequest(rank=rank, host=socket.gethostname(), pid=os.getpid(), run_id=""),
+            pb.RegisterRequest(rank=rank, host=socket.gethostname()[:255], pid=os.getpid(), run_id="",
+                               actor_kind=ACTOR_KIND),
             timeout=10.0,
         )
         s = reply.spec
@@ -238,6 +242,9 @@ class Session:
                     if self.lease == lease:
                         self.lease = 0
                         self.lease_lost.set()
+                        if r.lease_lost_reason:
+                            # e.g. one of its step records was refused: the episode cannot complete.
+                            self.log(f"actor {self.rank}: lease {lease} ended by the learner: {r.lease_lost_reason}")
             if r.shutdown:
                 self.shutdown.set()
 

@@ -24,49 +24,49 @@ _sym_db = _symbol_database.Default()
 
 
 
-DESCRIPTOR = _descriptor_pool.Default().AddSerializedFile(b'\n\tadp.proto\x12\x06\x61\x64p.v1\"-\n\x06RunRef\x12\x0e\n\x06run_id\x18\x01 \x01(\t\x12\x13\n\x0bincarnation\x18\x02 \x01(\x04\"\xde\x01\n\x07RunSpec\x12\x0f\n\x07obs_dim\x18\x01 \x01(\r\x12\x0f\n\x07\x61\x63t_dim\x18\x02 \x01(\r\x12\x14\n\x0c\x61\x63tion_space\x18\x03 \x01(\t\x12\x0f\n\x07planner\x18\x04 \x01(\t\x12\x11\n\tmax_speed\x18\x05 \x01(\x01\x12\x10\n\x08run_seed\x18\x06 \x01(\x04\x12\x13\n\x0bpolicy_dims\x18\x07 \x03(\r\x12\x12\n\ndata_plane\x18\x08 \x01(\t\x12\x14\n\x0cheartbeat_ms\x18\t \x01(\r\x12\x14\n\x0clease_ttl_ms\x18\n \x01(\r\x12\x10\n\x08\x65nv_toml\x18\x0b \x01(\t\"J\n\x0fRegisterRequest\x12\x0c\n\x04rank\x18\x01 \x01(\r\x12\x0c\n\x04host\x18\x02 \x01(\t\x12\x0b\n\x03pid\x18\x03 \x01(\r\x12\x0e\n\x06run_id\x18\x04 \x01(\t\"]\n\rRegisterReply\x12\x10\n\x08\x61\x63tor_id\x18\x01 \x01(\x04\x12\x1b\n\x03run\x18\x02 \x01(\x0b\x32\x0e.adp.v1.RunRef\x12\x1d\n\x04spec\x18\x03 \x01(\x0b\x32\x0f.adp.v1.RunSpec\"B\n\x11\x41ssignmentRequest\x12\x1b\n\x03run\x18\x01 \x01(\x0b\x32\x0e.adp.v1.RunRef\x12\x10\n\x08\x61\x63tor_id\x18\x02 \x01(\x04\"\x8f\x01\n\nAssignment\x12\x10\n\x08lease_id\x18\x01 \x01(\x04\x12\r\n\x05world\x18\x02 \x01(\r\x12\x10\n\x08\x65pisodes\x18\x03 \x01(\r\x12\r\n\x05\x63ycle\x18\x04 \x01(\x04\x12\x16\n\x0epolicy_version\x18\x05 \x01(\x04\x12\r\n\x05seeds\x18\x06 \x03(\x04\x12\x18\n\x10\x66irst_episode_id\x18\x07 \x01(\x04\"j\n\x0f\x41ssignmentReply\x12$\n\x06\x61ssign\x18\x01 \x01(\x0b\x32\x12.adp.v1.AssignmentH\x00\x12\x11\n\x07idle_ms\x18\x02 \x01(\rH\x00\x12\x12\n\x08shutdown\x18\x03 \x01(\x08H\x00\x42\n\n\x08\x64\x65\x63ision\"S\n\x10HeartbeatRequest\x12\x1b\n\x03run\x18\x01 \x01(\x0b\x32\x0e.adp.v1.RunRef\x12\x10\n\x08\x61\x63tor_id\x18\x02 \x01(\x04\x12\x10\n\x08lease_id\x18\x03 \x01(\x04\"7\n\x0eHeartbeatReply\x12\x13\n\x0blease_valid\x18\x01 \x01(\x08\x12\x10\n\x08shutdown\x18\x02 \x01(\x08\"\xa7\x02\n\rEpisodeReport\x12\x1b\n\x03run\x18\x01 \x01(\x0b\x32\x0e.adp.v1.RunRef\x12\x10\n\x08\x61\x63tor_id\x18\x02 \x01(\x04\x12\x10\n\x08lease_id\x18\x03 \x01(\x04\x12\x12\n\nepisode_id\x18\x04 \x01(\x04\x12\r\n\x05world\x18\x05 \x01(\r\x12 \n\x07outcome\x18\x06 \x01(\x0e\x32\x0f.adp.v1.Outcome\x12\x0e\n\x06time_s\x18\x07 \x01(\x01\x12\r\n\x05score\x18\x08 \x01(\x01\x12\x16\n\x0e\x65pisode_return\x18\t \x01(\x01\x12\r\n\x05steps\x18\n \x01(\r\x12\x16\n\x0epolicy_version\x18\x0b \x01(\x04\x12\x1a\n\x12last_of_assignment\x18\x0c \x01(\x08\x12\x16\n\x0esteps_checksum\x18\r \x01(\x04\"8\n\x03\x41\x63k\x12\x10\n\x08\x61\x63\x63\x65pted\x18\x01 \x01(\x04\x12\x0f\n\x07refused\x18\x02 \x01(\x04\x12\x0e\n\x06reason\x18\x03 \x01(\t\"B\n\x0fShutdownRequest\x12\x1b\n\x03run\x18\x01 \x01(\x0b\x32\x0e.adp.v1.RunRef\x12\x12\n\ncheckpoint\x18\x02 \x01(\x08\"\xb1\x01\n\nStepRecord\x12\x12\n\nepisode_id\x18\x01 \x01(\x04\x12\x12\n\nstep_index\x18\x02 \x01(\r\x12\x16\n\x0epolicy_version\x18\x03 \x01(\x04\x12\x0b\n\x03obs\x18\x04 \x01(\x0c\x12\x0e\n\x06\x61\x63tion\x18\x05 \x01(\x0c\x12\x0e\n\x06reward\x18\x06 \x01(\x02\x12\x10\n\x08terminal\x18\x07 \x01(\x08\x12\x11\n\ttruncated\x18\x08 \x01(\x08\x12\x11\n\tfinal_obs\x18\t \x01(\x0c\"o\n\tStepBatch\x12\x1b\n\x03run\x18\x01 \x01(\x0b\x32\x0e.adp.v1.RunRef\x12\x10\n\x08\x61\x63tor_id\x18\x02 \x01(\x04\x12\x10\n\x08lease_id\x18\x03 \x01(\x04\x12!\n\x05steps\x18\x04 \x03(\x0b\x32\x12.adp.v1.StepRecord\"T\n\rPolicyRequest\x12\x1b\n\x03run\x18\x01 \x01(\x0b\x32\x0e.adp.v1.RunRef\x12\x10\n\x08\x61\x63tor_id\x18\x02 \x01(\x04\x12\x14\n\x0chave_version\x18\x03 \x01(\x04\"M\n\x0ePolicySnapshot\x12\x0f\n\x07version\x18\x01 \x01(\x04\x12\x19\n\x11\x65xploration_sigma\x18\x02 \x01(\x01\x12\x0f\n\x07weights\x18\x03 \x01(\x0c*c\n\x07Outcome\x12\x17\n\x13OUTCOME_UNSPECIFIED\x10\x00\x12\x13\n\x0fOUTCOME_SUCCESS\x10\x01\x12\x15\n\x11OUTCOME_COLLISION\x10\x02\x12\x13\n\x0fOUTCOME_TIMEOUT\x10\x03\x32\xb1\x02\n\x07\x43ontrol\x12:\n\x08Register\x12\x17.adp.v1.RegisterRequest\x1a\x15.adp.v1.RegisterReply\x12\x44\n\x0eNextAssignment\x12\x19.adp.v1.AssignmentRequest\x1a\x17.adp.v1.AssignmentReply\x12=\n\tHeartbeat\x12\x18.adp.v1.HeartbeatRequest\x1a\x16.adp.v1.HeartbeatReply\x12\x33\n\rReportEpisode\x12\x15.adp.v1.EpisodeReport\x1a\x0b.adp.v1.Ack\x12\x30\n\x08Shutdown\x12\x17.adp.v1.ShutdownRequest\x1a\x0b.adp.v1.Ack2u\n\x04\x44\x61ta\x12-\n\tPushSteps\x12\x11.adp.v1.StepBatch\x1a\x0b.adp.v1.Ack(\x01\x12>\n\x0bWatchPolicy\x12\x15.adp.v1.PolicyRequest\x1a\x16.adp.v1.PolicySnapshot0\x01\x62\x06proto3')
+DESCRIPTOR = _descriptor_pool.Default().AddSerializedFile(b'\n\tadp.proto\x12\x06\x61\x64p.v1\"-\n\x06RunRef\x12\x0e\n\x06run_id\x18\x01 \x01(\t\x12\x13\n\x0bincarnation\x18\x02 \x01(\x04\"\xde\x01\n\x07RunSpec\x12\x0f\n\x07obs_dim\x18\x01 \x01(\r\x12\x0f\n\x07\x61\x63t_dim\x18\x02 \x01(\r\x12\x14\n\x0c\x61\x63tion_space\x18\x03 \x01(\t\x12\x0f\n\x07planner\x18\x04 \x01(\t\x12\x11\n\tmax_speed\x18\x05 \x01(\x01\x12\x10\n\x08run_seed\x18\x06 \x01(\x04\x12\x13\n\x0bpolicy_dims\x18\x07 \x03(\r\x12\x12\n\ndata_plane\x18\x08 \x01(\t\x12\x14\n\x0cheartbeat_ms\x18\t \x01(\r\x12\x14\n\x0clease_ttl_ms\x18\n \x01(\r\x12\x10\n\x08\x65nv_toml\x18\x0b \x01(\t\"^\n\x0fRegisterRequest\x12\x0c\n\x04rank\x18\x01 \x01(\r\x12\x0c\n\x04host\x18\x02 \x01(\t\x12\x0b\n\x03pid\x18\x03 \x01(\r\x12\x0e\n\x06run_id\x18\x04 \x01(\t\x12\x12\n\nactor_kind\x18\x05 \x01(\t\"]\n\rRegisterReply\x12\x10\n\x08\x61\x63tor_id\x18\x01 \x01(\x04\x12\x1b\n\x03run\x18\x02 \x01(\x0b\x32\x0e.adp.v1.RunRef\x12\x1d\n\x04spec\x18\x03 \x01(\x0b\x32\x0f.adp.v1.RunSpec\"B\n\x11\x41ssignmentRequest\x12\x1b\n\x03run\x18\x01 \x01(\x0b\x32\x0e.adp.v1.RunRef\x12\x10\n\x08\x61\x63tor_id\x18\x02 \x01(\x04\"\x8f\x01\n\nAssignment\x12\x10\n\x08lease_id\x18\x01 \x01(\x04\x12\r\n\x05world\x18\x02 \x01(\r\x12\x10\n\x08\x65pisodes\x18\x03 \x01(\r\x12\r\n\x05\x63ycle\x18\x04 \x01(\x04\x12\x16\n\x0epolicy_version\x18\x05 \x01(\x04\x12\r\n\x05seeds\x18\x06 \x03(\x04\x12\x18\n\x10\x66irst_episode_id\x18\x07 \x01(\x04\"j\n\x0f\x41ssignmentReply\x12$\n\x06\x61ssign\x18\x01 \x01(\x0b\x32\x12.adp.v1.AssignmentH\x00\x12\x11\n\x07idle_ms\x18\x02 \x01(\rH\x00\x12\x12\n\x08shutdown\x18\x03 \x01(\x08H\x00\x42\n\n\x08\x64\x65\x63ision\"S\n\x10HeartbeatRequest\x12\x1b\n\x03run\x18\x01 \x01(\x0b\x32\x0e.adp.v1.RunRef\x12\x10\n\x08\x61\x63tor_id\x18\x02 \x01(\x04\x12\x10\n\x08lease_id\x18\x03 \x01(\x04\"R\n\x0eHeartbeatReply\x12\x13\n\x0blease_valid\x18\x01 \x01(\x08\x12\x10\n\x08shutdown\x18\x02 \x01(\x08\x12\x19\n\x11lease_lost_reason\x18\x03 \x01(\t\"\xa7\x02\n\rEpisodeReport\x12\x1b\n\x03run\x18\x01 \x01(\x0b\x32\x0e.adp.v1.RunRef\x12\x10\n\x08\x61\x63tor_id\x18\x02 \x01(\x04\x12\x10\n\x08lease_id\x18\x03 \x01(\x04\x12\x12\n\nepisode_id\x18\x04 \x01(\x04\x12\r\n\x05world\x18\x05 \x01(\r\x12 \n\x07outcome\x18\x06 \x01(\x0e\x32\x0f.adp.v1.Outcome\x12\x0e\n\x06time_s\x18\x07 \x01(\x01\x12\r\n\x05score\x18\x08 \x01(\x01\x12\x16\n\x0e\x65pisode_return\x18\t \x01(\x01\x12\r\n\x05steps\x18\n \x01(\r\x12\x16\n\x0epolicy_version\x18\x0b \x01(\x04\x12\x1a\n\x12last_of_assignment\x18\x0c \x01(\x08\x12\x16\n\x0esteps_checksum\x18\r \x01(\x04\"8\n\x03\x41\x63k\x12\x10\n\x08\x61\x63\x63\x65pted\x18\x01 \x01(\x04\x12\x0f\n\x07refused\x18\x02 \x01(\x04\x12\x0e\n\x06reason\x18\x03 \x01(\t\"B\n\x0fShutdownRequest\x12\x1b\n\x03run\x18\x01 \x01(\x0b\x32\x0e.adp.v1.RunRef\x12\x12\n\ncheckpoint\x18\x02 \x01(\x08\"\xb1\x01\n\nStepRecord\x12\x12\n\nepisode_id\x18\x01 \x01(\x04\x12\x12\n\nstep_index\x18\x02 \x01(\r\x12\x16\n\x0epolicy_version\x18\x03 \x01(\x04\x12\x0b\n\x03obs\x18\x04 \x01(\x0c\x12\x0e\n\x06\x61\x63tion\x18\x05 \x01(\x0c\x12\x0e\n\x06reward\x18\x06 \x01(\x02\x12\x10\n\x08terminal\x18\x07 \x01(\x08\x12\x11\n\ttruncated\x18\x08 \x01(\x08\x12\x11\n\tfinal_obs\x18\t \x01(\x0c\"o\n\tStepBatch\x12\x1b\n\x03run\x18\x01 \x01(\x0b\x32\x0e.adp.v1.RunRef\x12\x10\n\x08\x61\x63tor_id\x18\x02 \x01(\x04\x12\x10\n\x08lease_id\x18\x03 \x01(\x04\x12!\n\x05steps\x18\x04 \x03(\x0b\x32\x12.adp.v1.StepRecord\"T\n\rPolicyRequest\x12\x1b\n\x03run\x18\x01 \x01(\x0b\x32\x0e.adp.v1.RunRef\x12\x10\n\x08\x61\x63tor_id\x18\x02 \x01(\x04\x12\x14\n\x0chave_version\x18\x03 \x01(\x04\"M\n\x0ePolicySnapshot\x12\x0f\n\x07version\x18\x01 \x01(\x04\x12\x19\n\x11\x65xploration_sigma\x18\x02 \x01(\x01\x12\x0f\n\x07weights\x18\x03 \x01(\x0c*c\n\x07Outcome\x12\x17\n\x13OUTCOME_UNSPECIFIED\x10\x00\x12\x13\n\x0fOUTCOME_SUCCESS\x10\x01\x12\x15\n\x11OUTCOME_COLLISION\x10\x02\x12\x13\n\x0fOUTCOME_TIMEOUT\x10\x03\x32\xb1\x02\n\x07\x43ontrol\x12:\n\x08Register\x12\x17.adp.v1.RegisterRequest\x1a\x15.adp.v1.RegisterReply\x12\x44\n\x0eNextAssignment\x12\x19.adp.v1.AssignmentRequest\x1a\x17.adp.v1.AssignmentReply\x12=\n\tHeartbeat\x12\x18.adp.v1.HeartbeatRequest\x1a\x16.adp.v1.HeartbeatReply\x12\x33\n\rReportEpisode\x12\x15.adp.v1.EpisodeReport\x1a\x0b.adp.v1.Ack\x12\x30\n\x08Shutdown\x12\x17.adp.v1.ShutdownRequest\x1a\x0b.adp.v1.Ack2u\n\x04\x44\x61ta\x12-\n\tPushSteps\x12\x11.adp.v1.StepBatch\x1a\x0b.adp.v1.Ack(\x01\x12>\n\x0bWatchPolicy\x12\x15.adp.v1.PolicyRequest\x1a\x16.adp.v1.PolicySnapshot0\x01\x62\x06proto3')
 
 _globals = globals()
 _builder.BuildMessageAndEnumDescriptors(DESCRIPTOR, _globals)
 _builder.BuildTopDescriptorsAndMessages(DESCRIPTOR, 'adp_pb2', _globals)
 if not _descriptor._USE_C_DESCRIPTORS:
   DESCRIPTOR._loaded_options = None
-  _globals['_OUTCOME']._serialized_start=1810
-  _globals['_OUTCOME']._serialized_end=1909
+  _globals['_OUTCOME']._serialized_start=1857
+  _globals['_OUTCOME']._serialized_end=1956
   _globals['_RUNREF']._serialized_start=21
   _globals['_RUNREF']._serialized_end=66
   _globals['_RUNSPEC']._serialized_start=69
   _globals['_RUNSPEC']._serialized_end=291
   _globals['_REGISTERREQUEST']._serialized_start=293
-  _globals['_REGISTERREQUEST']._serialized_end=367
-  _globals['_REGISTERREPLY']._serialized_start=369
-  _globals['_REGISTERREPLY']._serialized_end=462
-  _globals['_ASSIGNMENTREQUEST']._serialized_start=464
-  _globals['_ASSIGNMENTREQUEST']._serialized_end=530
-  _globals['_ASSIGNMENT']._serialized_start=533
-  _globals['_ASSIGNMENT']._serialized_end=676
-  _globals['_ASSIGNMENTREPLY']._serialized_start=678
-  _globals['_ASSIGNMENTREPLY']._serialized_end=784
-  _globals['_HEARTBEATREQUEST']._serialized_start=786
-  _globals['_HEARTBEATREQUEST']._serialized_end=869
-  _globals['_HEARTBEATREPLY']._serialized_start=871
-  _globals['_HEARTBEATREPLY']._serialized_end=926
-  _globals['_EPISODEREPORT']._serialized_start=929
-  _globals['_EPISODEREPORT']._serialized_end=1224
-  _globals['_ACK']._serialized_start=1226
-  _globals['_ACK']._serialized_end=1282
-  _globals['_SHUTDOWNREQUEST']._serialized_start=1284
-  _globals['_SHUTDOWNREQUEST']._serialized_end=1350
-  _globals['_STEPRECORD']._serialized_start=1353
-  _globals['_STEPRECORD']._serialized_end=1530
-  _globals['_STEPBATCH']._serialized_start=1532
-  _globals['_STEPBATCH']._serialized_end=1643
-  _globals['_POLICYREQUEST']._serialized_start=1645
-  _globals['_POLICYREQUEST']._serialized_end=1729
-  _globals['_POLICYSNAPSHOT']._serialized_start=1731
-  _globals['_POLICYSNAPSHOT']._serialized_end=1808
-  _globals['_CONTROL']._serialized_start=1912
-  _globals['_CONTROL']._serialized_end=2217
-  _globals['_DATA']._serialized_start=2219
-  _globals['_DATA']._serialized_end=2336
+  _globals['_REGISTERREQUEST']._serialized_end=387
+  _globals['_REGISTERREPLY']._serialized_start=389
+  _globals['_REGISTERREPLY']._serialized_end=482
+  _globals['_ASSIGNMENTREQUEST']._serialized_start=484
+  _globals['_ASSIGNMENTREQUEST']._serialized_end=550
+  _globals['_ASSIGNMENT']._serialized_start=553
+  _globals['_ASSIGNMENT']._serialized_end=696
+  _globals['_ASSIGNMENTREPLY']._serialized_start=698
+  _globals['_ASSIGNMENTREPLY']._serialized_end=804
+  _globals['_HEARTBEATREQUEST']._serialized_start=806
+  _globals['_HEARTBEATREQUEST']._serialized_end=889
+  _globals['_HEARTBEATREPLY']._serialized_start=891
+  _globals['_HEARTBEATREPLY']._serialized_end=973
+  _globals['_EPISODEREPORT']._serialized_start=976
+  _globals['_EPISODEREPORT']._serialized_end=1271
+  _globals['_ACK']._serialized_start=1273
+  _globals['_ACK']._serialized_end=1329
+  _globals['_SHUTDOWNREQUEST']._serialized_start=1331
+  _globals['_SHUTDOWNREQUEST']._serialized_end=1397
+  _globals['_STEPRECORD']._serialized_start=1400
+  _globals['_STEPRECORD']._serialized_end=1577
+  _globals['_STEPBATCH']._serialized_start=1579
+  _globals['_STEPBATCH']._serialized_end=1690
+  _globals['_POLICYREQUEST']._serialized_start=1692
+  _globals['_POLICYREQUEST']._serialized_end=1776
+  _globals['_POLICYSNAPSHOT']._serialized_start=1778
+  _globals['_POLICYSNAPSHOT']._serialized_end=1855
+  _globals['_CONTROL']._serialized_start=1959
+  _globals['_CONTROL']._serialized_end=2264
+  _globals['_DATA']._serialized_start=2266
+  _globals['_DATA']._serialized_end=2383
 # @@protoc_insertion_point(module_scope)
