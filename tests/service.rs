@@ -141,7 +141,10 @@ fn assert_resumes(cfg: &Path, run: &Path, first: &Status) {
     assert!(err.contains(&format!("resuming run {}", first.run_id)), "{err}");
     let s = read_status(run).unwrap();
     assert_eq!(s.run_id, first.run_id);
-    assert!(s.inserts >= first.inserts + 300 && s.updates > first.updates, "{s:?}");
+    assert!(
+        s.inserts >= first.inserts + 300 && s.updates > first.updates,
+        "{s:?}"
+    );
     assert_eq!(s.episodes_mismatched, 0);
 }
 

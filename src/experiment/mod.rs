@@ -333,6 +333,7 @@ fn train(ctx: &Ctx<'_>, arm: usize, seed: usize) -> anyhow::Result<()> {
             actors: None,
             out: Some(run_dir.clone()),
             listen: None,
+            allow_insecure_listen: false,
         },
         resume,
     )
