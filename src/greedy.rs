@@ -87,9 +87,12 @@ pub struct GreedyResult {
     pub ddp_success: f64,
     /// DDP's mean score.
     pub ddp_score: f64,
-    /// Mean clutter of the steps (share of beams within [`CLUTTER_RADIUS_M`]).
+    /// Mean clutter of the steps (share of beams within [`CLUTTER_RADIUS_M`]; 0 in a record
+    /// without it).
+    #[serde(default)]
     pub clutter_mean: f64,
-    /// The chosen schedules, per physical parameter.
+    /// The chosen schedules, per physical parameter (empty in a record without them).
+    #[serde(default)]
     pub schedule: Vec<ParamStats>,
 }
 
@@ -498,7 +501,7 @@ mod tests {
 
     #[test]
     fn evaluations_are_due_every_k_steps_and_record_a_json_line() {
-        let dir = std::env::temp_dir().join(format!("adp-greedy-{}", std::process::id()));
+        let dir = std::env::temp_dir().join(format!("adp-greedy-monitor-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
         let section = GreedySection {
             every_steps: 100,

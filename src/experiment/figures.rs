@@ -14,7 +14,6 @@ use std::sync::Once;
 
 use anyhow::Context;
 use plotters::prelude::*;
-use serde::Deserialize;
 
 use planner::ActionSpace;
 use sim::geometry::Vec2;
@@ -36,23 +35,8 @@ fn fonts() {
     });
 }
 
-/// One line of a run's `greedy_eval.jsonl` (written by the learner's periodic greedy
-/// evaluation); unknown fields are ignored.
-#[derive(Clone, Debug, Deserialize, PartialEq)]
-pub struct GreedyPoint {
-    /// Agent steps collected when the evaluated policy was published.
-    pub agent_steps: u64,
-    /// Its version.
-    pub policy_version: u64,
-    /// Greedy success (%).
-    pub success: f64,
-    /// Greedy mean score.
-    pub score: f64,
-    /// DDP's success on the same worlds (%).
-    pub ddp_success: f64,
-    /// DDP's mean score on the same worlds.
-    pub ddp_score: f64,
-}
+/// One line of a run's `greedy_eval.jsonl`: the greedy evaluation's own record.
+pub use crate::greedy::GreedyResult as GreedyPoint;
 
 /// Reads `greedy_eval.jsonl` of a run directory: `None` when there is none; lines that do not
 /// parse are skipped (a line being written when the run stopped).
