@@ -660,10 +660,10 @@ fn learner_and_actors_in_two_network_namespaces_train_over_grpc() {
     let mut procs = Procs::new(&dir, &run);
     let in_a = ["ip", "netns", "exec", a.as_str()];
     let in_b = ["ip", "netns", "exec", b.as_str()];
-    let learner = procs.spawn(
-        "learner",
-        learner_cmd(&in_a, &cfg, &run, BUDGET, "10.77.0.1:0", false),
-    );
+    // A private veth pair between two namespaces: plain text is allowed explicitly.
+    let mut cmd = learner_cmd(&in_a, &cfg, &run, BUDGET, "10.77.0.1:0", false);
+    cmd.arg("--allow-insecure-listen");
+    let learner = procs.spawn("learner", cmd);
     procs.wait_for("learner.addr", PATIENCE, |_| run.join("learner.addr").is_file());
     let addr = read_addr(&run).unwrap();
     assert!(addr.starts_with("10.77.0.1:"), "{addr}");
