@@ -140,6 +140,7 @@ pub fn distance_to_path(path: &[Vec2], p: Vec2, fallback: Vec2) -> f64 {
     if path.len() < 2 {
         return p.dist(path.first().copied().unwrap_or(fallback));
     }
+    // Squared distances in the loop, one square root at the end.
     let mut best = f64::INFINITY;
     for s in path.windows(2) {
         let (a, b) = (s[0], s[1]);
@@ -150,9 +151,10 @@ pub fn distance_to_path(path: &[Vec2], p: Vec2, fallback: Vec2) -> f64 {
         } else {
             0.0
         };
-        best = best.min(p.dist(a + ab * t));
+        let d = p - (a + ab * t);
+        best = best.min(d.dot(d));
     }
-    best
+    best.sqrt()
 }
 
 fn sample(lo: f64, hi: f64, k: usize, i: usize) -> f64 {
