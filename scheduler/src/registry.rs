@@ -26,7 +26,7 @@
 //! survive: [`Registry::restore`] starts without them (actors register again) and with every
 //! in-flight assignment returned to the dealer, so those worlds are dealt first.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, VecDeque};
 
 use serde::{Deserialize, Serialize};
 
@@ -37,6 +37,11 @@ use crate::seed::episode_seed;
 /// How many finished or expired leases are remembered to tell "expired" and "already
 /// finished" apart from "unknown" in errors; older ones are reported as unknown.
 const CLOSED_LEASES_REMEMBERED: usize = 4096;
+
+/// How many retired actor records (ids replaced by a newer registration of their rank) are
+/// kept to answer "retired" in errors; older ones are dropped and reported as unknown, so a
+/// run whose actors restart for days holds a bounded registry.
+const RETIRED_ACTORS_REMEMBERED: usize = 1024;
 
 /// Registry settings.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -63,7 +68,7 @@ impl Default for RegistryConfig {
 /// Why a registry operation was refused. Every variant names the actor and lease concerned.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum RegistryError {
-    /// The actor id was never registered.
+    /// The actor id was never registered, or it retired too long ago to be remembered.
     #[error("actor {actor} is not registered")]
     UnknownActor {
         /// The actor id given.
@@ -229,6 +234,9 @@ pub struct Registry {
     next_actor_id: ActorId,
     next_lease_id: u64,
     actors: BTreeMap<ActorId, ActorRecord>,
+    /// Retired actor ids still in `actors`, oldest first (at most
+    /// [`RETIRED_ACTORS_REMEMBERED`]).
+    retired: VecDeque<ActorId>,
     /// Per rank: the current actor id and the episodes issued to the rank so far.
     ranks: BTreeMap<u32, (Option<ActorId>, u64)>,
     open: BTreeMap<u64, OpenLease>,
@@ -282,6 +290,7 @@ impl Registry {
             next_actor_id: snapshot.next_actor_id,
             next_lease_id: snapshot.next_lease_id,
             actors: BTreeMap::new(),
+            retired: VecDeque::new(),
             ranks: snapshot
                 .rank_episodes
                 .into_iter()
@@ -341,6 +350,11 @@ impl Registry {
             record.liveness = Liveness::Retired;
             if let Some(lease) = record.lease {
                 self.expire(lease);
+            }
+            self.retired.push_back(old);
+            if self.retired.len() > RETIRED_ACTORS_REMEMBERED {
+                let oldest = self.retired.pop_front().expect("over the bound");
+                self.actors.remove(&oldest);
             }
         }
         self.actors.insert(
@@ -921,6 +935,37 @@ mod tests {
                 .map(|info| (info.id, info.pid))
                 .collect::<Vec<_>>(),
             [(other, 101), (new, 200)]
+        );
+    }
+
+    #[test]
+    fn retired_records_are_bounded_and_the_oldest_become_unknown() {
+        let mut registry = registry(3, 1);
+        let first = registry.register(0, "h".into(), 1, 0);
+        let mut last_retired = first;
+        let mut current = first;
+        for pid in 0..RETIRED_ACTORS_REMEMBERED as u32 + 10 {
+            last_retired = current;
+            current = registry.register(0, "h".into(), pid + 2, 0);
+        }
+        assert_eq!(registry.actors.len(), RETIRED_ACTORS_REMEMBERED + 1, "bounded");
+        assert_eq!(
+            registry.next_assignment(first, 1, 0),
+            Err(RegistryError::UnknownActor { actor: first }),
+            "dropped long ago"
+        );
+        assert_eq!(
+            registry.next_assignment(last_retired, 1, 0),
+            Err(RegistryError::RetiredActor { actor: last_retired }),
+            "recently retired"
+        );
+        assert!(
+            registry.next_assignment(current, 1, 0).is_ok(),
+            "the current one works"
+        );
+        assert_eq!(
+            registry.actors().iter().map(|info| info.id).collect::<Vec<_>>(),
+            [current]
         );
     }
 
