@@ -16,6 +16,7 @@ use anyhow::{bail, Context};
 use serde::{Deserialize, Serialize};
 
 use crate::train::TrainConfig;
+use proto::auth::TlsFiles;
 
 /// The embedded default of `configs/slurm.toml`.
 pub const SLURM_TOML: &str = include_str!("../configs/slurm.toml");
@@ -64,6 +65,12 @@ pub struct SlurmSection {
     pub adp: String,
     /// Shell lines run before anything else (e.g. `module load ...`).
     pub setup: Vec<String>,
+    /// The actors' side of TLS (`[slurm.actor_tls]`), required when `[service.tls]` is set:
+    /// `ca` is the CA that signed the learner's certificate; `cert` and `key` are the actors'
+    /// client certificate, required when the learner verifies clients (`[service.tls] ca`);
+    /// `domain` is the name in the learner's certificate (default: the learner node's host
+    /// name). Absolute paths: the actors read the files on the compute nodes.
+    pub actor_tls: Option<TlsFiles>,
 }
 
 impl Default for SlurmSection {
@@ -88,6 +95,7 @@ impl Default for SlurmSection {
             actor_grace_s: 60,
             adp: String::new(),
             setup: Vec::new(),
+            actor_tls: None,
         }
     }
 }
@@ -166,6 +174,77 @@ fn check_time(t: &str) -> anyhow::Result<()> {
         bail!("time = {t:?}: the time limit must be positive");
     }
     Ok(())
+}
+
+/// Checks that the actors can reach the learner the way it listens: with `[service.tls]`,
+/// `[slurm.actor_tls]` names the CA (and the client certificate when the learner verifies
+/// clients) by absolute paths; without it, no actor TLS is configured.
+fn check_actor_tls(cfg: &TrainConfig) -> anyhow::Result<()> {
+    let actor = cfg.slurm.actor_tls.as_ref();
+    let Some(server) = &cfg.service.tls else {
+        if actor.is_some() {
+            bail!(
+                "[slurm.actor_tls] is set but [service.tls] is not: the learner would listen in \
+                 plain text and the actors' TLS handshake would fail; configure both or neither"
+            );
+        }
+        return Ok(());
+    };
+    let Some(actor) = actor else {
+        bail!(
+            "[service.tls] is set, so the actors must connect with TLS: set [slurm.actor_tls] \
+             ca = the CA certificate that signed the learner's certificate"
+        );
+    };
+    if actor.ca.is_none() {
+        bail!("[slurm.actor_tls] needs ca = the CA certificate that signed the learner's certificate");
+    }
+    if server.ca.is_some() && (actor.cert.is_none() || actor.key.is_none()) {
+        bail!(
+            "[service.tls] ca makes the learner verify client certificates: set [slurm.actor_tls] \
+             cert and key (a client certificate signed by that CA)"
+        );
+    }
+    if actor.cert.is_some() != actor.key.is_some() {
+        bail!("[slurm.actor_tls] needs both cert and key, or neither");
+    }
+    for (field, path) in [("ca", &actor.ca), ("cert", &actor.cert), ("key", &actor.key)] {
+        if let Some(p) = path {
+            if !p.is_absolute() {
+                bail!(
+                    "[slurm.actor_tls] {field} = {:?} must be an absolute path: actors read it on \
+                     the compute nodes",
+                    p.display().to_string()
+                );
+            }
+        }
+    }
+    Ok(())
+}
+
+/// The `adp actor` options that make an actor connect with `[slurm.actor_tls]` (empty without
+/// it), quoted for the shell.
+fn actor_tls_args(cfg: &TrainConfig) -> String {
+    let Some(t) = &cfg.slurm.actor_tls else {
+        return String::new();
+    };
+    let mut args = String::new();
+    for (flag, path) in [
+        ("--tls-ca", &t.ca),
+        ("--tls-cert", &t.cert),
+        ("--tls-key", &t.key),
+    ] {
+        if let Some(p) = path {
+            let _ = write!(args, " {flag} {}", sh_quote(&p.display().to_string()));
+        }
+    }
+    match &t.domain {
+        Some(d) => {
+            let _ = write!(args, " --tls-domain {}", sh_quote(d));
+        }
+        None => args.push_str(" --tls-domain \"$LEARNER_HOST\""),
+    }
+    args
 }
 
 /// Command-line overrides of `adp slurm`.
@@ -418,10 +497,17 @@ pub fn script(input: &ScriptInput<'_>) -> String {
          #    its episodes from (run seed, rank). They retry until the learner is up; one failing\n\
          #    actor does not end the others (--kill-on-bad-exit=0), and the learner re-deals its world."
     );
+    if cfg.slurm.actor_tls.is_some() {
+        let _ = writeln!(
+            w,
+            "# TLS: the actors check the learner's certificate against [slurm.actor_tls] ca."
+        );
+    }
     let _ = writeln!(
         w,
-        "ACTOR_ARGS=(actor --learner \"$LEARNER_HOST:$PORT\" --token-file \"$RUN_DIR/token\" --give-up-after {})",
-        s.actor_give_up_s
+        "ACTOR_ARGS=(actor --learner \"$LEARNER_HOST:$PORT\" --token-file \"$RUN_DIR/token\" --give-up-after {}{})",
+        s.actor_give_up_s,
+        actor_tls_args(cfg)
     );
     let _ = writeln!(w, "ACTOR_PIDS=()");
     let _ = writeln!(
@@ -506,6 +592,7 @@ pub fn generate(
     if cfg.run.steps == 0 {
         bail!("{name}: [run] steps = 0: the job would have nothing to do");
     }
+    check_actor_tls(&cfg).map_err(|e| anyhow::anyhow!("{name}: {e}"))?;
     let cwd = std::env::current_dir().context("cannot read the current directory")?;
     let run_dir = cwd.join(
         run_dir
@@ -727,6 +814,55 @@ mod tests {
             domain: None,
         });
         assert!(!gen(&c).contains("--allow-insecure-listen"));
+    }
+
+    #[test]
+    fn actors_get_the_tls_files_the_learner_needs_and_bad_pairings_are_refused() {
+        let tls = |cert: &str, ca: Option<&str>| proto::auth::TlsFiles {
+            cert: Some(cert.into()),
+            key: Some(format!("{cert}.key").into()),
+            ca: ca.map(Into::into),
+            domain: None,
+        };
+        let mut c = cfg();
+        assert!(check_actor_tls(&c).is_ok(), "plain text on both sides");
+        c.slurm.actor_tls = Some(tls("/etc/adp/actor.pem", Some("/etc/adp/ca.pem")));
+        let e = check_actor_tls(&c).unwrap_err().to_string();
+        assert!(e.contains("[service.tls] is not"), "{e}");
+        c.service.tls = Some(tls("/etc/adp/learner.pem", Some("/etc/adp/ca.pem")));
+        c.slurm.actor_tls = None;
+        let e = check_actor_tls(&c).unwrap_err().to_string();
+        assert!(e.contains("set [slurm.actor_tls]"), "{e}");
+        // Mutual TLS: the learner verifies clients, so the actors need a certificate.
+        c.slurm.actor_tls = Some(proto::auth::TlsFiles {
+            ca: Some("/etc/adp/ca.pem".into()),
+            ..Default::default()
+        });
+        let e = check_actor_tls(&c).unwrap_err().to_string();
+        assert!(e.contains("cert and key"), "{e}");
+        c.slurm.actor_tls = Some(tls("relative/actor.pem", Some("/etc/adp/ca.pem")));
+        let e = check_actor_tls(&c).unwrap_err().to_string();
+        assert!(
+            e.contains("cert = \"relative/actor.pem\" must be an absolute path"),
+            "{e}"
+        );
+        c.slurm.actor_tls = Some(tls("/etc/adp/it's/actor.pem", Some("/etc/adp/ca.pem")));
+        check_actor_tls(&c).unwrap();
+        let text = gen(&c);
+        assert!(!text.contains("--allow-insecure-listen"));
+        let args = text.lines().find(|l| l.starts_with("ACTOR_ARGS=")).unwrap();
+        for want in [
+            "--tls-ca '/etc/adp/ca.pem'",
+            "--tls-cert '/etc/adp/it'\\''s/actor.pem'",
+            "--tls-key '/etc/adp/it'\\''s/actor.pem.key'",
+            "--tls-domain \"$LEARNER_HOST\"",
+        ] {
+            assert!(args.contains(want), "missing {want:?} in {args}");
+        }
+        // The embedded config carries the table, so a requeued job keeps it.
+        let start = text.find("<<'ADP_CONFIG'\n").unwrap() + "<<'ADP_CONFIG'\n".len();
+        let end = text[start..].find("ADP_CONFIG\n").unwrap() + start;
+        assert_eq!(TrainConfig::parse("embedded", &text[start..end]).unwrap(), c);
     }
 
     #[test]
