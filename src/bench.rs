@@ -21,8 +21,8 @@ use serde::Serialize;
 use actor::env::{AdpEnv, End};
 use actor::exploration::Exploration;
 use actor::policy::{MlpPolicy, Scratch};
-use adp_learner::bench::{fitted_policy_weights, replay_full, td3_updates};
-use adp_learner::service::read_status;
+use learner::bench::{fitted_policy_weights, replay_full, td3_updates};
+use learner::service::read_status;
 
 use crate::config::EvalConfig;
 use crate::train::TrainConfig;

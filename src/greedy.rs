@@ -20,7 +20,7 @@ use anyhow::Context;
 use serde::{Deserialize, Serialize};
 
 use actor::{AdpEnv, End, EnvConfig, MlpPolicy, Scratch};
-use adp_learner::tensorboard::EventWriter;
+use learner::tensorboard::EventWriter;
 use planner::{ActionSpace, Schedule};
 use sim::Status;
 

@@ -609,7 +609,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                             l.card_path.display(),
                             s.run_id,
                             s.updates,
-                            adp_learner::export::space_name(l.space),
+                            learner::export::space_name(l.space),
                             l.net.dims(),
                             l.env.agent_period_cycles,
                             l.env.laser_clip_m

@@ -18,7 +18,7 @@ use serde::Deserialize;
 use actor::observation::{self, LASER_BEAMS};
 use actor::policy::MlpPolicy;
 use actor::EnvConfig;
-use adp_learner::export::{space_name, PolicyCard, CARD_FORMAT, CARD_FORMAT_VERSION, JSON_FILE};
+use learner::export::{space_name, PolicyCard, CARD_FORMAT, CARD_FORMAT_VERSION, JSON_FILE};
 use planner::ActionSpace;
 use safetensors::tensor::{Dtype, SafeTensors};
 
@@ -317,20 +317,13 @@ mod tests {
     use std::collections::{BTreeMap, HashMap};
 
     use actor::{AdpEnv, End, EnvConfig};
-    use adp_learner::checkpoint::{self, Manifest};
-    use adp_learner::export::actor_safetensors;
-    use adp_learner::{seeded_rng, Actor, Device, FitOptions, Td3, Td3Config};
+    use learner::checkpoint::{self, Manifest};
+    use learner::export::actor_safetensors;
+    use learner::{seeded_rng, Actor, Device, FitOptions, Td3, Td3Config};
     use planner::Schedule;
+    use testkit::fresh_dir;
 
     use super::*;
-
-    /// A fresh directory under the system temp dir, unique per test and process.
-    fn fresh_dir(name: &str) -> PathBuf {
-        let dir = std::env::temp_dir().join(format!("adp-policy-{name}-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).unwrap();
-        dir
-    }
 
     /// Writes `actor` as `adp export` does: the learner's card for `space` and its
     /// safetensors writer.

@@ -12,8 +12,8 @@ use serde::{Deserialize, Serialize};
 
 use actor::run::{ActorSetup, PlaneChoice};
 use actor::EnvConfig;
-use adp_learner::service::{Learner, LearnerOptions, ServiceConfig, TrainSummary};
-use adp_learner::Td3Config;
+use learner::service::{Learner, LearnerOptions, ServiceConfig, TrainSummary};
+use learner::Td3Config;
 use planner::ActionSpace;
 use proto::auth::{create_token_file, read_token_file, TlsFiles};
 use proto::grpc::LearnerAddress;

@@ -279,7 +279,7 @@ pub fn planner_name(p: PlannerKind) -> String {
 
 /// The action space's name (`decremental`).
 pub fn space_label(s: ActionSpace) -> String {
-    adp_learner::export::space_name(s)
+    learner::export::space_name(s)
 }
 
 /// A speed as in file names and tables (`1.5`, `2.0`).

@@ -15,11 +15,9 @@ use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
-use adp_learner::checkpoint::{Manifest, FORMAT, FORMAT_VERSION};
-use adp_learner::export::{
-    actor_onnx, actor_safetensors, space_name, JSON_FILE, ONNX_FILE, SAFETENSORS_FILE,
-};
-use adp_learner::{Device, FitOptions, PolicyCard, Td3};
+use learner::checkpoint::{Manifest, FORMAT, FORMAT_VERSION};
+use learner::export::{actor_onnx, actor_safetensors, space_name, JSON_FILE, ONNX_FILE, SAFETENSORS_FILE};
+use learner::{Device, FitOptions, PolicyCard, Td3};
 use planner::ActionSpace;
 
 use crate::train::TrainConfig;

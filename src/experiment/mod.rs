@@ -484,7 +484,7 @@ fn run_stage(ctx: &Ctx<'_>, stage: &Stage, out: &Path) -> anyhow::Result<()> {
         Stage::EvalUntrained { arm } => {
             let a = &ex.arms[arm];
             let dir = ctx.layout.untrained_export(a);
-            if !dir.join(adp_learner::export::JSON_FILE).exists() {
+            if !dir.join(learner::export::JSON_FILE).exists() {
                 write_untrained_export(&ex.train_config(a, 0), a.space, &dir)?;
             }
             let p = load_policy(&dir, a.space)?;

@@ -5,12 +5,12 @@
 //!
 //! Threads: a tokio runtime (gRPC server, lease expiry, signals), one shared-memory intake
 //! thread, and the training thread ([`trainer`]) which owns the networks. They share
-//! [`core::Shared`].
+//! [`shared::Shared`].
 
 mod config;
 mod control;
-pub mod core;
 mod data;
+pub mod shared;
 pub mod status;
 mod trainer;
 
@@ -31,7 +31,7 @@ pub use config::{LearnerOptions, ServiceConfig};
 pub use status::{read_status, KindStatus, Status, STATUS_FILE};
 pub use trainer::TrainSummary;
 
-use self::core::{Core, Shared, Totals};
+use self::shared::{Core, Shared, Totals};
 use crate::checkpoint;
 use crate::ddp_init::FitOptions;
 use crate::export::space_name;

@@ -5,7 +5,7 @@ use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
-use super::core::{Core, Shared};
+use super::shared::{Core, Shared};
 
 /// Name of the status file in the run directory.
 pub const STATUS_FILE: &str = "status.json";
@@ -153,7 +153,7 @@ impl Status {
             },
             resume_warnings: shared.resume_warnings.clone(),
             shm_unavailable: shared.shm_unavailable.lock().expect("shm note lock").clone(),
-            finished: super::core::is_set(&shared.finished),
+            finished: super::shared::is_set(&shared.finished),
         }
     }
 

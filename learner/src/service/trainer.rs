@@ -14,7 +14,7 @@ use proto::shm::{ShmConfig, ShmPolicyPublisher};
 use rand_pcg::Pcg64Mcg;
 use tokio::sync::watch;
 
-use super::core::Shared;
+use super::shared::Shared;
 use super::status::{write_status, Status};
 use super::ServiceConfig;
 use crate::batch::Batch;

@@ -1,0 +1,33 @@
+//! Helpers shared by the tests of every crate in the workspace: defined once here, used as a
+//! dev-dependency (nothing in it ships).
+
+use std::path::{Path, PathBuf};
+
+/// A fresh, empty directory `<root>/<name>-<pid>` (emptied first if it exists; the process id
+/// keeps overlapping test runs on one machine apart).
+pub fn fresh_dir_in(root: &Path, name: &str) -> PathBuf {
+    let dir = root.join(format!("{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap_or_else(|e| panic!("creating {}: {e}", dir.display()));
+    dir
+}
+
+/// A fresh, empty directory `<system temp>/adp-<name>-<pid>`.
+pub fn fresh_dir(name: &str) -> PathBuf {
+    fresh_dir_in(&std::env::temp_dir(), &format!("adp-{name}"))
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn fresh_dirs_are_empty_and_distinct() {
+        let a = super::fresh_dir("testkit-a");
+        std::fs::write(a.join("f"), "x").unwrap();
+        let again = super::fresh_dir("testkit-a");
+        assert_eq!(a, again);
+        assert!(std::fs::read_dir(&again).unwrap().next().is_none());
+        assert_ne!(again, super::fresh_dir("testkit-b"));
+        std::fs::remove_dir_all(&again).unwrap();
+        std::fs::remove_dir_all(super::fresh_dir("testkit-b")).unwrap();
+    }
+}
