@@ -29,10 +29,10 @@
 
 use std::os::unix::ffi::OsStrExt;
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
-use std::sync::{mpsc, Arc, Barrier};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{mpsc, Arc};
 use std::thread::{self, JoinHandle};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
@@ -716,112 +716,11 @@ impl PolicySource for ShmPolicySource {
     }
 }
 
-/// Measures the step plane: `publishers` threads (each its own node, as actors are) send
-/// `records` step records in total (730 observation floats and 4 action floats each) while
-/// one subscriber drains them and copies every observation into a ring of 1024 rows, as the
-/// learner copies into its buffer. Returns records per second from the start of sending to the
-/// last record received. Uses a private service name under the default iceoryx2 root.
-pub fn bench_throughput(records: usize, publishers: usize) -> Result<f64, ShmError> {
-    const OBS: usize = 730;
-    const ROWS: usize = 1024;
-    static RUNS: AtomicUsize = AtomicUsize::new(0);
-    let publishers = publishers.max(1);
-    let cfg = ShmConfig {
-        service_prefix: format!(
-            "adp-bench/{}/{}",
-            std::process::id(),
-            RUNS.fetch_add(1, Ordering::Relaxed)
-        ),
-        max_actors: publishers.max(ShmConfig::default().max_actors),
-        ..ShmConfig::default()
-    };
-    let mut source = ShmStepSource::open(&cfg)?;
-    let start = Arc::new(Barrier::new(publishers + 1));
-    let senders: Vec<JoinHandle<Result<(), PlaneError>>> = (0..publishers)
-        .map(|i| {
-            let (cfg, start) = (cfg.clone(), Arc::clone(&start));
-            let count = records / publishers + usize::from(i < records % publishers);
-            thread::spawn(move || {
-                let sink = ShmStepSink::open(&cfg, &format!("adp-bench-actor-{i}"));
-                start.wait();
-                let mut sink = sink?;
-                let obs = vec![0.5f32; OBS];
-                let header = LeaseHeader {
-                    incarnation: 1,
-                    actor_id: i as u64,
-                    lease_id: 1,
-                };
-                for k in 0..count {
-                    let step = StepView {
-                        episode_id: 0,
-                        step_index: k as u32,
-                        policy_version: 0,
-                        obs: &obs,
-                        action: &[0.0; 4],
-                        reward: -0.5,
-                        terminal: false,
-                        truncated: false,
-                        final_obs: &[],
-                    };
-                    sink.send(&header, &step)?;
-                }
-                sink.flush()
-            })
-        })
-        .collect();
-    start.wait();
-    let t0 = Instant::now();
-    let mut ring = vec![0f32; ROWS * OBS];
-    let mut row = 0;
-    let mut received = 0;
-    while received < records {
-        let n = source.drain(256, |_, step| {
-            let len = step.obs.len().min(OBS);
-            ring[row * OBS..row * OBS + len].copy_from_slice(&step.obs[..len]);
-            row = (row + 1) % ROWS;
-        })?;
-        received += n;
-        if n == 0 {
-            if senders.iter().all(|s| s.is_finished()) && received < records {
-                break;
-            }
-            thread::yield_now();
-        }
-    }
-    let secs = t0.elapsed().as_secs_f64();
-    for (i, sender) in senders.into_iter().enumerate() {
-        match sender.join() {
-            Ok(Ok(())) => {}
-            Ok(Err(e)) => {
-                return Err(transfer_error(
-                    &source.label,
-                    "bench publisher",
-                    format!("{i}: {e}"),
-                ))
-            }
-            Err(_) => {
-                return Err(transfer_error(
-                    &source.label,
-                    "bench publisher",
-                    format!("{i} panicked"),
-                ))
-            }
-        }
-    }
-    if received < records {
-        return Err(transfer_error(
-            &source.label,
-            "bench",
-            format!("received {received} of {records} records"),
-        ));
-    }
-    Ok(records as f64 / secs)
-}
-
 #[cfg(test)]
 mod tests {
     use std::io::{BufRead, BufReader};
     use std::process::{Command, Stdio};
+    use std::sync::atomic::AtomicUsize;
 
     use super::*;
     use crate::validate::{RefusalKind, Spaces, Validator};
@@ -876,7 +775,7 @@ mod tests {
         }
     }
 
-    use crate::test_watchdog::watchdog;
+    use testkit::watchdog;
 
     fn value(actor: usize, k: usize, i: usize) -> f32 {
         ((actor * 131 + k * 17 + i * 7) % 2003) as f32 * 1e-3 - 1.0
@@ -1286,12 +1185,5 @@ mod tests {
     #[test]
     fn unattached_sink_notices_a_killed_learner() {
         killed_learner(false);
-    }
-
-    #[test]
-    fn bench_throughput_runs() {
-        let _w = watchdog(60, "small bench");
-        let rate = bench_throughput(2000, 2).unwrap();
-        assert!(rate > 0.0);
     }
 }

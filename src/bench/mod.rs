@@ -3,13 +3,16 @@
 //! - `learner`: one TD3 update at the configured batch (critic-only and with the actor step),
 //!   a full replay buffer's memory and sampling time; with `--python`, the same update in
 //!   PyTorch (`bench/td3_update.py`, embedded) right after, and the ratio of the two.
-//! - `transport`: step records per second through the shared-memory and the gRPC data planes.
+//! - `transport` ([`transport`]): step records per second through the shared-memory and the
+//!   gRPC data planes.
 //! - `collect`: agent steps per second of the actor's episode loop (simulator, planner, policy
 //!   inference, exploration; no learner), on one thread and on every core.
 //! - `train`: `adp train` end to end (learner + actor processes at one update per step),
 //!   agent steps per second once training has started.
 //!
 //! Timing is wall clock in a release build; nothing here is a test.
+
+mod transport;
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
@@ -234,7 +237,7 @@ struct TorchTiming {
 }
 
 fn pytorch_update(python: &Path, updates: usize) -> anyhow::Result<TorchTiming> {
-    const SCRIPT: &str = include_str!("../bench/td3_update.py");
+    const SCRIPT: &str = include_str!("../../bench/td3_update.py");
     let dir = tempdir("torch")?;
     let script = dir.join("td3_update.py");
     std::fs::write(&script, SCRIPT).with_context(|| format!("cannot write {}", script.display()))?;
@@ -265,8 +268,8 @@ fn pytorch_update(python: &Path, updates: usize) -> anyhow::Result<TorchTiming> 
 
 fn transport(records: usize) -> anyhow::Result<Vec<Figure>> {
     let records = records.max(1000);
-    let shm = proto::shm::bench_throughput(records, 4).map_err(|e| anyhow::anyhow!("{e}"))?;
-    let grpc = proto::grpc::bench_throughput(records / 4, 4).map_err(anyhow::Error::msg)?;
+    let shm = transport::shm_throughput(records, 4)?;
+    let grpc = transport::grpc_throughput(records / 4, 4)?;
     Ok(vec![
         figure(
             "shared-memory step records/s (4 publishers, 730 floats)",
