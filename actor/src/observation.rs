@@ -12,7 +12,9 @@
 //! | `local_goal`      | 2             | bearing (rad, in [-pi, pi]) and distance (m), robot frame |
 //! | `global_goal`     | 2             | bearing (rad, in [-pi, pi]) and distance (m), robot frame |
 //!
-//! This is the layout the exported policy card documents (`learner::export::observation_layout`).
+//! This module is the one definition of the layout: the learner sizes its networks with
+//! [`obs_dim`] and the exported policy card documents [`segments`] with [`Segment::encoding`]
+//! (`learner::export::observation_layout`).
 
 use planner::ActionSpace;
 use sim::episode::Perception;
@@ -37,6 +39,33 @@ pub struct Segment {
     pub offset: usize,
     /// Number of floats.
     pub size: usize,
+}
+
+impl Segment {
+    /// How the segment's values are computed from the robot's state and sensors, for lidar
+    /// ranges clipped at `laser_clip_m`: the `encoding` the exported policy card states.
+    pub fn encoding(&self, laser_clip_m: f64) -> String {
+        match self.name {
+            "laser" => format!(
+                "lidar ranges r (m) in beam order, beam k at -135 + k * 270/{} degrees from the \
+                 heading (counter-clockwise positive); x = 2 * min(r, {laser_clip_m}) / \
+                 {laser_clip_m} - 1, in [-1, 1]",
+                LASER_BEAMS - 1
+            ),
+            "previous_action" => "the policy's previous action, normalized to [-1, 1] like its output".into(),
+            "v" => "measured linear velocity (m/s), not normalized".into(),
+            "w" => "measured angular velocity (rad/s, counter-clockwise positive), not normalized".into(),
+            "local_goal" => {
+                "bearing (rad, in [-pi, pi], relative to the heading) and distance (m) of the local \
+                             goal, not normalized"
+                    .into()
+            }
+            "global_goal" => "bearing (rad, in [-pi, pi], relative to the heading) and distance (m) of the \
+                              global goal, not normalized"
+                .into(),
+            other => unreachable!("segment names are SEGMENT_NAMES, not {other}"),
+        }
+    }
 }
 
 /// The observation segments of `space`, in order, contiguous from offset 0.

@@ -324,13 +324,13 @@ impl Learner {
             }
         };
         let cfg = td3.config().clone();
-        if cfg.obs_dim != actor_obs_dim(opts.space) || cfg.act_dim != opts.space.dim() {
+        if cfg.obs_dim != actor::obs_dim(opts.space) || cfg.act_dim != opts.space.dim() {
             return Err(format!(
                 "[td3] obs_dim {} / act_dim {} do not fit the {} action space ({} / {})",
                 cfg.obs_dim,
                 cfg.act_dim,
                 space_name(opts.space),
-                actor_obs_dim(opts.space),
+                actor::obs_dim(opts.space),
                 opts.space.dim()
             ));
         }
@@ -634,11 +634,6 @@ impl Learner {
         self.runtime.shutdown_timeout(Duration::from_secs(1));
         summary
     }
-}
-
-/// The observation size actors produce for `space` (720 laser, previous action, 6 state values).
-pub fn actor_obs_dim(space: planner::ActionSpace) -> usize {
-    crate::export::observation_layout(space, crate::export::LASER_CLIP_M).dim
 }
 
 /// The action map of the environment settings (`action_map` in `env_toml`; the environment's
