@@ -30,6 +30,7 @@ use serde::{Deserialize, Serialize};
 
 /// Whether to run actors under bubblewrap.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
 pub enum BwrapMode {
     /// Use bwrap if it is on `PATH` and works (probed once), otherwise run without it.
     #[default]

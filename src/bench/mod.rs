@@ -44,22 +44,32 @@ pub enum Part {
 }
 
 /// What `adp bench` runs and how long.
+#[derive(clap::Args, Debug)]
 pub struct BenchArgs {
-    /// The parts, in order (all when empty).
+    /// Parts to run (default: all, in this order).
+    #[arg(value_enum)]
     pub parts: Vec<Part>,
-    /// Timed TD3 updates.
+    /// Timed TD3 updates (learner).
+    #[arg(long, default_value_t = 200)]
     pub updates: usize,
-    /// A Python with torch and numpy: also time the update in PyTorch.
+    /// A Python with torch and numpy: also time the same update in PyTorch and print the
+    /// ratio (learner).
+    #[arg(long)]
     pub python: Option<PathBuf>,
-    /// Step records sent through each transport.
+    /// Step records through shared memory; a quarter of them through gRPC (transport).
+    #[arg(long, default_value_t = 400_000)]
     pub records: usize,
-    /// Agent steps per collecting thread.
+    /// Agent steps per collecting thread (collect).
+    #[arg(long, default_value_t = 2000)]
     pub collect_steps: u64,
-    /// Agent-step budget of the end-to-end run.
+    /// Agent-step budget of the end-to-end `adp train` run (train).
+    #[arg(long, default_value_t = 4000)]
     pub train_steps: u64,
-    /// Actor processes of the end-to-end run (0 = one per core).
+    /// Actor processes of the end-to-end run (default: one per core).
+    #[arg(long, default_value_t = 0)]
     pub train_actors: u32,
-    /// Also write the figures as JSON here.
+    /// Also write the figures as JSON to this file.
+    #[arg(long)]
     pub json: Option<PathBuf>,
 }
 
@@ -291,8 +301,8 @@ fn collect_steps(
     steps: u64,
 ) -> anyhow::Result<u64> {
     let eval = EvalConfig::load(None)?;
-    let space = cfg.space()?;
-    let kind = cfg.planner_kind()?;
+    let space = cfg.run.action_space;
+    let kind = cfg.run.planner;
     let n = actor::observation::obs_dim(space);
     let (mut obs, mut action) = (vec![0.0f32; n], vec![0.0f32; space.dim()]);
     let mut scratch = Scratch::default();
@@ -328,7 +338,7 @@ fn collect_steps(
 
 fn collect(steps: u64) -> anyhow::Result<Vec<Figure>> {
     let cfg = TrainConfig::load(None)?;
-    let space = cfg.space()?;
+    let space = cfg.run.action_space;
     let worlds = cfg.worlds()?;
     let target: Vec<f32> = space.ddp_action().iter().map(|&a| a as f32).collect();
     let (dims, weights) = fitted_policy_weights(&cfg.td3, &target).map_err(anyhow::Error::msg)?;
@@ -356,7 +366,8 @@ fn collect(steps: u64) -> anyhow::Result<Vec<Figure>> {
         figure(
             format!(
                 "collection, agent steps/s on one core ({} {})",
-                cfg.run.planner, cfg.run.action_space
+                cfg.run.planner.name(),
+                learner::export::space_name(cfg.run.action_space)
             ),
             single,
             "1/s",
@@ -466,7 +477,7 @@ mod tests {
     #[test]
     fn collection_loop_counts_agent_steps_across_episode_ends() {
         let cfg = TrainConfig::load(None).unwrap();
-        let space = cfg.space().unwrap();
+        let space = cfg.run.action_space;
         let dims = [actor::observation::obs_dim(space), 8, space.dim()];
         let net = MlpPolicy::from_flat(&dims, vec![0.0; actor::policy::param_count(&dims)]).unwrap();
         let worlds = cfg.worlds().unwrap();
