@@ -248,29 +248,42 @@ fn eval_env_config(trained: EnvConfig) -> EnvConfig {
 
 /// Per-thread buffers of closed-loop runs, reused from episode to episode.
 #[derive(Default)]
-struct PolicyBuffers {
+pub struct PolicyBuffers {
     obs: Vec<f32>,
     action: Vec<f32>,
     scratch: Scratch,
 }
 
-/// Runs `env` to its end with `net` choosing the action every agent step (deterministic: no
-/// exploration noise). Returns the result and the planner cycles (`control_dt` is the
-/// episode's control period). Allocates nothing per step beyond what [`AdpEnv::step`] does.
-fn run_policy_episode(
+/// The closed loop: runs `env` to its end with `net` choosing the action every agent step
+/// (deterministic: no exploration noise); `on_step(env, observation, action)` sees every step
+/// before its action is applied. Allocates nothing per step beyond what [`AdpEnv::step`] and
+/// `on_step` do.
+pub fn run_policy(
     mut env: AdpEnv<'_>,
     net: &MlpPolicy,
-    control_dt: f64,
     buf: &mut PolicyBuffers,
-) -> anyhow::Result<(EpisodeResult, u64)> {
+    mut on_step: impl FnMut(&AdpEnv<'_>, &[f32], &[f32]) -> anyhow::Result<()>,
+) -> anyhow::Result<EpisodeResult> {
     buf.obs.resize(env.obs_dim(), 0.0);
     buf.action.resize(env.space().dim(), 0.0);
     while env.end() == End::Continue {
         env.observation(&mut buf.obs);
         net.act(&buf.obs, &mut buf.action, &mut buf.scratch);
+        on_step(&env, &buf.obs, &buf.action)?;
         env.step(&buf.action)?;
     }
-    let r = env.result().episode;
+    Ok(env.result().episode)
+}
+
+/// [`run_policy`] without a hook; returns the result and the planner cycles (`control_dt` is
+/// the episode's control period).
+fn run_policy_episode(
+    env: AdpEnv<'_>,
+    net: &MlpPolicy,
+    control_dt: f64,
+    buf: &mut PolicyBuffers,
+) -> anyhow::Result<(EpisodeResult, u64)> {
+    let r = run_policy(env, net, buf, |_, _, _| Ok(()))?;
     // Every planner cycle but the last runs a full control period; the last one may end early.
     let cycles = (r.sim_time_s / control_dt - 1e-6).ceil().max(0.0) as u64;
     Ok((r, cycles))

@@ -3,7 +3,7 @@
 //! worlds (the `val` split by default: training on `fit` never sees them), next to DDP on the
 //! same worlds and seeds. Each evaluation also summarizes the schedules the policy chose:
 //! per physical parameter its mean and spread, its mean in open and in cluttered scenes, and
-//! its correlation with clutter (the share of lidar beams within [`CLUTTER_RADIUS_M`]).
+//! its correlation with clutter (the share of lidar beams within [`actor::observation::CLUTTER_RADIUS_M`]).
 //!
 //! Results go to TensorBoard (a `greedy/` run next to the learner's: `greedy/success`,
 //! `greedy/score`, the DDP reference lines `greedy/ddp_success` and `greedy/ddp_score`, and
@@ -19,16 +19,15 @@ use std::thread::JoinHandle;
 use anyhow::Context;
 use serde::{Deserialize, Serialize};
 
-use actor::{AdpEnv, End, EnvConfig, MlpPolicy, Scratch};
+use actor::{AdpEnv, EnvConfig, MlpPolicy};
 use learner::tensorboard::EventWriter;
 use planner::{ActionSpace, Schedule};
 use sim::Status;
 
 use crate::config::EvalConfig;
-use crate::eval::{run_seed, PlannerKind};
+use crate::eval::{run_policy, run_seed, PlannerKind, PolicyBuffers};
 
-/// A beam whose range is below this counts toward a scene's clutter (m).
-pub const CLUTTER_RADIUS_M: f64 = 1.0;
+use actor::observation::clutter;
 
 /// `[greedy]` of a training config: how the run's greedy policy is monitored.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -87,7 +86,7 @@ pub struct GreedyResult {
     pub ddp_success: f64,
     /// DDP's mean score.
     pub ddp_score: f64,
-    /// Mean clutter of the steps (share of beams within [`CLUTTER_RADIUS_M`]; 0 in a record
+    /// Mean clutter of the steps (share of beams within [`actor::observation::CLUTTER_RADIUS_M`]; 0 in a record
     /// without it).
     #[serde(default)]
     pub clutter_mean: f64,
@@ -149,14 +148,6 @@ pub fn schedule_stats(records: &[StepRecord], names: &[&str]) -> Vec<ParamStats>
         .collect()
 }
 
-/// Share of `ranges` below [`CLUTTER_RADIUS_M`] (0 when empty).
-pub fn clutter(ranges: &[f64]) -> f64 {
-    if ranges.is_empty() {
-        return 0.0;
-    }
-    ranges.iter().filter(|&&r| r < CLUTTER_RADIUS_M).count() as f64 / ranges.len() as f64
-}
-
 /// Everything an evaluation needs besides the policy; shared with the background thread.
 struct Setup {
     worlds: Vec<usize>,
@@ -187,14 +178,13 @@ impl Setup {
             ..self.env
         };
         let ddp_box = self.space.ddp_action();
-        let (mut obs, mut out, mut scratch) =
-            (Vec::new(), vec![0.0f32; self.space.dim()], Scratch::default());
+        let mut buf = PolicyBuffers::default();
         let (mut u, mut boxed) = (vec![0.0; self.space.dim()], vec![0.0; self.space.dim()]);
         let (mut wins, mut score, mut n) = (0usize, 0.0, 0usize);
         let mut records = Vec::new();
         for (w, seed) in self.seeds() {
             let world = sim::barn::world(w).with_context(|| format!("world {w}"))?;
-            let mut env = AdpEnv::new(
+            let env = AdpEnv::new(
                 world,
                 self.eval.episode,
                 self.planner.build(&self.eval, seed),
@@ -203,19 +193,15 @@ impl Setup {
                 env_cfg,
                 seed,
             )?;
-            obs.resize(env.obs_dim(), 0.0);
-            while env.end() == End::Continue {
-                env.observation(&mut obs);
-                net.act(&obs, &mut out, &mut scratch);
-                for (x, &a) in u.iter_mut().zip(&out) {
+            let r = run_policy(env, net, &mut buf, |env, _, out| {
+                for (x, &a) in u.iter_mut().zip(out) {
                     *x = f64::from(a);
                 }
                 self.env.action_map.map_into(&u, &ddp_box, &mut boxed);
                 let c = clutter(env.episode().perception().ranges);
                 records.push((c, self.space.to_params(&boxed)?));
-                env.step(&out)?;
-            }
-            let r = env.result().episode;
+                Ok(())
+            })?;
             wins += usize::from(r.status == Status::Succeeded);
             score += r.score;
             n += 1;
@@ -491,12 +477,6 @@ mod tests {
         close(s[1].cluttered, 1.7);
         close(s[1].clutter_corr, -1.0);
         assert!(schedule_stats(&[], &["p"])[0].mean.is_nan());
-    }
-
-    #[test]
-    fn clutter_is_the_share_of_close_beams() {
-        assert_eq!(clutter(&[0.5, 2.0, 0.99, 3.0]), 0.5);
-        assert_eq!(clutter(&[]), 0.0);
     }
 
     #[test]

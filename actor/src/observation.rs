@@ -88,6 +88,18 @@ pub fn obs_dim(space: ActionSpace) -> usize {
     LASER_BEAMS + space.dim() + STATE_TAIL
 }
 
+/// Beams closer than this (m) count as clutter ([`clutter`]).
+pub const CLUTTER_RADIUS_M: f64 = 1.0;
+
+/// Local clutter: the share of lidar `ranges` below [`CLUTTER_RADIUS_M`] (0 when empty). The
+/// experiment's and the greedy evaluation's schedule-against-clutter statistics both use it.
+pub fn clutter(ranges: &[f64]) -> f64 {
+    if ranges.is_empty() {
+        return 0.0;
+    }
+    ranges.iter().filter(|&&r| r < CLUTTER_RADIUS_M).count() as f64 / ranges.len() as f64
+}
+
 /// Laser encoding: `2 * min(r, clip) / clip - 1`, in [-1, 1] for `r >= 0`.
 pub fn encode_range(r: f64, clip: f64) -> f32 {
     (2.0 * r.min(clip) / clip - 1.0) as f32
@@ -132,6 +144,12 @@ pub fn write(perception: &Perception<'_>, previous_action: &[f32], laser_clip_m:
 mod tests {
     use super::*;
     use sim::robot::Twist;
+
+    #[test]
+    fn clutter_is_the_share_of_close_beams() {
+        assert_eq!(clutter(&[0.5, 2.0, 0.99, 3.0]), 0.5);
+        assert_eq!(clutter(&[]), 0.0);
+    }
 
     #[test]
     fn segments_are_contiguous_and_sum_to_obs_dim() {
