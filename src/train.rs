@@ -431,9 +431,10 @@ pub fn actor(a: ActorArgs) -> anyhow::Result<()> {
         }
     };
     let eval_cfg = EvalConfig::load(None)?;
-    let factory = move |name: &str, seed: u64| -> Result<Box<dyn planner::Planner>, String> {
-        Ok(name.parse::<PlannerKind>()?.build(&eval_cfg, seed))
-    };
+    let factory =
+        move |name: &str, seed: u64| -> Result<Box<dyn planner::Planner>, actor::run::FactoryError> {
+            Ok(name.parse::<PlannerKind>()?.build(&eval_cfg, seed))
+        };
     let tls = a.tls_ca.is_some().then(|| TlsFiles {
         cert: a.tls_cert.clone(),
         key: a.tls_key.clone(),
@@ -452,5 +453,5 @@ pub fn actor(a: ActorArgs) -> anyhow::Result<()> {
         make_planner: &factory,
         give_up_after: Duration::from_secs(a.give_up_after_s),
     };
-    actor::run::run(&setup).map_err(anyhow::Error::msg)
+    Ok(actor::run::run(&setup)?)
 }
