@@ -7,13 +7,15 @@
 //! with the schedule's check density, and returns the cheapest admissible command: one whose
 //! rollout stays clear, or that the planner's model can stop before its first failed check
 //! (the classic DWA admissibility); such a rollout ends at its last clear point with the
-//! highest obstacle cost.
+//! highest obstacle cost. A robot that stands still for too long hands over to the
+//! [`crate::recovery`] behaviour (rotate toward a free heading, or back up).
 
 use serde::{Deserialize, Serialize};
 use sim::geometry::{Pose, Vec2};
 use sim::robot::{approach, Twist};
 
 use crate::local_map::LocalMap;
+use crate::recovery::{Recovery, RecoveryConfig};
 use crate::{Integrator, PlanInput, Planner, Rollouts};
 
 /// DWA parameters (defaults used by `adp eval`).
@@ -49,6 +51,8 @@ pub struct DwaConfig {
     pub w_speed: f64,
     /// Distance-field cell size (m).
     pub map_resolution: f64,
+    /// Getting unstuck after standing still (`[dwa.recovery]`).
+    pub recovery: RecoveryConfig,
 }
 
 impl Default for DwaConfig {
@@ -68,6 +72,7 @@ impl Default for DwaConfig {
             w_obstacle: 0.8,
             w_speed: 0.3,
             map_resolution: 0.05,
+            recovery: RecoveryConfig::default(),
         }
     }
 }
@@ -86,6 +91,7 @@ pub struct Dwa {
     /// the robot already has when that is smaller (so a robot that ended up closer than the
     /// margin may still move away instead of being stuck).
     margins: Vec<f64>,
+    recovery: Recovery,
     rollouts: Rollouts,
     recording: bool,
     evaluated: u64,
@@ -121,6 +127,7 @@ impl Dwa {
             v_prof: Vec::new(),
             cost: Vec::new(),
             margins: Vec::new(),
+            recovery: Recovery::new(cfg.recovery),
             rollouts: Rollouts::default(),
             recording: false,
             evaluated: 0,
@@ -133,6 +140,7 @@ pub fn distance_to_path(path: &[Vec2], p: Vec2, fallback: Vec2) -> f64 {
     if path.len() < 2 {
         return p.dist(path.first().copied().unwrap_or(fallback));
     }
+    // Squared distances in the loop, one square root at the end.
     let mut best = f64::INFINITY;
     for s in path.windows(2) {
         let (a, b) = (s[0], s[1]);
@@ -143,9 +151,10 @@ pub fn distance_to_path(path: &[Vec2], p: Vec2, fallback: Vec2) -> f64 {
         } else {
             0.0
         };
-        best = best.min(p.dist(a + ab * t));
+        let d = p - (a + ab * t);
+        best = best.min(d.dot(d));
     }
-    best
+    best.sqrt()
 }
 
 fn sample(lo: f64, hi: f64, k: usize, i: usize) -> f64 {
@@ -175,6 +184,10 @@ impl Planner for Dwa {
             1.0,
             cfg.clearance_cap,
         );
+        if let Some(cmd) = self.recovery.step(&self.map, per, &mut self.evaluated) {
+            self.rollouts.clear(sched.dts());
+            return cmd;
+        }
 
         let v0 = per.vel.v;
         let w0 = per.vel.w;
@@ -378,6 +391,41 @@ mod tests {
             10.0,
             vec![],
         )
+    }
+
+    /// BARN world 264 at 1.0 m/s with the DDP schedule on the Jackal profile: the robot
+    /// drives into a pocket between obstacle clusters where every 2 s forward arc fails a
+    /// check. Without recovery it stands there until the run times out.
+    #[test]
+    fn recovery_gets_a_parked_robot_out_of_a_pocket() {
+        let world = sim::barn::world(264).unwrap();
+        let outcomes = |enabled: bool| -> Vec<Status> {
+            (0..4)
+                .map(|seed| {
+                    let mut cfg = DwaConfig::default();
+                    cfg.recovery.enabled = enabled;
+                    let mut dwa = Dwa::new(cfg);
+                    let (r, _) = run_episode(
+                        world,
+                        EpisodeConfig::default(),
+                        &mut dwa,
+                        &Schedule::ddp_default(),
+                        1.0,
+                        seed,
+                        |_, _, _| {},
+                    );
+                    r.status
+                })
+                .collect()
+        };
+        let without = outcomes(false);
+        assert!(without.contains(&Status::TimedOut), "{without:?}");
+        let with = outcomes(true);
+        assert!(!with.contains(&Status::TimedOut), "{with:?}");
+        assert!(
+            with.iter().filter(|s| **s == Status::Succeeded).count() >= 3,
+            "{with:?}"
+        );
     }
 
     #[test]

@@ -12,6 +12,7 @@ pub mod local_map;
 pub mod log_mppi;
 pub mod mppi;
 pub mod prediction;
+pub mod recovery;
 pub mod run;
 pub mod schedule;
 pub mod system;
@@ -21,6 +22,7 @@ pub use dwa::{Dwa, DwaConfig};
 pub use log_mppi::{LogMppi, LogMppiConfig};
 pub use mppi::{Mppi, MppiConfig};
 pub use prediction::{CheckMode, Integrator, Prediction};
+pub use recovery::{Recovery, RecoveryConfig};
 pub use schedule::Schedule;
 pub use system::{Mode, ModeMachine, NavSystem, SystemConfig};
 

@@ -17,6 +17,8 @@ pub const FAR: f64 = 10.0;
 #[derive(Clone, Debug)]
 pub struct LocalMap {
     res: f64,
+    /// `1 / res`: cell lookups multiply instead of dividing (the hot loop of every rollout).
+    inv_res: f64,
     origin: Vec2,
     nx: usize,
     ny: usize,
@@ -43,6 +45,7 @@ impl LocalMap {
     pub fn new(footprint: Footprint, res: f64, n: usize) -> Self {
         let mut m = Self {
             res,
+            inv_res: 1.0 / res,
             origin: Vec2::default(),
             nx: 0,
             ny: 0,
@@ -166,8 +169,8 @@ impl LocalMap {
     }
 
     fn index(&self, p: Vec2) -> Option<usize> {
-        let fx = (p.x - self.origin.x) / self.res;
-        let fy = (p.y - self.origin.y) / self.res;
+        let fx = (p.x - self.origin.x) * self.inv_res;
+        let fy = (p.y - self.origin.y) * self.inv_res;
         if fx < 0.0 || fy < 0.0 {
             return None;
         }
@@ -219,11 +222,17 @@ impl LocalMap {
             };
         }
         let (s, co) = pose.yaw.sin_cos();
-        let mut nearest = f64::INFINITY;
+        // The smallest raw cell distance first, the half-cell correction once: the same
+        // value as the smallest `distance` (the correction is monotone).
+        let mut raw = f32::INFINITY;
         for b in &self.points[m] {
             let p = Vec2::new(c.x + co * b.x - s * b.y, c.y + s * b.x + co * b.y);
-            nearest = nearest.min(self.distance(p));
+            raw = raw.min(match self.index(p) {
+                Some(i) => self.dist[i],
+                None => FAR as f32 + 0.5 * self.res as f32,
+            });
         }
+        let nearest = (raw as f64 - 0.5 * self.res).max(0.0);
         *evaluated += m as u64;
         match self.mode {
             CheckMode::Conservative => disk.max(nearest - self.half_gap[m]),
