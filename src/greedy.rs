@@ -20,6 +20,7 @@ use anyhow::Context;
 use serde::{Deserialize, Serialize};
 
 use actor::{AdpEnv, EnvConfig, MlpPolicy};
+use learner::service::ServiceError;
 use learner::tensorboard::EventWriter;
 use planner::{ActionSpace, Schedule};
 use sim::Status;
@@ -308,8 +309,8 @@ impl GreedyMonitor {
     pub fn poll(
         &mut self,
         inserts: u64,
-        latest: impl FnOnce() -> Result<(u64, Vec<usize>, Vec<f32>), String>,
-    ) -> Option<Result<GreedyResult, String>> {
+        latest: impl FnOnce() -> Result<(u64, Vec<usize>, Vec<f32>), ServiceError>,
+    ) -> Option<anyhow::Result<GreedyResult>> {
         let done = self.collect(false);
         if self.job.is_none() && inserts >= self.next_at {
             self.next_at = (inserts / self.every + 1) * self.every;
@@ -325,8 +326,8 @@ impl GreedyMonitor {
     pub fn finish(
         mut self,
         inserts: u64,
-        latest: impl FnOnce() -> Result<(u64, Vec<usize>, Vec<f32>), String>,
-    ) -> Vec<Result<GreedyResult, String>> {
+        latest: impl FnOnce() -> Result<(u64, Vec<usize>, Vec<f32>), ServiceError>,
+    ) -> Vec<anyhow::Result<GreedyResult>> {
         let mut out: Vec<_> = self.collect(true).into_iter().collect();
         match self.start(inserts, latest) {
             Ok(()) => out.extend(self.collect(true)),
@@ -338,14 +339,14 @@ impl GreedyMonitor {
     fn start(
         &mut self,
         inserts: u64,
-        latest: impl FnOnce() -> Result<(u64, Vec<usize>, Vec<f32>), String>,
-    ) -> Result<(), String> {
+        latest: impl FnOnce() -> Result<(u64, Vec<usize>, Vec<f32>), ServiceError>,
+    ) -> anyhow::Result<()> {
         let (version, dims, weights) = latest()?;
         if version == 0 {
             return Ok(()); // nothing published yet
         }
         let net = MlpPolicy::from_flat(&dims, weights)
-            .map_err(|e| format!("greedy evaluation: policy {version}: {e}"))?;
+            .with_context(|| format!("greedy evaluation: policy {version}"))?;
         let setup = self.setup.clone();
         let ddp = self.ddp;
         self.job = Some(std::thread::spawn(move || {
@@ -371,7 +372,7 @@ impl GreedyMonitor {
     }
 
     /// Takes a finished job's result (waiting for it when `wait`), and records it.
-    fn collect(&mut self, wait: bool) -> Option<Result<GreedyResult, String>> {
+    fn collect(&mut self, wait: bool) -> Option<anyhow::Result<GreedyResult>> {
         if !wait && !self.job.as_ref().is_some_and(JoinHandle::is_finished) {
             return None;
         }
@@ -379,12 +380,10 @@ impl GreedyMonitor {
         let result = match job.join() {
             Ok(Ok((r, ddp))) => {
                 self.ddp = Some(ddp);
-                self.record(&r)
-                    .map(|()| r)
-                    .map_err(|e| format!("greedy evaluation: {e:#}"))
+                self.record(&r).map(|()| r).context("greedy evaluation")
             }
-            Ok(Err(e)) => Err(format!("greedy evaluation failed: {e:#}")),
-            Err(_) => Err("greedy evaluation panicked".into()),
+            Ok(Err(e)) => Err(e.context("greedy evaluation failed")),
+            Err(_) => Err(anyhow::anyhow!("greedy evaluation panicked")),
         };
         Some(result)
     }

@@ -23,7 +23,7 @@ fn main() -> ExitCode {
     match cli::run(cli.cmd) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("error: {}", config::one_line(&format!("{e:#}")));
+            eprintln!("error: {}", config::error_line(&e));
             ExitCode::FAILURE
         }
     }

@@ -22,7 +22,7 @@ use scheduler::{
     BackoffPolicy, BwrapMode, Sandbox, SandboxConfig, Supervisor, SupervisorConfig, SupervisorEvent,
 };
 
-use crate::config::{one_line, EvalConfig};
+use crate::config::{error_line, one_line, EvalConfig};
 use crate::eval::PlannerKind;
 use crate::greedy::{GreedyMonitor, GreedySection};
 use crate::slurm::SlurmSection;
@@ -211,7 +211,7 @@ fn prepare(config: Option<&Path>, o: &Overrides, resume: bool) -> anyhow::Result
     }
     cfg.service.allow_insecure_listen |= o.allow_insecure_listen;
     // Refuse an unusable [service] before anything is created.
-    cfg.service.check().map_err(anyhow::Error::msg)?;
+    cfg.service.check()?;
     let out = o
         .out
         .clone()
@@ -254,7 +254,7 @@ pub fn train(config: Option<&Path>, o: &Overrides, resume: bool) -> anyhow::Resu
         0 => std::thread::available_parallelism().map_or(2, |n| n.get() as u32),
         n => n,
     };
-    let learner = Learner::start(cfg.learner_options(&out, token, resume)?).map_err(anyhow::Error::msg)?;
+    let learner = Learner::start(cfg.learner_options(&out, token, resume)?)?;
     let exe = std::env::current_exe().context("cannot find this executable to start actors")?;
     let sandbox = Sandbox::new(SandboxConfig {
         bwrap: cfg.sandbox.bwrap,
@@ -322,7 +322,7 @@ pub fn train(config: Option<&Path>, o: &Overrides, resume: bool) -> anyhow::Resu
         if let Some(g) = greedy.as_mut() {
             match g.poll(s.inserts, || learner.latest_policy()) {
                 Some(Ok(r)) => bar.println(crate::greedy::describe(&r)),
-                Some(Err(e)) => bar.println(e),
+                Some(Err(e)) => bar.println(error_line(&e)),
                 None => {}
             }
         }
@@ -346,10 +346,13 @@ pub fn train(config: Option<&Path>, o: &Overrides, resume: bool) -> anyhow::Resu
     if let Some(g) = greedy {
         let inserts = learner.status().inserts;
         for r in g.finish(inserts, || learner.latest_policy()) {
-            eprintln!("{}", r.map_or_else(|e| e, |r| crate::greedy::describe(&r)));
+            eprintln!(
+                "{}",
+                r.map_or_else(|e| error_line(&e), |r| crate::greedy::describe(&r))
+            );
         }
     }
-    let summary = learner.wait().map_err(anyhow::Error::msg)?;
+    let summary = learner.wait()?;
     supervisor.shutdown(Duration::from_secs(3));
     print_summary(&summary, &out, &space_name(cfg.run.action_space), "train");
     Ok(())
@@ -371,8 +374,8 @@ pub fn learner(
         Some(p) => read_token_file(p)?,
         None => run_token(&out)?.1,
     };
-    let learner = Learner::start(cfg.learner_options(&out, token, resume)?).map_err(anyhow::Error::msg)?;
-    let summary = learner.wait().map_err(anyhow::Error::msg)?;
+    let learner = Learner::start(cfg.learner_options(&out, token, resume)?)?;
+    let summary = learner.wait()?;
     print_summary(&summary, &out, &space_name(cfg.run.action_space), "learner");
     Ok(())
 }

@@ -347,6 +347,21 @@ fn remove_dead_nodes(config: &Config) {
     });
 }
 
+/// `Debug` for the port wrappers: the type's name and its service label.
+macro_rules! debug_by_label {
+    ($($port:ident),*) => {$(
+        impl std::fmt::Debug for $port {
+            fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+                f.debug_struct(stringify!($port))
+                    .field("service", &self.label)
+                    .finish()
+            }
+        }
+    )*};
+}
+
+debug_by_label!(ShmStepSink, ShmStepSource, ShmPolicyPublisher, ShmPolicySource);
+
 /// The actor's end of the step service (`<prefix>/steps`).
 ///
 /// [`StepSink::send`] writes the record straight into a slot of the actor's shared memory (one
@@ -357,14 +372,6 @@ pub struct ShmStepSink {
     service: StepService,
     config: Config,
     label: String,
-}
-
-impl std::fmt::Debug for ShmStepSink {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("ShmStepSink")
-            .field("service", &self.label)
-            .finish()
-    }
 }
 
 impl ShmStepSink {
@@ -494,14 +501,6 @@ pub struct ShmStepSource {
     label: String,
 }
 
-impl std::fmt::Debug for ShmStepSource {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("ShmStepSource")
-            .field("service", &self.label)
-            .finish()
-    }
-}
-
 impl ShmStepSource {
     /// Creates (or opens) the step service of `cfg` and subscribes to it, through a node
     /// called `adp-learner`. Only one source may exist per service.
@@ -570,14 +569,6 @@ pub struct ShmPolicyPublisher {
     refresher: Option<JoinHandle<()>>,
     max_floats: usize,
     label: String,
-}
-
-impl std::fmt::Debug for ShmPolicyPublisher {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("ShmPolicyPublisher")
-            .field("service", &self.label)
-            .finish()
-    }
 }
 
 impl ShmPolicyPublisher {
@@ -665,14 +656,6 @@ impl Drop for ShmPolicyPublisher {
 pub struct ShmPolicySource {
     subscriber: Subscriber<Ipc, [f32], PolicyHead>,
     label: String,
-}
-
-impl std::fmt::Debug for ShmPolicySource {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("ShmPolicySource")
-            .field("service", &self.label)
-            .finish()
-    }
 }
 
 impl ShmPolicySource {

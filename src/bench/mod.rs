@@ -434,7 +434,7 @@ fn train(steps: u64, actors: u32) -> anyhow::Result<Vec<Figure>> {
             dir.join("train.log").display()
         );
     }
-    let s = read_status(&run).map_err(anyhow::Error::msg)?;
+    let s = read_status(&run)?;
     let (Some(a), Some(b)) = (first, last) else {
         bail!("the run finished before a training window could be measured; raise --train-steps");
     };
