@@ -11,7 +11,7 @@ use planner::ActionSpace;
 use sim::splits::SplitFile;
 use sim::{Profile, World};
 
-use crate::config::EvalConfig;
+use crate::config::{EvalConfig, UnknownName};
 use crate::eval::{AdpSetting, EvalPlan};
 use crate::eval::{Fidelity, PlannerKind};
 use crate::{bench, calibrate, experiment, export, slurm, train};
@@ -128,9 +128,12 @@ impl EvalRunArgs {
 }
 
 /// Parses a simulator profile name.
-fn parse_profile(s: &str) -> Result<Profile, String> {
-    serde_json::from_value(serde_json::Value::String(s.to_string()))
-        .map_err(|_| format!("unknown profile `{s}` (expected ideal, gazebo-jackal or custom)"))
+fn parse_profile(s: &str) -> Result<Profile, UnknownName> {
+    serde_json::from_value(serde_json::Value::String(s.to_string())).map_err(|_| UnknownName {
+        kind: "profile",
+        name: s.to_string(),
+        expected: "ideal, gazebo-jackal or custom",
+    })
 }
 
 /// The subcommands.

@@ -44,6 +44,18 @@ impl EvalConfig {
     }
 }
 
+/// A name that is none of the known ones (a planner, a simulator profile).
+#[derive(Debug, thiserror::Error)]
+#[error("unknown {kind} `{name}` (expected {expected})")]
+pub struct UnknownName {
+    /// What the name should name, e.g. `planner`.
+    pub kind: &'static str,
+    /// The name given.
+    pub name: String,
+    /// The known names, e.g. `dwa, mppi, log-mppi or system`.
+    pub expected: &'static str,
+}
+
 /// `e` and its causes on one line, `outer: inner: ...` like anyhow's `{:#}`, leaving out a cause
 /// whose message the text already ends with (the component errors include their source in
 /// their own message).

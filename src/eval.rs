@@ -24,7 +24,7 @@ use planner::{
 use sim::robot::Twist;
 use sim::{EpisodeResult, Status, World};
 
-use crate::config::EvalConfig;
+use crate::config::{EvalConfig, UnknownName};
 
 /// Time charged to a failed run when averaging times (s), as in the ADP paper.
 pub const FAILED_RUN_TIME: f64 = 50.0;
@@ -78,12 +78,15 @@ pub enum PlannerKind {
 }
 
 impl std::str::FromStr for PlannerKind {
-    type Err = String;
+    type Err = UnknownName;
 
     /// A planner by [`PlannerKind::name`] (how the learner names it to its actors).
-    fn from_str(name: &str) -> Result<Self, String> {
-        <PlannerKind as clap::ValueEnum>::from_str(name, false)
-            .map_err(|_| format!("unknown planner `{name}` (expected dwa, mppi, log-mppi or system)"))
+    fn from_str(name: &str) -> Result<Self, UnknownName> {
+        <PlannerKind as clap::ValueEnum>::from_str(name, false).map_err(|_| UnknownName {
+            kind: "planner",
+            name: name.to_string(),
+            expected: "dwa, mppi, log-mppi or system",
+        })
     }
 }
 

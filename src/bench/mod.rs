@@ -341,7 +341,7 @@ fn collect(steps: u64) -> anyhow::Result<Vec<Figure>> {
     let space = cfg.run.action_space;
     let worlds = cfg.worlds()?;
     let target: Vec<f32> = space.ddp_action().iter().map(|&a| a as f32).collect();
-    let (dims, weights) = fitted_policy_weights(&cfg.td3, &target).map_err(anyhow::Error::msg)?;
+    let (dims, weights) = fitted_policy_weights(&cfg.td3, &target)?;
     let net = MlpPolicy::from_flat(&dims, weights)?;
     let steps = steps.max(10);
     let t = Instant::now();

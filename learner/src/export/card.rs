@@ -212,6 +212,42 @@ pub enum CardError {
     },
 }
 
+/// Why a checkpoint does not make a card for an action space ([`PolicyCard::new`]).
+#[derive(Debug, Error)]
+pub enum CardMismatch {
+    /// The actor's output size is not the space's action size.
+    #[error("act_dim = {act_dim} does not fit the {space} action space ({dim} values)")]
+    ActDim {
+        /// The checkpoint's `act_dim`.
+        act_dim: usize,
+        /// The action space.
+        space: String,
+        /// Its action size.
+        dim: usize,
+    },
+    /// The actor's input does not match the space's observation layout.
+    #[error(
+        "obs_dim = {obs_dim} with laser_dim = {laser_dim} does not fit the observation layout of the \
+         {space} action space ({dim} values, {LASER_BEAMS} of them laser)"
+    )]
+    ObsDim {
+        /// The checkpoint's `obs_dim`.
+        obs_dim: usize,
+        /// The checkpoint's `laser_dim`.
+        laser_dim: usize,
+        /// The action space.
+        space: String,
+        /// Its observation size.
+        dim: usize,
+    },
+    /// The recorded environment settings are not a table.
+    #[error("the recorded environment settings are not a table: {0}")]
+    Environment(serde_json::Value),
+    /// The recorded laser clip is not a positive number.
+    #[error("the recorded environment's laser_clip_m = {0} is not a positive number")]
+    LaserClip(serde_json::Value),
+}
+
 impl PolicyCard {
     /// Reads a card ([`super::JSON_FILE`]) written by [`PolicyCard::new`], refusing other
     /// formats and format versions.
@@ -234,26 +270,23 @@ impl PolicyCard {
         space: ActionSpace,
         manifest: &Manifest,
         environment: &serde_json::Value,
-    ) -> Result<Self, String> {
+    ) -> Result<Self, CardMismatch> {
         let config = &manifest.config;
         let layout = observation_layout(space, laser_clip_m(environment)?);
         if config.act_dim != space.dim() {
-            return Err(format!(
-                "act_dim = {} does not fit the {} action space ({} values)",
-                config.act_dim,
-                space_name(space),
-                space.dim()
-            ));
+            return Err(CardMismatch::ActDim {
+                act_dim: config.act_dim,
+                space: space_name(space),
+                dim: space.dim(),
+            });
         }
         if config.obs_dim != layout.dim || config.laser_dim != LASER_BEAMS {
-            return Err(format!(
-                "obs_dim = {} with laser_dim = {} does not fit the observation layout of the \
-                 {} action space ({} values, {LASER_BEAMS} of them laser)",
-                config.obs_dim,
-                config.laser_dim,
-                space_name(space),
-                layout.dim
-            ));
+            return Err(CardMismatch::ObsDim {
+                obs_dim: config.obs_dim,
+                laser_dim: config.laser_dim,
+                space: space_name(space),
+                dim: layout.dim,
+            });
         }
         let layer_sizes = std::iter::once(config.obs_dim)
             .chain(config.actor_hidden.iter().copied())
@@ -319,21 +352,17 @@ impl PolicyCard {
 
 /// The laser clip of recorded environment settings: their `laser_clip_m`, or [`DEFAULT_LASER_CLIP_M`]
 /// when they are `null` or do not set it.
-fn laser_clip_m(environment: &serde_json::Value) -> Result<f64, String> {
+fn laser_clip_m(environment: &serde_json::Value) -> Result<f64, CardMismatch> {
     let table = match environment {
         serde_json::Value::Null => return Ok(DEFAULT_LASER_CLIP_M),
         serde_json::Value::Object(table) => table,
-        other => {
-            return Err(format!(
-                "the recorded environment settings are not a table: {other}"
-            ))
-        }
+        other => return Err(CardMismatch::Environment(other.clone())),
     };
     match table.get("laser_clip_m") {
         None => Ok(DEFAULT_LASER_CLIP_M),
         Some(v) => v
             .as_f64()
             .filter(|c| c.is_finite() && *c > 0.0)
-            .ok_or_else(|| format!("the recorded environment's laser_clip_m = {v} is not a positive number")),
+            .ok_or_else(|| CardMismatch::LaserClip(v.clone())),
     }
 }

@@ -29,8 +29,8 @@ use planner::ActionSpace;
 use thiserror::Error;
 
 pub use card::{
-    observation_layout, space_name, ActionCard, ActionDimension, CardError, NetworkCard, ObservationLayout,
-    ObservationSegment, PolicyCard, Software, Source,
+    observation_layout, space_name, ActionCard, ActionDimension, CardError, CardMismatch, NetworkCard,
+    ObservationLayout, ObservationSegment, PolicyCard, Software, Source,
 };
 pub use onnx::{actor_onnx, BATCH_DIM, INPUT_NAME, IR_VERSION, OPSET, OUTPUT_NAME};
 pub use weights::{actor_safetensors, read_actor_safetensors, WeightsError};
@@ -60,7 +60,8 @@ pub enum ExportError {
         /// The checkpoint's manifest.
         file: PathBuf,
         /// What does not fit.
-        what: String,
+        #[source]
+        what: CardMismatch,
     },
     /// Writing an output file failed.
     #[error("export {op} {path}: {source}")]
@@ -473,7 +474,8 @@ mod tests {
             &manifest(Td3Config::default()),
             &serde_json::Value::Null,
         )
-        .unwrap_err();
+        .unwrap_err()
+        .to_string();
         assert!(
             err.contains("act_dim = 4") && err.contains("unconstrained"),
             "{err}"
@@ -488,7 +490,8 @@ mod tests {
             &manifest(small),
             &serde_json::Value::Null,
         )
-        .unwrap_err();
+        .unwrap_err()
+        .to_string();
         assert!(err.contains("obs_dim = 3") && err.contains("730 values"), "{err}");
     }
 
@@ -519,8 +522,9 @@ mod tests {
             serde_json::json!({ "laser_clip_m": "far" }),
             serde_json::json!([1, 2]),
         ] {
-            let err =
-                PolicyCard::new(ActionSpace::Decremental, &manifest(Td3Config::default()), &bad).unwrap_err();
+            let err = PolicyCard::new(ActionSpace::Decremental, &manifest(Td3Config::default()), &bad)
+                .unwrap_err()
+                .to_string();
             assert!(err.contains("environment"), "{err}");
         }
     }
