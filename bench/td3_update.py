@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""One TD3 update in PyTorch (CPU), the same work as `adp_learner::Td3::update`.
+"""One TD3 update in PyTorch (CPU), the same work as `learner::Td3::update`.
 
 `adp bench learner --python PYTHON` runs this script right after its own measurement, with
 the same thread count, and prints the ratio of the two (DESIGN §8). By hand:

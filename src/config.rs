@@ -44,6 +44,34 @@ impl EvalConfig {
     }
 }
 
+/// A name that is none of the known ones (a planner, a simulator profile).
+#[derive(Debug, thiserror::Error)]
+#[error("unknown {kind} `{name}` (expected {expected})")]
+pub struct UnknownName {
+    /// What the name should name, e.g. `planner`.
+    pub kind: &'static str,
+    /// The name given.
+    pub name: String,
+    /// The known names, e.g. `dwa, mppi, log-mppi or system`.
+    pub expected: &'static str,
+}
+
+/// `e` and its causes on one line, `outer: inner: ...` like anyhow's `{:#}`, leaving out a cause
+/// whose message the text already ends with (the component errors include their source in
+/// their own message).
+pub fn error_line(e: &anyhow::Error) -> String {
+    let mut line = String::new();
+    for cause in e.chain() {
+        let text = cause.to_string();
+        if line.is_empty() {
+            line = text;
+        } else if !line.ends_with(&text) {
+            line = format!("{line}: {text}");
+        }
+    }
+    one_line(&line)
+}
+
 /// Collapses a multi-line parser message (toml prints a snippet) into one line.
 pub fn one_line(s: &str) -> String {
     s.lines()

@@ -15,7 +15,7 @@ use std::time::Instant;
 use anyhow::{bail, Context};
 use indicatif::{ProgressBar, ProgressStyle};
 use rayon::prelude::*;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use actor::{AdpEnv, End, EnvConfig, MlpPolicy, Scratch, LASER_BEAMS};
 use planner::{
@@ -24,7 +24,7 @@ use planner::{
 use sim::robot::Twist;
 use sim::{EpisodeResult, Status, World};
 
-use crate::config::EvalConfig;
+use crate::config::{EvalConfig, UnknownName};
 
 /// Time charged to a failed run when averaging times (s), as in the ADP paper.
 pub const FAILED_RUN_TIME: f64 = 50.0;
@@ -64,7 +64,7 @@ impl Fidelity {
 }
 
 /// A planner selectable on the command line.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "kebab-case")]
 pub enum PlannerKind {
     /// Dynamic Window Approach.
@@ -77,7 +77,31 @@ pub enum PlannerKind {
     System,
 }
 
+impl std::str::FromStr for PlannerKind {
+    type Err = UnknownName;
+
+    /// A planner by [`PlannerKind::name`] (how the learner names it to its actors).
+    fn from_str(name: &str) -> Result<Self, UnknownName> {
+        <PlannerKind as clap::ValueEnum>::from_str(name, false).map_err(|_| UnknownName {
+            kind: "planner",
+            name: name.to_string(),
+            expected: "dwa, mppi, log-mppi or system",
+        })
+    }
+}
+
 impl PlannerKind {
+    /// The planner's name in configuration files, on the command line and in tables (`dwa`,
+    /// `mppi`, `log-mppi`, `system`).
+    pub fn name(self) -> &'static str {
+        match self {
+            PlannerKind::Dwa => "dwa",
+            PlannerKind::Mppi => "mppi",
+            PlannerKind::LogMppi => "log-mppi",
+            PlannerKind::System => "system",
+        }
+    }
+
     /// A fresh planner for one episode; `seed` drives its sampling.
     pub fn build(self, cfg: &EvalConfig, seed: u64) -> Box<dyn Planner> {
         match self {
@@ -227,29 +251,42 @@ fn eval_env_config(trained: EnvConfig) -> EnvConfig {
 
 /// Per-thread buffers of closed-loop runs, reused from episode to episode.
 #[derive(Default)]
-struct PolicyBuffers {
+pub struct PolicyBuffers {
     obs: Vec<f32>,
     action: Vec<f32>,
     scratch: Scratch,
 }
 
-/// Runs `env` to its end with `net` choosing the action every agent step (deterministic: no
-/// exploration noise). Returns the result and the planner cycles (`control_dt` is the
-/// episode's control period). Allocates nothing per step beyond what [`AdpEnv::step`] does.
-fn run_policy_episode(
+/// The closed loop: runs `env` to its end with `net` choosing the action every agent step
+/// (deterministic: no exploration noise); `on_step(env, observation, action)` sees every step
+/// before its action is applied. Allocates nothing per step beyond what [`AdpEnv::step`] and
+/// `on_step` do.
+pub fn run_policy(
     mut env: AdpEnv<'_>,
     net: &MlpPolicy,
-    control_dt: f64,
     buf: &mut PolicyBuffers,
-) -> anyhow::Result<(EpisodeResult, u64)> {
+    mut on_step: impl FnMut(&AdpEnv<'_>, &[f32], &[f32]) -> anyhow::Result<()>,
+) -> anyhow::Result<EpisodeResult> {
     buf.obs.resize(env.obs_dim(), 0.0);
     buf.action.resize(env.space().dim(), 0.0);
     while env.end() == End::Continue {
         env.observation(&mut buf.obs);
         net.act(&buf.obs, &mut buf.action, &mut buf.scratch);
+        on_step(&env, &buf.obs, &buf.action)?;
         env.step(&buf.action)?;
     }
-    let r = env.result().episode;
+    Ok(env.result().episode)
+}
+
+/// [`run_policy`] without a hook; returns the result and the planner cycles (`control_dt` is
+/// the episode's control period).
+fn run_policy_episode(
+    env: AdpEnv<'_>,
+    net: &MlpPolicy,
+    control_dt: f64,
+    buf: &mut PolicyBuffers,
+) -> anyhow::Result<(EpisodeResult, u64)> {
+    let r = run_policy(env, net, buf, |_, _, _| Ok(()))?;
     // Every planner cycle but the last runs a full control period; the last one may end early.
     let cycles = (r.sim_time_s / control_dt - 1e-6).ceil().max(0.0) as u64;
     Ok((r, cycles))
@@ -647,4 +684,64 @@ mod tests {
         assert_ne!(run_seed(1, 2, 3), run_seed(1, 3, 2));
         assert_ne!(run_seed(1, 2, 3), run_seed(2, 2, 3));
     }
+}
+
+/// `adp eval`: runs the plan the arguments describe and prints its table (and writes the rows
+/// as JSON with `--out`).
+pub fn command(a: &crate::cli::EvalArgs) -> anyhow::Result<()> {
+    let cfg = a.run.setup.eval_config()?;
+    let ids = sim::splits::SplitFile::embedded().select(&a.worlds)?;
+    if a.runs == 0 {
+        anyhow::bail!("--runs must be at least 1");
+    }
+    if a.policy.is_some() && !a.fidelity.contains(&Fidelity::Adp) {
+        anyhow::bail!("--policy applies to --fidelity adp, which is not among the fidelities");
+    }
+    let all = a.run.setup.data.load()?;
+    let ddp = |space: ActionSpace| AdpSetting {
+        space,
+        action: space.ddp_action(),
+    };
+    // The source of a trained policy is reported after the run, so that errors stay one line.
+    let (adp, net, source) = match &a.policy {
+        None => (ddp(a.action.unwrap_or(ActionSpace::Decremental)), None, None),
+        Some(p) => match crate::policy::load(p, a.action)? {
+            crate::policy::EvalPolicy::Constant { space, action } => {
+                (AdpSetting { space, action }, None, None)
+            }
+            crate::policy::EvalPolicy::Learned(l) => {
+                let s = &l.card.source;
+                let source = format!(
+                    "policy {}: run {}, {} updates, {} action space, layers {:?}, an action \
+                     every {} planner cycles, laser clipped at {} m",
+                    l.card_path.display(),
+                    s.run_id,
+                    s.updates,
+                    learner::export::space_name(l.space),
+                    l.net.dims(),
+                    l.env.agent_period_cycles,
+                    l.env.laser_clip_m
+                );
+                (ddp(l.space), Some((l.net, l.env)), Some(source))
+            }
+        },
+    };
+    let plan = EvalPlan {
+        adp,
+        policy_env: net.as_ref().map_or_else(EnvConfig::default, |(_, env)| *env),
+        policy: net.map(|(net, _)| net),
+        planners: a.planner.clone(),
+        fidelities: a.fidelity.clone(),
+        speeds: a.max_speed.clone(),
+        worlds: ids,
+        runs: a.runs,
+        trim: a.trim,
+        seed: a.run.seed,
+    };
+    let rows = a.run.pool()?.install(|| run(&plan, &cfg, &all))?;
+    if let Some(source) = source {
+        eprintln!("{source}");
+    }
+    print!("{}", table(&rows));
+    a.run.write_json(&rows)
 }

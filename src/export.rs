@@ -1,9 +1,9 @@
 //! `adp export`: write a checkpoint's policy as ONNX, safetensors and a JSON card (the work is
-//! done by `adp_learner::export`; this prints what was written).
+//! done by `learner::export`; this prints what was written).
 
 use std::path::Path;
 
-use adp_learner::export::{export_checkpoint, space_name};
+use learner::export::{export_checkpoint, space_name};
 use planner::ActionSpace;
 
 /// Export the policy of the checkpoint directory `checkpoint`, trained in `space`, into `out`.

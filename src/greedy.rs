@@ -3,7 +3,7 @@
 //! worlds (the `val` split by default: training on `fit` never sees them), next to DDP on the
 //! same worlds and seeds. Each evaluation also summarizes the schedules the policy chose:
 //! per physical parameter its mean and spread, its mean in open and in cluttered scenes, and
-//! its correlation with clutter (the share of lidar beams within [`CLUTTER_RADIUS_M`]).
+//! its correlation with clutter (the share of lidar beams within [`actor::observation::CLUTTER_RADIUS_M`]).
 //!
 //! Results go to TensorBoard (a `greedy/` run next to the learner's: `greedy/success`,
 //! `greedy/score`, the DDP reference lines `greedy/ddp_success` and `greedy/ddp_score`, and
@@ -19,16 +19,16 @@ use std::thread::JoinHandle;
 use anyhow::Context;
 use serde::{Deserialize, Serialize};
 
-use actor::{AdpEnv, End, EnvConfig, MlpPolicy, Scratch};
-use adp_learner::tensorboard::EventWriter;
+use actor::{AdpEnv, EnvConfig, MlpPolicy};
+use learner::service::ServiceError;
+use learner::tensorboard::EventWriter;
 use planner::{ActionSpace, Schedule};
 use sim::Status;
 
 use crate::config::EvalConfig;
-use crate::eval::{run_seed, PlannerKind};
+use crate::eval::{run_policy, run_seed, PlannerKind, PolicyBuffers};
 
-/// A beam whose range is below this counts toward a scene's clutter (m).
-pub const CLUTTER_RADIUS_M: f64 = 1.0;
+use actor::observation::clutter;
 
 /// `[greedy]` of a training config: how the run's greedy policy is monitored.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -87,7 +87,7 @@ pub struct GreedyResult {
     pub ddp_success: f64,
     /// DDP's mean score.
     pub ddp_score: f64,
-    /// Mean clutter of the steps (share of beams within [`CLUTTER_RADIUS_M`]; 0 in a record
+    /// Mean clutter of the steps (share of beams within [`actor::observation::CLUTTER_RADIUS_M`]; 0 in a record
     /// without it).
     #[serde(default)]
     pub clutter_mean: f64,
@@ -149,14 +149,6 @@ pub fn schedule_stats(records: &[StepRecord], names: &[&str]) -> Vec<ParamStats>
         .collect()
 }
 
-/// Share of `ranges` below [`CLUTTER_RADIUS_M`] (0 when empty).
-pub fn clutter(ranges: &[f64]) -> f64 {
-    if ranges.is_empty() {
-        return 0.0;
-    }
-    ranges.iter().filter(|&&r| r < CLUTTER_RADIUS_M).count() as f64 / ranges.len() as f64
-}
-
 /// Everything an evaluation needs besides the policy; shared with the background thread.
 struct Setup {
     worlds: Vec<usize>,
@@ -187,14 +179,13 @@ impl Setup {
             ..self.env
         };
         let ddp_box = self.space.ddp_action();
-        let (mut obs, mut out, mut scratch) =
-            (Vec::new(), vec![0.0f32; self.space.dim()], Scratch::default());
+        let mut buf = PolicyBuffers::default();
         let (mut u, mut boxed) = (vec![0.0; self.space.dim()], vec![0.0; self.space.dim()]);
         let (mut wins, mut score, mut n) = (0usize, 0.0, 0usize);
         let mut records = Vec::new();
         for (w, seed) in self.seeds() {
             let world = sim::barn::world(w).with_context(|| format!("world {w}"))?;
-            let mut env = AdpEnv::new(
+            let env = AdpEnv::new(
                 world,
                 self.eval.episode,
                 self.planner.build(&self.eval, seed),
@@ -203,19 +194,15 @@ impl Setup {
                 env_cfg,
                 seed,
             )?;
-            obs.resize(env.obs_dim(), 0.0);
-            while env.end() == End::Continue {
-                env.observation(&mut obs);
-                net.act(&obs, &mut out, &mut scratch);
-                for (x, &a) in u.iter_mut().zip(&out) {
+            let r = run_policy(env, net, &mut buf, |env, _, out| {
+                for (x, &a) in u.iter_mut().zip(out) {
                     *x = f64::from(a);
                 }
                 self.env.action_map.map_into(&u, &ddp_box, &mut boxed);
                 let c = clutter(env.episode().perception().ranges);
                 records.push((c, self.space.to_params(&boxed)?));
-                env.step(&out)?;
-            }
-            let r = env.result().episode;
+                Ok(())
+            })?;
             wins += usize::from(r.status == Status::Succeeded);
             score += r.score;
             n += 1;
@@ -322,8 +309,8 @@ impl GreedyMonitor {
     pub fn poll(
         &mut self,
         inserts: u64,
-        latest: impl FnOnce() -> Result<(u64, Vec<usize>, Vec<f32>), String>,
-    ) -> Option<Result<GreedyResult, String>> {
+        latest: impl FnOnce() -> Result<(u64, Vec<usize>, Vec<f32>), ServiceError>,
+    ) -> Option<anyhow::Result<GreedyResult>> {
         let done = self.collect(false);
         if self.job.is_none() && inserts >= self.next_at {
             self.next_at = (inserts / self.every + 1) * self.every;
@@ -339,8 +326,8 @@ impl GreedyMonitor {
     pub fn finish(
         mut self,
         inserts: u64,
-        latest: impl FnOnce() -> Result<(u64, Vec<usize>, Vec<f32>), String>,
-    ) -> Vec<Result<GreedyResult, String>> {
+        latest: impl FnOnce() -> Result<(u64, Vec<usize>, Vec<f32>), ServiceError>,
+    ) -> Vec<anyhow::Result<GreedyResult>> {
         let mut out: Vec<_> = self.collect(true).into_iter().collect();
         match self.start(inserts, latest) {
             Ok(()) => out.extend(self.collect(true)),
@@ -352,14 +339,14 @@ impl GreedyMonitor {
     fn start(
         &mut self,
         inserts: u64,
-        latest: impl FnOnce() -> Result<(u64, Vec<usize>, Vec<f32>), String>,
-    ) -> Result<(), String> {
+        latest: impl FnOnce() -> Result<(u64, Vec<usize>, Vec<f32>), ServiceError>,
+    ) -> anyhow::Result<()> {
         let (version, dims, weights) = latest()?;
         if version == 0 {
             return Ok(()); // nothing published yet
         }
         let net = MlpPolicy::from_flat(&dims, weights)
-            .map_err(|e| format!("greedy evaluation: policy {version}: {e}"))?;
+            .with_context(|| format!("greedy evaluation: policy {version}"))?;
         let setup = self.setup.clone();
         let ddp = self.ddp;
         self.job = Some(std::thread::spawn(move || {
@@ -385,7 +372,7 @@ impl GreedyMonitor {
     }
 
     /// Takes a finished job's result (waiting for it when `wait`), and records it.
-    fn collect(&mut self, wait: bool) -> Option<Result<GreedyResult, String>> {
+    fn collect(&mut self, wait: bool) -> Option<anyhow::Result<GreedyResult>> {
         if !wait && !self.job.as_ref().is_some_and(JoinHandle::is_finished) {
             return None;
         }
@@ -393,12 +380,10 @@ impl GreedyMonitor {
         let result = match job.join() {
             Ok(Ok((r, ddp))) => {
                 self.ddp = Some(ddp);
-                self.record(&r)
-                    .map(|()| r)
-                    .map_err(|e| format!("greedy evaluation: {e:#}"))
+                self.record(&r).map(|()| r).context("greedy evaluation")
             }
-            Ok(Err(e)) => Err(format!("greedy evaluation failed: {e:#}")),
-            Err(_) => Err("greedy evaluation panicked".into()),
+            Ok(Err(e)) => Err(e.context("greedy evaluation failed")),
+            Err(_) => Err(anyhow::anyhow!("greedy evaluation panicked")),
         };
         Some(result)
     }
@@ -491,12 +476,6 @@ mod tests {
         close(s[1].cluttered, 1.7);
         close(s[1].clutter_corr, -1.0);
         assert!(schedule_stats(&[], &["p"])[0].mean.is_nan());
-    }
-
-    #[test]
-    fn clutter_is_the_share_of_close_beams() {
-        assert_eq!(clutter(&[0.5, 2.0, 0.99, 3.0]), 0.5);
-        assert_eq!(clutter(&[]), 0.0);
     }
 
     #[test]

@@ -3,9 +3,10 @@
 //! * a trained policy: an export directory written by `adp export` or at the end of
 //!   `adp train` (`policy.json` and `policy.safetensors`; `PATH` may also name the
 //!   `policy.json` itself). The card's action space, observation layout and layer sizes are
-//!   checked against this build's environment, the weights (PyTorch's `[out, in]` layout) are
-//!   transposed into the flat `[in][out]` layout of [`MlpPolicy`] (the learner's
-//!   `Actor::flat_weights`), and every value must be finite;
+//!   checked against this build's environment, the weights are read by the learner's reader
+//!   next to its writer (`learner::export::read_actor_safetensors`: PyTorch's `[out, in]`
+//!   layout transposed into the flat `[in][out]` layout of [`MlpPolicy`], every value
+//!   finite);
 //! * a constant normalized action read from a small TOML file (see [`load_constant_action`]).
 //!
 //! Every error is one line naming the file and the problem.
@@ -18,9 +19,8 @@ use serde::Deserialize;
 use actor::observation::{self, LASER_BEAMS};
 use actor::policy::MlpPolicy;
 use actor::EnvConfig;
-use adp_learner::export::{space_name, PolicyCard, CARD_FORMAT, CARD_FORMAT_VERSION, JSON_FILE};
+use learner::export::{read_actor_safetensors, space_name, PolicyCard, JSON_FILE};
 use planner::ActionSpace;
-use safetensors::tensor::{Dtype, SafeTensors};
 
 /// A constant-action policy file:
 ///
@@ -140,13 +140,7 @@ fn load_learned(card_path: &Path, requested: Option<ActionSpace>) -> anyhow::Res
         _ => anyhow::anyhow!("policy {}: cannot read: {e}", card_path.display()),
     })?;
     let bad = |what: String| anyhow::anyhow!("policy {}: {what}", card_path.display());
-    let card: PolicyCard = serde_json::from_str(&text).map_err(|e| bad(e.to_string()))?;
-    if card.format != CARD_FORMAT || card.format_version != CARD_FORMAT_VERSION {
-        return Err(bad(format!(
-            "format {:?} version {}; this build reads {CARD_FORMAT:?} version {CARD_FORMAT_VERSION}",
-            card.format, card.format_version
-        )));
-    }
+    let card = PolicyCard::parse(&text).map_err(|e| bad(e.to_string()))?;
     let space = card.action.space;
     if let Some(r) = requested.filter(|&r| r != space) {
         return Err(bad(format!(
@@ -239,77 +233,12 @@ fn load_learned(card_path: &Path, requested: Option<ActionSpace>) -> anyhow::Res
     })
 }
 
-/// Reads the float32 tensors `layers.{i}.weight` (`[out, in]`) and `layers.{i}.bias`
-/// (`[out]`) of a safetensors file for the layer sizes `dims` and returns them in
-/// [`MlpPolicy`]'s flat layout: per layer the weight `[in][out]` row-major, then the bias.
-/// Refuses a damaged file, other dtypes, shapes or extra tensors, and non-finite values
-/// (naming the tensor and the element).
+/// Reads the weights file `path` for the layer sizes `dims` in [`MlpPolicy`]'s flat layout
+/// (see [`read_actor_safetensors`]).
 fn read_weights(path: &Path, dims: &[usize]) -> anyhow::Result<Vec<f32>> {
     let bad = |what: String| anyhow::anyhow!("policy {}: {what}", path.display());
     let bytes = std::fs::read(path).map_err(|e| bad(format!("cannot read: {e}")))?;
-    let file =
-        SafeTensors::deserialize(&bytes).map_err(|e| bad(format!("not a readable safetensors file: {e}")))?;
-    let layers = dims.len() - 1;
-    let mut flat = Vec::with_capacity(actor::policy::param_count(dims));
-    let mut used = 0;
-    for l in 0..layers {
-        let (n_in, n_out) = (dims[l], dims[l + 1]);
-        let tensor = |name: String, shape: &[usize]| -> anyhow::Result<Vec<f32>> {
-            let view = file.tensor(&name).map_err(|_| {
-                bad(format!(
-                    "no tensor {name} (policy.json's layer_sizes {dims:?} need {layers} layers)"
-                ))
-            })?;
-            if view.dtype() != Dtype::F32 {
-                return Err(bad(format!("tensor {name} is {}, expected F32", view.dtype())));
-            }
-            if view.shape() != shape {
-                return Err(bad(format!(
-                    "tensor {name} has shape {:?}, policy.json's layer_sizes {dims:?} need {shape:?}",
-                    view.shape()
-                )));
-            }
-            let values: Vec<f32> = view
-                .data()
-                .chunks_exact(4)
-                .map(|c| f32::from_le_bytes(c.try_into().expect("4 bytes")))
-                .collect();
-            if let Some(k) = values.iter().position(|v| !v.is_finite()) {
-                let index = if shape.len() == 2 {
-                    format!("[{}, {}]", k / shape[1], k % shape[1])
-                } else {
-                    format!("[{k}]")
-                };
-                return Err(bad(format!(
-                    "{name}{index} is {}: weights must be finite",
-                    values[k]
-                )));
-            }
-            Ok(values)
-        };
-        let weight = tensor(format!("layers.{l}.weight"), &[n_out, n_in])?;
-        let bias = tensor(format!("layers.{l}.bias"), &[n_out])?;
-        used += 2;
-        // [out, in] (PyTorch) -> [in][out] (burn, MlpPolicy).
-        for i in 0..n_in {
-            flat.extend((0..n_out).map(|o| weight[o * n_in + i]));
-        }
-        flat.extend(bias);
-    }
-    if file.len() != used {
-        let mut names = file.names();
-        names.sort_unstable();
-        let extra = names
-            .into_iter()
-            .find(|n| {
-                !(0..layers).any(|l| *n == format!("layers.{l}.weight") || *n == format!("layers.{l}.bias"))
-            })
-            .unwrap_or_default();
-        return Err(bad(format!(
-            "tensor {extra} is not part of policy.json's layer_sizes {dims:?}"
-        )));
-    }
-    Ok(flat)
+    read_actor_safetensors(&bytes, dims).map_err(|e| bad(e.to_string()))
 }
 
 #[cfg(test)]
@@ -317,20 +246,13 @@ mod tests {
     use std::collections::{BTreeMap, HashMap};
 
     use actor::{AdpEnv, End, EnvConfig};
-    use adp_learner::checkpoint::{self, Manifest};
-    use adp_learner::export::actor_safetensors;
-    use adp_learner::{seeded_rng, Actor, Device, FitOptions, Td3, Td3Config};
+    use learner::checkpoint::{self, Manifest};
+    use learner::export::actor_safetensors;
+    use learner::{seeded_rng, Actor, Device, FitOptions, Td3, Td3Config};
     use planner::Schedule;
+    use testkit::fresh_dir;
 
     use super::*;
-
-    /// A fresh directory under the system temp dir, unique per test and process.
-    fn fresh_dir(name: &str) -> PathBuf {
-        let dir = std::env::temp_dir().join(format!("adp-policy-{name}-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).unwrap();
-        dir
-    }
 
     /// Writes `actor` as `adp export` does: the learner's card for `space` and its
     /// safetensors writer.

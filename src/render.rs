@@ -263,3 +263,37 @@ mod tests {
         assert!(short.0 < long.0 && short.1 < long.1 && short.2 < long.2);
     }
 }
+
+/// `adp render`: draws the episode the arguments describe and prints its outcome.
+pub fn command(a: &crate::cli::RenderArgs) -> anyhow::Result<()> {
+    let cfg = a.setup.eval_config()?;
+    let all = a.setup.data.load()?;
+    let w = crate::cli::WorldData::get(&all, a.world)?;
+    let adp = crate::eval::AdpSetting {
+        space: a.action,
+        action: match &a.policy {
+            Some(p) => crate::policy::load_constant_action(p, a.action)?,
+            None => a.action.ddp_action(),
+        },
+    };
+    let job = RenderJob {
+        world: w,
+        episode: cfg.episode,
+        planner: a.planner.build(&cfg, a.seed),
+        schedule: a.fidelity.schedule(&adp)?,
+        max_speed: a.max_speed,
+        seed: a.seed,
+        rollout_every_s: a.rollouts_every,
+        footprint_every_s: a.footprint_every,
+    };
+    let r = render(job, &a.out)?;
+    println!(
+        "world {} {:?}: time {:.2} s, score {:.3}; picture written to {}",
+        r.world,
+        r.status,
+        r.time_s,
+        r.score,
+        a.out.display()
+    );
+    Ok(())
+}

@@ -12,8 +12,9 @@ use serde::{Deserialize, Serialize};
 
 use actor::run::{ActorSetup, PlaneChoice};
 use actor::EnvConfig;
-use adp_learner::service::{Learner, LearnerOptions, ServiceConfig, TrainSummary};
-use adp_learner::Td3Config;
+use learner::export::space_name;
+use learner::service::{Learner, LearnerOptions, ServiceConfig, TrainSummary};
+use learner::Td3Config;
 use planner::ActionSpace;
 use proto::auth::{create_token_file, read_token_file, TlsFiles};
 use proto::grpc::LearnerAddress;
@@ -21,7 +22,7 @@ use scheduler::{
     BackoffPolicy, BwrapMode, Sandbox, SandboxConfig, Supervisor, SupervisorConfig, SupervisorEvent,
 };
 
-use crate::config::{one_line, EvalConfig};
+use crate::config::{error_line, one_line, EvalConfig};
 use crate::eval::PlannerKind;
 use crate::greedy::{GreedyMonitor, GreedySection};
 use crate::slurm::SlurmSection;
@@ -42,9 +43,9 @@ pub struct RunSection {
     /// Training worlds (split name, range or list).
     pub worlds: String,
     /// Planner the actors drive.
-    pub planner: String,
+    pub planner: PlannerKind,
     /// ADP action space.
-    pub action_space: String,
+    pub action_space: ActionSpace,
     /// The planner's speed cap (m/s).
     pub max_speed: f64,
 }
@@ -56,8 +57,8 @@ impl Default for RunSection {
             steps: 40_000,
             actors: 0,
             worlds: "fit".into(),
-            planner: "dwa".into(),
-            action_space: "decremental".into(),
+            planner: PlannerKind::Dwa,
+            action_space: ActionSpace::Decremental,
             max_speed: 1.5,
         }
     }
@@ -68,7 +69,7 @@ impl Default for RunSection {
 #[serde(default, deny_unknown_fields)]
 pub struct SandboxSection {
     /// `auto`, `off` or `required`.
-    pub bwrap: String,
+    pub bwrap: BwrapMode,
     /// Address-space limit per actor (MiB, 0 = inherited).
     pub address_space_mb: u64,
     /// Open-file limit per actor (0 = inherited).
@@ -81,7 +82,7 @@ pub struct SandboxSection {
 impl Default for SandboxSection {
     fn default() -> Self {
         Self {
-            bwrap: "auto".into(),
+            bwrap: BwrapMode::Auto,
             address_space_mb: 4096,
             open_files: 1024,
             private_network: true,
@@ -129,28 +130,10 @@ impl TrainConfig {
         cfg.env
             .validate()
             .map_err(|e| anyhow::anyhow!("{name}: [env]: {e}"))?;
-        cfg.space()
-            .with_context(|| format!("{name}: [run] action_space"))?;
-        cfg.planner_kind()
-            .with_context(|| format!("{name}: [run] planner"))?;
-        cfg.bwrap().with_context(|| format!("{name}: [sandbox] bwrap"))?;
         if !(cfg.run.max_speed.is_finite() && cfg.run.max_speed > 0.0) {
             bail!("{name}: [run] max_speed = {} must be positive", cfg.run.max_speed);
         }
         Ok(cfg)
-    }
-
-    /// The ADP action space of `[run] action_space`.
-    pub(crate) fn space(&self) -> anyhow::Result<ActionSpace> {
-        self.run
-            .action_space
-            .parse()
-            .map_err(|e: String| anyhow::anyhow!(e))
-    }
-
-    /// The planner of `[run] planner`.
-    pub(crate) fn planner_kind(&self) -> anyhow::Result<PlannerKind> {
-        planner_kind(&self.run.planner)
     }
 
     /// The training worlds of `[run] worlds`.
@@ -158,15 +141,6 @@ impl TrainConfig {
         sim::splits::SplitFile::embedded()
             .select(&self.run.worlds)
             .map_err(|e| anyhow::anyhow!("[run] worlds = {:?}: {e}", self.run.worlds))
-    }
-
-    fn bwrap(&self) -> anyhow::Result<BwrapMode> {
-        match self.sandbox.bwrap.as_str() {
-            "auto" => Ok(BwrapMode::Auto),
-            "off" => Ok(BwrapMode::Off),
-            "required" => Ok(BwrapMode::Required),
-            other => bail!("unknown value `{other}` (expected auto, off or required)"),
-        }
     }
 
     /// The learner options of this config for `run_dir`.
@@ -177,9 +151,9 @@ impl TrainConfig {
             run_id: run_id(&self.run.name),
             td3: self.td3.clone(),
             service: self.service.clone(),
-            planner: self.run.planner.clone(),
+            planner: self.run.planner.name().into(),
             max_speed: self.run.max_speed,
-            space: self.space()?,
+            space: self.run.action_space,
             env_toml: toml::to_string(&self.env).expect("EnvConfig serializes"),
             worlds,
             budget_steps: self.run.steps,
@@ -188,11 +162,6 @@ impl TrainConfig {
             handle_signals: true,
         })
     }
-}
-
-fn planner_kind(name: &str) -> anyhow::Result<PlannerKind> {
-    <PlannerKind as clap::ValueEnum>::from_str(name, false)
-        .map_err(|_| anyhow::anyhow!("unknown planner `{name}` (expected dwa, mppi, log-mppi or system)"))
 }
 
 /// A run id: the name plus the start time, unique per fresh run.
@@ -242,7 +211,7 @@ fn prepare(config: Option<&Path>, o: &Overrides, resume: bool) -> anyhow::Result
     }
     cfg.service.allow_insecure_listen |= o.allow_insecure_listen;
     // Refuse an unusable [service] before anything is created.
-    cfg.service.check().map_err(anyhow::Error::msg)?;
+    cfg.service.check()?;
     let out = o
         .out
         .clone()
@@ -285,10 +254,10 @@ pub fn train(config: Option<&Path>, o: &Overrides, resume: bool) -> anyhow::Resu
         0 => std::thread::available_parallelism().map_or(2, |n| n.get() as u32),
         n => n,
     };
-    let learner = Learner::start(cfg.learner_options(&out, token, resume)?).map_err(anyhow::Error::msg)?;
+    let learner = Learner::start(cfg.learner_options(&out, token, resume)?)?;
     let exe = std::env::current_exe().context("cannot find this executable to start actors")?;
     let sandbox = Sandbox::new(SandboxConfig {
-        bwrap: cfg.bwrap()?,
+        bwrap: cfg.sandbox.bwrap,
         address_space_bytes: cfg.sandbox.address_space_mb << 20,
         open_files: cfg.sandbox.open_files,
         // Without the learner's Unix socket, actors need the network to reach it.
@@ -337,8 +306,8 @@ pub fn train(config: Option<&Path>, o: &Overrides, resume: bool) -> anyhow::Resu
     let mut greedy = GreedyMonitor::new(
         &cfg.greedy,
         &out,
-        cfg.planner_kind()?,
-        cfg.space()?,
+        cfg.run.planner,
+        cfg.run.action_space,
         cfg.run.max_speed,
         cfg.env,
         cfg.td3.seed,
@@ -353,7 +322,7 @@ pub fn train(config: Option<&Path>, o: &Overrides, resume: bool) -> anyhow::Resu
         if let Some(g) = greedy.as_mut() {
             match g.poll(s.inserts, || learner.latest_policy()) {
                 Some(Ok(r)) => bar.println(crate::greedy::describe(&r)),
-                Some(Err(e)) => bar.println(e),
+                Some(Err(e)) => bar.println(error_line(&e)),
                 None => {}
             }
         }
@@ -377,12 +346,15 @@ pub fn train(config: Option<&Path>, o: &Overrides, resume: bool) -> anyhow::Resu
     if let Some(g) = greedy {
         let inserts = learner.status().inserts;
         for r in g.finish(inserts, || learner.latest_policy()) {
-            eprintln!("{}", r.map_or_else(|e| e, |r| crate::greedy::describe(&r)));
+            eprintln!(
+                "{}",
+                r.map_or_else(|e| error_line(&e), |r| crate::greedy::describe(&r))
+            );
         }
     }
-    let summary = learner.wait().map_err(anyhow::Error::msg)?;
+    let summary = learner.wait()?;
     supervisor.shutdown(Duration::from_secs(3));
-    print_summary(&summary, &out, &cfg.run.action_space, "train");
+    print_summary(&summary, &out, &space_name(cfg.run.action_space), "train");
     Ok(())
 }
 
@@ -402,33 +374,45 @@ pub fn learner(
         Some(p) => read_token_file(p)?,
         None => run_token(&out)?.1,
     };
-    let learner = Learner::start(cfg.learner_options(&out, token, resume)?).map_err(anyhow::Error::msg)?;
-    let summary = learner.wait().map_err(anyhow::Error::msg)?;
-    print_summary(&summary, &out, &cfg.run.action_space, "learner");
+    let learner = Learner::start(cfg.learner_options(&out, token, resume)?)?;
+    let summary = learner.wait()?;
+    print_summary(&summary, &out, &space_name(cfg.run.action_space), "learner");
     Ok(())
 }
 
 /// Options of `adp actor`.
+#[derive(clap::Args, Debug)]
 pub struct ActorArgs {
-    /// `host:port` of the learner.
+    /// The learner's host:port, or unix:PATH for its Unix socket (<run dir>/learner.sock)
+    /// on the same host.
+    #[arg(long)]
     pub learner: String,
-    /// The run's token file.
+    /// The run's token file (mode 0600).
+    #[arg(long)]
     pub token_file: PathBuf,
-    /// Rank (default: `rank_offset + SLURM_PROCID`, else `rank_offset`).
+    /// This actor's rank (default: --rank-offset + $SLURM_PROCID); seeds derive from it.
+    #[arg(long)]
     pub rank: Option<u32>,
-    /// Added to `SLURM_PROCID` when `rank` is not given.
+    /// Added to $SLURM_PROCID to make the rank (for a second `srun` step of actors).
+    #[arg(long, default_value_t = 0, conflicts_with = "rank")]
     pub rank_offset: u32,
-    /// Data plane.
+    /// Data plane: auto (shared memory when the learner is on this host), grpc or shm.
+    #[arg(long, default_value = "auto")]
     pub data_plane: PlaneChoice,
-    /// TLS CA (enables TLS).
+    /// CA certificate of the learner (PEM); enables TLS.
+    #[arg(long)]
     pub tls_ca: Option<PathBuf>,
-    /// TLS server name.
+    /// Server name in the learner's certificate (default: the host of --learner).
+    #[arg(long, requires = "tls_ca")]
     pub tls_domain: Option<String>,
-    /// Client certificate and key (mutual TLS).
+    /// Client certificate for mutual TLS (PEM).
+    #[arg(long, requires_all = ["tls_ca", "tls_key"])]
     pub tls_cert: Option<PathBuf>,
-    /// Client key.
+    /// Client key for mutual TLS (PEM).
+    #[arg(long, requires_all = ["tls_ca", "tls_cert"])]
     pub tls_key: Option<PathBuf>,
-    /// Seconds without the learner before giving up.
+    /// Give up after the learner has been unreachable this many seconds.
+    #[arg(long = "give-up-after", default_value_t = 600)]
     pub give_up_after_s: u64,
 }
 
@@ -450,11 +434,10 @@ pub fn actor(a: ActorArgs) -> anyhow::Result<()> {
         }
     };
     let eval_cfg = EvalConfig::load(None)?;
-    let factory = move |name: &str, seed: u64| -> Result<Box<dyn planner::Planner>, String> {
-        Ok(planner_kind(name)
-            .map_err(|e| e.to_string())?
-            .build(&eval_cfg, seed))
-    };
+    let factory =
+        move |name: &str, seed: u64| -> Result<Box<dyn planner::Planner>, actor::run::FactoryError> {
+            Ok(name.parse::<PlannerKind>()?.build(&eval_cfg, seed))
+        };
     let tls = a.tls_ca.is_some().then(|| TlsFiles {
         cert: a.tls_cert.clone(),
         key: a.tls_key.clone(),
@@ -473,5 +456,5 @@ pub fn actor(a: ActorArgs) -> anyhow::Result<()> {
         make_planner: &factory,
         give_up_after: Duration::from_secs(a.give_up_after_s),
     };
-    actor::run::run(&setup).map_err(anyhow::Error::msg)
+    Ok(actor::run::run(&setup)?)
 }

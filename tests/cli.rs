@@ -1,22 +1,8 @@
 //! End-to-end checks of the `adp` command line: world listing, evaluation output, and
 //! one-line errors for bad input.
 
-use std::process::{Command, Output};
-
-fn adp(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_adp"))
-        .args(args)
-        .output()
-        .expect("adp binary runs")
-}
-
-fn stdout(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stdout).into_owned()
-}
-
-fn stderr(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
-}
+mod common;
+use common::{fresh_dir, one_line_error, run as adp, save_checkpoint, stderr, stdout};
 
 fn ids(split: &str) -> Vec<usize> {
     let o = adp(&["worlds", "list", "--split", split]);
@@ -35,18 +21,6 @@ fn splits_have_the_documented_sizes_and_are_disjoint() {
     assert_eq!(ids("hardest50").len(), 50);
 }
 
-fn one_line_error(o: &Output, needle: &str) {
-    assert!(
-        !o.status.success(),
-        "expected failure, got success: {}",
-        stdout(o)
-    );
-    let err = stderr(o);
-    let lines: Vec<&str> = err.lines().filter(|l| !l.trim().is_empty()).collect();
-    assert_eq!(lines.len(), 1, "one line expected, got: {err}");
-    assert!(lines[0].contains(needle), "`{needle}` not in: {err}");
-}
-
 #[test]
 fn bad_input_gives_one_line_errors() {
     one_line_error(
@@ -63,8 +37,7 @@ fn bad_input_gives_one_line_errors() {
     );
 
     // A world file with a broken line.
-    let dir = std::env::temp_dir().join(format!("adp-cli-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = fresh_dir("cli");
     let obstacles: String = sim::barn::OBSTACLES_JSONL
         .lines()
         .take(3)
@@ -104,8 +77,7 @@ fn bad_input_gives_one_line_errors() {
 
 #[test]
 fn eval_prints_a_table_and_writes_json() {
-    let dir = std::env::temp_dir().join(format!("adp-eval-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = fresh_dir("eval");
     let json = dir.join("r.json");
     let o = adp(&[
         "eval",
@@ -149,8 +121,7 @@ fn eval_prints_a_table_and_writes_json() {
 
 #[test]
 fn render_writes_png_and_svg() {
-    let dir = std::env::temp_dir().join(format!("adp-render-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = fresh_dir("render");
     for name in ["ep.png", "ep.svg"] {
         let path = dir.join(name);
         let o = adp(&[
@@ -187,42 +158,24 @@ fn render_writes_png_and_svg() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
-/// A fresh directory `<temp>/adp-<name>-<pid>`.
-fn fresh_dir(name: &str) -> std::path::PathBuf {
-    let dir = std::env::temp_dir().join(format!("adp-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
-
 /// Exports a decremental-space learner (actor hidden sizes `hidden`, its actor set up by
 /// `prepare`) the way a run ends: a learner checkpoint written through the learner API, then
 /// `adp export` into `<dir>/export`, which is returned.
 fn export_policy(
     dir: &std::path::Path,
     hidden: &[usize],
-    prepare: impl FnOnce(&mut adp_learner::Td3),
+    prepare: impl FnOnce(&mut learner::Td3),
 ) -> std::path::PathBuf {
-    use adp_learner::{checkpoint, seeded_rng, Device, RateLimiter, RunState, Td3, Td3Config};
-    let config = Td3Config {
+    let config = learner::Td3Config {
         actor_hidden: hidden.to_vec(),
         critic_hidden: vec![16],
         seed: 11,
-        ..Td3Config::default()
-    };
-    let mut td3 = Td3::new(config.clone(), &Device::flex()).unwrap();
-    prepare(&mut td3);
-    let run = RunState {
-        run_id: "eval-test".into(),
-        rate: RateLimiter::new(&config),
-        sampler_rng: seeded_rng(config.seed, 2),
-        policy_version: 1,
-        extra: serde_json::Value::Null,
-        // What a run records today: the actors' [env] settings, profile included.
-        environment: serde_json::to_value(actor::EnvConfig::default()).unwrap(),
+        ..learner::Td3Config::default()
     };
     let ckpt = dir.join("ckpt");
-    checkpoint::save(&ckpt, &td3, &run).unwrap();
+    // What a run records today: the actors' [env] settings, profile included.
+    let environment = serde_json::to_value(actor::EnvConfig::default()).unwrap();
+    save_checkpoint(&ckpt, &config, "eval-test", environment, prepare);
     let export = dir.join("export");
     let o = adp(&[
         "export",
@@ -276,7 +229,7 @@ fn eval_runs_an_exported_ddp_initialized_policy_like_ddp() {
             .iter()
             .map(|&a| a as f32)
             .collect();
-        td3.init_actor_to_action(&target, &adp_learner::FitOptions::default())
+        td3.init_actor_to_action(&target, &learner::FitOptions::default())
             .unwrap();
     });
     let (table, err, rows) = eval_json(

@@ -5,19 +5,11 @@
 //! experiment file or a second start in the same directory is refused; evaluation in two
 //! shards, merged, equals the unsharded one.
 
-use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::path::Path;
+use std::process::Command;
 
-fn adp(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_adp"))
-        .args(args)
-        .output()
-        .expect("adp binary runs")
-}
-
-fn stderr(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
-}
+mod common;
+use common::{cluster, fresh_dir, run as adp, stderr};
 
 const TINY: &str = r#"
 [experiment]
@@ -64,9 +56,7 @@ fn is_png(path: &Path) -> bool {
 
 #[test]
 fn tiny_experiment_reports_resumes_and_refuses_mixing() {
-    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("experiment-tiny");
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = fresh_dir("experiment-tiny");
     let config = dir.join("tiny.toml");
     std::fs::write(&config, TINY).unwrap();
     let out = dir.join("out");
@@ -196,25 +186,6 @@ fn copy_tree(from: &Path, to: &Path) {
     }
 }
 
-/// Whether a SLURM cluster answers (`SLURM_CONF`, see tests/slurm.rs); panics when one is
-/// required (`ADP_REQUIRE_SLURM=1`, set by `.ci/run`) and does not.
-fn cluster() -> bool {
-    let conf = std::env::var_os("SLURM_CONF");
-    let answers = conf.is_some()
-        && Command::new("sinfo")
-            .arg("-h")
-            .output()
-            .is_ok_and(|o| o.status.success());
-    if !answers {
-        assert!(
-            std::env::var("ADP_REQUIRE_SLURM").as_deref() != Ok("1"),
-            "ADP_REQUIRE_SLURM=1 but no SLURM cluster answers"
-        );
-        eprintln!("SKIPPED: no SLURM cluster (start one with scripts/slurm-cluster.sh start DIR)");
-    }
-    answers
-}
-
 /// The job `adp experiment --emit-slurm` writes trains, evaluates in two shards, merges and
 /// reports on a real (single-host) cluster. `sbatch --wait` is bounded by the job's time
 /// limit.
@@ -223,9 +194,7 @@ fn emitted_slurm_job_runs_the_experiment() {
     if !cluster() {
         return;
     }
-    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("experiment-slurm");
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = fresh_dir("experiment-slurm");
     let config = dir.join("tiny.toml");
     let text = TINY.replace(
         "[stats]",

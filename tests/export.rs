@@ -4,21 +4,12 @@
 //! file with onnxruntime (`scripts/check_onnx.py`). Bad checkpoints give one-line errors naming
 //! the file.
 
-use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::path::Path;
 
-use adp_learner::{checkpoint, seeded_rng, Device, RateLimiter, RunState, Td3, Td3Config};
+use learner::{checkpoint, seeded_rng, Device, Td3Config};
 
-fn adp(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_adp"))
-        .args(args)
-        .output()
-        .expect("adp binary runs")
-}
-
-fn stderr(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
-}
+mod common;
+use common::{fresh_dir, one_line_error, run as adp, save_checkpoint, stderr};
 
 /// Uniform values in `[-bound, bound]` from a xorshift64 stream (no RNG crate needed here).
 struct Uniform(u64);
@@ -36,14 +27,6 @@ impl Uniform {
     }
 }
 
-/// A fresh directory `<target>/tmp/<name>-<pid>` (test runs may overlap on one machine).
-fn fresh_dir(name: &str) -> PathBuf {
-    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
-
 /// Move the finished directory `dir` to `<target>/tmp/<name>`, replacing an older one.
 fn publish(dir: &Path, name: &str) {
     let fixed = Path::new(env!("CARGO_TARGET_TMPDIR")).join(name);
@@ -59,10 +42,9 @@ fn make_checkpoint(dir: &Path) {
         seed: 3,
         ..Td3Config::default()
     };
-    let mut td3 = Td3::new(config.clone(), &Device::flex()).unwrap();
     let mut rng = Uniform(0x9E37_79B9_7F4A_7C15);
     let mut uniform = |n: usize| rng.take(n, 1.0);
-    let mut batch = adp_learner::Batch::new(config.obs_dim, config.act_dim);
+    let mut batch = learner::Batch::new(config.obs_dim, config.act_dim);
     let rows = 8;
     batch.obs = uniform(rows * config.obs_dim);
     batch.next_obs = uniform(rows * config.obs_dim);
@@ -70,17 +52,10 @@ fn make_checkpoint(dir: &Path) {
     batch.reward = uniform(rows);
     batch.discount = vec![0.9; rows];
     batch.done = vec![0.0; rows];
-    td3.update(&batch).unwrap();
-    td3.update(&batch).unwrap();
-    let run = RunState {
-        run_id: "export-test".into(),
-        rate: RateLimiter::new(&config),
-        sampler_rng: seeded_rng(config.seed, 2),
-        policy_version: 1,
-        extra: serde_json::Value::Null,
-        environment: serde_json::Value::Null,
-    };
-    checkpoint::save(dir, &td3, &run).unwrap();
+    save_checkpoint(dir, &config, "export-test", serde_json::Value::Null, |td3| {
+        td3.update(&batch).unwrap();
+        td3.update(&batch).unwrap();
+    });
 }
 
 #[test]
@@ -140,16 +115,6 @@ fn export_writes_the_policy_files_and_a_reference_for_onnxruntime() {
     std::fs::write(out.join("reference.json"), reference.to_string()).unwrap();
     publish(&out, "export-check");
     std::fs::remove_dir_all(&work).unwrap();
-}
-
-fn one_line_error(o: &Output, needles: &[&str]) {
-    assert!(!o.status.success(), "expected a failure");
-    let err = stderr(o);
-    let lines: Vec<&str> = err.lines().filter(|l| !l.trim().is_empty()).collect();
-    assert_eq!(lines.len(), 1, "one line expected, got: {err}");
-    for needle in needles {
-        assert!(lines[0].contains(needle), "`{needle}` not in: {err}");
-    }
 }
 
 #[test]

@@ -30,7 +30,7 @@ use std::process::{Child, Command, ExitStatus, Stdio};
 use std::sync::{Mutex, MutexGuard};
 use std::time::Duration;
 
-use adp_learner::service::{read_addr, read_status, Status};
+use learner::service::{read_addr, read_status, Status};
 use proto::pb;
 
 mod common;
@@ -485,7 +485,7 @@ fn actors_outlive_a_killed_learner_and_the_resumed_run_reaches_its_budget() {
     let checkpoints = run.join("checkpoints");
     procs.wait_for("a checkpoint with steps in it", PATIENCE, |_| {
         status(&run).is_some_and(|s| s.inserts >= 300 && s.rank_steps.len() == 2)
-            && adp_learner::retention::latest(&checkpoints)
+            && learner::retention::latest(&checkpoints)
                 .ok()
                 .flatten()
                 .is_some_and(|c| !c.ends_with("ckpt-000000000000-000000000000"))
@@ -515,7 +515,7 @@ fn actors_outlive_a_killed_learner_and_the_resumed_run_reaches_its_budget() {
 
     // The same run, resumed on the same address from the newest complete checkpoint (named
     // `ckpt-<inserts>-<updates>`; a checkpoint cut short by the kill is not complete).
-    let ckpt = adp_learner::retention::latest(&checkpoints).unwrap().unwrap();
+    let ckpt = learner::retention::latest(&checkpoints).unwrap().unwrap();
     let resumed_inserts: u64 = ckpt
         .file_name()
         .and_then(|n| n.to_str()?.strip_prefix("ckpt-")?.split('-').next()?.parse().ok())
@@ -1006,9 +1006,8 @@ fn no_lease_expires_across_a_slow_checkpoint() {
             actor_cmd(&[], &addr, &token, rank, "grpc"),
         );
     }
-    let checkpoints = |_: &Procs| {
-        adp_learner::retention::complete_checkpoints(&run.join("checkpoints")).map_or(0, |c| c.len())
-    };
+    let checkpoints =
+        |_: &Procs| learner::retention::complete_checkpoints(&run.join("checkpoints")).map_or(0, |c| c.len());
     procs.wait_for("steps", PATIENCE, |_| {
         status(&run).is_some_and(|s| s.steps_received > 0)
     });

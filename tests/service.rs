@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Stdio};
 use std::time::Duration;
 
-use adp_learner::service::{read_status, Status};
+use learner::service::{read_status, Status};
 use proto::grpc::LearnerAddress;
 use proto::pb;
 
@@ -78,7 +78,7 @@ fn local_training_over_shared_memory_is_lossless_and_resumes() {
     assert_eq!(card["environment"]["agent_period_cycles"], 5, "{card}");
     let laser = card["observation"]["segments"][0]["encoding"].as_str().unwrap();
     assert!(laser.contains("min(r, 2.5) / 2.5"), "{laser}");
-    assert!(!adp_learner::tensorboard::event_files(&run.join("tensorboard"))
+    assert!(!learner::tensorboard::event_files(&run.join("tensorboard"))
         .unwrap()
         .is_empty());
     assert_resumes(&cfg, &run, &s);
@@ -109,7 +109,7 @@ fn sixteen_actors_over_grpc_deliver_every_step_exactly_once() {
     assert_eq!(s.episodes_mismatched, 0, "{s:?}");
     assert_eq!(s.refused.iter().map(|r| r.1).sum::<u64>(), 0, "{s:?}");
     assert!(run.join("export/policy.onnx").is_file());
-    assert!(!adp_learner::tensorboard::event_files(&run.join("tensorboard"))
+    assert!(!learner::tensorboard::event_files(&run.join("tensorboard"))
         .unwrap()
         .is_empty());
 
@@ -195,7 +195,7 @@ fn grpc_learner_survives_a_killed_actor_and_refuses_bad_requests() {
         .spawn()
         .unwrap();
     wait_for("learner.addr", 600, || run.join("learner.addr").is_file());
-    let addr = adp_learner::service::read_addr(&run).unwrap();
+    let addr = learner::service::read_addr(&run).unwrap();
     let token_file = run.join("token");
     let mut actors: Vec<Child> = (0..3).map(|r| spawn_actor(&addr, &token_file, r)).collect();
     wait_for("steps from the actors", 1200, || {
@@ -206,7 +206,7 @@ fn grpc_learner_survives_a_killed_actor_and_refuses_bad_requests() {
     // is abandoned (not terminal), and the learner keeps training. Mid-episode = its step
     // count just moved (an actor that has finished its two episodes idles without a lease).
     let rank2 =
-        |s: &adp_learner::service::Status| s.rank_steps.iter().find(|(r, _)| *r == 2).map_or(0, |(_, n)| *n);
+        |s: &learner::service::Status| s.rank_steps.iter().find(|(r, _)| *r == 2).map_or(0, |(_, n)| *n);
     let mut last = status(&run).map_or(0, |s| rank2(&s));
     wait_for("actor 2 streaming steps", 1200, || {
         let now = status(&run).map_or(last, |s| rank2(&s));
@@ -312,7 +312,7 @@ fn grpc_learner_survives_a_killed_actor_and_refuses_bad_requests() {
     // An episode the killed actor left open is abandoned (its tail never sampled, never marked
     // terminal); it may also have died between episodes.
     assert!(s.episodes_abandoned <= s.leases_expired, "{s:?}");
-    assert!(adp_learner::retention::latest(&run.join("checkpoints"))
+    assert!(learner::retention::latest(&run.join("checkpoints"))
         .unwrap()
         .is_some());
     for mut a in actors.drain(..2) {

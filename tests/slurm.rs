@@ -11,39 +11,13 @@ use std::process::Command;
 use std::sync::Mutex;
 use std::time::Duration;
 
-use adp_learner::service::{read_status, Status};
+use learner::service::{read_status, Status};
+
+mod common;
+use common::{cluster, fresh_dir};
 
 /// The jobs share the test cluster's CPUs: one at a time.
 static SERIAL: Mutex<()> = Mutex::new(());
-
-/// Whether a cluster answers; panics if one is required and does not.
-fn cluster() -> bool {
-    let conf = std::env::var_os("SLURM_CONF");
-    let answers = conf.is_some()
-        && Command::new("sinfo")
-            .arg("-h")
-            .output()
-            .is_ok_and(|o| o.status.success());
-    if !answers {
-        let why = match conf {
-            None => "SLURM_CONF is not set (start a cluster with scripts/slurm-cluster.sh start DIR)",
-            Some(_) => "`sinfo` does not answer for SLURM_CONF",
-        };
-        assert!(
-            std::env::var("ADP_REQUIRE_SLURM").as_deref() != Ok("1"),
-            "ADP_REQUIRE_SLURM=1 but {why}"
-        );
-        eprintln!("SKIPPED: no SLURM cluster: {why}");
-    }
-    answers
-}
-
-fn fresh_dir(name: &str) -> PathBuf {
-    let d = Path::new(env!("CARGO_TARGET_TMPDIR")).join(name);
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
 
 /// A small job: one node, three actors beside a two-CPU learner, fast leases, short warm-up.
 fn job_config(dir: &Path) -> PathBuf {

@@ -12,7 +12,11 @@
 //!   the flat weight vector the learner publishes, without allocating per call;
 //!   [`exploration::Exploration`] adds seeded Gaussian noise for data collection.
 //!
-//! Everything here is pure and deterministic given seeds and actions: no I/O, no clocks.
+//! * [`run`] is the actor process loop (register, take assignments, stream steps, report
+//!   episodes) over the learner's planes.
+//!
+//! Everything but [`run`] is pure and deterministic given seeds and actions: no I/O, no
+//! clocks; [`run`] holds the process's I/O, clocks and back-off.
 
 #![warn(missing_docs)]
 

@@ -12,7 +12,9 @@
 //! | `local_goal`      | 2             | bearing (rad, in [-pi, pi]) and distance (m), robot frame |
 //! | `global_goal`     | 2             | bearing (rad, in [-pi, pi]) and distance (m), robot frame |
 //!
-//! This is the layout the exported policy card documents (`learner::export::observation_layout`).
+//! This module is the one definition of the layout: the learner sizes its networks with
+//! [`obs_dim`] and the exported policy card documents [`segments`] with [`Segment::encoding`]
+//! (`learner::export::observation_layout`).
 
 use planner::ActionSpace;
 use sim::episode::Perception;
@@ -39,6 +41,33 @@ pub struct Segment {
     pub size: usize,
 }
 
+impl Segment {
+    /// How the segment's values are computed from the robot's state and sensors, for lidar
+    /// ranges clipped at `laser_clip_m`: the `encoding` the exported policy card states.
+    pub fn encoding(&self, laser_clip_m: f64) -> String {
+        match self.name {
+            "laser" => format!(
+                "lidar ranges r (m) in beam order, beam k at -135 + k * 270/{} degrees from the \
+                 heading (counter-clockwise positive); x = 2 * min(r, {laser_clip_m}) / \
+                 {laser_clip_m} - 1, in [-1, 1]",
+                LASER_BEAMS - 1
+            ),
+            "previous_action" => "the policy's previous action, normalized to [-1, 1] like its output".into(),
+            "v" => "measured linear velocity (m/s), not normalized".into(),
+            "w" => "measured angular velocity (rad/s, counter-clockwise positive), not normalized".into(),
+            "local_goal" => {
+                "bearing (rad, in [-pi, pi], relative to the heading) and distance (m) of the local \
+                             goal, not normalized"
+                    .into()
+            }
+            "global_goal" => "bearing (rad, in [-pi, pi], relative to the heading) and distance (m) of the \
+                              global goal, not normalized"
+                .into(),
+            other => unreachable!("segment names are SEGMENT_NAMES, not {other}"),
+        }
+    }
+}
+
 /// The observation segments of `space`, in order, contiguous from offset 0.
 pub fn segments(space: ActionSpace) -> [Segment; 6] {
     let sizes = [LASER_BEAMS, space.dim(), 1, 1, 2, 2];
@@ -57,6 +86,18 @@ pub fn segments(space: ActionSpace) -> [Segment; 6] {
 /// Length of an observation for `space`: `720 + space.dim() + 6` (730 for the decremental space).
 pub fn obs_dim(space: ActionSpace) -> usize {
     LASER_BEAMS + space.dim() + STATE_TAIL
+}
+
+/// Beams closer than this (m) count as clutter ([`clutter`]).
+pub const CLUTTER_RADIUS_M: f64 = 1.0;
+
+/// Local clutter: the share of lidar `ranges` below [`CLUTTER_RADIUS_M`] (0 when empty). The
+/// experiment's and the greedy evaluation's schedule-against-clutter statistics both use it.
+pub fn clutter(ranges: &[f64]) -> f64 {
+    if ranges.is_empty() {
+        return 0.0;
+    }
+    ranges.iter().filter(|&&r| r < CLUTTER_RADIUS_M).count() as f64 / ranges.len() as f64
 }
 
 /// Laser encoding: `2 * min(r, clip) / clip - 1`, in [-1, 1] for `r >= 0`.
@@ -103,6 +144,12 @@ pub fn write(perception: &Perception<'_>, previous_action: &[f32], laser_clip_m:
 mod tests {
     use super::*;
     use sim::robot::Twist;
+
+    #[test]
+    fn clutter_is_the_share_of_close_beams() {
+        assert_eq!(clutter(&[0.5, 2.0, 0.99, 3.0]), 0.5);
+        assert_eq!(clutter(&[]), 0.0);
+    }
 
     #[test]
     fn segments_are_contiguous_and_sum_to_obs_dim() {

@@ -24,6 +24,7 @@ use proto::plane::{LeaseHeader, PlaneError, PolicySource, StepSink};
 use proto::shm::{ShmConfig, ShmPolicySource, ShmStepSink};
 use proto::StepView;
 use sim::episode::{EpisodeConfig, Status};
+use thiserror::Error;
 
 use crate::env::{AdpEnv, End, EnvConfig};
 use crate::exploration::Exploration;
@@ -40,20 +41,101 @@ pub enum PlaneChoice {
     Shm,
 }
 
+/// A `--data-plane` that is not auto, grpc or shm.
+#[derive(Debug, Error)]
+#[error("unknown data plane `{0}` (expected auto, grpc or shm)")]
+pub struct UnknownPlane(String);
+
 impl std::str::FromStr for PlaneChoice {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
+    type Err = UnknownPlane;
+    fn from_str(s: &str) -> Result<Self, UnknownPlane> {
         match s {
             "auto" => Ok(Self::Auto),
             "grpc" => Ok(Self::Grpc),
             "shm" => Ok(Self::Shm),
-            _ => Err(format!("unknown data plane `{s}` (expected auto, grpc or shm)")),
+            _ => Err(UnknownPlane(s.into())),
         }
     }
 }
 
+/// Why a [`PlannerFactory`] could not build a planner.
+pub type FactoryError = Box<dyn std::error::Error + Send + Sync>;
+
 /// Builds the run's planner for one episode from its name and seed.
-pub type PlannerFactory = dyn Fn(&str, u64) -> Result<Box<dyn Planner>, String> + Sync;
+pub type PlannerFactory = dyn Fn(&str, u64) -> Result<Box<dyn Planner>, FactoryError> + Sync;
+
+/// Why the actor process stopped with an error ([`run`]).
+#[derive(Debug, Error)]
+pub enum ActorError {
+    /// The I/O runtime did not start.
+    #[error("cannot start the tokio runtime")]
+    Runtime(#[source] std::io::Error),
+    /// The learner could not be reached, or sessions kept failing, for `give_up_after`.
+    #[error("actor rank {rank}: learner at {addr} unreachable for {elapsed:?}")]
+    GaveUp {
+        /// The actor's rank.
+        rank: u32,
+        /// The learner's address.
+        addr: String,
+        /// How long it has been unreachable.
+        elapsed: Duration,
+        /// The last session's failure.
+        #[source]
+        last: SessionError,
+    },
+}
+
+/// Why a session with the learner ended (the actor then registers again until it gives up).
+/// The message is complete in itself (it is logged on reconnects).
+#[derive(Debug, Error)]
+pub enum SessionError {
+    /// The learner went away or asked for a new session (restart, lost connection).
+    #[error("{0}")]
+    Lost(String),
+    /// Connecting to the learner failed.
+    #[error(transparent)]
+    Connect(#[from] proto::grpc::ConnectError),
+    /// The learner refused or failed the registration.
+    #[error("register: {0}")]
+    Register(String),
+    /// The registration reply lacks a part.
+    #[error("register: the reply {0}")]
+    Reply(&'static str),
+    /// The run's action space is unknown to this build.
+    #[error("{0}")]
+    Space(String),
+    /// The run's environment settings do not parse.
+    #[error("the learner's environment settings: {0}")]
+    Env(toml::de::Error),
+    /// The actor asked for shared memory and the learner does not offer it on this host.
+    #[error("--data-plane shm: the learner offers `{offered}`, not shared memory on this host ({host})")]
+    NoSharedMemory {
+        /// What the learner offers.
+        offered: String,
+        /// This host.
+        host: String,
+    },
+    /// The shared-memory planes did not open.
+    #[error(transparent)]
+    Plane(#[from] PlaneError),
+    /// A published policy does not fit the run's layer sizes.
+    #[error("policy version {version}: {source}")]
+    Policy {
+        /// The policy version.
+        version: u64,
+        /// Why.
+        source: crate::policy::PolicyError,
+    },
+    /// The assigned world does not exist.
+    #[error(transparent)]
+    World(#[from] sim::barn::DataError),
+    /// The run's planner could not be built.
+    #[error("{0}")]
+    Planner(FactoryError),
+    /// The environment refused its settings or an action.
+    #[error(transparent)]
+    Environment(#[from] crate::env::EnvError),
+}
 
 /// What the actor process needs.
 pub struct ActorSetup<'a> {
@@ -85,29 +167,29 @@ fn status_text(s: &tonic::Status) -> String {
 
 /// Runs the actor until the learner says the run is over (`Ok`) or it has been unreachable for
 /// `give_up_after` (`Err`).
-pub fn run(setup: &ActorSetup<'_>) -> Result<(), String> {
+pub fn run(setup: &ActorSetup<'_>) -> Result<(), ActorError> {
     let rt = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(1)
         .enable_all()
         .thread_name("adp-actor-io")
         .build()
-        .map_err(|e| format!("cannot start the tokio runtime: {e}"))?;
+        .map_err(ActorError::Runtime)?;
     let mut wait = Duration::from_millis(200);
     let mut down_since: Option<Instant> = None;
     loop {
         let why = match session(&rt, setup, &mut down_since) {
             Ok(SessionEnd::Shutdown) => return Ok(()),
-            Ok(SessionEnd::Reconnect(why)) => why,
+            Ok(SessionEnd::Reconnect(why)) => SessionError::Lost(why),
             Err(e) => e,
         };
         let since = *down_since.get_or_insert_with(Instant::now);
         if since.elapsed() > setup.give_up_after {
-            return Err(format!(
-                "actor rank {}: learner at {} unreachable for {:?}: {why}",
-                setup.rank,
-                setup.learner.addr,
-                since.elapsed()
-            ));
+            return Err(ActorError::GaveUp {
+                rank: setup.rank,
+                addr: setup.learner.addr.clone(),
+                elapsed: since.elapsed(),
+                last: why,
+            });
         }
         log(format_args!(
             "actor {}: {why}; reconnecting in {wait:?}",
@@ -139,7 +221,7 @@ fn open_planes(
     data: proto::grpc::DataClient,
     run: &pb::RunRef,
     actor_id: u64,
-) -> Result<Planes, String> {
+) -> Result<Planes, SessionError> {
     let shm = spec
         .data_plane
         .strip_prefix("shm:")
@@ -147,11 +229,10 @@ fn open_planes(
         .filter(|(_, host)| *host == proto::hostname())
         .map(|(prefix, _)| prefix.to_owned());
     match (setup.plane, shm) {
-        (PlaneChoice::Shm, None) => Err(format!(
-            "--data-plane shm: the learner offers `{}`, not shared memory on this host ({})",
-            spec.data_plane,
-            proto::hostname()
-        )),
+        (PlaneChoice::Shm, None) => Err(SessionError::NoSharedMemory {
+            offered: spec.data_plane.clone(),
+            host: proto::hostname(),
+        }),
         (PlaneChoice::Auto | PlaneChoice::Shm, Some(prefix)) => {
             let cfg = ShmConfig {
                 service_prefix: prefix,
@@ -159,8 +240,8 @@ fn open_planes(
             };
             let node = format!("adp-actor-{}-{}", setup.rank, std::process::id());
             Ok(Planes {
-                sink: Box::new(ShmStepSink::open(&cfg, &node).map_err(|e| e.to_string())?),
-                policies: Box::new(ShmPolicySource::open(&cfg, &node).map_err(|e| e.to_string())?),
+                sink: Box::new(ShmStepSink::open(&cfg, &node)?),
+                policies: Box::new(ShmPolicySource::open(&cfg, &node)?),
             })
         }
         _ => Ok(Planes {
@@ -185,8 +266,8 @@ fn session(
     rt: &tokio::runtime::Runtime,
     setup: &ActorSetup<'_>,
     down_since: &mut Option<Instant>,
-) -> Result<SessionEnd, String> {
-    let (mut control, data) = rt.block_on(setup.learner.connect()).map_err(|e| e.to_string())?;
+) -> Result<SessionEnd, SessionError> {
+    let (mut control, data) = rt.block_on(setup.learner.connect())?;
     let reply = rt
         .block_on(control.register(pb::RegisterRequest {
             rank: setup.rank,
@@ -195,15 +276,14 @@ fn session(
             run_id: String::new(),
             actor_kind: "rust".into(),
         }))
-        .map_err(|s| format!("register: {}", status_text(&s)))?
+        .map_err(|s| SessionError::Register(status_text(&s)))?
         .into_inner();
     *down_since = None;
-    let run = reply.run.ok_or("register: the reply names no run")?;
-    let spec = reply.spec.ok_or("register: the reply has no run spec")?;
+    let run = reply.run.ok_or(SessionError::Reply("names no run"))?;
+    let spec = reply.spec.ok_or(SessionError::Reply("has no run spec"))?;
     let actor_id = reply.actor_id;
-    let space: ActionSpace = spec.action_space.parse()?;
-    let env_cfg: EnvConfig =
-        toml::from_str(&spec.env_toml).map_err(|e| format!("the learner's environment settings: {e}"))?;
+    let space: ActionSpace = spec.action_space.parse().map_err(SessionError::Space)?;
+    let env_cfg: EnvConfig = toml::from_str(&spec.env_toml).map_err(SessionError::Env)?;
     let dims: Vec<usize> = spec.policy_dims.iter().map(|&d| d as usize).collect();
     let mut planes = open_planes(rt, setup, &spec, data, &run, actor_id)?;
     log(format_args!(
@@ -280,8 +360,12 @@ fn session(
         loop {
             match planes.policies.poll(policy.as_ref().map(|p| p.0)) {
                 Ok(Some(update)) => {
-                    let net = MlpPolicy::from_flat(&dims, update.weights)
-                        .map_err(|e| format!("policy version {}: {e}", update.version))?;
+                    let net = MlpPolicy::from_flat(&dims, update.weights).map_err(|source| {
+                        SessionError::Policy {
+                            version: update.version,
+                            source,
+                        }
+                    })?;
                     policy = Some((update.version, update.exploration_sigma, net));
                 }
                 Ok(None) => {}
@@ -464,7 +548,7 @@ async fn heartbeats(
 enum EpisodeError {
     Plane(PlaneError),
     LeaseLost,
-    Fatal(String),
+    Fatal(SessionError),
 }
 
 /// What every episode of a session shares.
@@ -495,8 +579,9 @@ impl EpisodeCtx<'_> {
         header: &LeaseHeader,
         sink: &mut dyn StepSink,
     ) -> Result<pb::EpisodeReport, EpisodeError> {
-        let world = sim::barn::world(a.world as usize).map_err(|e| EpisodeError::Fatal(e.to_string()))?;
-        let planner = (self.setup.make_planner)(&self.spec.planner, seed).map_err(EpisodeError::Fatal)?;
+        let world = sim::barn::world(a.world as usize).map_err(|e| EpisodeError::Fatal(e.into()))?;
+        let planner = (self.setup.make_planner)(&self.spec.planner, seed)
+            .map_err(|e| EpisodeError::Fatal(SessionError::Planner(e)))?;
         let mut env = AdpEnv::new(
             world,
             self.setup.episode,
@@ -506,7 +591,7 @@ impl EpisodeCtx<'_> {
             *self.env_cfg,
             seed,
         )
-        .map_err(|e| EpisodeError::Fatal(e.to_string()))?;
+        .map_err(|e| EpisodeError::Fatal(e.into()))?;
         let n = env.obs_dim();
         let (mut obs, mut next) = (vec![0.0f32; n], vec![0.0f32; n]);
         let mut action = vec![0.0f32; self.space.dim()];
@@ -521,9 +606,7 @@ impl EpisodeCtx<'_> {
             }
             net.act(&obs, &mut action, &mut scratch);
             exploration.perturb(&mut action);
-            let out = env
-                .step(&action)
-                .map_err(|e| EpisodeError::Fatal(e.to_string()))?;
+            let out = env.step(&action).map_err(|e| EpisodeError::Fatal(e.into()))?;
             env.observation(&mut next);
             let truncated = out.end == End::Truncated;
             let step = StepView {

@@ -31,6 +31,62 @@ pub const BETA_2: f32 = 0.999;
 /// Elements per parallel work item of the fused loop.
 const CHUNK: usize = 16 * 1024;
 
+/// What is wrong with a stored optimizer state ([`Adam::from_safetensors`]).
+#[derive(Debug, thiserror::Error)]
+pub enum AdamStateError {
+    /// The bytes are not a safetensors file.
+    #[error("{0}")]
+    Format(#[from] safetensors::SafeTensorError),
+    /// The file has no metadata.
+    #[error("no metadata")]
+    NoMetadata,
+    /// A metadata key is missing.
+    #[error("metadata has no `{0}`")]
+    Missing(&'static str),
+    /// A metadata value is not a number.
+    #[error("metadata `{key}` = {value:?} is not a number")]
+    NotANumber {
+        /// The key.
+        key: &'static str,
+        /// Its value.
+        value: String,
+    },
+    /// The tensor count does not match the parameter count.
+    #[error("{tensors} tensors, metadata says {parameters} parameters (2 tensors each)")]
+    Count {
+        /// Tensors in the file.
+        tensors: usize,
+        /// Parameters in the metadata.
+        parameters: usize,
+    },
+    /// A moment tensor is missing or unreadable.
+    #[error("tensor {name}: {source}")]
+    Tensor {
+        /// The tensor.
+        name: String,
+        /// Why.
+        source: safetensors::SafeTensorError,
+    },
+    /// A moment tensor is not `f32`.
+    #[error("tensor {name} is {dtype:?}, expected F32")]
+    Dtype {
+        /// The tensor.
+        name: String,
+        /// Its type.
+        dtype: Dtype,
+    },
+    /// The two moments of a parameter differ in size.
+    #[error("m.{index} has {m} values, v.{index} {v}")]
+    Moments {
+        /// The parameter.
+        index: usize,
+        /// Values of the first moment.
+        m: usize,
+        /// Values of the second moment.
+        v: usize,
+    },
+}
+
 /// Adam state for every float parameter of one module (see the module docs).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Adam {
@@ -121,15 +177,16 @@ impl Adam {
 
     /// The state written by [`Adam::to_safetensors`]. The error says what is missing or
     /// malformed.
-    pub fn from_safetensors(bytes: &[u8]) -> Result<Self, String> {
-        let (_, header) = safetensors::SafeTensors::read_metadata(bytes).map_err(|e| e.to_string())?;
-        let metadata = header.metadata().as_ref().ok_or("no metadata")?;
-        let field = |key: &str| -> Result<&String, String> {
-            metadata
-                .get(key)
-                .ok_or_else(|| format!("metadata has no `{key}`"))
+    pub fn from_safetensors(bytes: &[u8]) -> Result<Self, AdamStateError> {
+        let (_, header) = safetensors::SafeTensors::read_metadata(bytes)?;
+        let metadata = header.metadata().as_ref().ok_or(AdamStateError::NoMetadata)?;
+        let field = |key: &'static str| -> Result<&String, AdamStateError> {
+            metadata.get(key).ok_or(AdamStateError::Missing(key))
         };
-        let parse_err = |key: &str, value: &str| format!("metadata `{key}` = {value:?} is not a number");
+        let parse_err = |key: &'static str, value: &str| AdamStateError::NotANumber {
+            key,
+            value: value.to_string(),
+        };
         let steps: u64 = field("steps")?
             .parse()
             .map_err(|_| parse_err("steps", field("steps").unwrap()))?;
@@ -139,17 +196,23 @@ impl Adam {
         let count: usize = field("parameters")?
             .parse()
             .map_err(|_| parse_err("parameters", field("parameters").unwrap()))?;
-        let file = safetensors::SafeTensors::deserialize(bytes).map_err(|e| e.to_string())?;
+        let file = safetensors::SafeTensors::deserialize(bytes)?;
         if file.len() != 2 * count {
-            return Err(format!(
-                "{} tensors, metadata says {count} parameters (2 tensors each)",
-                file.len()
-            ));
+            return Err(AdamStateError::Count {
+                tensors: file.len(),
+                parameters: count,
+            });
         }
-        let floats = |name: String| -> Result<Vec<f32>, String> {
-            let t = file.tensor(&name).map_err(|e| format!("tensor {name}: {e}"))?;
+        let floats = |name: String| -> Result<Vec<f32>, AdamStateError> {
+            let t = match file.tensor(&name) {
+                Ok(t) => t,
+                Err(source) => return Err(AdamStateError::Tensor { name, source }),
+            };
             if t.dtype() != Dtype::F32 {
-                return Err(format!("tensor {name} is {:?}, expected F32", t.dtype()));
+                return Err(AdamStateError::Dtype {
+                    name,
+                    dtype: t.dtype(),
+                });
             }
             Ok(t.data()
                 .chunks_exact(4)
@@ -162,10 +225,14 @@ impl Adam {
                 if m.len() == v.len() {
                     Ok((m, v))
                 } else {
-                    Err(format!("m.{i} has {} values, v.{i} {}", m.len(), v.len()))
+                    Err(AdamStateError::Moments {
+                        index: i,
+                        m: m.len(),
+                        v: v.len(),
+                    })
                 }
             })
-            .collect::<Result<_, String>>()?;
+            .collect::<Result<_, AdamStateError>>()?;
         // Written since the gradient norm was added; older checkpoints lack it.
         let last_grad_norm = match metadata.get("last_grad_norm") {
             Some(v) => v.parse().map_err(|_| parse_err("last_grad_norm", v))?,
@@ -361,8 +428,11 @@ mod tests {
         let bytes = adam.to_safetensors().unwrap();
         assert_eq!(Adam::from_safetensors(&bytes).unwrap(), adam);
         let err = Adam::from_safetensors(&bytes[..bytes.len() - 4]).unwrap_err();
-        assert!(!err.is_empty());
+        assert!(!err.to_string().is_empty());
         let empty = safetensors::serialize(Vec::<(&str, TensorView)>::new(), None).unwrap();
-        assert_eq!(Adam::from_safetensors(&empty).unwrap_err(), "no metadata");
+        assert_eq!(
+            Adam::from_safetensors(&empty).unwrap_err().to_string(),
+            "no metadata"
+        );
     }
 }

@@ -76,11 +76,24 @@ pub fn td3_updates(config: &Td3Config, updates: usize) -> Result<UpdateTiming, T
 /// The flat weights (layer sizes and parameters, the layout actors run) of an actor built from
 /// `config` and fitted to output `target` everywhere, as a run starts with `ddp_init`: the
 /// policy the collection benchmark drives.
-pub fn fitted_policy_weights(config: &Td3Config, target: &[f32]) -> Result<(Vec<usize>, Vec<f32>), String> {
-    let mut td3 = Td3::new(config.clone(), &Device::flex()).map_err(|e| e.to_string())?;
-    td3.init_actor_to_action(target, &crate::ddp_init::FitOptions::default())
-        .map_err(|e| e.to_string())?;
+pub fn fitted_policy_weights(
+    config: &Td3Config,
+    target: &[f32],
+) -> Result<(Vec<usize>, Vec<f32>), FittedPolicyError> {
+    let mut td3 = Td3::new(config.clone(), &Device::flex())?;
+    td3.init_actor_to_action(target, &crate::ddp_init::FitOptions::default())?;
     Ok(td3.policy().flat_weights())
+}
+
+/// Why [`fitted_policy_weights`] made no policy.
+#[derive(Debug, thiserror::Error)]
+pub enum FittedPolicyError {
+    /// The networks could not be built.
+    #[error(transparent)]
+    Td3(#[from] crate::td3::Td3Error),
+    /// The actor could not be fitted to the target.
+    #[error(transparent)]
+    Fit(#[from] crate::ddp_init::FitError),
 }
 
 /// Memory and speed of a full replay buffer.

@@ -805,9 +805,13 @@ mod tests {
             replay_capacity: 98,
             ..config.clone()
         };
-        let err = ReplayBuffer::read_snapshot(&snapshot, &other).unwrap_err();
+        let err = ReplayBuffer::read_snapshot(&snapshot, &other)
+            .unwrap_err()
+            .to_string();
         assert!(err.contains("replay_capacity = 97"), "{err}");
-        let err = ReplayBuffer::read_snapshot(&snapshot[..snapshot.len() - 1], &config).unwrap_err();
+        let err = ReplayBuffer::read_snapshot(&snapshot[..snapshot.len() - 1], &config)
+            .unwrap_err()
+            .to_string();
         assert!(err.contains("runs past the end"), "{err}");
         std::fs::remove_dir_all(&root).unwrap();
     }

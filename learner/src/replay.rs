@@ -36,6 +36,8 @@ use crate::config::Td3Config;
 
 mod snapshot;
 
+pub use snapshot::SnapshotError;
+
 /// Identifies one episode in progress, e.g. `(actor id << 32) | episode counter`. Steps pushed
 /// with the same id are consecutive steps of one episode until it ends; after the end, the
 /// same id starts a new episode.

@@ -48,11 +48,7 @@ pub fn remove_aborted_saves(root: &Path) -> Result<Vec<PathBuf>, CheckpointError
     let mut removed = Vec::new();
     for dir in entries.filter_map(Result::ok).map(|e| e.path()) {
         if dir.is_dir() && is_aborted_save(&dir) {
-            std::fs::remove_dir_all(&dir).map_err(|source| CheckpointError::Io {
-                op: "remove",
-                path: dir.clone(),
-                source,
-            })?;
+            remove(&dir)?;
             removed.push(dir);
         }
     }
@@ -76,14 +72,19 @@ pub fn prune(root: &Path, keep_last: usize, keep: &[PathBuf]) -> Result<Vec<Path
         if keep.iter().any(|k| same_dir(k, &dir)) {
             continue;
         }
-        std::fs::remove_dir_all(&dir).map_err(|source| CheckpointError::Io {
-            op: "remove",
-            path: dir.clone(),
-            source,
-        })?;
+        remove(&dir)?;
         removed.push(dir);
     }
     Ok(removed)
+}
+
+/// Deletes the checkpoint directory `dir`.
+fn remove(dir: &Path) -> Result<(), CheckpointError> {
+    std::fs::remove_dir_all(dir).map_err(|source| CheckpointError::Io {
+        op: "remove",
+        path: dir.to_path_buf(),
+        source,
+    })
 }
 
 fn same_dir(a: &Path, b: &Path) -> bool {

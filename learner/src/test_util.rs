@@ -40,9 +40,4 @@ pub(crate) fn tiny_config() -> Td3Config {
 pub(crate) use crate::bench::random_batch;
 
 /// A fresh, empty directory under the system temp dir, unique per test and process.
-pub(crate) fn temp_dir(name: &str) -> std::path::PathBuf {
-    let dir = std::env::temp_dir().join(format!("adp-learner-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
+pub(crate) use testkit::fresh_dir as temp_dir;

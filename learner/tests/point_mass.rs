@@ -2,10 +2,10 @@
 //! rate limiter and the exploration schedule, through the public API only, from a fixed seed
 //! and within a fixed budget of agent steps and updates.
 
-use adp_learner::{
+use burn::tensor::Device;
+use learner::{
     seeded_rng, Batch, ExplorationSchedule, RateLimiter, ReplayBuffer, Step, StepEnd, Td3, Td3Config,
 };
-use burn::tensor::Device;
 use rand::Rng;
 use rand_pcg::Pcg64Mcg;
 

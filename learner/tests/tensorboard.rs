@@ -6,7 +6,7 @@
 use std::collections::BTreeMap;
 use std::path::Path;
 
-use adp_learner::tensorboard::{event_files, read_events, EventRecord, EventWriter};
+use learner::tensorboard::{event_files, read_events, EventRecord, EventWriter};
 
 #[test]
 fn resumed_run_for_the_tensorboard_reader() {

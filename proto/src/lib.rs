@@ -20,8 +20,7 @@ pub mod floats;
 pub mod grpc;
 pub mod plane;
 pub mod shm;
-#[cfg(test)]
-mod test_watchdog;
+
 pub mod validate;
 
 /// Generated `adp.v1` messages and services.

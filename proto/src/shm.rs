@@ -29,10 +29,10 @@
 
 use std::os::unix::ffi::OsStrExt;
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
-use std::sync::{mpsc, Arc, Barrier};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{mpsc, Arc};
 use std::thread::{self, JoinHandle};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
@@ -347,6 +347,21 @@ fn remove_dead_nodes(config: &Config) {
     });
 }
 
+/// `Debug` for the port wrappers: the type's name and its service label.
+macro_rules! debug_by_label {
+    ($($port:ident),*) => {$(
+        impl std::fmt::Debug for $port {
+            fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+                f.debug_struct(stringify!($port))
+                    .field("service", &self.label)
+                    .finish()
+            }
+        }
+    )*};
+}
+
+debug_by_label!(ShmStepSink, ShmStepSource, ShmPolicyPublisher, ShmPolicySource);
+
 /// The actor's end of the step service (`<prefix>/steps`).
 ///
 /// [`StepSink::send`] writes the record straight into a slot of the actor's shared memory (one
@@ -357,14 +372,6 @@ pub struct ShmStepSink {
     service: StepService,
     config: Config,
     label: String,
-}
-
-impl std::fmt::Debug for ShmStepSink {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("ShmStepSink")
-            .field("service", &self.label)
-            .finish()
-    }
 }
 
 impl ShmStepSink {
@@ -494,14 +501,6 @@ pub struct ShmStepSource {
     label: String,
 }
 
-impl std::fmt::Debug for ShmStepSource {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("ShmStepSource")
-            .field("service", &self.label)
-            .finish()
-    }
-}
-
 impl ShmStepSource {
     /// Creates (or opens) the step service of `cfg` and subscribes to it, through a node
     /// called `adp-learner`. Only one source may exist per service.
@@ -570,14 +569,6 @@ pub struct ShmPolicyPublisher {
     refresher: Option<JoinHandle<()>>,
     max_floats: usize,
     label: String,
-}
-
-impl std::fmt::Debug for ShmPolicyPublisher {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("ShmPolicyPublisher")
-            .field("service", &self.label)
-            .finish()
-    }
 }
 
 impl ShmPolicyPublisher {
@@ -667,14 +658,6 @@ pub struct ShmPolicySource {
     label: String,
 }
 
-impl std::fmt::Debug for ShmPolicySource {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("ShmPolicySource")
-            .field("service", &self.label)
-            .finish()
-    }
-}
-
 impl ShmPolicySource {
     /// Opens (or creates, with the learner's settings) the policy service of `cfg` through a
     /// new node called `node_name`, and subscribes to it. The learner's publisher hands the
@@ -716,112 +699,11 @@ impl PolicySource for ShmPolicySource {
     }
 }
 
-/// Measures the step plane: `publishers` threads (each its own node, as actors are) send
-/// `records` step records in total (730 observation floats and 4 action floats each) while
-/// one subscriber drains them and copies every observation into a ring of 1024 rows, as the
-/// learner copies into its buffer. Returns records per second from the start of sending to the
-/// last record received. Uses a private service name under the default iceoryx2 root.
-pub fn bench_throughput(records: usize, publishers: usize) -> Result<f64, ShmError> {
-    const OBS: usize = 730;
-    const ROWS: usize = 1024;
-    static RUNS: AtomicUsize = AtomicUsize::new(0);
-    let publishers = publishers.max(1);
-    let cfg = ShmConfig {
-        service_prefix: format!(
-            "adp-bench/{}/{}",
-            std::process::id(),
-            RUNS.fetch_add(1, Ordering::Relaxed)
-        ),
-        max_actors: publishers.max(ShmConfig::default().max_actors),
-        ..ShmConfig::default()
-    };
-    let mut source = ShmStepSource::open(&cfg)?;
-    let start = Arc::new(Barrier::new(publishers + 1));
-    let senders: Vec<JoinHandle<Result<(), PlaneError>>> = (0..publishers)
-        .map(|i| {
-            let (cfg, start) = (cfg.clone(), Arc::clone(&start));
-            let count = records / publishers + usize::from(i < records % publishers);
-            thread::spawn(move || {
-                let sink = ShmStepSink::open(&cfg, &format!("adp-bench-actor-{i}"));
-                start.wait();
-                let mut sink = sink?;
-                let obs = vec![0.5f32; OBS];
-                let header = LeaseHeader {
-                    incarnation: 1,
-                    actor_id: i as u64,
-                    lease_id: 1,
-                };
-                for k in 0..count {
-                    let step = StepView {
-                        episode_id: 0,
-                        step_index: k as u32,
-                        policy_version: 0,
-                        obs: &obs,
-                        action: &[0.0; 4],
-                        reward: -0.5,
-                        terminal: false,
-                        truncated: false,
-                        final_obs: &[],
-                    };
-                    sink.send(&header, &step)?;
-                }
-                sink.flush()
-            })
-        })
-        .collect();
-    start.wait();
-    let t0 = Instant::now();
-    let mut ring = vec![0f32; ROWS * OBS];
-    let mut row = 0;
-    let mut received = 0;
-    while received < records {
-        let n = source.drain(256, |_, step| {
-            let len = step.obs.len().min(OBS);
-            ring[row * OBS..row * OBS + len].copy_from_slice(&step.obs[..len]);
-            row = (row + 1) % ROWS;
-        })?;
-        received += n;
-        if n == 0 {
-            if senders.iter().all(|s| s.is_finished()) && received < records {
-                break;
-            }
-            thread::yield_now();
-        }
-    }
-    let secs = t0.elapsed().as_secs_f64();
-    for (i, sender) in senders.into_iter().enumerate() {
-        match sender.join() {
-            Ok(Ok(())) => {}
-            Ok(Err(e)) => {
-                return Err(transfer_error(
-                    &source.label,
-                    "bench publisher",
-                    format!("{i}: {e}"),
-                ))
-            }
-            Err(_) => {
-                return Err(transfer_error(
-                    &source.label,
-                    "bench publisher",
-                    format!("{i} panicked"),
-                ))
-            }
-        }
-    }
-    if received < records {
-        return Err(transfer_error(
-            &source.label,
-            "bench",
-            format!("received {received} of {records} records"),
-        ));
-    }
-    Ok(records as f64 / secs)
-}
-
 #[cfg(test)]
 mod tests {
     use std::io::{BufRead, BufReader};
     use std::process::{Command, Stdio};
+    use std::sync::atomic::AtomicUsize;
 
     use super::*;
     use crate::validate::{RefusalKind, Spaces, Validator};
@@ -876,7 +758,7 @@ mod tests {
         }
     }
 
-    use crate::test_watchdog::watchdog;
+    use testkit::watchdog;
 
     fn value(actor: usize, k: usize, i: usize) -> f32 {
         ((actor * 131 + k * 17 + i * 7) % 2003) as f32 * 1e-3 - 1.0
@@ -1286,12 +1168,5 @@ mod tests {
     #[test]
     fn unattached_sink_notices_a_killed_learner() {
         killed_learner(false);
-    }
-
-    #[test]
-    fn bench_throughput_runs() {
-        let _w = watchdog(60, "small bench");
-        let rate = bench_throughput(2000, 2).unwrap();
-        assert!(rate > 0.0);
     }
 }

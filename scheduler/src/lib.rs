@@ -31,5 +31,5 @@ pub use assignment::{ActorId, Assignment, Decision, Expired};
 pub use backoff::{Backoff, BackoffPolicy};
 pub use dealer::{Dealer, DealerError, WorldCount};
 pub use registry::{ActorInfo, Registry, RegistryConfig, RegistryError, RegistrySnapshot, RegistryStatus};
-pub use sandbox::{BwrapMode, BwrapStatus, Sandbox, SandboxConfig, SandboxError};
+pub use sandbox::{BwrapMode, BwrapStatus, ProbeError, Sandbox, SandboxConfig, SandboxError};
 pub use supervisor::{ExitKind, RankLaunch, Supervisor, SupervisorConfig, SupervisorError, SupervisorEvent};

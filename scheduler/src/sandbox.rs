@@ -30,6 +30,7 @@ use serde::{Deserialize, Serialize};
 
 /// Whether to run actors under bubblewrap.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
 pub enum BwrapMode {
     /// Use bwrap if it is on `PATH` and works (probed once), otherwise run without it.
     #[default]
@@ -77,7 +78,30 @@ pub enum SandboxError {
     BwrapMissing,
     /// [`BwrapMode::Required`] and the probe run of bwrap failed.
     #[error("bubblewrap is required (bwrap mode Required) but it does not work: {0}")]
-    BwrapBroken(String),
+    BwrapBroken(#[source] ProbeError),
+}
+
+/// Why the probe run of bwrap failed.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum ProbeError {
+    /// bwrap could not be started.
+    #[error("cannot run {}: {error}", bwrap.display())]
+    Run {
+        /// The bwrap executable.
+        bwrap: PathBuf,
+        /// The OS error's message (kept as text so the error stays `Clone` and `Eq`).
+        error: String,
+    },
+    /// bwrap ran and failed.
+    #[error("probe `{} ... -- true` ended with {status}: {stderr}", bwrap.display())]
+    Failed {
+        /// The bwrap executable.
+        bwrap: PathBuf,
+        /// How it ended.
+        status: std::process::ExitStatus,
+        /// Its standard error, trimmed.
+        stderr: String,
+    },
 }
 
 /// Whether commands run under bubblewrap, and why not.
@@ -121,7 +145,7 @@ impl Sandbox {
                     Err(reason) if mode == BwrapMode::Required => {
                         return Err(SandboxError::BwrapBroken(reason))
                     }
-                    Err(reason) => BwrapStatus::Unavailable(reason),
+                    Err(reason) => BwrapStatus::Unavailable(reason.to_string()),
                 },
             },
         };
@@ -184,24 +208,25 @@ fn bwrap_args(config: &SandboxConfig) -> Vec<&OsStr> {
 }
 
 /// Runs `bwrap <options> -- true` under the sandbox limits; `Err` says why it failed.
-fn probe(config: &SandboxConfig, bwrap: &Path) -> Result<(), String> {
+fn probe(config: &SandboxConfig, bwrap: &Path) -> Result<(), ProbeError> {
     let output = limited_command(config, bwrap)
         .args(bwrap_args(config))
         .args(["--", "true"])
         .stdin(Stdio::null())
         .stdout(Stdio::null())
         .output()
-        .map_err(|error| format!("cannot run {}: {error}", bwrap.display()))?;
+        .map_err(|error| ProbeError::Run {
+            bwrap: bwrap.to_path_buf(),
+            error: error.to_string(),
+        })?;
     if output.status.success() {
         return Ok(());
     }
-    let stderr = String::from_utf8_lossy(&output.stderr);
-    Err(format!(
-        "probe `{} ... -- true` ended with {}: {}",
-        bwrap.display(),
-        output.status,
-        stderr.trim()
-    ))
+    Err(ProbeError::Failed {
+        bwrap: bwrap.to_path_buf(),
+        status: output.status,
+        stderr: String::from_utf8_lossy(&output.stderr).trim().to_string(),
+    })
 }
 
 /// A command for `program` with the in-child limits of `config` and its own process group.

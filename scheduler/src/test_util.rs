@@ -10,9 +10,7 @@ impl TempDir {
     /// Creates `target/tmp/scheduler-tests/<name>-<pid>` (emptied first if it exists).
     pub fn new(name: &str) -> Self {
         let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../target/tmp/scheduler-tests");
-        let dir = root.join(format!("{name}-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).unwrap_or_else(|e| panic!("creating {}: {e}", dir.display()));
+        let dir = testkit::fresh_dir_in(&root, name);
         Self(dir.canonicalize().expect("the directory was just created"))
     }
 

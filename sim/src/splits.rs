@@ -1,6 +1,7 @@
 //! Named sets of BARN worlds (train / fit / val / test / hardest50 / all) and the `--worlds` selection
-//! syntax. The splits are a versioned file, `configs/splits/barn.toml`, embedded in the
-//! binary; [`generate`] re-derives it from its documented seed so the file can be checked.
+//! syntax. The splits are a versioned file inside this crate, `sim/data/splits/barn.toml`
+//! (linked from `configs/splits/barn.toml`), embedded in the binary; [`generate`] re-derives it
+//! from its documented seed so the file can be checked.
 
 use std::collections::BTreeMap;
 
@@ -10,7 +11,7 @@ use serde::Deserialize;
 use crate::barn::NUM_WORLDS;
 
 /// The embedded split file.
-pub const SPLITS_TOML: &str = include_str!("../../configs/splits/barn.toml");
+pub const SPLITS_TOML: &str = include_str!("../data/splits/barn.toml");
 
 /// A parsed split file.
 #[derive(Clone, Debug, Deserialize)]

@@ -57,6 +57,26 @@ impl World {
         }
     }
 
+    /// A synthetic world for tests and examples: a straight corridor along +y between two walls
+    /// of 0.075 m cylinders every 0.15 m (y from -1 to 13.85) at x = -`half_width` and
+    /// +`half_width`, plus `extra` obstacles; the robot starts at the origin facing +y and the
+    /// goal is 10 m ahead (id 0, no reference path).
+    pub fn corridor(half_width: f64, extra: &[Circle]) -> Self {
+        let mut c = Vec::new();
+        for i in 0..100 {
+            let y = -1.0 + 0.15 * i as f64;
+            for x in [-half_width, half_width] {
+                c.push(Circle {
+                    c: Vec2::new(x, y),
+                    r: 0.075,
+                });
+            }
+        }
+        c.extend_from_slice(extra);
+        let start = Pose::new(0.0, 0.0, std::f64::consts::FRAC_PI_2);
+        Self::new(0, c, start, Vec2::new(0.0, 10.0), 10.0, vec![])
+    }
+
     /// Distance from `origin` along unit direction `dir` to the first obstacle surface, or
     /// `None` if nothing is hit within `max_range`.
     pub fn raycast(&self, origin: Vec2, dir: Vec2, max_range: f64) -> Option<f64> {

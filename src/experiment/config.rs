@@ -271,15 +271,12 @@ impl Arm {
 
 /// The planner's name as on the command line (`log-mppi`).
 pub fn planner_name(p: PlannerKind) -> String {
-    serde_json::to_value(p)
-        .ok()
-        .and_then(|v| v.as_str().map(str::to_string))
-        .unwrap_or_default()
+    p.name().to_string()
 }
 
 /// The action space's name (`decremental`).
 pub fn space_label(s: ActionSpace) -> String {
-    adp_learner::export::space_name(s)
+    learner::export::space_name(s)
 }
 
 /// A speed as in file names and tables (`1.5`, `2.0`).
@@ -288,17 +285,22 @@ pub fn speed_label(v: f64) -> String {
 }
 
 /// Command-line restrictions of an experiment (each must be a subset of the file's).
-#[derive(Clone, Debug, Default)]
+#[derive(Clone, Debug, Default, clap::Args)]
 pub struct Restrict {
-    /// Only these planners.
+    /// Only these planners (comma-separated; a subset of the file's).
+    #[arg(long, value_enum, value_delimiter = ',')]
     pub planners: Vec<PlannerKind>,
-    /// Only these action spaces.
+    /// Only these action spaces (comma-separated; a subset of the file's).
+    #[arg(long, value_delimiter = ',')]
     pub spaces: Vec<ActionSpace>,
-    /// Only these speeds.
+    /// Only these speed caps (comma-separated; a subset of the file's).
+    #[arg(long, value_delimiter = ',')]
     pub speeds: Vec<f64>,
-    /// Only the first this many seeds.
+    /// Only the first this many training seeds of each arm.
+    #[arg(long)]
     pub seeds: Option<usize>,
-    /// Agent steps per training run (overrides `[train.run] steps`).
+    /// Agent steps per training run (overrides [train.run] steps).
+    #[arg(long)]
     pub steps: Option<u64>,
 }
 
@@ -545,8 +547,8 @@ impl Experiment {
     pub fn train_config(&self, arm: &Arm, seed: usize) -> TrainConfig {
         let mut cfg = self.train.clone();
         cfg.run.name = format!("{}-seed{seed}", arm.id());
-        cfg.run.planner = planner_name(arm.planner);
-        cfg.run.action_space = space_label(arm.space);
+        cfg.run.planner = arm.planner;
+        cfg.run.action_space = arm.space;
         cfg.run.max_speed = arm.speed;
         cfg.run.worlds = arm.train_worlds.clone();
         cfg.td3.obs_dim = actor::obs_dim(arm.space);

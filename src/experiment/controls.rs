@@ -13,13 +13,12 @@
 use std::collections::{BTreeMap, HashMap};
 use std::path::Path;
 
+use anyhow::Context;
 use serde::{Deserialize, Serialize};
 
-use adp_learner::checkpoint::{Manifest, FORMAT, FORMAT_VERSION};
-use adp_learner::export::{
-    actor_onnx, actor_safetensors, space_name, JSON_FILE, ONNX_FILE, SAFETENSORS_FILE,
-};
-use adp_learner::{Device, FitOptions, PolicyCard, Td3};
+use learner::checkpoint::{Manifest, FORMAT, FORMAT_VERSION};
+use learner::export::{actor_onnx, actor_safetensors, space_name, JSON_FILE, ONNX_FILE, SAFETENSORS_FILE};
+use learner::{Device, FitOptions, PolicyCard, Td3};
 use planner::ActionSpace;
 
 use crate::train::TrainConfig;
@@ -32,8 +31,7 @@ use super::stats::SplitMix64;
 /// written under a temporary name and renamed, so it exists only complete; when another
 /// process renamed its (identical) export there first, that one is kept.
 pub fn write_untrained_export(cfg: &TrainConfig, space: ActionSpace, dir: &Path) -> anyhow::Result<()> {
-    let mut td3 = Td3::new(cfg.td3.clone(), &Device::flex())
-        .map_err(|e| anyhow::anyhow!("untrained policy: [td3]: {e}"))?;
+    let mut td3 = Td3::new(cfg.td3.clone(), &Device::flex()).context("untrained policy: [td3]")?;
     if cfg.service.ddp_init {
         // The output that selects DDP under the run's action map (as the learner does).
         let target: Vec<f32> = cfg
@@ -44,7 +42,7 @@ pub fn write_untrained_export(cfg: &TrainConfig, space: ActionSpace, dir: &Path)
             .map(|&a| a as f32)
             .collect();
         td3.init_actor_to_action(&target, &FitOptions::default())
-            .map_err(|e| anyhow::anyhow!("untrained policy: DDP initialization: {e}"))?;
+            .context("untrained policy: DDP initialization")?;
     }
     let manifest = Manifest {
         format: FORMAT.into(),
@@ -57,8 +55,7 @@ pub fn write_untrained_export(cfg: &TrainConfig, space: ActionSpace, dir: &Path)
         files: BTreeMap::new(),
     };
     let environment = serde_json::to_value(cfg.env).expect("EnvConfig serializes");
-    let card = PolicyCard::new(space, &manifest, &environment)
-        .map_err(|e| anyhow::anyhow!("untrained policy: {e}"))?;
+    let card = PolicyCard::new(space, &manifest, &environment).context("untrained policy")?;
     let actor = td3.policy();
     let metadata = [
         ("adp.action_space", space_name(space)),
@@ -73,7 +70,7 @@ pub fn write_untrained_export(cfg: &TrainConfig, space: ActionSpace, dir: &Path)
             .map(|(k, v)| (k.to_string(), v.clone()))
             .collect::<HashMap<_, _>>(),
     )
-    .map_err(|e| anyhow::anyhow!("untrained policy: safetensors: {e}"))?;
+    .context("untrained policy: safetensors")?;
     let json = serde_json::to_vec_pretty(&card).expect("the card serializes");
     let tmp = dir.with_extension(format!("tmp-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&tmp);

@@ -46,25 +46,34 @@ use shard::Shard;
 const CONFIG_COPY: &str = "experiment.toml";
 
 /// What `adp experiment` was asked.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, clap::Args)]
 pub struct Args {
     /// The experiment file.
+    #[arg(long)]
     pub config: PathBuf,
-    /// The experiment directory (default `runs/experiments/<name>`).
+    /// Experiment directory (default: runs/experiments/<name>).
+    #[arg(long)]
     pub out: Option<PathBuf>,
-    /// Continue an existing experiment directory, skipping finished stages.
+    /// Continue the experiment in --out, skipping the stages whose results exist.
+    #[arg(long)]
     pub resume: bool,
     /// Command-line restrictions.
+    #[command(flatten)]
     pub restrict: Restrict,
     /// Worker threads of the evaluations (default: all cores).
+    #[arg(long)]
     pub jobs: Option<usize>,
-    /// Evaluate only this shard of the test worlds of every pending evaluation (implies
-    /// resume; training and searches must be finished).
+    /// Evaluate only shard K of N of the test worlds (e.g. 0/8) of every pending
+    /// evaluation, into `<stage file>.shard-K-of-N`; a later run without --shard merges a
+    /// complete set. Training and constant searches must be finished.
+    #[arg(long, conflicts_with_all = ["no_eval", "emit_slurm"])]
     pub shard: Option<Shard>,
-    /// Run the training and search stages only (no evaluation, no report).
+    /// Run only the training and constant-search stages (no evaluation, no report).
+    #[arg(long, conflicts_with = "emit_slurm")]
     pub no_eval: bool,
-    /// Print the SLURM job script of the experiment instead of running it (and create the
-    /// experiment directory with its `experiment.toml` and `logs/`).
+    /// Print a SLURM job script that runs this experiment (training, evaluation sharded over
+    /// the [slurm] tasks, merge and report) and create --out with its experiment.toml.
+    #[arg(long, conflicts_with = "resume")]
     pub emit_slurm: bool,
 }
 
@@ -484,7 +493,7 @@ fn run_stage(ctx: &Ctx<'_>, stage: &Stage, out: &Path) -> anyhow::Result<()> {
         Stage::EvalUntrained { arm } => {
             let a = &ex.arms[arm];
             let dir = ctx.layout.untrained_export(a);
-            if !dir.join(adp_learner::export::JSON_FILE).exists() {
+            if !dir.join(learner::export::JSON_FILE).exists() {
                 write_untrained_export(&ex.train_config(a, 0), a.space, &dir)?;
             }
             let p = load_policy(&dir, a.space)?;

@@ -12,7 +12,7 @@ use anyhow::Context;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use actor::{AdpEnv, End, EnvConfig, MlpPolicy, Scratch, LASER_BEAMS};
+use actor::{AdpEnv, End, EnvConfig, MlpPolicy, Scratch};
 use planner::{run::run_episode, ActionSpace, Schedule};
 use sim::{EpisodeResult, World};
 
@@ -20,18 +20,7 @@ use crate::config::EvalConfig;
 use crate::eval::{run_seed, PlannerKind, WorldRuns};
 
 use super::stats::SplitMix64;
-
-/// A beam reading closer than this counts toward the local clutter (m).
-pub const CLUTTER_RANGE_M: f64 = 1.0;
-
-/// Local clutter of an observation: the fraction of its laser beams reading less than
-/// [`CLUTTER_RANGE_M`], decoded from the observation's laser part (ranges clipped at
-/// `laser_clip_m` and mapped to [-1, 1]).
-pub fn clutter(obs: &[f32], laser_clip_m: f64) -> f64 {
-    let threshold = (2.0 * CLUTTER_RANGE_M / laser_clip_m - 1.0) as f32;
-    let laser = &obs[..LASER_BEAMS];
-    laser.iter().filter(|&&e| e < threshold).count() as f64 / LASER_BEAMS as f64
-}
+pub use actor::observation::clutter;
 
 /// The physical parameters of the schedule a network output `u` chooses under the
 /// environment's action map (the output is mapped to the box action the environment runs,
@@ -250,7 +239,7 @@ fn run_one(
         if record {
             trace.push(TracePoint {
                 world: w,
-                clutter: clutter(&obs, env.laser_clip_m),
+                clutter: clutter(e.episode().perception().ranges),
                 params: chosen_params(space, &env, &action)?,
             });
         }
@@ -281,19 +270,9 @@ pub fn reservoir<T: Clone>(items: &[T], k: usize, seed: u64) -> Vec<T> {
 
 #[cfg(test)]
 mod tests {
-    use super::*;
+    use actor::LASER_BEAMS;
 
-    #[test]
-    fn clutter_counts_beams_closer_than_a_metre() {
-        let clip = 3.0;
-        let mut obs = vec![actor::observation::encode_range(2.0, clip); 730];
-        for v in obs.iter_mut().take(180) {
-            *v = actor::observation::encode_range(0.5, clip);
-        }
-        // The tail of the observation is not laser.
-        obs[725] = -1.0;
-        assert!((clutter(&obs, clip) - 0.25).abs() < 1e-12);
-    }
+    use super::*;
 
     #[test]
     fn reservoir_keeps_k_distinct_items_reproducibly() {

@@ -21,12 +21,17 @@ pub struct Shard {
     pub count: usize,
 }
 
+/// A `--shard` value that is not `K/N` with `0 <= K < N`.
+#[derive(Debug, thiserror::Error)]
+#[error("--shard {0}: expected K/N with 0 <= K < N, e.g. 0/4")]
+pub struct BadShard(String);
+
 impl FromStr for Shard {
-    type Err = String;
+    type Err = BadShard;
 
     /// `K/N` with `0 <= K < N`.
-    fn from_str(s: &str) -> Result<Self, String> {
-        let bad = || format!("--shard {s}: expected K/N with 0 <= K < N, e.g. 0/4");
+    fn from_str(s: &str) -> Result<Self, BadShard> {
+        let bad = || BadShard(s.to_string());
         let (k, n) = s.split_once('/').ok_or_else(bad)?;
         let (index, count): (usize, usize) = (
             k.trim().parse().map_err(|_| bad())?,
@@ -141,7 +146,10 @@ mod tests {
             Path::new("/e/eval/ddp.json.shard-1-of-3")
         );
         for bad in ["3/3", "1", "a/2", "-1/2"] {
-            assert!(bad.parse::<Shard>().unwrap_err().contains("K/N"), "{bad}");
+            assert!(
+                bad.parse::<Shard>().unwrap_err().to_string().contains("K/N"),
+                "{bad}"
+            );
         }
     }
 

@@ -17,6 +17,76 @@ use crate::config::Td3Config;
 
 const MAGIC: &[u8; 8] = b"ADPRPLY1";
 
+/// What is wrong with a replay snapshot ([`ReplayBuffer::read_snapshot`]).
+#[derive(Debug, thiserror::Error)]
+pub enum SnapshotError {
+    /// The bytes do not start with the format's magic.
+    #[error("not a replay snapshot (no ADPRPLY1 header)")]
+    Magic,
+    /// The header length points past the end.
+    #[error("the header runs past the end")]
+    HeaderLength,
+    /// The JSON header does not parse.
+    #[error("header: {0}")]
+    Header(#[source] serde_json::Error),
+    /// A size or setting differs from the run's configuration.
+    #[error("snapshot has {what} = {got}, the config says {want}")]
+    Config {
+        /// The setting.
+        what: &'static str,
+        /// The snapshot's value.
+        got: usize,
+        /// The configuration's value.
+        want: usize,
+    },
+    /// The discount differs from the run's configuration.
+    #[error("snapshot has gamma = {got}, the config says {want}")]
+    Gamma {
+        /// The snapshot's value.
+        got: f64,
+        /// The configuration's value.
+        want: f64,
+    },
+    /// The occupied length does not follow from the insert count.
+    #[error("len = {len} does not fit {inserted} inserts")]
+    Len {
+        /// The header's length.
+        len: usize,
+        /// The header's insert count.
+        inserted: u64,
+    },
+    /// An array is shorter than the header says.
+    #[error("array `{what}` ({count} values) runs past the end")]
+    Truncated {
+        /// The array.
+        what: &'static str,
+        /// Values expected.
+        count: usize,
+    },
+    /// Bytes follow the last array.
+    #[error("{0} bytes after the last array")]
+    Trailing(usize),
+    /// A successor link points outside the occupied slots.
+    #[error("next[{index}] = {slot} is not an occupied slot")]
+    Next {
+        /// The slot holding the link.
+        index: usize,
+        /// The link.
+        slot: u32,
+    },
+    /// The ready flags disagree with the header's count.
+    #[error("{flagged} slots flagged ready, header says {header}")]
+    Ready {
+        /// Slots flagged.
+        flagged: usize,
+        /// The header's count.
+        header: usize,
+    },
+    /// An open episode refers to slots outside the occupied ones.
+    #[error("open episode {0} refers to unoccupied slots")]
+    Open(EpisodeId),
+}
+
 /// `(slot, serial)` of a [`SlotRef`].
 type RefPair = (u32, u64);
 
@@ -67,14 +137,14 @@ struct Reader<'a> {
 impl Reader<'_> {
     fn take<T, const N: usize>(
         &mut self,
-        what: &str,
+        what: &'static str,
         count: usize,
         from_le: impl Fn([u8; N]) -> T,
-    ) -> Result<Vec<T>, String> {
+    ) -> Result<Vec<T>, SnapshotError> {
         let bytes = count
             .checked_mul(N)
             .filter(|&b| b <= self.data.len())
-            .ok_or_else(|| format!("array `{what}` ({count} values) runs past the end"))?;
+            .ok_or(SnapshotError::Truncated { what, count })?;
         let (head, tail) = self.data.split_at(bytes);
         self.data = tail;
         Ok(head
@@ -123,17 +193,17 @@ impl ReplayBuffer {
     /// The buffer written by [`ReplayBuffer::write_snapshot`], for a run configured by
     /// `config` (whose sizes, capacity, `n_step` and `gamma` must match the snapshot's). The
     /// state is checked for consistency; the error says what is wrong.
-    pub fn read_snapshot(bytes: &[u8], config: &Td3Config) -> Result<Self, String> {
+    pub fn read_snapshot(bytes: &[u8], config: &Td3Config) -> Result<Self, SnapshotError> {
         if bytes.len() < 16 || &bytes[..8] != MAGIC {
-            return Err("not a replay snapshot (no ADPRPLY1 header)".into());
+            return Err(SnapshotError::Magic);
         }
         let header_len = u64::from_le_bytes(bytes[8..16].try_into().expect("8 bytes"));
         let header_end = usize::try_from(header_len)
             .ok()
             .and_then(|l| l.checked_add(16))
             .filter(|&end| end <= bytes.len())
-            .ok_or("the header runs past the end")?;
-        let h: Header = serde_json::from_slice(&bytes[16..header_end]).map_err(|e| format!("header: {e}"))?;
+            .ok_or(SnapshotError::HeaderLength)?;
+        let h: Header = serde_json::from_slice(&bytes[16..header_end]).map_err(SnapshotError::Header)?;
         let mut buffer = ReplayBuffer::new(config);
         let expected = [
             ("obs_dim", h.obs_dim, buffer.obs_dim),
@@ -144,18 +214,21 @@ impl ReplayBuffer {
         ];
         for (what, got, want) in expected {
             if got != want {
-                return Err(format!("snapshot has {what} = {got}, the config says {want}"));
+                return Err(SnapshotError::Config { what, got, want });
             }
         }
         if h.gamma.to_bits() != buffer.gamma.to_bits() {
-            return Err(format!(
-                "snapshot has gamma = {}, the config says {}",
-                h.gamma, buffer.gamma
-            ));
+            return Err(SnapshotError::Gamma {
+                got: h.gamma,
+                want: buffer.gamma,
+            });
         }
         let n = h.len;
         if n != usize::try_from(h.inserted).map_or(h.capacity, |i| i.min(h.capacity)) {
-            return Err(format!("len = {n} does not fit {} inserts", h.inserted));
+            return Err(SnapshotError::Len {
+                len: n,
+                inserted: h.inserted,
+            });
         }
         let mut reader = Reader {
             data: &bytes[header_end..],
@@ -169,23 +242,26 @@ impl ReplayBuffer {
         let serial = reader.take("serial", n, u64::from_le_bytes)?;
         let flags = reader.take("flags", n, |[b]: [u8; 1]| b)?;
         if !reader.data.is_empty() {
-            return Err(format!("{} bytes after the last array", reader.data.len()));
+            return Err(SnapshotError::Trailing(reader.data.len()));
         }
         let in_range = |slot: u32| (slot as usize) < n;
         if let Some(i) = next.iter().position(|&s| s != NO_SLOT && !in_range(s)) {
-            return Err(format!("next[{i}] = {} is not an occupied slot", next[i]));
+            return Err(SnapshotError::Next {
+                index: i,
+                slot: next[i],
+            });
         }
         let ready = flags.iter().filter(|&&f| f & READY != 0).count();
         if ready != h.ready_count {
-            return Err(format!(
-                "{ready} slots flagged ready, header says {}",
-                h.ready_count
-            ));
+            return Err(SnapshotError::Ready {
+                flagged: ready,
+                header: h.ready_count,
+            });
         }
         let mut open = HashMap::with_capacity(h.open.len());
         for (id, last, pending) in h.open {
             if !std::iter::once(&last).chain(&pending).all(|r| in_range(r.0)) || pending.len() > h.n_step {
-                return Err(format!("open episode {id} refers to unoccupied slots"));
+                return Err(SnapshotError::Open(id));
             }
             let pending: VecDeque<SlotRef> = pending.into_iter().map(slot_ref).collect();
             open.insert(

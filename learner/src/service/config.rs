@@ -6,6 +6,7 @@ use planner::ActionSpace;
 use proto::auth::TlsFiles;
 use serde::{Deserialize, Serialize};
 
+use super::ServiceError;
 use crate::config::Td3Config;
 
 /// How the learner process serves actors. Every field has a default; unknown keys are refused.
@@ -66,26 +67,23 @@ impl ServiceConfig {
 
     /// Refuses settings that cannot work: a heartbeat not shorter than the lease, and a
     /// network address other than loopback without TLS unless `allow_insecure_listen`.
-    pub fn check(&self) -> Result<(), String> {
+    pub fn check(&self) -> Result<(), ServiceError> {
         if self.heartbeat_ms == 0 || self.lease_ttl_ms <= self.heartbeat_ms {
-            return Err(format!(
-                "[service] lease_ttl_ms ({}) must exceed heartbeat_ms ({}) > 0",
-                self.lease_ttl_ms, self.heartbeat_ms
-            ));
+            return Err(ServiceError::LeaseTtl {
+                lease_ttl_ms: self.lease_ttl_ms,
+                heartbeat_ms: self.heartbeat_ms,
+            });
         }
         if self.progress_timeout_ms != 0 && self.progress_timeout_ms <= self.heartbeat_ms {
-            return Err(format!(
-                "[service] progress_timeout_ms ({}) must exceed heartbeat_ms ({})",
-                self.progress_timeout_ms, self.heartbeat_ms
-            ));
+            return Err(ServiceError::ProgressTimeout {
+                progress_timeout_ms: self.progress_timeout_ms,
+                heartbeat_ms: self.heartbeat_ms,
+            });
         }
         if self.tls.is_none() && !self.allow_insecure_listen && !is_loopback_listen(&self.listen) {
-            return Err(format!(
-                "refusing to listen on {} without TLS (the run's token would cross the network in clear \
-                 text): configure [service.tls], or pass --allow-insecure-listen \
-                 ([service] allow_insecure_listen = true) on a trusted network",
-                self.listen
-            ));
+            return Err(ServiceError::InsecureListen {
+                listen: self.listen.clone(),
+            });
         }
         Ok(())
     }
@@ -172,7 +170,7 @@ mod tests {
         }
         for listen in ["0.0.0.0:0", "10.1.2.3:50051", "[::]:0", "node17:50051"] {
             c.listen = listen.into();
-            let e = c.check().unwrap_err();
+            let e = c.check().unwrap_err().to_string();
             assert!(e.contains("--allow-insecure-listen") && !e.contains('\n'), "{e}");
         }
         c.allow_insecure_listen = true;
@@ -186,6 +184,6 @@ mod tests {
         c.progress_timeout_ms = 1500;
         assert_eq!(c.progress_timeout(), 1500);
         c.progress_timeout_ms = 10;
-        assert!(c.check().unwrap_err().contains("progress_timeout_ms"));
+        assert!(c.check().unwrap_err().to_string().contains("progress_timeout_ms"));
     }
 }

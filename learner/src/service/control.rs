@@ -7,7 +7,7 @@ use proto::validate::Refusal;
 use scheduler::{Decision, RegistryError};
 use tonic::{Request, Response, Status};
 
-use super::core::Shared;
+use super::shared::Shared;
 
 /// The `adp.v1.Control` service over the learner's shared state.
 pub struct ControlService {

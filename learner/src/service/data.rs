@@ -12,7 +12,7 @@ use std::time::Duration;
 use proto::grpc::{for_each_step, DecodeScratch};
 use proto::pb::{self, data_server::Data};
 use proto::plane::LeaseHeader;
-use proto::shm::{ShmConfig, ShmStepSource};
+use proto::shm::{ShmConfig, ShmError, ShmStepSource};
 use proto::validate::Refusal;
 use proto::StepView;
 use tokio::sync::watch;
@@ -20,7 +20,7 @@ use tokio_stream::{Stream, StreamExt};
 use tonic::{Request, Response, Status, Streaming};
 
 use super::control::refusal_status;
-use super::core::Shared;
+use super::shared::Shared;
 
 thread_local! {
     static SCRATCH: RefCell<DecodeScratch> = RefCell::new(DecodeScratch::default());
@@ -122,7 +122,7 @@ impl Data for DataService {
 /// state on `shared` (the learner builds it once it knows which plane actors get).
 pub fn shm_intake(
     cfg: ShmConfig,
-    opened: SyncSender<Result<(), String>>,
+    opened: SyncSender<Result<(), ShmError>>,
     shared: Receiver<Arc<Shared>>,
     stop: Arc<AtomicBool>,
 ) {
@@ -132,7 +132,7 @@ pub fn shm_intake(
             s
         }
         Err(e) => {
-            let _ = opened.send(Err(e.to_string()));
+            let _ = opened.send(Err(e));
             return;
         }
     };

@@ -5,12 +5,13 @@
 //!
 //! Threads: a tokio runtime (gRPC server, lease expiry, signals), one shared-memory intake
 //! thread, and the training thread ([`trainer`]) which owns the networks. They share
-//! [`core::Shared`].
+//! [`shared::Shared`].
 
 mod config;
 mod control;
-pub mod core;
 mod data;
+mod error;
+pub mod shared;
 pub mod status;
 mod trainer;
 
@@ -28,10 +29,11 @@ use scheduler::{Registry, RegistryConfig, RegistrySnapshot};
 use tokio::sync::watch;
 
 pub use config::{LearnerOptions, ServiceConfig};
+pub use error::ServiceError;
 pub use status::{read_status, KindStatus, Status, STATUS_FILE};
 pub use trainer::TrainSummary;
 
-use self::core::{Core, Shared, Totals};
+use self::shared::{Core, Shared, Totals};
 use crate::checkpoint;
 use crate::ddp_init::FitOptions;
 use crate::export::space_name;
@@ -54,7 +56,7 @@ pub struct Learner {
     shared: Arc<Shared>,
     runtime: tokio::runtime::Runtime,
     addr: SocketAddr,
-    trainer: JoinHandle<Result<TrainSummary, String>>,
+    trainer: JoinHandle<Result<TrainSummary, ServiceError>>,
     intake: Option<JoinHandle<()>>,
     intake_stop: Arc<AtomicBool>,
     server_stop: watch::Sender<bool>,
@@ -85,13 +87,16 @@ struct ResumeState {
 /// Loads everything a resume needs from checkpoint `ckpt`, verifying every file. Counters that
 /// do not parse are reset (with a warning) rather than failing: they are statistics, not
 /// training state.
-fn load_resume_state(ckpt: &Path, registry_cfg: &RegistryConfig) -> Result<ResumeState, String> {
-    let (td3, state) = checkpoint::load(ckpt, &Device::flex()).map_err(|e| e.to_string())?;
-    let replay = checkpoint::load_replay(ckpt)
-        .map_err(|e| e.to_string())?
-        .unwrap_or_else(|| ReplayBuffer::new(td3.config()));
-    let snapshot: RegistrySnapshot = serde_json::from_value(state.extra["registry"].clone())
-        .map_err(|e| format!("{}: registry state: {e}", ckpt.display()))?;
+fn load_resume_state(ckpt: &Path, registry_cfg: &RegistryConfig) -> Result<ResumeState, ServiceError> {
+    let (td3, state) = checkpoint::load(ckpt, &Device::flex())?;
+    let replay = checkpoint::load_replay(ckpt)?.unwrap_or_else(|| ReplayBuffer::new(td3.config()));
+    let snapshot: RegistrySnapshot =
+        serde_json::from_value(state.extra["registry"].clone()).map_err(|source| {
+            ServiceError::RegistryState {
+                checkpoint: ckpt.to_path_buf(),
+                source,
+            }
+        })?;
     let totals: Totals = serde_json::from_value(state.extra["totals"].clone()).unwrap_or_else(|e| {
         eprintln!(
             "learner: WARNING: {}: the counters do not parse ({e}); they restart from zero",
@@ -99,7 +104,7 @@ fn load_resume_state(ckpt: &Path, registry_cfg: &RegistryConfig) -> Result<Resum
         );
         Totals::default()
     });
-    let registry = Registry::restore(*registry_cfg, snapshot).map_err(|e| e.to_string())?;
+    let registry = Registry::restore(*registry_cfg, snapshot)?;
     Ok(ResumeState {
         td3,
         run_id: state.run_id,
@@ -115,9 +120,10 @@ fn load_resume_state(ckpt: &Path, registry_cfg: &RegistryConfig) -> Result<Resum
 /// Loads the newest of `candidates` (complete checkpoints, oldest first) that loads fully;
 /// each one skipped is logged as a warning and returned with the reason.
 fn newest_usable(
+    dir: &Path,
     candidates: &[(u64, PathBuf)],
     registry_cfg: &RegistryConfig,
-) -> Result<(PathBuf, ResumeState, Vec<String>), String> {
+) -> Result<(PathBuf, ResumeState, Vec<String>), ServiceError> {
     let mut warnings = Vec::new();
     for (_, ckpt) in candidates.iter().rev() {
         match load_resume_state(ckpt, registry_cfg) {
@@ -132,11 +138,11 @@ fn newest_usable(
             }
         }
     }
-    Err(format!(
-        "none of the {} checkpoints is usable: {}",
-        candidates.len(),
-        warnings.join("; ")
-    ))
+    Err(ServiceError::NoUsableCheckpoint {
+        dir: dir.to_path_buf(),
+        tried: candidates.len(),
+        warnings,
+    })
 }
 
 /// The lock file a learner holds in its run directory.
@@ -146,7 +152,7 @@ pub const LOCK_FILE: &str = "learner.lock";
 /// the holder's host and pid). Refused while another learner process holds it, so a second
 /// learner can never remove the first one's socket or write into its checkpoints. The lock
 /// goes away with the process, also when it is killed.
-pub fn lock_run_dir(run_dir: &Path) -> Result<std::fs::File, String> {
+pub fn lock_run_dir(run_dir: &Path) -> Result<std::fs::File, ServiceError> {
     use std::io::{Read, Seek, Write};
     use std::os::unix::fs::OpenOptionsExt;
     let path = run_dir.join(LOCK_FILE);
@@ -157,7 +163,10 @@ pub fn lock_run_dir(run_dir: &Path) -> Result<std::fs::File, String> {
         .truncate(false)
         .mode(0o600)
         .open(&path)
-        .map_err(|e| format!("cannot open the lock file {}: {e}", path.display()))?;
+        .map_err(ServiceError::io(format!(
+            "cannot open the lock file {}",
+            path.display()
+        )))?;
     match file.try_lock() {
         Ok(()) => {
             let holder = format!("{} pid {}\n", proto::hostname(), std::process::id());
@@ -170,36 +179,43 @@ pub fn lock_run_dir(run_dir: &Path) -> Result<std::fs::File, String> {
         Err(std::fs::TryLockError::WouldBlock) => {
             let mut holder = String::new();
             let _ = file.read_to_string(&mut holder);
-            Err(format!(
-                "{} is in use by another learner ({}; lock file {}): stop it first or choose another --out",
-                run_dir.display(),
-                holder.trim(),
-                path.display()
-            ))
+            Err(ServiceError::InUse {
+                run_dir: run_dir.to_path_buf(),
+                holder: holder.trim().to_string(),
+                lock: path,
+            })
         }
-        Err(std::fs::TryLockError::Error(e)) => Err(format!("cannot lock {}: {e}", path.display())),
+        Err(std::fs::TryLockError::Error(e)) => {
+            Err(ServiceError::io(format!("cannot lock {}", path.display()))(e))
+        }
     }
 }
 
 /// Binds a Unix socket at `path` (replacing a stale one from an earlier learner of the run),
 /// readable and writable by this user only.
-fn bind_unix(runtime: &tokio::runtime::Runtime, path: &Path) -> Result<tokio::net::UnixListener, String> {
+fn bind_unix(
+    runtime: &tokio::runtime::Runtime,
+    path: &Path,
+) -> Result<tokio::net::UnixListener, ServiceError> {
     use std::os::unix::fs::PermissionsExt;
     // sockaddr_un holds 108 bytes including the terminating NUL.
     if path.as_os_str().len() > 107 {
-        return Err(format!("{} is longer than a socket path may be", path.display()));
+        return Err(ServiceError::SocketPath(path.to_path_buf()));
     }
     match std::fs::remove_file(path) {
         Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
-            return Err(format!("cannot remove the old {}: {e}", path.display()))
+            return Err(ServiceError::io(format!(
+                "cannot remove the old {}",
+                path.display()
+            ))(e))
         }
         _ => {}
     }
     let _guard = runtime.enter();
-    let listener =
-        tokio::net::UnixListener::bind(path).map_err(|e| format!("cannot bind {}: {e}", path.display()))?;
+    let listener = tokio::net::UnixListener::bind(path)
+        .map_err(ServiceError::io(format!("cannot bind {}", path.display())))?;
     std::fs::set_permissions(path, std::fs::Permissions::from_mode(0o600))
-        .map_err(|e| format!("cannot chmod 600 {}: {e}", path.display()))?;
+        .map_err(ServiceError::io(format!("cannot chmod 600 {}", path.display())))?;
     Ok(listener)
 }
 
@@ -217,17 +233,17 @@ fn fresh_incarnation() -> u64 {
 }
 
 /// Writes `text` to `path` atomically.
-fn write_atomic(path: &Path, text: &str) -> Result<(), String> {
+fn write_atomic(path: &Path, text: &str) -> Result<(), ServiceError> {
     let tmp = path.with_extension("tmp");
     std::fs::write(&tmp, text)
         .and_then(|_| std::fs::rename(&tmp, path))
-        .map_err(|e| format!("cannot write {}: {e}", path.display()))
+        .map_err(ServiceError::io(format!("cannot write {}", path.display())))
 }
 
 impl Learner {
     /// Prepares the run (fresh or resumed), binds the server and starts every thread. Returns
     /// once actors can connect (the bound address is in [`Learner::addr`] and `learner.addr`).
-    pub fn start(opts: LearnerOptions) -> Result<Self, String> {
+    pub fn start(opts: LearnerOptions) -> Result<Self, ServiceError> {
         let run_dir = opts.run_dir.clone();
         let svc = opts.service.clone();
         svc.check()?;
@@ -252,87 +268,77 @@ impl Learner {
             run_seed: opts.td3.seed,
         };
         let candidates = if checkpoints.exists() {
-            retention::complete_checkpoints(&checkpoints).map_err(|e| e.to_string())?
+            retention::complete_checkpoints(&checkpoints)?
         } else {
             Vec::new()
         };
         let mut resume_warnings = Vec::new();
-        let (td3, run_id, rate, sampler_rng, policy_version, registry, totals, replay) = match (
-            opts.resume,
-            candidates.last(),
-        ) {
-            (true, None) => {
-                return Err(format!(
-                    "--resume: no complete checkpoint under {}",
-                    checkpoints.display()
-                ))
-            }
-            (false, Some((_, c))) => {
-                return Err(format!(
-                    "{} already holds a run (checkpoint {}); pass --resume to continue it or choose another --out",
-                    run_dir.display(),
-                    c.display()
-                ))
-            }
-            (true, Some(_)) => {
-                let (ckpt, r, warnings) = newest_usable(&candidates, &registry_cfg)
-                    .map_err(|e| format!("--resume under {}: {e}", checkpoints.display()))?;
-                resume_warnings = warnings;
-                eprintln!(
-                    "learner: resuming run {} from {} ({} steps, {} updates)",
-                    r.run_id,
-                    ckpt.display(),
-                    r.rate.inserts(),
-                    r.rate.updates()
-                );
-                (
-                    r.td3,
-                    r.run_id,
-                    r.rate,
-                    r.sampler_rng,
-                    r.policy_version,
-                    r.registry,
-                    r.totals,
-                    r.replay,
-                )
-            }
-            (false, None) => {
-                let mut td3 = Td3::new(opts.td3.clone(), &Device::flex()).map_err(|e| e.to_string())?;
-                if svc.ddp_init {
-                    let target: Vec<f32> = action_map(&opts.env_toml)?
-                        .ddp_policy_action(opts.space)
-                        .iter()
-                        .map(|&a| a as f32)
-                        .collect();
-                    let report = td3
-                        .init_actor_to_action(&target, &FitOptions::default())
-                        .map_err(|e| format!("DDP initialization: {e}"))?;
-                    eprintln!("learner: actor initialized to the DDP schedule ({report:?})");
+        let (td3, run_id, rate, sampler_rng, policy_version, registry, totals, replay) =
+            match (opts.resume, candidates.last()) {
+                (true, None) => return Err(ServiceError::NothingToResume { dir: checkpoints }),
+                (false, Some((_, c))) => {
+                    return Err(ServiceError::RunExists {
+                        run_dir,
+                        checkpoint: c.clone(),
+                    })
                 }
-                let registry = Registry::new(registry_cfg, opts.worlds.clone()).map_err(|e| e.to_string())?;
-                let cfg = td3.config().clone();
-                (
-                    td3,
-                    opts.run_id.clone(),
-                    RateLimiter::new(&cfg),
-                    seeded_rng(cfg.seed, 4),
-                    0,
-                    registry,
-                    Totals::default(),
-                    ReplayBuffer::new(&cfg),
-                )
-            }
-        };
+                (true, Some(_)) => {
+                    let (ckpt, r, warnings) = newest_usable(&checkpoints, &candidates, &registry_cfg)?;
+                    resume_warnings = warnings;
+                    eprintln!(
+                        "learner: resuming run {} from {} ({} steps, {} updates)",
+                        r.run_id,
+                        ckpt.display(),
+                        r.rate.inserts(),
+                        r.rate.updates()
+                    );
+                    (
+                        r.td3,
+                        r.run_id,
+                        r.rate,
+                        r.sampler_rng,
+                        r.policy_version,
+                        r.registry,
+                        r.totals,
+                        r.replay,
+                    )
+                }
+                (false, None) => {
+                    let mut td3 = Td3::new(opts.td3.clone(), &Device::flex())?;
+                    if svc.ddp_init {
+                        let target: Vec<f32> = action_map(&opts.env_toml)?
+                            .ddp_policy_action(opts.space)
+                            .iter()
+                            .map(|&a| a as f32)
+                            .collect();
+                        let report = td3
+                            .init_actor_to_action(&target, &FitOptions::default())
+                            .map_err(ServiceError::DdpInit)?;
+                        eprintln!("learner: actor initialized to the DDP schedule ({report:?})");
+                    }
+                    let registry = Registry::new(registry_cfg, opts.worlds.clone())?;
+                    let cfg = td3.config().clone();
+                    (
+                        td3,
+                        opts.run_id.clone(),
+                        RateLimiter::new(&cfg),
+                        seeded_rng(cfg.seed, 4),
+                        0,
+                        registry,
+                        Totals::default(),
+                        ReplayBuffer::new(&cfg),
+                    )
+                }
+            };
         let cfg = td3.config().clone();
-        if cfg.obs_dim != actor_obs_dim(opts.space) || cfg.act_dim != opts.space.dim() {
-            return Err(format!(
-                "[td3] obs_dim {} / act_dim {} do not fit the {} action space ({} / {})",
-                cfg.obs_dim,
-                cfg.act_dim,
-                space_name(opts.space),
-                actor_obs_dim(opts.space),
-                opts.space.dim()
-            ));
+        if cfg.obs_dim != actor::obs_dim(opts.space) || cfg.act_dim != opts.space.dim() {
+            return Err(ServiceError::SpaceMismatch {
+                obs_dim: cfg.obs_dim,
+                act_dim: cfg.act_dim,
+                space: space_name(opts.space),
+                space_obs_dim: actor::obs_dim(opts.space),
+                space_act_dim: opts.space.dim(),
+            });
         }
         let incarnation = fresh_incarnation();
         let validator = Validator {
@@ -360,13 +366,13 @@ impl Learner {
                 let handle = std::thread::Builder::new()
                     .name("adp-shm-intake".into())
                     .spawn(move || data::shm_intake(c, opened_tx, shared_rx, stop))
-                    .map_err(|e| e.to_string())?;
+                    .map_err(ServiceError::io("cannot start the shared-memory intake thread"))?;
                 match opened_rx.recv() {
                     Ok(Ok(())) => (Some(cfg), None, Some(handle)),
                     Ok(Err(why)) => {
                         eprintln!("learner: shared-memory data plane unavailable ({why}); actors use gRPC");
                         let _ = handle.join();
-                        (None, Some(why), None)
+                        (None, Some(why.to_string()), None)
                     }
                     Err(_) => {
                         let _ = handle.join();
@@ -377,8 +383,7 @@ impl Learner {
             None => (None, None, None),
         };
         // Recorded in checkpoints, so exports document the observation the policy was trained on.
-        let environment: serde_json::Value = toml::from_str(&opts.env_toml)
-            .map_err(|e| format!("the environment settings (env_toml) are not a TOML table: {e}"))?;
+        let environment: serde_json::Value = toml::from_str(&opts.env_toml).map_err(ServiceError::EnvToml)?;
         let (dims, _) = td3.policy().flat_weights();
         let spec = pb::RunSpec {
             obs_dim: cfg.obs_dim as u32,
@@ -427,26 +432,27 @@ impl Learner {
             EventWriter::resume(&tensorboard_dir, inserts)
         } else {
             EventWriter::create(&tensorboard_dir)
-        }
-        .map_err(|e| e.to_string())?;
+        }?;
 
         let runtime = tokio::runtime::Builder::new_multi_thread()
             .worker_threads(2)
             .enable_all()
             .thread_name("adp-learner-io")
             .build()
-            .map_err(|e| format!("cannot start the tokio runtime: {e}"))?;
+            .map_err(ServiceError::io("cannot start the tokio runtime"))?;
         let listener = runtime
             .block_on(tokio::net::TcpListener::bind(&svc.listen))
-            .map_err(|e| format!("cannot listen on {}: {e}", svc.listen))?;
-        let addr = listener.local_addr().map_err(|e| e.to_string())?;
+            .map_err(ServiceError::io(format!("cannot listen on {}", svc.listen)))?;
+        let addr = listener
+            .local_addr()
+            .map_err(ServiceError::io("cannot read the bound address"))?;
         let (policy_tx, policy_rx) = watch::channel(Arc::new(pb::PolicySnapshot::default()));
         let auth = proto::auth::ServerAuth::new(&opts.token, shared.refusals.clone());
         let mut builder = tonic::transport::Server::builder();
         if let Some(tls) = &svc.tls {
             builder = builder
-                .tls_config(tls.server_config().map_err(|e| e.to_string())?)
-                .map_err(|e| format!("TLS: {e}"))?;
+                .tls_config(tls.server_config()?)
+                .map_err(ServiceError::Tls)?;
         }
         let control = tonic::service::interceptor::InterceptedService::new(
             pb::control_server::ControlServer::new(control::ControlService {
@@ -543,7 +549,7 @@ impl Learner {
         let trainer = std::thread::Builder::new()
             .name("adp-train".into())
             .spawn(move || trainer.run())
-            .map_err(|e| e.to_string())?;
+            .map_err(ServiceError::io("cannot start the training thread"))?;
         eprintln!("learner: run {run_id} (incarnation {incarnation:016x}) serving on {addr}");
         Ok(Self {
             shared,
@@ -580,12 +586,16 @@ impl Learner {
     /// The newest published policy: its version (0 before the first publish), exploration
     /// sigma and flat weights (decoded), with the layer sizes of the run's actor, as
     /// `MlpPolicy::from_flat` takes them. For in-process evaluation of the greedy policy.
-    pub fn latest_policy(&self) -> Result<(u64, Vec<usize>, Vec<f32>), String> {
+    pub fn latest_policy(&self) -> Result<(u64, Vec<usize>, Vec<f32>), ServiceError> {
         let snapshot = self.policy.borrow().clone();
         let dims = self.shared.spec.policy_dims.iter().map(|&d| d as usize).collect();
         let mut weights = Vec::new();
-        proto::floats::decode_into("weights", &snapshot.weights, &mut weights)
-            .map_err(|e| format!("policy version {}: {e}", snapshot.version))?;
+        proto::floats::decode_into("weights", &snapshot.weights, &mut weights).map_err(|source| {
+            ServiceError::Policy {
+                version: snapshot.version,
+                source,
+            }
+        })?;
         Ok((snapshot.version, dims, weights))
     }
 
@@ -607,11 +617,8 @@ impl Learner {
 
     /// Waits for the training thread (budget reached or stop requested), tells actors to shut
     /// down, stops the planes and returns the summary.
-    pub fn wait(self) -> Result<TrainSummary, String> {
-        let summary = self
-            .trainer
-            .join()
-            .map_err(|_| "the training thread panicked".to_string())?;
+    pub fn wait(self) -> Result<TrainSummary, ServiceError> {
+        let summary = self.trainer.join().map_err(|_| ServiceError::TrainerPanicked)?;
         self.shared.finished.store(true, Ordering::Release);
         // Training is over: nothing may wait for updates any more (the intake would hang).
         self.shared.request_stop(true);
@@ -636,31 +643,26 @@ impl Learner {
     }
 }
 
-/// The observation size actors produce for `space` (720 laser, previous action, 6 state values).
-pub fn actor_obs_dim(space: planner::ActionSpace) -> usize {
-    crate::export::observation_layout(space, crate::export::LASER_CLIP_M).dim
-}
-
 /// The action map of the environment settings (`action_map` in `env_toml`; the environment's
 /// default, DDP-centred, when absent): it decides which policy output is the DDP schedule.
-fn action_map(env_toml: &str) -> Result<planner::ActionMap, String> {
-    let table: toml::Table = toml::from_str(env_toml)
-        .map_err(|e| format!("the environment settings (env_toml) are not a TOML table: {e}"))?;
+fn action_map(env_toml: &str) -> Result<planner::ActionMap, ServiceError> {
+    let table: toml::Table = toml::from_str(env_toml).map_err(ServiceError::EnvToml)?;
     match table.get("action_map") {
         None => Ok(planner::ActionMap::default()),
         Some(v) => v
             .as_str()
-            .ok_or_else(|| format!("env.action_map = {v} must be a string"))?
-            .parse(),
+            .ok_or_else(|| ServiceError::ActionMapType(v.clone()))?
+            .parse()
+            .map_err(ServiceError::ActionMap),
     }
 }
 
 /// Reads the learner address a running learner wrote into `run_dir`.
-pub fn read_addr(run_dir: &Path) -> Result<String, String> {
+pub fn read_addr(run_dir: &Path) -> Result<String, ServiceError> {
     let p: PathBuf = run_dir.join(ADDR_FILE);
     std::fs::read_to_string(&p)
         .map(|s| s.trim().to_owned())
-        .map_err(|e| format!("cannot read {}: {e}", p.display()))
+        .map_err(ServiceError::io(format!("cannot read {}", p.display())))
 }
 
 #[cfg(test)]
@@ -702,16 +704,21 @@ mod tests {
         flip(&root.join("ckpt-2").join("actor.bpk"));
         let candidates = retention::complete_checkpoints(&root).unwrap();
         assert_eq!(candidates.len(), 2, "the damage is only found by a full load");
-        let (ckpt, state, warnings) = newest_usable(&candidates, &registry_cfg).unwrap();
+        let (ckpt, state, warnings) = newest_usable(&root, &candidates, &registry_cfg).unwrap();
         assert_eq!(ckpt, root.join("ckpt-1"));
         assert_eq!(state.td3.updates, 1);
         assert_eq!(warnings.len(), 1);
         assert!(warnings[0].contains("ckpt-2"), "{warnings:?}");
         // Nothing usable: the error names every checkpoint tried.
         flip(&root.join("ckpt-1").join("critic.bpk"));
-        let e = newest_usable(&retention::complete_checkpoints(&root).unwrap(), &registry_cfg)
-            .err()
-            .unwrap();
+        let e = newest_usable(
+            &root,
+            &retention::complete_checkpoints(&root).unwrap(),
+            &registry_cfg,
+        )
+        .err()
+        .unwrap()
+        .to_string();
         assert!(e.contains("ckpt-1") && e.contains("ckpt-2"), "{e}");
         std::fs::remove_dir_all(&root).unwrap();
     }

@@ -5,7 +5,9 @@ use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
-use super::core::{Core, Shared};
+use super::ServiceError;
+
+use super::shared::{Core, Shared};
 
 /// Name of the status file in the run directory.
 pub const STATUS_FILE: &str = "status.json";
@@ -153,7 +155,7 @@ impl Status {
             },
             resume_warnings: shared.resume_warnings.clone(),
             shm_unavailable: shared.shm_unavailable.lock().expect("shm note lock").clone(),
-            finished: super::core::is_set(&shared.finished),
+            finished: super::shared::is_set(&shared.finished),
         }
     }
 
@@ -187,17 +189,21 @@ impl Status {
 }
 
 /// Writes `status` to `run_dir/status.json` atomically (temporary file + rename).
-pub fn write_status(run_dir: &Path, status: &Status) -> Result<(), String> {
+pub fn write_status(run_dir: &Path, status: &Status) -> Result<(), ServiceError> {
     let tmp = run_dir.join(format!(".{STATUS_FILE}.tmp"));
     let text = serde_json::to_string_pretty(status).expect("status serializes");
     std::fs::write(&tmp, text)
         .and_then(|_| std::fs::rename(&tmp, run_dir.join(STATUS_FILE)))
-        .map_err(|e| format!("cannot write {}: {e}", run_dir.join(STATUS_FILE).display()))
+        .map_err(ServiceError::io(format!(
+            "cannot write {}",
+            run_dir.join(STATUS_FILE).display()
+        )))
 }
 
 /// Reads `run_dir/status.json`.
-pub fn read_status(run_dir: &Path) -> Result<Status, String> {
+pub fn read_status(run_dir: &Path) -> Result<Status, ServiceError> {
     let p = run_dir.join(STATUS_FILE);
-    let text = std::fs::read_to_string(&p).map_err(|e| format!("cannot read {}: {e}", p.display()))?;
-    serde_json::from_str(&text).map_err(|e| format!("{}: {e}", p.display()))
+    let text =
+        std::fs::read_to_string(&p).map_err(ServiceError::io(format!("cannot read {}", p.display())))?;
+    serde_json::from_str(&text).map_err(|source| ServiceError::Status { path: p, source })
 }

@@ -14,9 +14,9 @@ use proto::shm::{ShmConfig, ShmPolicyPublisher};
 use rand_pcg::Pcg64Mcg;
 use tokio::sync::watch;
 
-use super::core::Shared;
+use super::shared::Shared;
 use super::status::{write_status, Status};
-use super::ServiceConfig;
+use super::{ServiceConfig, ServiceError};
 use crate::batch::Batch;
 use crate::checkpoint::{self, RunState};
 use crate::exploration::ExplorationSchedule;
@@ -65,7 +65,7 @@ struct Meter {
 impl Trainer {
     /// Runs until the budget is stored and trained on, or a stop is requested; then writes the
     /// final checkpoint and export.
-    pub fn run(mut self) -> Result<TrainSummary, String> {
+    pub fn run(mut self) -> Result<TrainSummary, ServiceError> {
         let mut shm_pub = match &self.shm {
             Some(cfg) => match ShmPolicyPublisher::open(cfg) {
                 Ok(p) => Some(p),
@@ -163,8 +163,8 @@ impl Trainer {
                     .replay
                     .sample(cfg.batch_size, &mut self.sampler_rng, &mut batch);
                 drop(core);
-                sampled.map_err(|e| format!("sampling the replay buffer: {e}"))?;
-                let stats = self.td3.update(&batch).map_err(|e| format!("TD3 update: {e}"))?;
+                sampled.map_err(ServiceError::Sample)?;
+                let stats = self.td3.update(&batch).map_err(ServiceError::Update)?;
                 let (inserts, updates) = {
                     let mut core = self.shared.lock();
                     core.rate.record_updates(1);
@@ -266,7 +266,7 @@ impl Trainer {
     /// replay buffer's snapshot bytes); serializing the networks, hashing and fsyncing happen
     /// outside it, so heartbeats, leases and ingest go on during a slow write. The networks
     /// belong to this thread, so nothing changes them meanwhile.
-    fn checkpoint(&mut self) -> Result<PathBuf, String> {
+    fn checkpoint(&mut self) -> Result<PathBuf, ServiceError> {
         let root = self.run_dir.join("checkpoints");
         let (dir, run, replay) = {
             let core = self.shared.lock();
@@ -290,7 +290,10 @@ impl Trainer {
                 let mut bytes = Vec::new();
                 core.replay
                     .write_snapshot(&mut bytes)
-                    .map_err(|e| format!("copying the replay buffer for {}: {e}", dir.display()))?;
+                    .map_err(|source| ServiceError::ReplayCopy {
+                        dir: dir.clone(),
+                        source,
+                    })?;
                 Some(bytes)
             } else {
                 None
@@ -307,7 +310,10 @@ impl Trainer {
             None => checkpoint::save(&dir, &self.td3, &run),
         };
         drop(replay);
-        saved.map_err(|e| format!("checkpoint {}: {e}", dir.display()))?;
+        saved.map_err(|source| ServiceError::Save {
+            dir: dir.clone(),
+            source,
+        })?;
         eprintln!("learner: checkpoint {}", dir.display());
         if let Err(e) = retention::prune(&root, self.service.keep_checkpoints.max(1), &[]) {
             eprintln!("learner: pruning old checkpoints: {e}");
@@ -325,11 +331,11 @@ fn slow_checkpoint_ms() -> Option<u64> {
 }
 
 /// Creates `dir` (and missing parents) readable by this user only.
-pub(super) fn create_private_dir(dir: &Path) -> Result<(), String> {
+pub(super) fn create_private_dir(dir: &Path) -> Result<(), ServiceError> {
     use std::os::unix::fs::DirBuilderExt;
     std::fs::DirBuilder::new()
         .recursive(true)
         .mode(0o700)
         .create(dir)
-        .map_err(|e| format!("cannot create {}: {e}", dir.display()))
+        .map_err(ServiceError::io(format!("cannot create {}", dir.display())))
 }

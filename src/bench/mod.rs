@@ -3,13 +3,16 @@
 //! - `learner`: one TD3 update at the configured batch (critic-only and with the actor step),
 //!   a full replay buffer's memory and sampling time; with `--python`, the same update in
 //!   PyTorch (`bench/td3_update.py`, embedded) right after, and the ratio of the two.
-//! - `transport`: step records per second through the shared-memory and the gRPC data planes.
+//! - `transport` ([`transport`]): step records per second through the shared-memory and the
+//!   gRPC data planes.
 //! - `collect`: agent steps per second of the actor's episode loop (simulator, planner, policy
 //!   inference, exploration; no learner), on one thread and on every core.
 //! - `train`: `adp train` end to end (learner + actor processes at one update per step),
 //!   agent steps per second once training has started.
 //!
 //! Timing is wall clock in a release build; nothing here is a test.
+
+mod transport;
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
@@ -21,8 +24,8 @@ use serde::Serialize;
 use actor::env::{AdpEnv, End};
 use actor::exploration::Exploration;
 use actor::policy::{MlpPolicy, Scratch};
-use adp_learner::bench::{fitted_policy_weights, replay_full, td3_updates};
-use adp_learner::service::read_status;
+use learner::bench::{fitted_policy_weights, replay_full, td3_updates};
+use learner::service::read_status;
 
 use crate::config::EvalConfig;
 use crate::train::TrainConfig;
@@ -41,22 +44,32 @@ pub enum Part {
 }
 
 /// What `adp bench` runs and how long.
+#[derive(clap::Args, Debug)]
 pub struct BenchArgs {
-    /// The parts, in order (all when empty).
+    /// Parts to run (default: all, in this order).
+    #[arg(value_enum)]
     pub parts: Vec<Part>,
-    /// Timed TD3 updates.
+    /// Timed TD3 updates (learner).
+    #[arg(long, default_value_t = 200)]
     pub updates: usize,
-    /// A Python with torch and numpy: also time the update in PyTorch.
+    /// A Python with torch and numpy: also time the same update in PyTorch and print the
+    /// ratio (learner).
+    #[arg(long)]
     pub python: Option<PathBuf>,
-    /// Step records sent through each transport.
+    /// Step records through shared memory; a quarter of them through gRPC (transport).
+    #[arg(long, default_value_t = 400_000)]
     pub records: usize,
-    /// Agent steps per collecting thread.
+    /// Agent steps per collecting thread (collect).
+    #[arg(long, default_value_t = 2000)]
     pub collect_steps: u64,
-    /// Agent-step budget of the end-to-end run.
+    /// Agent-step budget of the end-to-end `adp train` run (train).
+    #[arg(long, default_value_t = 4000)]
     pub train_steps: u64,
-    /// Actor processes of the end-to-end run (0 = one per core).
+    /// Actor processes of the end-to-end run (default: one per core).
+    #[arg(long, default_value_t = 0)]
     pub train_actors: u32,
-    /// Also write the figures as JSON here.
+    /// Also write the figures as JSON to this file.
+    #[arg(long)]
     pub json: Option<PathBuf>,
 }
 
@@ -234,7 +247,7 @@ struct TorchTiming {
 }
 
 fn pytorch_update(python: &Path, updates: usize) -> anyhow::Result<TorchTiming> {
-    const SCRIPT: &str = include_str!("../bench/td3_update.py");
+    const SCRIPT: &str = include_str!("../../bench/td3_update.py");
     let dir = tempdir("torch")?;
     let script = dir.join("td3_update.py");
     std::fs::write(&script, SCRIPT).with_context(|| format!("cannot write {}", script.display()))?;
@@ -265,8 +278,8 @@ fn pytorch_update(python: &Path, updates: usize) -> anyhow::Result<TorchTiming> 
 
 fn transport(records: usize) -> anyhow::Result<Vec<Figure>> {
     let records = records.max(1000);
-    let shm = proto::shm::bench_throughput(records, 4).map_err(|e| anyhow::anyhow!("{e}"))?;
-    let grpc = proto::grpc::bench_throughput(records / 4, 4).map_err(anyhow::Error::msg)?;
+    let shm = transport::shm_throughput(records, 4)?;
+    let grpc = transport::grpc_throughput(records / 4, 4)?;
     Ok(vec![
         figure(
             "shared-memory step records/s (4 publishers, 730 floats)",
@@ -288,8 +301,8 @@ fn collect_steps(
     steps: u64,
 ) -> anyhow::Result<u64> {
     let eval = EvalConfig::load(None)?;
-    let space = cfg.space()?;
-    let kind = cfg.planner_kind()?;
+    let space = cfg.run.action_space;
+    let kind = cfg.run.planner;
     let n = actor::observation::obs_dim(space);
     let (mut obs, mut action) = (vec![0.0f32; n], vec![0.0f32; space.dim()]);
     let mut scratch = Scratch::default();
@@ -325,10 +338,10 @@ fn collect_steps(
 
 fn collect(steps: u64) -> anyhow::Result<Vec<Figure>> {
     let cfg = TrainConfig::load(None)?;
-    let space = cfg.space()?;
+    let space = cfg.run.action_space;
     let worlds = cfg.worlds()?;
     let target: Vec<f32> = space.ddp_action().iter().map(|&a| a as f32).collect();
-    let (dims, weights) = fitted_policy_weights(&cfg.td3, &target).map_err(anyhow::Error::msg)?;
+    let (dims, weights) = fitted_policy_weights(&cfg.td3, &target)?;
     let net = MlpPolicy::from_flat(&dims, weights)?;
     let steps = steps.max(10);
     let t = Instant::now();
@@ -353,7 +366,8 @@ fn collect(steps: u64) -> anyhow::Result<Vec<Figure>> {
         figure(
             format!(
                 "collection, agent steps/s on one core ({} {})",
-                cfg.run.planner, cfg.run.action_space
+                cfg.run.planner.name(),
+                learner::export::space_name(cfg.run.action_space)
             ),
             single,
             "1/s",
@@ -420,7 +434,7 @@ fn train(steps: u64, actors: u32) -> anyhow::Result<Vec<Figure>> {
             dir.join("train.log").display()
         );
     }
-    let s = read_status(&run).map_err(anyhow::Error::msg)?;
+    let s = read_status(&run)?;
     let (Some(a), Some(b)) = (first, last) else {
         bail!("the run finished before a training window could be measured; raise --train-steps");
     };
@@ -463,7 +477,7 @@ mod tests {
     #[test]
     fn collection_loop_counts_agent_steps_across_episode_ends() {
         let cfg = TrainConfig::load(None).unwrap();
-        let space = cfg.space().unwrap();
+        let space = cfg.run.action_space;
         let dims = [actor::observation::obs_dim(space), 8, space.dim()];
         let net = MlpPolicy::from_flat(&dims, vec![0.0; actor::policy::param_count(&dims)]).unwrap();
         let worlds = cfg.worlds().unwrap();

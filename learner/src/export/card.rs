@@ -1,0 +1,368 @@
+//! The JSON card of an exported policy: what it holds, how it is made, and how it is read back.
+
+use actor::observation::{self, DEFAULT_LASER_CLIP_M, LASER_BEAMS};
+use planner::ActionSpace;
+use serde::{Deserialize, Serialize};
+use thiserror::Error;
+
+use super::onnx::{INPUT_NAME, OPSET, OUTPUT_NAME};
+use super::{CARD_FORMAT, CARD_FORMAT_VERSION, ONNX_FILE, SAFETENSORS_FILE};
+use crate::checkpoint::Manifest;
+
+/// The JSON card of an exported policy ([`JSON_FILE`]).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PolicyCard {
+    /// Always [`CARD_FORMAT`].
+    pub format: String,
+    /// [`CARD_FORMAT_VERSION`] of the writer.
+    pub format_version: u32,
+    /// The software that wrote the export.
+    pub software: Software,
+    /// The checkpoint the weights come from.
+    pub source: Source,
+    /// The network and its two serializations.
+    pub network: NetworkCard,
+    /// What the network reads.
+    pub observation: ObservationLayout,
+    /// What the network's output means.
+    pub action: ActionCard,
+    /// The environment settings the policy was trained with (the `[env]` table of the run
+    /// config: `agent_period_cycles` planner cycles per action, `laser_clip_m`, rewards), so it
+    /// can be run as it was trained; `null` when the checkpoint did not record them (the
+    /// defaults applied).
+    #[serde(default)]
+    pub environment: serde_json::Value,
+}
+
+/// Name and version of the exporting software.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Software {
+    /// `adp`.
+    pub name: String,
+    /// The crate version.
+    pub version: String,
+}
+
+/// The checkpoint an export was made from.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Source {
+    /// The training run.
+    pub run_id: String,
+    /// Gradient updates done when the checkpoint was written.
+    pub updates: u64,
+    /// Agent steps inserted when the checkpoint was written.
+    pub inserts: u64,
+    /// Policy version at the checkpoint.
+    pub policy_version: u64,
+}
+
+/// The actor network and where its serializations are.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct NetworkCard {
+    /// Widths from the observation to the action, e.g. `[730, 512, 512, 4]`.
+    pub layer_sizes: Vec<usize>,
+    /// Activation after every hidden layer (`relu`).
+    pub hidden_activation: String,
+    /// Activation of the output layer (`tanh`).
+    pub output_activation: String,
+    /// The ONNX file.
+    pub onnx_file: String,
+    /// Its input name.
+    pub onnx_input: String,
+    /// Its output name.
+    pub onnx_output: String,
+    /// Its default-domain opset.
+    pub onnx_opset: i64,
+    /// The safetensors file.
+    pub safetensors_file: String,
+    /// The tensor names and layout of the safetensors file.
+    pub safetensors_layout: String,
+}
+
+/// The observation vector, as consecutive segments.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ObservationLayout {
+    /// Total length.
+    pub dim: usize,
+    /// Segments in order; each starts where the previous one ends.
+    pub segments: Vec<ObservationSegment>,
+}
+
+/// A run of observation values with one meaning.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ObservationSegment {
+    /// Short name, e.g. `laser`.
+    pub name: String,
+    /// Index of the first value.
+    pub offset: usize,
+    /// Number of values.
+    pub size: usize,
+    /// How the values are computed from the robot's state and sensors.
+    pub encoding: String,
+}
+
+/// The action space of the policy.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ActionCard {
+    /// The action space (`decremental`, `incremental`, `unconstrained` or `fixed`).
+    pub space: ActionSpace,
+    /// Number of action values.
+    pub dim: usize,
+    /// Every value the network outputs lies in `[-1, 1]`.
+    pub normalized_range: [f64; 2],
+    /// Each value's physical meaning and range.
+    pub dimensions: Vec<ActionDimension>,
+    /// How a normalized value becomes a physical one.
+    pub to_physical: String,
+    /// How the physical values become the planner's rollout schedule.
+    pub schedule: String,
+    /// The normalized action that reproduces DDP (ADP's initial policy), as a worked example.
+    pub ddp_action: Vec<f64>,
+    /// Its physical values.
+    pub ddp_physical: Vec<f64>,
+}
+
+/// One action value's meaning.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ActionDimension {
+    /// Parameter name (`p`, `T`, `N`, `alpha`, `dt`, `check_density`).
+    pub name: String,
+    /// Physical value at normalized -1.
+    pub low: f64,
+    /// Physical value at normalized +1.
+    pub high: f64,
+    /// Rounded to the nearest integer after scaling.
+    pub integer: bool,
+}
+
+/// The observation layout of DESIGN §5 for `space`: 720 laser values (ranges clipped at
+/// `laser_clip_m`), the previous action, v, w, and (bearing, distance) to the local and the
+/// global goal.
+pub fn observation_layout(space: ActionSpace, laser_clip_m: f64) -> ObservationLayout {
+    let segments = observation::segments(space)
+        .iter()
+        .map(|s| ObservationSegment {
+            name: s.name.into(),
+            offset: s.offset,
+            size: s.size,
+            encoding: s.encoding(laser_clip_m),
+        })
+        .collect();
+    ObservationLayout {
+        dim: observation::obs_dim(space),
+        segments,
+    }
+}
+
+/// The action space's name as in configuration files and the card (`decremental`, ...).
+pub fn space_name(space: ActionSpace) -> String {
+    match serde_json::to_value(space) {
+        Ok(serde_json::Value::String(name)) => name,
+        _ => unreachable!("ActionSpace serializes as a string"),
+    }
+}
+
+/// How `space`'s physical values make a rollout schedule (mirrors `planner::action`).
+fn schedule_text(space: ActionSpace) -> &'static str {
+    match space {
+        ActionSpace::Decremental => {
+            "N steps with boundary times t_i = alpha (i/N) T + (1 - alpha) (i/N)^p T, i = 0..N; \
+             step i (1-based) lasts t_i - t_(i-1) s and collision-checks round(n (1 - (i/N)^p)) \
+             of the footprint's n boundary points"
+        }
+        ActionSpace::Incremental => {
+            "the decremental schedule of the same (p, T, N, alpha) with its step lengths and \
+             check counts in reverse order"
+        }
+        ActionSpace::Unconstrained => {
+            "20 steps of dt_1..dt_20 s, all scaled by 2 / sum(dt) when the sum exceeds 2 s; with \
+             t_i the end time of step i and H the horizon, step i collision-checks \
+             round(n (1 - (t_i / H)^1.7)) of the footprint's n boundary points"
+        }
+        ActionSpace::Fixed => {
+            "max(1, round(2 / dt)) steps of dt s, each collision-checking \
+             round(check_density n) of the footprint's n boundary points"
+        }
+    }
+}
+
+/// Why a card was not read.
+#[derive(Debug, Error)]
+pub enum CardError {
+    /// Not JSON, or not a card.
+    #[error("{0}")]
+    Parse(#[from] serde_json::Error),
+    /// A card of another format or format version.
+    #[error(
+        "format {found:?} version {version}; this build reads {CARD_FORMAT:?} version {CARD_FORMAT_VERSION}"
+    )]
+    Format {
+        /// Its `format`.
+        found: String,
+        /// Its `format_version`.
+        version: u32,
+    },
+}
+
+/// Why a checkpoint does not make a card for an action space ([`PolicyCard::new`]).
+#[derive(Debug, Error)]
+pub enum CardMismatch {
+    /// The actor's output size is not the space's action size.
+    #[error("act_dim = {act_dim} does not fit the {space} action space ({dim} values)")]
+    ActDim {
+        /// The checkpoint's `act_dim`.
+        act_dim: usize,
+        /// The action space.
+        space: String,
+        /// Its action size.
+        dim: usize,
+    },
+    /// The actor's input does not match the space's observation layout.
+    #[error(
+        "obs_dim = {obs_dim} with laser_dim = {laser_dim} does not fit the observation layout of the \
+         {space} action space ({dim} values, {LASER_BEAMS} of them laser)"
+    )]
+    ObsDim {
+        /// The checkpoint's `obs_dim`.
+        obs_dim: usize,
+        /// The checkpoint's `laser_dim`.
+        laser_dim: usize,
+        /// The action space.
+        space: String,
+        /// Its observation size.
+        dim: usize,
+    },
+    /// The recorded environment settings are not a table.
+    #[error("the recorded environment settings are not a table: {0}")]
+    Environment(serde_json::Value),
+    /// The recorded laser clip is not a positive number.
+    #[error("the recorded environment's laser_clip_m = {0} is not a positive number")]
+    LaserClip(serde_json::Value),
+}
+
+impl PolicyCard {
+    /// Reads a card ([`super::JSON_FILE`]) written by [`PolicyCard::new`], refusing other
+    /// formats and format versions.
+    pub fn parse(text: &str) -> Result<Self, CardError> {
+        let card: Self = serde_json::from_str(text)?;
+        if card.format != CARD_FORMAT || card.format_version != CARD_FORMAT_VERSION {
+            return Err(CardError::Format {
+                found: card.format,
+                version: card.format_version,
+            });
+        }
+        Ok(card)
+    }
+
+    /// The card for an actor trained in `space` with the environment settings `environment`
+    /// (see [`checkpoint::RunState::environment`]), from the checkpoint whose manifest is `manifest`. Fails
+    /// when the checkpoint's observation or action size does not fit `space`, or the settings
+    /// are not a table with a positive `laser_clip_m`.
+    pub fn new(
+        space: ActionSpace,
+        manifest: &Manifest,
+        environment: &serde_json::Value,
+    ) -> Result<Self, CardMismatch> {
+        let config = &manifest.config;
+        let layout = observation_layout(space, laser_clip_m(environment)?);
+        if config.act_dim != space.dim() {
+            return Err(CardMismatch::ActDim {
+                act_dim: config.act_dim,
+                space: space_name(space),
+                dim: space.dim(),
+            });
+        }
+        if config.obs_dim != layout.dim || config.laser_dim != LASER_BEAMS {
+            return Err(CardMismatch::ObsDim {
+                obs_dim: config.obs_dim,
+                laser_dim: config.laser_dim,
+                space: space_name(space),
+                dim: layout.dim,
+            });
+        }
+        let layer_sizes = std::iter::once(config.obs_dim)
+            .chain(config.actor_hidden.iter().copied())
+            .chain(std::iter::once(config.act_dim))
+            .collect();
+        let ddp_action = space.ddp_action();
+        let ddp_physical = space
+            .to_params(&ddp_action)
+            .expect("the DDP action is a valid action of its space");
+        Ok(Self {
+            format: CARD_FORMAT.into(),
+            format_version: CARD_FORMAT_VERSION,
+            software: Software {
+                name: "adp".into(),
+                version: env!("CARGO_PKG_VERSION").into(),
+            },
+            source: Source {
+                run_id: manifest.run_id.clone(),
+                updates: manifest.updates,
+                inserts: manifest.inserts,
+                policy_version: manifest.policy_version,
+            },
+            network: NetworkCard {
+                layer_sizes,
+                hidden_activation: "relu".into(),
+                output_activation: "tanh".into(),
+                onnx_file: ONNX_FILE.into(),
+                onnx_input: INPUT_NAME.into(),
+                onnx_output: OUTPUT_NAME.into(),
+                onnx_opset: OPSET,
+                safetensors_file: SAFETENSORS_FILE.into(),
+                safetensors_layout: "float32 layers.{i}.weight [out, in] and layers.{i}.bias [out] \
+                                     for i = 0, 1, ...; layer i computes x W^T + b, followed by \
+                                     relu (hidden layers) or tanh (last layer)"
+                    .into(),
+            },
+            observation: layout,
+            action: ActionCard {
+                space,
+                dim: space.dim(),
+                normalized_range: [-1.0, 1.0],
+                dimensions: space
+                    .ranges()
+                    .into_iter()
+                    .map(|(name, low, high)| ActionDimension {
+                        name: name.into(),
+                        low,
+                        high,
+                        integer: name == "N",
+                    })
+                    .collect(),
+                to_physical: "x = low + (clamp(a, -1, 1) + 1) / 2 * (high - low); integer \
+                              dimensions are then rounded to the nearest integer"
+                    .into(),
+                schedule: schedule_text(space).into(),
+                ddp_action,
+                ddp_physical,
+            },
+            environment: environment.clone(),
+        })
+    }
+}
+
+/// The laser clip of recorded environment settings: their `laser_clip_m`, or [`DEFAULT_LASER_CLIP_M`]
+/// when they are `null` or do not set it.
+fn laser_clip_m(environment: &serde_json::Value) -> Result<f64, CardMismatch> {
+    let table = match environment {
+        serde_json::Value::Null => return Ok(DEFAULT_LASER_CLIP_M),
+        serde_json::Value::Object(table) => table,
+        other => return Err(CardMismatch::Environment(other.clone())),
+    };
+    match table.get("laser_clip_m") {
+        None => Ok(DEFAULT_LASER_CLIP_M),
+        Some(v) => v
+            .as_f64()
+            .filter(|c| c.is_finite() && *c > 0.0)
+            .ok_or_else(|| CardMismatch::LaserClip(v.clone())),
+    }
+}

@@ -1,0 +1,202 @@
+//! What can stop the learner process from starting or finishing ([`ServiceError`]).
+
+use std::path::PathBuf;
+
+use thiserror::Error;
+
+use crate::checkpoint::CheckpointError;
+
+/// Why the learner process failed. Each message is one line and names what was wrong and
+/// where, including the underlying OS, checkpoint or registry error, which is also the
+/// [`std::error::Error::source`] where there is one.
+#[derive(Debug, Error)]
+pub enum ServiceError {
+    /// A file, socket, directory or thread operation failed (`what` names it and the path).
+    #[error("{what}: {source}")]
+    Io {
+        /// What was attempted, e.g. `cannot write runs/x/learner.addr`.
+        what: String,
+        /// The OS error.
+        source: std::io::Error,
+    },
+    /// A Unix socket path longer than `sockaddr_un` holds.
+    #[error("{} is longer than a socket path may be", .0.display())]
+    SocketPath(PathBuf),
+    /// Another learner holds the run directory's lock.
+    #[error(
+        "{} is in use by another learner ({holder}; lock file {}): stop it first or choose another --out",
+        run_dir.display(),
+        lock.display()
+    )]
+    InUse {
+        /// The run directory.
+        run_dir: PathBuf,
+        /// The holder's host and pid, as it recorded them.
+        holder: String,
+        /// The lock file.
+        lock: PathBuf,
+    },
+    /// The lease is not longer than the heartbeat (or the heartbeat is 0).
+    #[error("[service] lease_ttl_ms ({lease_ttl_ms}) must exceed heartbeat_ms ({heartbeat_ms}) > 0")]
+    LeaseTtl {
+        /// `[service] lease_ttl_ms`.
+        lease_ttl_ms: u32,
+        /// `[service] heartbeat_ms`.
+        heartbeat_ms: u32,
+    },
+    /// The no-progress timeout is not longer than the heartbeat.
+    #[error(
+        "[service] progress_timeout_ms ({progress_timeout_ms}) must exceed heartbeat_ms ({heartbeat_ms})"
+    )]
+    ProgressTimeout {
+        /// `[service] progress_timeout_ms`.
+        progress_timeout_ms: u32,
+        /// `[service] heartbeat_ms`.
+        heartbeat_ms: u32,
+    },
+    /// A network address other than loopback without TLS, and insecure listening not allowed.
+    #[error(
+        "refusing to listen on {listen} without TLS (the run's token would cross the network in clear \
+         text): configure [service.tls], or pass --allow-insecure-listen \
+         ([service] allow_insecure_listen = true) on a trusted network"
+    )]
+    InsecureListen {
+        /// `[service] listen`.
+        listen: String,
+    },
+    /// `--resume` without a complete checkpoint in the run directory.
+    #[error("--resume: no complete checkpoint under {}", dir.display())]
+    NothingToResume {
+        /// The checkpoints directory.
+        dir: PathBuf,
+    },
+    /// A fresh run in a run directory that already holds checkpoints.
+    #[error(
+        "{} already holds a run (checkpoint {}); pass --resume to continue it or choose another --out",
+        run_dir.display(),
+        checkpoint.display()
+    )]
+    RunExists {
+        /// The run directory.
+        run_dir: PathBuf,
+        /// Its newest complete checkpoint.
+        checkpoint: PathBuf,
+    },
+    /// `--resume`, and no complete checkpoint loads.
+    #[error(
+        "--resume under {}: none of the {tried} checkpoints is usable: {}",
+        dir.display(),
+        warnings.join("; ")
+    )]
+    NoUsableCheckpoint {
+        /// The checkpoints directory.
+        dir: PathBuf,
+        /// How many were tried.
+        tried: usize,
+        /// Why each one was skipped.
+        warnings: Vec<String>,
+    },
+    /// A checkpoint's registry state does not parse.
+    #[error("{}: registry state: {source}", checkpoint.display())]
+    RegistryState {
+        /// The checkpoint.
+        checkpoint: PathBuf,
+        /// The parser's error.
+        source: serde_json::Error,
+    },
+    /// A checkpoint could not be read.
+    #[error(transparent)]
+    Checkpoint(#[from] CheckpointError),
+    /// A checkpoint could not be written.
+    #[error("checkpoint {}: {source}", dir.display())]
+    Save {
+        /// The checkpoint directory.
+        dir: PathBuf,
+        /// Why.
+        source: CheckpointError,
+    },
+    /// The replay buffer could not be copied for a checkpoint.
+    #[error("copying the replay buffer for {}: {source}", dir.display())]
+    ReplayCopy {
+        /// The checkpoint directory.
+        dir: PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// The scheduler's registry refused its configuration or a restored state.
+    #[error(transparent)]
+    Registry(#[from] scheduler::RegistryError),
+    /// The networks could not be built.
+    #[error(transparent)]
+    Td3(#[from] crate::td3::Td3Error),
+    /// The actor could not be fitted to the DDP schedule.
+    #[error("DDP initialization: {0}")]
+    DdpInit(#[source] crate::ddp_init::FitError),
+    /// `[td3]` sizes that do not fit the run's action space.
+    #[error(
+        "[td3] obs_dim {obs_dim} / act_dim {act_dim} do not fit the {space} action space ({space_obs_dim} / {space_act_dim})"
+    )]
+    SpaceMismatch {
+        /// `[td3] obs_dim`.
+        obs_dim: usize,
+        /// `[td3] act_dim`.
+        act_dim: usize,
+        /// The action space.
+        space: String,
+        /// Its observation size.
+        space_obs_dim: usize,
+        /// Its action size.
+        space_act_dim: usize,
+    },
+    /// The environment settings are not a TOML table.
+    #[error("the environment settings (env_toml) are not a TOML table: {0}")]
+    EnvToml(#[source] toml::de::Error),
+    /// `env.action_map` is not a string.
+    #[error("env.action_map = {0} must be a string")]
+    ActionMapType(toml::Value),
+    /// `env.action_map` names no action map.
+    #[error("{0}")]
+    ActionMap(String),
+    /// The TensorBoard event file could not be created or resumed.
+    #[error(transparent)]
+    TensorBoard(#[from] crate::tensorboard::TensorBoardError),
+    /// The TLS files could not be read.
+    #[error(transparent)]
+    Auth(#[from] proto::auth::AuthError),
+    /// The server refused the TLS configuration.
+    #[error("TLS: {0}")]
+    Tls(#[source] tonic::transport::Error),
+    /// Sampling the replay buffer failed.
+    #[error("sampling the replay buffer: {0}")]
+    Sample(#[source] crate::replay::ReplayError),
+    /// A TD3 update failed.
+    #[error("TD3 update: {0}")]
+    Update(#[source] crate::td3::Td3Error),
+    /// The training thread panicked.
+    #[error("the training thread panicked")]
+    TrainerPanicked,
+    /// The newest policy's weights do not decode.
+    #[error("policy version {version}: {source}")]
+    Policy {
+        /// The version.
+        version: u64,
+        /// Why.
+        source: proto::floats::RaggedBytes,
+    },
+    /// `status.json` does not parse.
+    #[error("{}: {source}", path.display())]
+    Status {
+        /// The file.
+        path: PathBuf,
+        /// The parser's error.
+        source: serde_json::Error,
+    },
+}
+
+impl ServiceError {
+    /// A [`ServiceError::Io`] for `what`.
+    pub fn io(what: impl Into<String>) -> impl FnOnce(std::io::Error) -> Self {
+        let what = what.into();
+        move |source| Self::Io { what, source }
+    }
+}
