@@ -159,6 +159,9 @@ pub enum Cmd {
     /// Print the sbatch script of a cluster training job (learner on the first node, actors on
     /// every node, requeue resumes the run).
     Slurm(SlurmArgs),
+    /// Stop a running learner cleanly (final checkpoint) with the operator credential of its
+    /// run directory.
+    Stop(crate::stop::StopArgs),
     /// Run an experiment (configs/experiments/NAME.toml): train S seeds per arm, evaluate
     /// every policy with the papers' protocol against DDP, the best constant schedule, the
     /// untrained policy and the state-shuffled policy, and write report.md with tables,
@@ -435,6 +438,7 @@ pub fn run(cmd: Cmd) -> anyhow::Result<()> {
             a.token_file.as_deref(),
         ),
         Cmd::Actor(args) => train::actor(args),
+        Cmd::Stop(args) => crate::stop::command(&args),
         Cmd::Slurm(a) => {
             let o = slurm::SlurmOverrides {
                 nodes: a.nodes,

@@ -11,6 +11,7 @@ mod greedy;
 mod policy;
 mod render;
 mod slurm;
+mod stop;
 mod train;
 
 use std::process::ExitCode;

@@ -16,7 +16,7 @@ use learner::export::space_name;
 use learner::service::{Learner, LearnerOptions, ServiceConfig, TrainSummary};
 use learner::Td3Config;
 use planner::ActionSpace;
-use proto::auth::{create_token_file, read_token_file, TlsFiles};
+use proto::auth::{read_or_create_token_file, read_token_file, TlsFiles};
 use proto::grpc::LearnerAddress;
 use scheduler::{
     BackoffPolicy, BwrapMode, Sandbox, SandboxConfig, Supervisor, SupervisorConfig, SupervisorEvent,
@@ -176,11 +176,7 @@ fn run_id(name: &str) -> String {
 fn run_token(run_dir: &Path) -> anyhow::Result<(PathBuf, String)> {
     std::fs::create_dir_all(run_dir).with_context(|| format!("cannot create {}", run_dir.display()))?;
     let path = run_dir.join("token");
-    let token = if path.exists() {
-        read_token_file(&path)?
-    } else {
-        create_token_file(&path)?
-    };
+    let token = read_or_create_token_file(&path)?;
     Ok((path, token))
 }
 

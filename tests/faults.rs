@@ -916,6 +916,21 @@ fn refused_data_and_nan_reports_neither_stall_nor_break_the_run() {
         let told = told.unwrap_or_else(|| panic!("watchdog: the lease stayed valid{}", procs.report()));
         assert!(told.contains("not finite"), "{told}");
 
+        // An actor holds the run token only: it cannot shut the run down.
+        let refused_stop = a
+            .control
+            .shutdown(pb::ShutdownRequest {
+                run: Some(a.run.clone()),
+                checkpoint: false,
+            })
+            .await
+            .unwrap_err();
+        assert_eq!(
+            refused_stop.code(),
+            tonic::Code::PermissionDenied,
+            "{refused_stop}"
+        );
+
         // A checksum mismatch is detected; a NaN report is refused; a good one verifies.
         let mut b = fake::register(&addr, &token, 91).await;
         let lease = b.assignment(PATIENCE).await;
@@ -973,7 +988,15 @@ fn refused_data_and_nan_reports_neither_stall_nor_break_the_run() {
     assert!(s.replay_len >= 6, "{s:?}");
     assert_eq!((s.episodes_mismatched, s.episodes_verified), (1, 1), "{s:?}");
     assert!(s.resume_warnings.is_empty(), "{s:?}");
-    procs.signal(resumed, libc::SIGTERM);
+    // The operator stops it with the run directory's operator credential (kept across the
+    // resume), and it ends as cleanly as on SIGTERM.
+    let out = adp().args(["stop", "--run-dir"]).arg(&run).output().unwrap();
+    assert!(
+        out.status.success(),
+        "{}{}",
+        String::from_utf8_lossy(&out.stderr),
+        procs.report()
+    );
     let code = procs.wait_exit(resumed, PATIENCE);
     assert!(code.success(), "{code:?}{}", procs.report());
 }

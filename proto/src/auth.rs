@@ -106,6 +106,27 @@ pub fn create_token_file(path: &Path) -> Result<String, AuthError> {
     Ok(token)
 }
 
+/// The token in `path`, created (random, mode 0600) when the file does not exist yet.
+pub fn read_or_create_token_file(path: &Path) -> Result<String, AuthError> {
+    if path.exists() {
+        read_token_file(path)
+    } else {
+        create_token_file(path)
+    }
+}
+
+/// gRPC metadata key of the operator credential. `Shutdown` needs it besides the run token,
+/// so an actor, which holds only the run token, cannot end the run.
+pub const OPERATOR_METADATA: &str = "x-adp-operator";
+
+/// Whether `metadata` carries the operator token `expected` under [`OPERATOR_METADATA`]
+/// (compared in constant time).
+pub fn carries_operator_token(metadata: &tonic::metadata::MetadataMap, expected: &str) -> bool {
+    metadata
+        .get(OPERATOR_METADATA)
+        .is_some_and(|v| constant_time_eq(v.as_bytes(), expected.as_bytes()))
+}
+
 /// Client interceptor that adds `authorization: Bearer <token>` to every call. Cheap to clone.
 #[derive(Debug, Clone)]
 pub struct ClientAuth {

@@ -12,6 +12,8 @@ use super::shared::Shared;
 /// The `adp.v1.Control` service over the learner's shared state.
 pub struct ControlService {
     pub(super) shared: Arc<Shared>,
+    /// The operator credential `Shutdown` needs (the contents of `operator.token`).
+    pub(super) operator: Arc<str>,
 }
 
 /// The gRPC status for a refusal: stale runs are FAILED_PRECONDITION (the actor registers
@@ -186,6 +188,15 @@ impl Control for ControlService {
     }
 
     async fn shutdown(&self, request: Request<pb::ShutdownRequest>) -> Result<Response<pb::Ack>, Status> {
+        if !proto::auth::carries_operator_token(request.metadata(), &self.operator) {
+            return Err(Status::permission_denied(format!(
+                "Shutdown needs the operator credential: the `{}` header with the contents of \
+                 <run dir>/{} (the run token that actors hold is not enough); `adp stop --run-dir \
+                 DIR` sends it",
+                proto::auth::OPERATOR_METADATA,
+                super::OPERATOR_TOKEN_FILE
+            )));
+        }
         let r = request.into_inner();
         self.check_run(&r.run)?;
         eprintln!("learner: shutdown requested over gRPC");

@@ -50,6 +50,30 @@ pub const ADDR_FILE: &str = "learner.addr";
 /// The learner's Unix socket in the run directory (same services as the TCP address).
 pub const SOCKET_FILE: &str = "learner.sock";
 
+/// File in the run directory (mode 0600) holding the operator credential that `Shutdown`
+/// needs besides the run token; made at the first start and kept across resumes. Actors are
+/// never given it.
+pub const OPERATOR_TOKEN_FILE: &str = "operator.token";
+
+/// HTTP/2 pings every this long on an idle connection; a peer that does not answer within
+/// [`KEEPALIVE_TIMEOUT`] is dropped with its streams (a dead host, a cut network).
+const KEEPALIVE_INTERVAL: Duration = Duration::from_secs(20);
+/// See [`KEEPALIVE_INTERVAL`].
+const KEEPALIVE_TIMEOUT: Duration = Duration::from_secs(20);
+/// Concurrent requests one connection may have in flight (an actor needs four: heartbeat,
+/// assignment or report, the step stream and the policy stream); more wait.
+const REQUESTS_PER_CONNECTION: usize = 16;
+
+/// A gRPC server with the learner's connection limits.
+fn server_builder() -> tonic::transport::Server {
+    tonic::transport::Server::builder()
+        .http2_keepalive_interval(Some(KEEPALIVE_INTERVAL))
+        .http2_keepalive_timeout(Some(KEEPALIVE_TIMEOUT))
+        .tcp_keepalive(Some(KEEPALIVE_INTERVAL))
+        .concurrency_limit_per_connection(REQUESTS_PER_CONNECTION)
+        .max_concurrent_streams(REQUESTS_PER_CONNECTION as u32)
+}
+
 /// A running learner. Dropping it without [`Learner::wait`] aborts the process's threads at
 /// exit; call `wait`.
 pub struct Learner {
@@ -448,7 +472,9 @@ impl Learner {
             .map_err(ServiceError::io("cannot read the bound address"))?;
         let (policy_tx, policy_rx) = watch::channel(Arc::new(pb::PolicySnapshot::default()));
         let auth = proto::auth::ServerAuth::new(&opts.token, shared.refusals.clone());
-        let mut builder = tonic::transport::Server::builder();
+        let operator: Arc<str> =
+            proto::auth::read_or_create_token_file(&run_dir.join(OPERATOR_TOKEN_FILE))?.into();
+        let mut builder = server_builder();
         if let Some(tls) = &svc.tls {
             builder = builder
                 .tls_config(tls.server_config()?)
@@ -457,6 +483,7 @@ impl Learner {
         let control = tonic::service::interceptor::InterceptedService::new(
             pb::control_server::ControlServer::new(control::ControlService {
                 shared: shared.clone(),
+                operator,
             })
             .max_decoding_message_size(proto::grpc::MAX_CONTROL_REQUEST_BYTES),
             auth.clone(),
@@ -484,7 +511,7 @@ impl Learner {
             Ok(unix) => Some((
                 socket,
                 runtime.spawn(
-                    tonic::transport::Server::builder()
+                    server_builder()
                         .add_service(control.clone())
                         .add_service(data.clone())
                         .serve_with_incoming_shutdown(
