@@ -528,7 +528,7 @@ fn calibrate(a: &CalibrateArgs) -> anyhow::Result<()> {
     if a.run.out.is_some() {
         a.run.write_json(&serde_json::json!({
             "profile": cfg.episode.profile.name(),
-            "dynamics": cfg.episode.resolved_dynamics().map_err(anyhow::Error::msg)?,
+            "dynamics": cfg.episode.resolved_dynamics()?,
             "worlds": ids.len(),
             "runs": a.runs,
             "report": report,

@@ -545,6 +545,66 @@ pub fn table(rows: &[Row]) -> String {
     out
 }
 
+/// `adp eval`: runs the plan the arguments describe and prints its table (and writes the rows
+/// as JSON with `--out`).
+pub fn command(a: &crate::cli::EvalArgs) -> anyhow::Result<()> {
+    let cfg = a.run.setup.eval_config()?;
+    let ids = sim::splits::SplitFile::embedded().select(&a.worlds)?;
+    if a.runs == 0 {
+        anyhow::bail!("--runs must be at least 1");
+    }
+    if a.policy.is_some() && !a.fidelity.contains(&Fidelity::Adp) {
+        anyhow::bail!("--policy applies to --fidelity adp, which is not among the fidelities");
+    }
+    let all = a.run.setup.data.load()?;
+    let ddp = |space: ActionSpace| AdpSetting {
+        space,
+        action: space.ddp_action(),
+    };
+    // The source of a trained policy is reported after the run, so that errors stay one line.
+    let (adp, net, source) = match &a.policy {
+        None => (ddp(a.action.unwrap_or(ActionSpace::Decremental)), None, None),
+        Some(p) => match crate::policy::load(p, a.action)? {
+            crate::policy::EvalPolicy::Constant { space, action } => {
+                (AdpSetting { space, action }, None, None)
+            }
+            crate::policy::EvalPolicy::Learned(l) => {
+                let s = &l.card.source;
+                let source = format!(
+                    "policy {}: run {}, {} updates, {} action space, layers {:?}, an action \
+                     every {} planner cycles, laser clipped at {} m",
+                    l.card_path.display(),
+                    s.run_id,
+                    s.updates,
+                    learner::export::space_name(l.space),
+                    l.net.dims(),
+                    l.env.agent_period_cycles,
+                    l.env.laser_clip_m
+                );
+                (ddp(l.space), Some((l.net, l.env)), Some(source))
+            }
+        },
+    };
+    let plan = EvalPlan {
+        adp,
+        policy_env: net.as_ref().map_or_else(EnvConfig::default, |(_, env)| *env),
+        policy: net.map(|(net, _)| net),
+        planners: a.planner.clone(),
+        fidelities: a.fidelity.clone(),
+        speeds: a.max_speed.clone(),
+        worlds: ids,
+        runs: a.runs,
+        trim: a.trim,
+        seed: a.run.seed,
+    };
+    let rows = a.run.pool()?.install(|| run(&plan, &cfg, &all))?;
+    if let Some(source) = source {
+        eprintln!("{source}");
+    }
+    print!("{}", table(&rows));
+    a.run.write_json(&rows)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -684,64 +744,4 @@ mod tests {
         assert_ne!(run_seed(1, 2, 3), run_seed(1, 3, 2));
         assert_ne!(run_seed(1, 2, 3), run_seed(2, 2, 3));
     }
-}
-
-/// `adp eval`: runs the plan the arguments describe and prints its table (and writes the rows
-/// as JSON with `--out`).
-pub fn command(a: &crate::cli::EvalArgs) -> anyhow::Result<()> {
-    let cfg = a.run.setup.eval_config()?;
-    let ids = sim::splits::SplitFile::embedded().select(&a.worlds)?;
-    if a.runs == 0 {
-        anyhow::bail!("--runs must be at least 1");
-    }
-    if a.policy.is_some() && !a.fidelity.contains(&Fidelity::Adp) {
-        anyhow::bail!("--policy applies to --fidelity adp, which is not among the fidelities");
-    }
-    let all = a.run.setup.data.load()?;
-    let ddp = |space: ActionSpace| AdpSetting {
-        space,
-        action: space.ddp_action(),
-    };
-    // The source of a trained policy is reported after the run, so that errors stay one line.
-    let (adp, net, source) = match &a.policy {
-        None => (ddp(a.action.unwrap_or(ActionSpace::Decremental)), None, None),
-        Some(p) => match crate::policy::load(p, a.action)? {
-            crate::policy::EvalPolicy::Constant { space, action } => {
-                (AdpSetting { space, action }, None, None)
-            }
-            crate::policy::EvalPolicy::Learned(l) => {
-                let s = &l.card.source;
-                let source = format!(
-                    "policy {}: run {}, {} updates, {} action space, layers {:?}, an action \
-                     every {} planner cycles, laser clipped at {} m",
-                    l.card_path.display(),
-                    s.run_id,
-                    s.updates,
-                    learner::export::space_name(l.space),
-                    l.net.dims(),
-                    l.env.agent_period_cycles,
-                    l.env.laser_clip_m
-                );
-                (ddp(l.space), Some((l.net, l.env)), Some(source))
-            }
-        },
-    };
-    let plan = EvalPlan {
-        adp,
-        policy_env: net.as_ref().map_or_else(EnvConfig::default, |(_, env)| *env),
-        policy: net.map(|(net, _)| net),
-        planners: a.planner.clone(),
-        fidelities: a.fidelity.clone(),
-        speeds: a.max_speed.clone(),
-        worlds: ids,
-        runs: a.runs,
-        trim: a.trim,
-        seed: a.run.seed,
-    };
-    let rows = a.run.pool()?.install(|| run(&plan, &cfg, &all))?;
-    if let Some(source) = source {
-        eprintln!("{source}");
-    }
-    print!("{}", table(&rows));
-    a.run.write_json(&rows)
 }

@@ -233,37 +233,6 @@ where
     Ok(())
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn the_predicted_rollout_follows_the_planners_model() {
-        // From rest, a constant (1.5, 0) command: the nominal 20 m/s^2 give 1 m/s in the first
-        // 0.05 s step and 1.5 m/s from the second: 0.05 + 19 x 0.075 = 1.475 m.
-        let s = Schedule::uniform(0.05, 20, 0).unwrap();
-        let p = predicted_rollout(Prediction::PAPERS, &s, Twist::default(), Twist::new(1.5, 0.0));
-        assert_eq!(p.len(), 20);
-        assert!(
-            (p[19].x - 1.475).abs() < 1e-9 && p[19].y.abs() < 1e-12,
-            "{:?}",
-            p[19]
-        );
-        // Euler and exact arcs part on a turn.
-        let turn = Twist::new(1.0, 1.5);
-        let e = predicted_rollout(Prediction::PAPERS, &Schedule::ddp_default(), turn, turn);
-        let a = predicted_rollout(Prediction::IDEAL, &Schedule::ddp_default(), turn, turn);
-        assert!(e[19].position().dist(a[19].position()) > 0.05);
-    }
-
-    #[test]
-    fn fidelity_colours_darken_with_shorter_steps() {
-        let short = fidelity_colour(0.0123);
-        let long = fidelity_colour(0.167);
-        assert!(short.0 < long.0 && short.1 < long.1 && short.2 < long.2);
-    }
-}
-
 /// `adp render`: draws the episode the arguments describe and prints its outcome.
 pub fn command(a: &crate::cli::RenderArgs) -> anyhow::Result<()> {
     let cfg = a.setup.eval_config()?;
@@ -296,4 +265,35 @@ pub fn command(a: &crate::cli::RenderArgs) -> anyhow::Result<()> {
         a.out.display()
     );
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_predicted_rollout_follows_the_planners_model() {
+        // From rest, a constant (1.5, 0) command: the nominal 20 m/s^2 give 1 m/s in the first
+        // 0.05 s step and 1.5 m/s from the second: 0.05 + 19 x 0.075 = 1.475 m.
+        let s = Schedule::uniform(0.05, 20, 0).unwrap();
+        let p = predicted_rollout(Prediction::PAPERS, &s, Twist::default(), Twist::new(1.5, 0.0));
+        assert_eq!(p.len(), 20);
+        assert!(
+            (p[19].x - 1.475).abs() < 1e-9 && p[19].y.abs() < 1e-12,
+            "{:?}",
+            p[19]
+        );
+        // Euler and exact arcs part on a turn.
+        let turn = Twist::new(1.0, 1.5);
+        let e = predicted_rollout(Prediction::PAPERS, &Schedule::ddp_default(), turn, turn);
+        let a = predicted_rollout(Prediction::IDEAL, &Schedule::ddp_default(), turn, turn);
+        assert!(e[19].position().dist(a[19].position()) > 0.05);
+    }
+
+    #[test]
+    fn fidelity_colours_darken_with_shorter_steps() {
+        let short = fidelity_colour(0.0123);
+        let long = fidelity_colour(0.167);
+        assert!(short.0 < long.0 && short.1 < long.1 && short.2 < long.2);
+    }
 }

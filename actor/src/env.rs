@@ -134,7 +134,7 @@ impl EnvConfig {
         self.profile
             .resolve(self.dynamics.as_ref(), "env.dynamics")
             .map(|_| ())
-            .map_err(EnvError::Config)
+            .map_err(|e| EnvError::Config(e.to_string()))
     }
 }
 

@@ -81,7 +81,7 @@ pub enum ActorError {
         elapsed: Duration,
         /// The last session's failure.
         #[source]
-        last: SessionError,
+        last: Box<SessionError>,
     },
 }
 
@@ -103,7 +103,7 @@ pub enum SessionError {
     Reply(&'static str),
     /// The run's action space is unknown to this build.
     #[error("{0}")]
-    Space(String),
+    Space(#[source] Box<planner::NameError>),
     /// The run's environment settings do not parse.
     #[error("the learner's environment settings: {0}")]
     Env(toml::de::Error),
@@ -188,7 +188,7 @@ pub fn run(setup: &ActorSetup<'_>) -> Result<(), ActorError> {
                 rank: setup.rank,
                 addr: setup.learner.addr.clone(),
                 elapsed: since.elapsed(),
-                last: why,
+                last: Box::new(why),
             });
         }
         log(format_args!(
@@ -282,7 +282,10 @@ fn session(
     let run = reply.run.ok_or(SessionError::Reply("names no run"))?;
     let spec = reply.spec.ok_or(SessionError::Reply("has no run spec"))?;
     let actor_id = reply.actor_id;
-    let space: ActionSpace = spec.action_space.parse().map_err(SessionError::Space)?;
+    let space: ActionSpace = spec
+        .action_space
+        .parse()
+        .map_err(|e| SessionError::Space(Box::new(e)))?;
     let env_cfg: EnvConfig = toml::from_str(&spec.env_toml).map_err(SessionError::Env)?;
     let dims: Vec<usize> = spec.policy_dims.iter().map(|&d| d as usize).collect();
     let mut planes = open_planes(rt, setup, &spec, data, &run, actor_id)?;

@@ -58,17 +58,26 @@ pub enum ActionError {
     Schedule(#[from] ScheduleError),
 }
 
+/// A name that is no action space or action map.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum NameError {
+    /// Not an action space.
+    #[error("unknown action space `{0}` (expected decremental, incremental, unconstrained or fixed)")]
+    Space(String),
+    /// Not an action map.
+    #[error("unknown action map `{0}` (expected ddp-centred or affine)")]
+    Map(String),
+}
+
 impl std::str::FromStr for ActionSpace {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
+    type Err = NameError;
+    fn from_str(s: &str) -> Result<Self, NameError> {
         match s {
             "decremental" => Ok(ActionSpace::Decremental),
             "incremental" => Ok(ActionSpace::Incremental),
             "unconstrained" => Ok(ActionSpace::Unconstrained),
             "fixed" => Ok(ActionSpace::Fixed),
-            _ => Err(format!(
-                "unknown action space `{s}` (expected decremental, incremental, unconstrained or fixed)"
-            )),
+            _ => Err(NameError::Space(s.to_string())),
         }
     }
 }
@@ -202,14 +211,12 @@ pub enum ActionMap {
 }
 
 impl std::str::FromStr for ActionMap {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
+    type Err = NameError;
+    fn from_str(s: &str) -> Result<Self, NameError> {
         match s {
             "affine" => Ok(ActionMap::Affine),
             "ddp-centred" => Ok(ActionMap::DdpCentred),
-            _ => Err(format!(
-                "unknown action map `{s}` (expected ddp-centred or affine)"
-            )),
+            _ => Err(NameError::Map(s.to_string())),
         }
     }
 }
@@ -435,6 +442,7 @@ mod tests {
         assert!("x"
             .parse::<ActionMap>()
             .unwrap_err()
+            .to_string()
             .contains("ddp-centred or affine"));
     }
 }

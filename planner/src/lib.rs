@@ -17,7 +17,7 @@ pub mod run;
 pub mod schedule;
 pub mod system;
 
-pub use action::{ActionMap, ActionSpace};
+pub use action::{ActionMap, ActionSpace, NameError};
 pub use dwa::{Dwa, DwaConfig};
 pub use log_mppi::{LogMppi, LogMppiConfig};
 pub use mppi::{Mppi, MppiConfig};

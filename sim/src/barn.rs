@@ -54,6 +54,23 @@ pub enum DataError {
     Unknown(usize),
 }
 
+/// A record that parses but holds values that cannot be right (the message names the field).
+#[derive(Debug, thiserror::Error)]
+enum RecordError {
+    /// The cylinder list's length differs from `n_cylinders`.
+    #[error("field `cylinders` has {got} entries but `n_cylinders` says {said}")]
+    CylinderCount { got: usize, said: usize },
+    /// A cylinder with a non-finite coordinate or a radius <= 0.
+    #[error("field `cylinders[{index}]` = {cylinder:?}: needs finite x, y and radius > 0")]
+    Cylinder { index: usize, cylinder: [f64; 3] },
+    /// A path length that is not a positive number.
+    #[error("field `path_length_m` = {0} must be a positive number")]
+    PathLength(f64),
+    /// A non-finite start or goal.
+    #[error("fields `start_xy`/`goal_xy` must be finite")]
+    Endpoints,
+}
+
 #[derive(Deserialize)]
 struct ObstacleLine {
     world: usize,
@@ -82,7 +99,7 @@ fn parse_lines<T: for<'de> Deserialize<'de>>(
     file: &str,
     text: &str,
     world_of: impl Fn(&T) -> usize,
-    check: impl Fn(&T) -> Result<(), String>,
+    check: impl Fn(&T) -> Result<(), RecordError>,
 ) -> Result<Vec<Option<T>>, DataError> {
     let mut out: Vec<Option<T>> = Vec::new();
     for (i, line) in text.lines().enumerate() {
@@ -100,7 +117,7 @@ fn parse_lines<T: for<'de> Deserialize<'de>>(
             let s = e.to_string();
             err(s.split(" at line ").next().unwrap_or(&s).to_string())
         })?;
-        check(&rec).map_err(err)?;
+        check(&rec).map_err(|e| err(e.to_string()))?;
         let w = world_of(&rec);
         if w >= out.len() {
             out.resize_with(w + 1, || None);
@@ -131,17 +148,17 @@ pub fn parse(
         |o| o.world,
         |o| {
             if o.cylinders.len() != o.n_cylinders {
-                return Err(format!(
-                    "field `cylinders` has {} entries but `n_cylinders` says {}",
-                    o.cylinders.len(),
-                    o.n_cylinders
-                ));
+                return Err(RecordError::CylinderCount {
+                    got: o.cylinders.len(),
+                    said: o.n_cylinders,
+                });
             }
             for (k, c) in o.cylinders.iter().enumerate() {
                 if !c.iter().all(|v| v.is_finite()) || c[2] <= 0.0 {
-                    return Err(format!(
-                        "field `cylinders[{k}]` = {c:?}: needs finite x, y and radius > 0"
-                    ));
+                    return Err(RecordError::Cylinder {
+                        index: k,
+                        cylinder: *c,
+                    });
                 }
             }
             Ok(())
@@ -153,13 +170,10 @@ pub fn parse(
         |p| p.world,
         |p| {
             if !(p.path_length_m.is_finite() && p.path_length_m > 0.0) {
-                return Err(format!(
-                    "field `path_length_m` = {} must be a positive number",
-                    p.path_length_m
-                ));
+                return Err(RecordError::PathLength(p.path_length_m));
             }
             if !p.start_xy.iter().chain(&p.goal_xy).all(|v| v.is_finite()) {
-                return Err("fields `start_xy`/`goal_xy` must be finite".into());
+                return Err(RecordError::Endpoints);
             }
             Ok(())
         },

@@ -19,6 +19,7 @@ use rand::Rng;
 use rand_distr::StandardNormal;
 use serde::{Deserialize, Serialize};
 
+use crate::error::ConfigError;
 use crate::geometry::{wrap_angle, Pose, Vec2};
 use crate::robot::{integrate_arc, RobotLimits, RobotState, Twist};
 
@@ -51,17 +52,19 @@ impl Profile {
 
     /// The parameters this profile runs with: the preset, or `custom` for
     /// [`Profile::Custom`]. Errors name the table that is missing or out of place.
-    pub fn resolve(self, custom: Option<&Dynamics>, table: &str) -> Result<Dynamics, String> {
+    pub fn resolve(self, custom: Option<&Dynamics>, table: &str) -> Result<Dynamics, ConfigError> {
+        let table = table.to_string();
         match (self.preset(), custom) {
             (Some(d), None) => Ok(d),
-            (None, Some(d)) => d.validate().map(|()| *d).map_err(|e| format!("[{table}] {e}")),
-            (None, None) => Err(format!(
-                "profile = \"custom\" needs a complete [{table}] table (see configs/eval.toml)"
-            )),
-            (Some(_), Some(_)) => Err(format!(
-                "[{table}] is given with profile = \"{}\"; set profile = \"custom\" to use it",
-                self.name()
-            )),
+            (None, Some(d)) => d.validate().map(|()| *d).map_err(|e| ConfigError::Table {
+                table,
+                source: Box::new(e),
+            }),
+            (None, None) => Err(ConfigError::MissingTable { table }),
+            (Some(_), Some(_)) => Err(ConfigError::StrayTable {
+                table,
+                profile: self.name(),
+            }),
         }
     }
 
@@ -162,7 +165,7 @@ impl Dynamics {
     }
 
     /// Checks every value; the error names the field.
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), ConfigError> {
         let positive = [
             ("accel_v", self.accel_v),
             ("decel_v", self.decel_v),
@@ -170,7 +173,7 @@ impl Dynamics {
         ];
         for (name, v) in positive {
             if !(v.is_finite() && v > 0.0) {
-                return Err(format!("{name} = {v} must be finite and > 0"));
+                return Err(ConfigError::value(name, v, "must be finite and > 0"));
             }
         }
         let non_negative = [
@@ -184,14 +187,18 @@ impl Dynamics {
         ];
         for (name, v) in non_negative {
             if !(v.is_finite() && v >= 0.0) {
-                return Err(format!("{name} = {v} must be finite and >= 0"));
+                return Err(ConfigError::value(name, v, "must be finite and >= 0"));
             }
         }
         if !(0.0..1.0).contains(&self.max_slip) {
-            return Err(format!("max_slip = {} must be in [0, 1)", self.max_slip));
+            return Err(ConfigError::value("max_slip", self.max_slip, "must be in [0, 1)"));
         }
         if self.latency_s > 1.0 {
-            return Err(format!("latency_s = {} must be at most 1 s", self.latency_s));
+            return Err(ConfigError::value(
+                "latency_s",
+                self.latency_s,
+                "must be at most 1 s",
+            ));
         }
         Ok(())
     }
@@ -460,11 +467,15 @@ mod tests {
             Profile::Custom.resolve(Some(&custom), "episode.dynamics"),
             Ok(custom)
         );
-        let e = Profile::Custom.resolve(None, "env.dynamics").unwrap_err();
+        let e = Profile::Custom
+            .resolve(None, "env.dynamics")
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("[env.dynamics]"), "{e}");
         let e = Profile::GazeboJackal
             .resolve(Some(&custom), "episode.dynamics")
-            .unwrap_err();
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("profile = \"custom\""), "{e}");
         let bad = Dynamics {
             max_slip: 1.5,
@@ -472,7 +483,8 @@ mod tests {
         };
         let e = Profile::Custom
             .resolve(Some(&bad), "episode.dynamics")
-            .unwrap_err();
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("max_slip"), "{e}");
         assert!(Dynamics::gazebo_jackal().validate().is_ok());
     }

@@ -10,6 +10,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::costmap::{Costmap, CostmapConfig};
 use crate::dynamics::{Drive, Dynamics, Localization, Profile};
+use crate::error::ConfigError;
 use crate::geometry::{Pose, Vec2};
 use crate::lidar::{Lidar, LidarConfig};
 use crate::navigation::{point_at_arc_length, smooth, GlobalPlanner};
@@ -100,29 +101,39 @@ impl Default for EpisodeConfig {
 
 impl EpisodeConfig {
     /// Checks the values.
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), ConfigError> {
         if !(self.physics_dt > 0.0 && self.physics_dt <= 0.01) {
-            return Err(format!("physics_dt = {} must be in (0, 0.01]", self.physics_dt));
+            return Err(ConfigError::value(
+                "physics_dt",
+                self.physics_dt,
+                "must be in (0, 0.01]",
+            ));
         }
         if self.control_dt.is_nan() || self.control_dt < self.physics_dt {
-            return Err(format!("control_dt = {} must be >= physics_dt", self.control_dt));
+            return Err(ConfigError::value(
+                "control_dt",
+                self.control_dt,
+                "must be >= physics_dt",
+            ));
         }
         if self.timeout_s.is_nan() || self.timeout_s <= 0.0 {
-            return Err(format!("timeout_s = {} must be > 0", self.timeout_s));
+            return Err(ConfigError::value("timeout_s", self.timeout_s, "must be > 0"));
         }
         if self.replan_every == 0 {
-            return Err("replan_every must be >= 1".into());
+            return Err(ConfigError::ReplanEvery);
         }
         if !(0.0..=MAX_START_JITTER_M).contains(&self.start_jitter_m) {
-            return Err(format!(
-                "start_jitter_m = {} must be in [0, {MAX_START_JITTER_M}] m",
-                self.start_jitter_m
+            return Err(ConfigError::value(
+                "start_jitter_m",
+                self.start_jitter_m,
+                format!("must be in [0, {MAX_START_JITTER_M}] m"),
             ));
         }
         if !(0.0..=MAX_START_JITTER_YAW_RAD).contains(&self.start_jitter_yaw_rad) {
-            return Err(format!(
-                "start_jitter_yaw_rad = {} must be in [0, {MAX_START_JITTER_YAW_RAD}] rad",
-                self.start_jitter_yaw_rad
+            return Err(ConfigError::value(
+                "start_jitter_yaw_rad",
+                self.start_jitter_yaw_rad,
+                format!("must be in [0, {MAX_START_JITTER_YAW_RAD}] rad"),
             ));
         }
         self.resolved_dynamics()?;
@@ -131,7 +142,7 @@ impl EpisodeConfig {
 
     /// The robot's response parameters: the profile's preset, or the `dynamics` table of a
     /// custom profile.
-    pub fn resolved_dynamics(&self) -> Result<Dynamics, String> {
+    pub fn resolved_dynamics(&self) -> Result<Dynamics, ConfigError> {
         self.profile.resolve(self.dynamics.as_ref(), "episode.dynamics")
     }
 
@@ -612,7 +623,11 @@ mod tests {
         assert!(vel_j.w < 0.3 && vel_j.w > 0.2, "yaw rate {}", vel_j.w);
         // A config naming a custom profile without its table is refused.
         let bad = EpisodeConfig::default().with_profile(Profile::Custom, None);
-        assert!(bad.validate().unwrap_err().contains("[episode.dynamics]"));
+        assert!(bad
+            .validate()
+            .unwrap_err()
+            .to_string()
+            .contains("[episode.dynamics]"));
     }
     #[test]
     fn start_jitter_is_seeded_bounded_and_off_by_default() {
@@ -634,7 +649,7 @@ mod tests {
             start_jitter_m: 0.5,
             ..EpisodeConfig::default()
         };
-        assert!(bad.validate().unwrap_err().contains("start_jitter_m"));
+        assert!(bad.validate().unwrap_err().to_string().contains("start_jitter_m"));
         // The largest accepted jitter keeps the footprint free in every BARN world.
         let (j, jy) = (MAX_START_JITTER_M, MAX_START_JITTER_YAW_RAD);
         for world in crate::barn::worlds() {

@@ -9,6 +9,7 @@ pub mod barn;
 pub mod costmap;
 pub mod dynamics;
 pub mod episode;
+mod error;
 pub mod geometry;
 pub mod lidar;
 pub mod navigation;
@@ -19,6 +20,7 @@ pub mod world;
 
 pub use dynamics::{Dynamics, Profile};
 pub use episode::{Episode, EpisodeConfig, EpisodeResult, Perception, Status};
+pub use error::ConfigError;
 pub use geometry::{Circle, Footprint, Pose, Vec2};
 pub use robot::{RobotLimits, RobotState, Twist};
 pub use world::World;

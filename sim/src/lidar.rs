@@ -4,6 +4,7 @@ use rand::Rng;
 use rand_distr::{Distribution, Normal};
 use serde::{Deserialize, Serialize};
 
+use crate::error::ConfigError;
 use crate::geometry::{Pose, Vec2};
 use crate::world::World;
 
@@ -37,21 +38,33 @@ impl Default for LidarConfig {
 
 impl LidarConfig {
     /// Checks that the values make a usable sensor.
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), ConfigError> {
         if self.beams < 2 {
-            return Err(format!("lidar.beams = {} must be at least 2", self.beams));
-        }
-        if !(self.fov_deg > 0.0 && self.fov_deg <= 360.0) {
-            return Err(format!("lidar.fov_deg = {} must be in (0, 360]", self.fov_deg));
-        }
-        if !(self.min_range >= 0.0 && self.max_range > self.min_range) {
-            return Err(format!(
-                "lidar ranges [{}, {}] must satisfy 0 <= min_range < max_range",
-                self.min_range, self.max_range
+            return Err(ConfigError::value(
+                "lidar.beams",
+                self.beams as f64,
+                "must be at least 2",
             ));
         }
+        if !(self.fov_deg > 0.0 && self.fov_deg <= 360.0) {
+            return Err(ConfigError::value(
+                "lidar.fov_deg",
+                self.fov_deg,
+                "must be in (0, 360]",
+            ));
+        }
+        if !(self.min_range >= 0.0 && self.max_range > self.min_range) {
+            return Err(ConfigError::LidarRanges {
+                min: self.min_range,
+                max: self.max_range,
+            });
+        }
         if !(self.noise_sigma >= 0.0 && self.noise_sigma.is_finite()) {
-            return Err(format!("lidar.noise_sigma = {} must be >= 0", self.noise_sigma));
+            return Err(ConfigError::value(
+                "lidar.noise_sigma",
+                self.noise_sigma,
+                "must be >= 0",
+            ));
         }
         Ok(())
     }

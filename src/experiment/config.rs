@@ -389,7 +389,10 @@ impl Experiment {
         let spaces: Vec<ActionSpace> = ex
             .action_spaces
             .iter()
-            .map(|s| s.parse().map_err(|e: String| err("action_spaces", e)))
+            .map(|s| {
+                s.parse()
+                    .map_err(|e: planner::NameError| err("action_spaces", e.to_string()))
+            })
             .collect::<anyhow::Result<_>>()?;
         if planners.is_empty() || spaces.is_empty() || ex.speeds.is_empty() || ex.train_worlds.is_empty() {
             bail!("{name}: [experiment] planners, action_spaces, speeds and train_worlds must not be empty");

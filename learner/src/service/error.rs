@@ -155,8 +155,8 @@ pub enum ServiceError {
     #[error("env.action_map = {0} must be a string")]
     ActionMapType(toml::Value),
     /// `env.action_map` names no action map.
-    #[error("{0}")]
-    ActionMap(String),
+    #[error(transparent)]
+    ActionMap(#[from] planner::NameError),
     /// The TensorBoard event file could not be created or resumed.
     #[error(transparent)]
     TensorBoard(#[from] crate::tensorboard::TensorBoardError),

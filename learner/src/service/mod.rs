@@ -96,8 +96,8 @@ pub struct Learner {
     _run_lock: std::fs::File,
 }
 
-/// What a resumed learner continues from.
-struct ResumeState {
+/// What training continues from: a checkpoint's state, or a fresh one.
+struct TrainingState {
     td3: Td3,
     run_id: String,
     rate: RateLimiter,
@@ -111,7 +111,7 @@ struct ResumeState {
 /// Loads everything a resume needs from checkpoint `ckpt`, verifying every file. Counters that
 /// do not parse are reset (with a warning) rather than failing: they are statistics, not
 /// training state.
-fn load_resume_state(ckpt: &Path, registry_cfg: &RegistryConfig) -> Result<ResumeState, ServiceError> {
+fn load_resume_state(ckpt: &Path, registry_cfg: &RegistryConfig) -> Result<TrainingState, ServiceError> {
     let (td3, state) = checkpoint::load(ckpt, &Device::flex())?;
     let replay = checkpoint::load_replay(ckpt)?.unwrap_or_else(|| ReplayBuffer::new(td3.config()));
     let snapshot: RegistrySnapshot =
@@ -129,7 +129,7 @@ fn load_resume_state(ckpt: &Path, registry_cfg: &RegistryConfig) -> Result<Resum
         Totals::default()
     });
     let registry = Registry::restore(*registry_cfg, snapshot)?;
-    Ok(ResumeState {
+    Ok(TrainingState {
         td3,
         run_id: state.run_id,
         rate: state.rate,
@@ -147,7 +147,7 @@ fn newest_usable(
     dir: &Path,
     candidates: &[(u64, PathBuf)],
     registry_cfg: &RegistryConfig,
-) -> Result<(PathBuf, ResumeState, Vec<String>), ServiceError> {
+) -> Result<(PathBuf, TrainingState, Vec<String>), ServiceError> {
     let mut warnings = Vec::new();
     for (_, ckpt) in candidates.iter().rev() {
         match load_resume_state(ckpt, registry_cfg) {
@@ -264,17 +264,28 @@ fn write_atomic(path: &Path, text: &str) -> Result<(), ServiceError> {
         .map_err(ServiceError::io(format!("cannot write {}", path.display())))
 }
 
-impl Learner {
-    /// Prepares the run (fresh or resumed), binds the server and starts every thread. Returns
-    /// once actors can connect (the bound address is in [`Learner::addr`] and `learner.addr`).
-    pub fn start(opts: LearnerOptions) -> Result<Self, ServiceError> {
-        let run_dir = opts.run_dir.clone();
-        let svc = opts.service.clone();
-        svc.check()?;
-        trainer::create_private_dir(&run_dir)?;
+/// The run directory of a starting learner: created, locked, aborted checkpoint saves removed.
+struct RunDir {
+    /// The run directory.
+    path: PathBuf,
+    /// Held while this learner serves the run directory (see [`lock_run_dir`]).
+    lock: std::fs::File,
+    /// Its `checkpoints` directory.
+    checkpoints: PathBuf,
+    /// The complete checkpoints in it, oldest first.
+    candidates: Vec<(u64, PathBuf)>,
+}
+
+impl RunDir {
+    /// Checks the service settings, then creates (if needed) and locks the run directory of
+    /// `opts`, removes checkpoint saves an earlier learner aborted and lists the complete ones.
+    fn open(opts: &LearnerOptions) -> Result<Self, ServiceError> {
+        let path = opts.run_dir.clone();
+        opts.service.check()?;
+        trainer::create_private_dir(&path)?;
         // Before anything in the run directory is touched: one learner per run directory.
-        let run_lock = lock_run_dir(&run_dir)?;
-        let checkpoints = run_dir.join("checkpoints");
+        let lock = lock_run_dir(&path)?;
+        let checkpoints = path.join("checkpoints");
         match retention::remove_aborted_saves(&checkpoints) {
             Ok(removed) => {
                 for dir in removed {
@@ -286,101 +297,105 @@ impl Learner {
             }
             Err(e) => eprintln!("learner: cannot clean aborted checkpoint saves: {e}"),
         }
-        let registry_cfg = RegistryConfig {
-            lease_ttl_ms: u64::from(svc.lease_ttl_ms),
-            episodes_per_assignment: svc.episodes_per_assignment,
-            run_seed: opts.td3.seed,
-        };
         let candidates = if checkpoints.exists() {
             retention::complete_checkpoints(&checkpoints)?
         } else {
             Vec::new()
         };
-        let mut resume_warnings = Vec::new();
-        let (td3, run_id, rate, sampler_rng, policy_version, registry, totals, replay) =
-            match (opts.resume, candidates.last()) {
-                (true, None) => return Err(ServiceError::NothingToResume { dir: checkpoints }),
-                (false, Some((_, c))) => {
-                    return Err(ServiceError::RunExists {
-                        run_dir,
-                        checkpoint: c.clone(),
-                    })
+        Ok(Self {
+            path,
+            lock,
+            checkpoints,
+            candidates,
+        })
+    }
+
+    /// What training starts from: the newest usable checkpoint with `--resume` (and the
+    /// warnings about the newer ones skipped), or a fresh state (the actor fitted to the DDP
+    /// schedule with `ddp_init`). Refuses `--resume` without a checkpoint and a fresh run in a
+    /// directory that holds one.
+    fn training_state(
+        &self,
+        opts: &LearnerOptions,
+        registry_cfg: &RegistryConfig,
+    ) -> Result<(TrainingState, Vec<String>), ServiceError> {
+        match (opts.resume, self.candidates.last()) {
+            (true, None) => Err(ServiceError::NothingToResume {
+                dir: self.checkpoints.clone(),
+            }),
+            (false, Some((_, c))) => Err(ServiceError::RunExists {
+                run_dir: self.path.clone(),
+                checkpoint: c.clone(),
+            }),
+            (true, Some(_)) => {
+                let (ckpt, state, warnings) =
+                    newest_usable(&self.checkpoints, &self.candidates, registry_cfg)?;
+                eprintln!(
+                    "learner: resuming run {} from {} ({} steps, {} updates)",
+                    state.run_id,
+                    ckpt.display(),
+                    state.rate.inserts(),
+                    state.rate.updates()
+                );
+                Ok((state, warnings))
+            }
+            (false, None) => {
+                let mut td3 = Td3::new(opts.td3.clone(), &Device::flex())?;
+                if opts.service.ddp_init {
+                    let target: Vec<f32> = action_map(&opts.env_toml)?
+                        .ddp_policy_action(opts.space)
+                        .iter()
+                        .map(|&a| a as f32)
+                        .collect();
+                    let report = td3
+                        .init_actor_to_action(&target, &FitOptions::default())
+                        .map_err(ServiceError::DdpInit)?;
+                    eprintln!("learner: actor initialized to the DDP schedule ({report:?})");
                 }
-                (true, Some(_)) => {
-                    let (ckpt, r, warnings) = newest_usable(&checkpoints, &candidates, &registry_cfg)?;
-                    resume_warnings = warnings;
-                    eprintln!(
-                        "learner: resuming run {} from {} ({} steps, {} updates)",
-                        r.run_id,
-                        ckpt.display(),
-                        r.rate.inserts(),
-                        r.rate.updates()
-                    );
-                    (
-                        r.td3,
-                        r.run_id,
-                        r.rate,
-                        r.sampler_rng,
-                        r.policy_version,
-                        r.registry,
-                        r.totals,
-                        r.replay,
-                    )
-                }
-                (false, None) => {
-                    let mut td3 = Td3::new(opts.td3.clone(), &Device::flex())?;
-                    if svc.ddp_init {
-                        let target: Vec<f32> = action_map(&opts.env_toml)?
-                            .ddp_policy_action(opts.space)
-                            .iter()
-                            .map(|&a| a as f32)
-                            .collect();
-                        let report = td3
-                            .init_actor_to_action(&target, &FitOptions::default())
-                            .map_err(ServiceError::DdpInit)?;
-                        eprintln!("learner: actor initialized to the DDP schedule ({report:?})");
-                    }
-                    let registry = Registry::new(registry_cfg, opts.worlds.clone())?;
-                    let cfg = td3.config().clone();
-                    (
-                        td3,
-                        opts.run_id.clone(),
-                        RateLimiter::new(&cfg),
-                        seeded_rng(cfg.seed, 4),
-                        0,
-                        registry,
-                        Totals::default(),
-                        ReplayBuffer::new(&cfg),
-                    )
-                }
-            };
-        let cfg = td3.config().clone();
-        if cfg.obs_dim != actor::obs_dim(opts.space) || cfg.act_dim != opts.space.dim() {
-            return Err(ServiceError::SpaceMismatch {
-                obs_dim: cfg.obs_dim,
-                act_dim: cfg.act_dim,
-                space: space_name(opts.space),
-                space_obs_dim: actor::obs_dim(opts.space),
-                space_act_dim: opts.space.dim(),
-            });
+                let registry = Registry::new(*registry_cfg, opts.worlds.clone())?;
+                let cfg = td3.config().clone();
+                let state = TrainingState {
+                    td3,
+                    run_id: opts.run_id.clone(),
+                    rate: RateLimiter::new(&cfg),
+                    sampler_rng: seeded_rng(cfg.seed, 4),
+                    policy_version: 0,
+                    registry,
+                    totals: Totals::default(),
+                    replay: ReplayBuffer::new(&cfg),
+                };
+                Ok((state, Vec::new()))
+            }
         }
-        let incarnation = fresh_incarnation();
-        let validator = Validator {
-            run_id: run_id.clone(),
-            incarnation,
-            spaces: Spaces {
-                obs_dim: cfg.obs_dim,
-                act_dim: cfg.act_dim,
-                laser_dim: cfg.laser_dim,
-            },
-        };
+    }
+}
+
+/// The shared-memory data plane (when configured and it opened) and its intake thread.
+struct DataPlanes {
+    /// The step and policy services actors use, when shared memory is offered.
+    shm: Option<ShmConfig>,
+    /// Why shared memory is not offered although configured.
+    shm_unavailable: Option<String>,
+    /// The intake thread, when shared memory is offered.
+    intake: Option<JoinHandle<()>>,
+    /// Tells the intake thread to stop.
+    intake_stop: Arc<AtomicBool>,
+    /// Hands the intake thread the shared state once it exists.
+    shared_tx: std::sync::mpsc::SyncSender<Arc<Shared>>,
+}
+
+impl DataPlanes {
+    /// Opens the shared-memory step service of run `run_id`'s `incarnation` (when
+    /// `[service] shared_memory`) on its intake thread.
+    ///
+    /// The intake opens its step service before actors are told which plane to use: if that
+    /// fails, the run offers gRPC only (the reason is logged and shown in status.json) rather
+    /// than sending actors to a plane nobody drains.
+    fn start(svc: &ServiceConfig, run_id: &str, incarnation: u64) -> Result<Self, ServiceError> {
         let shm = svc.shared_memory.then(|| ShmConfig {
             service_prefix: format!("adp/{run_id}/{incarnation:016x}"),
             ..ShmConfig::default()
         });
-        // The shared-memory intake opens its step service before actors are told which plane
-        // to use: if that fails, the run offers gRPC only (the reason is logged and shown in
-        // status.json) rather than sending actors to a plane nobody drains.
         let intake_stop = Arc::new(AtomicBool::new(false));
         let (shared_tx, shared_rx) = std::sync::mpsc::sync_channel::<Arc<Shared>>(1);
         let (shm, shm_unavailable, intake) = match shm {
@@ -406,58 +421,44 @@ impl Learner {
             }
             None => (None, None, None),
         };
-        // Recorded in checkpoints, so exports document the observation the policy was trained on.
-        let environment: serde_json::Value = toml::from_str(&opts.env_toml).map_err(ServiceError::EnvToml)?;
-        let (dims, _) = td3.policy().flat_weights();
-        let spec = pb::RunSpec {
-            obs_dim: cfg.obs_dim as u32,
-            act_dim: cfg.act_dim as u32,
-            action_space: space_name(opts.space),
-            planner: opts.planner.clone(),
-            max_speed: opts.max_speed,
-            run_seed: cfg.seed,
-            policy_dims: dims.iter().map(|&d| d as u32).collect(),
-            data_plane: match &shm {
-                Some(s) => format!("shm:{}@{}", s.service_prefix, proto::hostname()),
-                None => "grpc".into(),
-            },
-            heartbeat_ms: svc.heartbeat_ms,
-            lease_ttl_ms: svc.lease_ttl_ms,
-            env_toml: opts.env_toml.clone(),
-        };
-        let mut core = Core::new(registry, replay, rate, totals, policy_version);
-        core.drop_all_leases();
-        if core.rate.inserts() >= opts.budget_steps {
-            // A finished run resumed with the same budget: nothing to collect. Say so and end
-            // (final checkpoint, export) instead of waiting for steps nobody will be asked for.
-            eprintln!(
-                "learner: run {run_id} already stored {} of its {} steps; nothing to collect (pass a larger \
-                 --steps to train it further)",
-                core.rate.inserts(),
-                opts.budget_steps
-            );
-            core.stopping = true;
-        }
-        let mut shared = Shared::new(
-            validator,
-            spec,
-            core,
-            opts.budget_steps,
-            svc.episodes_per_assignment,
-            svc.idle_retry_ms,
-            svc.progress_timeout(),
-        );
-        shared.resume_warnings = resume_warnings;
-        *shared.shm_unavailable.get_mut().expect("shm note lock") = shm_unavailable;
-        let shared = Arc::new(shared);
-        let tensorboard_dir = run_dir.join("tensorboard");
-        let inserts = shared.lock().rate.inserts();
-        let tensorboard = if opts.resume {
-            EventWriter::resume(&tensorboard_dir, inserts)
-        } else {
-            EventWriter::create(&tensorboard_dir)
-        }?;
+        Ok(Self {
+            shm,
+            shm_unavailable,
+            intake,
+            intake_stop,
+            shared_tx,
+        })
+    }
+}
 
+/// A server task of the control plane.
+type ServerTask = tokio::task::JoinHandle<Result<(), tonic::transport::Error>>;
+
+/// The gRPC control plane (and the gRPC data plane): the runtime, the TCP and Unix-socket
+/// servers, the policy channel they stream from, lease expiry and the signal handlers.
+struct ControlPlane {
+    /// The runtime running the servers.
+    runtime: tokio::runtime::Runtime,
+    /// The bound TCP address.
+    addr: SocketAddr,
+    /// Where the training thread publishes policies.
+    policy_tx: watch::Sender<Arc<pb::PolicySnapshot>>,
+    /// The newest published policy.
+    policy: watch::Receiver<Arc<pb::PolicySnapshot>>,
+    /// Stops the servers.
+    server_stop: watch::Sender<bool>,
+    /// The TCP server.
+    server: ServerTask,
+    /// The Unix socket and its server, when the socket could be bound.
+    unix_server: Option<(PathBuf, ServerTask)>,
+}
+
+impl ControlPlane {
+    /// Binds `[service] listen` (with TLS when configured) and the Unix socket in `run_dir`,
+    /// serves the control and data services on both, writes `learner.addr`, and starts lease
+    /// expiry and (with `handle_signals`) the SIGTERM/SIGINT handlers.
+    fn start(opts: &LearnerOptions, run_dir: &Path, shared: &Arc<Shared>) -> Result<Self, ServiceError> {
+        let svc = &opts.service;
         let runtime = tokio::runtime::Builder::new_multi_thread()
             .worker_threads(2)
             .enable_all()
@@ -488,7 +489,7 @@ impl Learner {
             .max_decoding_message_size(proto::grpc::MAX_CONTROL_REQUEST_BYTES),
             auth.clone(),
         );
-        let latest_policy = policy_rx.clone();
+        let policy = policy_rx.clone();
         let data = tonic::service::interceptor::InterceptedService::new(
             pb::data_server::DataServer::new(data::DataService {
                 shared: shared.clone(),
@@ -558,18 +559,125 @@ impl Learner {
                 s.request_stop(true);
             });
         }
-        if intake.is_some() {
-            let _ = shared_tx.send(shared.clone());
+        Ok(Self {
+            runtime,
+            addr,
+            policy_tx,
+            policy,
+            server_stop,
+            server,
+            unix_server,
+        })
+    }
+}
+
+impl Learner {
+    /// Prepares the run (fresh or resumed), binds the server and starts every thread. Returns
+    /// once actors can connect (the bound address is in [`Learner::addr`] and `learner.addr`).
+    pub fn start(opts: LearnerOptions) -> Result<Self, ServiceError> {
+        let svc = opts.service.clone();
+        let run = RunDir::open(&opts)?;
+        let registry_cfg = RegistryConfig {
+            lease_ttl_ms: u64::from(svc.lease_ttl_ms),
+            episodes_per_assignment: svc.episodes_per_assignment,
+            run_seed: opts.td3.seed,
+        };
+        let (state, resume_warnings) = run.training_state(&opts, &registry_cfg)?;
+        let cfg = state.td3.config().clone();
+        if cfg.obs_dim != actor::obs_dim(opts.space) || cfg.act_dim != opts.space.dim() {
+            return Err(ServiceError::SpaceMismatch {
+                obs_dim: cfg.obs_dim,
+                act_dim: cfg.act_dim,
+                space: space_name(opts.space),
+                space_obs_dim: actor::obs_dim(opts.space),
+                space_act_dim: opts.space.dim(),
+            });
+        }
+        let incarnation = fresh_incarnation();
+        let planes = DataPlanes::start(&svc, &state.run_id, incarnation)?;
+        // Recorded in checkpoints, so exports document the observation the policy was trained on.
+        let environment: serde_json::Value = toml::from_str(&opts.env_toml).map_err(ServiceError::EnvToml)?;
+        let TrainingState {
+            td3,
+            run_id,
+            rate,
+            sampler_rng,
+            policy_version,
+            registry,
+            totals,
+            replay,
+        } = state;
+        let validator = Validator {
+            run_id: run_id.clone(),
+            incarnation,
+            spaces: Spaces {
+                obs_dim: cfg.obs_dim,
+                act_dim: cfg.act_dim,
+                laser_dim: cfg.laser_dim,
+            },
+        };
+        let (dims, _) = td3.policy().flat_weights();
+        let spec = pb::RunSpec {
+            obs_dim: cfg.obs_dim as u32,
+            act_dim: cfg.act_dim as u32,
+            action_space: space_name(opts.space),
+            planner: opts.planner.clone(),
+            max_speed: opts.max_speed,
+            run_seed: cfg.seed,
+            policy_dims: dims.iter().map(|&d| d as u32).collect(),
+            data_plane: match &planes.shm {
+                Some(s) => format!("shm:{}@{}", s.service_prefix, proto::hostname()),
+                None => "grpc".into(),
+            },
+            heartbeat_ms: svc.heartbeat_ms,
+            lease_ttl_ms: svc.lease_ttl_ms,
+            env_toml: opts.env_toml.clone(),
+        };
+        let mut core = Core::new(registry, replay, rate, totals, policy_version);
+        core.drop_all_leases();
+        if core.rate.inserts() >= opts.budget_steps {
+            // A finished run resumed with the same budget: nothing to collect. Say so and end
+            // (final checkpoint, export) instead of waiting for steps nobody will be asked for.
+            eprintln!(
+                "learner: run {run_id} already stored {} of its {} steps; nothing to collect (pass a larger \
+                 --steps to train it further)",
+                core.rate.inserts(),
+                opts.budget_steps
+            );
+            core.stopping = true;
+        }
+        let mut shared = Shared::new(
+            validator,
+            spec,
+            core,
+            opts.budget_steps,
+            svc.episodes_per_assignment,
+            svc.idle_retry_ms,
+            svc.progress_timeout(),
+        );
+        shared.resume_warnings = resume_warnings;
+        *shared.shm_unavailable.get_mut().expect("shm note lock") = planes.shm_unavailable;
+        let shared = Arc::new(shared);
+        let tensorboard_dir = run.path.join("tensorboard");
+        let inserts = shared.lock().rate.inserts();
+        let tensorboard = if opts.resume {
+            EventWriter::resume(&tensorboard_dir, inserts)
+        } else {
+            EventWriter::create(&tensorboard_dir)
+        }?;
+        let control = ControlPlane::start(&opts, &run.path, &shared)?;
+        if planes.intake.is_some() {
+            let _ = planes.shared_tx.send(shared.clone());
         }
         let trainer = trainer::Trainer {
             shared: shared.clone(),
             td3,
             sampler_rng,
-            run_dir: run_dir.clone(),
+            run_dir: run.path.clone(),
             service: svc.clone(),
             space: opts.space,
-            policy_tx,
-            shm,
+            policy_tx: control.policy_tx,
+            shm: planes.shm,
             tensorboard,
             environment,
         };
@@ -577,20 +685,21 @@ impl Learner {
             .name("adp-train".into())
             .spawn(move || trainer.run())
             .map_err(ServiceError::io("cannot start the training thread"))?;
+        let addr = control.addr;
         eprintln!("learner: run {run_id} (incarnation {incarnation:016x}) serving on {addr}");
         Ok(Self {
             shared,
-            runtime,
+            runtime: control.runtime,
             addr,
             trainer,
-            intake,
-            intake_stop,
-            server_stop,
-            server,
-            unix_server,
+            intake: planes.intake,
+            intake_stop: planes.intake_stop,
+            server_stop: control.server_stop,
+            server: control.server,
+            unix_server: control.unix_server,
             heartbeat_ms: svc.heartbeat_ms,
-            policy: latest_policy,
-            _run_lock: run_lock,
+            policy: control.policy,
+            _run_lock: run.lock,
         })
     }
 
