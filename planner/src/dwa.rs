@@ -41,8 +41,14 @@ pub struct DwaConfig {
     /// Boundary points are evaluated only where the circumscribed-disk bound is below this
     /// (m); farther away the disk bound is the clearance estimate.
     pub detail_within: f64,
-    /// Weight of the end point's distance to the local goal.
+    /// Weight of the goal term: the mean distance to the local goal over the rollout's last
+    /// `goal_tail` share of grid points.
     pub w_goal: f64,
+    /// Share of the rollout's grid points, counted from its end, whose distance to the local
+    /// goal the goal term averages (in (0, 1]; at least the end point). The authors' DWA sums
+    /// steps 10 to N - 2 of 20, about the last half; the end point alone makes a long DDP
+    /// horizon prefer commands that stop near the goal, i.e. slow ones.
+    pub goal_tail: f64,
     /// Weight of the end point's distance to the local path.
     pub w_path: f64,
     /// Weight of the obstacle-proximity cost.
@@ -68,6 +74,7 @@ impl Default for DwaConfig {
             clearance_cap: 0.5,
             detail_within: 0.1,
             w_goal: 1.0,
+            goal_tail: 0.5,
             w_path: 0.4,
             w_obstacle: 0.8,
             w_speed: 0.3,
@@ -220,6 +227,9 @@ impl Planner for Dwa {
         }
 
         let horizon = sched.horizon();
+        // First grid point of the goal term's tail (the end point at least).
+        let tail = (cfg.goal_tail * steps as f64).ceil() as usize;
+        let tail_start = steps.saturating_sub(tail.max(1));
         self.margins.clear();
         for m in 0..=self.map.boundary_points() {
             let here =
@@ -238,9 +248,12 @@ impl Planner for Dwa {
                 let (mut driven, mut last_clear) = (0.0, (0.0, 0.0));
                 // The rollout's point halfway through its steps (path cost).
                 let mut mid = Vec2::default();
+                // Sum of the tail's distances to the local goal (goal term).
+                let mut goal_sum = 0.0;
                 let mut hit = false;
                 let mut admissible = true;
                 let mut clear_time = horizon;
+                let mut clear_steps = steps;
                 if self.recording {
                     self.rollouts.begin();
                 }
@@ -273,6 +286,7 @@ impl Planner for Dwa {
                         // before the obstacle: the rollout then ends at its last clear point.
                         let v_before = if k > 0 { self.v_prof[i * steps + k - 1] } else { v0 };
                         hit = true;
+                        clear_steps = k;
                         clear_time = sched.dts()[..k].iter().sum();
                         admissible = k > 0 && v_before * v_before <= 2.0 * cfg.accel_v * driven;
                         (x, y) = last_clear;
@@ -284,6 +298,9 @@ impl Planner for Dwa {
                     if k < steps.div_ceil(2) {
                         mid = Vec2::new(x, y);
                     }
+                    if k >= tail_start {
+                        goal_sum += Vec2::new(x, y).dist(per.local_goal);
+                    }
                     min_clear = min_clear.min(clear);
                 }
                 if self.recording {
@@ -293,10 +310,13 @@ impl Planner for Dwa {
                     continue;
                 }
                 let end = Vec2::new(x, y);
+                // A rollout that failed a check waits at its last clear point for the rest.
+                let reached = if hit { clear_steps } else { steps };
+                goal_sum += end.dist(per.local_goal) * (steps - reached.max(tail_start)) as f64;
                 let cmd = Twist::new(sample(v_lo, v_hi, nv, i), sample(w_lo, w_hi, nw, j));
                 self.cost.push(Candidate {
                     cmd,
-                    goal: end.dist(per.local_goal),
+                    goal: goal_sum / (steps - tail_start).max(1) as f64,
                     path: 0.5
                         * (distance_to_path(per.local_path, mid, per.local_goal)
                             + distance_to_path(per.local_path, end, per.local_goal)),
