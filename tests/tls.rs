@@ -33,57 +33,39 @@ fn openssl(dir: &Path, args: &[&str]) {
     );
 }
 
+/// `openssl req` options for a new P-256 key without a passphrase.
+const NEW_EC_KEY: [&str; 5] = [
+    "-newkey",
+    "ec",
+    "-pkeyopt",
+    "ec_paramgen_curve:prime256v1",
+    "-nodes",
+];
+
 /// A self-signed CA `name`.pem / `name`.key in `dir`.
 fn make_ca(dir: &Path, name: &str) {
-    let (key, pem) = (format!("{name}.key"), format!("{name}.pem"));
-    openssl(
-        dir,
-        &[
-            "req",
-            "-x509",
-            "-newkey",
-            "ec",
-            "-pkeyopt",
-            "ec_paramgen_curve:prime256v1",
-            "-nodes",
-            "-keyout",
-            &key,
-            "-out",
-            &pem,
-            "-days",
-            "2",
-            "-subj",
-            &format!("/CN={name}"),
-        ],
+    let (key, pem, subject) = (
+        format!("{name}.key"),
+        format!("{name}.pem"),
+        format!("/CN={name}"),
     );
+    let out = ["-keyout", &key, "-out", &pem, "-days", "2", "-subj", &subject];
+    openssl(dir, &[&["req", "-x509"][..], &NEW_EC_KEY, &out].concat());
 }
 
 /// A certificate `name`.pem / `name`.key signed by CA `ca`, with the extensions in `ext`.
 fn make_leaf(dir: &Path, ca: &str, name: &str, ext: &str) {
-    let (key, pem, csr, extfile) = (
+    let (key, pem, csr, extfile, subject) = (
         format!("{name}.key"),
         format!("{name}.pem"),
         format!("{name}.csr"),
         format!("{name}.ext"),
+        format!("/CN={name}"),
     );
     std::fs::write(dir.join(&extfile), ext).unwrap();
-    openssl(
-        dir,
-        &[
-            "req",
-            "-newkey",
-            "ec",
-            "-pkeyopt",
-            "ec_paramgen_curve:prime256v1",
-            "-nodes",
-            "-keyout",
-            &key,
-            "-out",
-            &csr,
-            "-subj",
-            &format!("/CN={name}"),
-        ],
-    );
+    let request = ["-keyout", &key, "-out", &csr, "-subj", &subject];
+    openssl(dir, &[&["req"][..], &NEW_EC_KEY, &request].concat());
+    let (ca_pem, ca_key) = (format!("{ca}.pem"), format!("{ca}.key"));
     openssl(
         dir,
         &[
@@ -92,9 +74,9 @@ fn make_leaf(dir: &Path, ca: &str, name: &str, ext: &str) {
             "-in",
             &csr,
             "-CA",
-            &format!("{ca}.pem"),
+            &ca_pem,
             "-CAkey",
-            &format!("{ca}.key"),
+            &ca_key,
             "-CAcreateserial",
             "-out",
             &pem,
