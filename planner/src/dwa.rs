@@ -248,12 +248,11 @@ impl Planner for Dwa {
                 let (mut driven, mut last_clear) = (0.0, (0.0, 0.0));
                 // The rollout's point halfway through its steps (path cost).
                 let mut mid = Vec2::default();
-                // Sum of the tail's distances to the local goal (goal term).
-                let mut goal_sum = 0.0;
+                // Sum and count of the tail's clear points' distances to the local goal.
+                let (mut goal_sum, mut goal_n) = (0.0, 0usize);
                 let mut hit = false;
                 let mut admissible = true;
                 let mut clear_time = horizon;
-                let mut clear_steps = steps;
                 if self.recording {
                     self.rollouts.begin();
                 }
@@ -286,7 +285,6 @@ impl Planner for Dwa {
                         // before the obstacle: the rollout then ends at its last clear point.
                         let v_before = if k > 0 { self.v_prof[i * steps + k - 1] } else { v0 };
                         hit = true;
-                        clear_steps = k;
                         clear_time = sched.dts()[..k].iter().sum();
                         admissible = k > 0 && v_before * v_before <= 2.0 * cfg.accel_v * driven;
                         (x, y) = last_clear;
@@ -300,6 +298,7 @@ impl Planner for Dwa {
                     }
                     if k >= tail_start {
                         goal_sum += Vec2::new(x, y).dist(per.local_goal);
+                        goal_n += 1;
                     }
                     min_clear = min_clear.min(clear);
                 }
@@ -311,12 +310,12 @@ impl Planner for Dwa {
                 }
                 let end = Vec2::new(x, y);
                 // A rollout that failed a check waits at its last clear point for the rest.
-                let reached = if hit { clear_steps } else { steps };
-                goal_sum += end.dist(per.local_goal) * (steps - reached.max(tail_start)) as f64;
+                let tail_len = steps - tail_start;
+                goal_sum += end.dist(per.local_goal) * (tail_len - goal_n) as f64;
                 let cmd = Twist::new(sample(v_lo, v_hi, nv, i), sample(w_lo, w_hi, nw, j));
                 self.cost.push(Candidate {
                     cmd,
-                    goal: goal_sum / (steps - tail_start).max(1) as f64,
+                    goal: goal_sum / tail_len.max(1) as f64,
                     path: 0.5
                         * (distance_to_path(per.local_path, mid, per.local_goal)
                             + distance_to_path(per.local_path, end, per.local_goal)),
