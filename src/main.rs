@@ -1,5 +1,6 @@
 //! `adp`: train and ship adaptive-dynamics navigation planners on BARN.
 
+mod actor_sandbox;
 mod bench;
 mod calibrate;
 mod cli;

@@ -495,7 +495,9 @@ pub fn script(input: &ScriptInput<'_>) -> String {
         w,
         "# 7. The actors: ranks 0.. on the learner's node, then the other nodes. Each rank seeds\n\
          #    its episodes from (run seed, rank). They retry until the learner is up; one failing\n\
-         #    actor does not end the others (--kill-on-bad-exit=0), and the learner re-deals its world."
+         #    actor does not end the others (--kill-on-bad-exit=0), and the learner re-deals its world.\n\
+         #    Each actor re-executes itself in the sandbox of job-config.toml's [sandbox] (limits,\n\
+         #    no new privileges, bubblewrap when it works), as `adp train` runs local actors."
     );
     if cfg.slurm.actor_tls.is_some() {
         let _ = writeln!(
@@ -505,7 +507,7 @@ pub fn script(input: &ScriptInput<'_>) -> String {
     }
     let _ = writeln!(
         w,
-        "ACTOR_ARGS=(actor --learner \"$LEARNER_HOST:$PORT\" --token-file \"$RUN_DIR/token\" --give-up-after {}{})",
+        "ACTOR_ARGS=(actor --learner \"$LEARNER_HOST:$PORT\" --token-file \"$RUN_DIR/token\" --give-up-after {}{} \\\n    --sandbox \"$RUN_DIR/job-config.toml\")",
         s.actor_give_up_s,
         actor_tls_args(cfg)
     );
@@ -850,8 +852,10 @@ mod tests {
         check_actor_tls(&c).unwrap();
         let text = gen(&c);
         assert!(!text.contains("--allow-insecure-listen"));
-        let args = text.lines().find(|l| l.starts_with("ACTOR_ARGS=")).unwrap();
+        let args = &text[text.find("ACTOR_ARGS=").unwrap()..];
+        let args = &args[..args.find(')').unwrap()];
         for want in [
+            "--sandbox \"$RUN_DIR/job-config.toml\"",
             "--tls-ca '/etc/adp/ca.pem'",
             "--tls-cert '/etc/adp/it'\\''s/actor.pem'",
             "--tls-key '/etc/adp/it'\\''s/actor.pem.key'",

@@ -79,6 +79,21 @@ pub struct SandboxSection {
     pub private_network: bool,
 }
 
+impl SandboxSection {
+    /// The sandbox of one actor process; `private_network` only when the actor reaches the
+    /// learner without the network (its Unix socket) and this section asks for it.
+    pub fn sandbox_config(&self, private_network: bool) -> SandboxConfig {
+        SandboxConfig {
+            bwrap: self.bwrap,
+            address_space_bytes: self.address_space_mb << 20,
+            open_files: self.open_files,
+            private_network: self.private_network && private_network,
+            // Shared memory (the same-node data plane and iceoryx2's files) stays writable.
+            writable_dirs: vec![PathBuf::from("/dev/shm"), PathBuf::from("/tmp")],
+        }
+    }
+}
+
 impl Default for SandboxSection {
     fn default() -> Self {
         Self {
@@ -252,14 +267,8 @@ pub fn train(config: Option<&Path>, o: &Overrides, resume: bool) -> anyhow::Resu
     };
     let learner = Learner::start(cfg.learner_options(&out, token, resume)?)?;
     let exe = std::env::current_exe().context("cannot find this executable to start actors")?;
-    let sandbox = Sandbox::new(SandboxConfig {
-        bwrap: cfg.sandbox.bwrap,
-        address_space_bytes: cfg.sandbox.address_space_mb << 20,
-        open_files: cfg.sandbox.open_files,
-        // Without the learner's Unix socket, actors need the network to reach it.
-        private_network: cfg.sandbox.private_network && learner.socket().is_some(),
-        writable_dirs: vec![PathBuf::from("/dev/shm"), PathBuf::from("/tmp")],
-    })?;
+    // Without the learner's Unix socket, actors need the network to reach it.
+    let sandbox = Sandbox::new(cfg.sandbox.sandbox_config(learner.socket().is_some()))?;
     // Actors on this host talk to the learner over its Unix socket when it has one.
     let address = match learner.socket() {
         Some(p) => format!("unix:{}", p.display()),
@@ -410,6 +419,11 @@ pub struct ActorArgs {
     /// Give up after the learner has been unreachable this many seconds.
     #[arg(long = "give-up-after", default_value_t = 600)]
     pub give_up_after_s: u64,
+    /// Run in the sandbox of this training config's `[sandbox]` (limits, bubblewrap), as
+    /// `adp train` runs its actors: the process re-executes itself sandboxed and forwards
+    /// SIGTERM/SIGINT to it. `adp slurm` sets it.
+    #[arg(long, value_name = "CONFIG")]
+    pub sandbox: Option<PathBuf>,
 }
 
 /// `adp actor`.
@@ -429,6 +443,9 @@ pub fn actor(a: ActorArgs) -> anyhow::Result<()> {
                 .context("--rank-offset + SLURM_PROCID overflows")?
         }
     };
+    if let Some(config) = &a.sandbox {
+        return crate::actor_sandbox::run(&a, rank, config);
+    }
     let eval_cfg = EvalConfig::load(None)?;
     let factory =
         move |name: &str, seed: u64| -> Result<Box<dyn planner::Planner>, actor::run::FactoryError> {

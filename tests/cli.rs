@@ -389,3 +389,96 @@ fn bad_policies_give_one_line_errors() {
     one_line_error(&eval(&export, &[]), "policy.json: observation of 746 values");
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// The children of process `pid` (every thread's list).
+fn children(pid: u32) -> Vec<u32> {
+    let Ok(tasks) = std::fs::read_dir(format!("/proc/{pid}/task")) else {
+        return Vec::new();
+    };
+    tasks
+        .flatten()
+        .filter_map(|t| std::fs::read_to_string(t.path().join("children")).ok())
+        .flat_map(|s| {
+            s.split_whitespace()
+                .filter_map(|p| p.parse().ok())
+                .collect::<Vec<u32>>()
+        })
+        .collect()
+}
+
+/// `adp actor --sandbox CONFIG` (what SLURM tasks run) puts the actor under the limits of the
+/// config's `[sandbox]` with no new privileges, and a SIGTERM to the task reaches the actor.
+#[test]
+fn a_sandboxed_actor_runs_under_the_configs_limits_and_stops_with_its_task() {
+    let _guard = testkit::watchdog(120, "sandboxed actor");
+    let dir = fresh_dir("actor-sandbox");
+    let config = dir.join("job-config.toml");
+    std::fs::write(
+        &config,
+        "[sandbox]\nbwrap = \"off\"\naddress_space_mb = 3000\nopen_files = 77\n",
+    )
+    .unwrap();
+    let token = dir.join("token");
+    std::fs::write(&token, "0123456789abcdef0123456789abcdef\n").unwrap();
+    std::fs::set_permissions(&token, std::os::unix::fs::PermissionsExt::from_mode(0o600)).unwrap();
+    // No learner listens there: the actor keeps retrying until it is stopped.
+    let mut task = common::adp()
+        .args([
+            "actor",
+            "--learner",
+            &format!("unix:{}", dir.join("none.sock").display()),
+        ])
+        .args(["--token-file", token.to_str().unwrap(), "--rank", "3"])
+        .args(["--sandbox", config.to_str().unwrap()])
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let actor = loop {
+        if let Some(&c) = children(task.id()).first() {
+            break c;
+        }
+        assert!(
+            task.try_wait().unwrap().is_none(),
+            "the task ended before its actor started"
+        );
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    };
+    // Wait until the child has exec'd `adp actor` (its limits are set before the exec).
+    let cmdline = loop {
+        let c = std::fs::read(format!("/proc/{actor}/cmdline")).unwrap_or_default();
+        let args: Vec<String> = c
+            .split(|&b| b == 0)
+            .map(|a| String::from_utf8_lossy(a).into_owned())
+            .collect();
+        if args.iter().any(|a| a == "actor") {
+            break args;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    };
+    assert!(!cmdline.iter().any(|a| a == "--sandbox"), "{cmdline:?}");
+    assert!(cmdline.windows(2).any(|w| w == ["--rank", "3"]), "{cmdline:?}");
+    let limits = std::fs::read_to_string(format!("/proc/{actor}/limits")).unwrap();
+    let limit = |name: &str| {
+        let line = limits.lines().find(|l| l.starts_with(name)).unwrap().to_owned();
+        line.split_whitespace().rev().nth(2).unwrap().to_owned()
+    };
+    assert_eq!(limit("Max open files"), "77", "{limits}");
+    assert_eq!(
+        limit("Max address space"),
+        (3000u64 << 20).to_string(),
+        "{limits}"
+    );
+    assert_eq!(limit("Max core file size"), "0", "{limits}");
+    let status = std::fs::read_to_string(format!("/proc/{actor}/status")).unwrap();
+    assert!(status.contains("NoNewPrivs:\t1"), "{status}");
+    // SLURM ends a task with SIGTERM: it reaches the actor, and both are gone.
+    unsafe { libc::kill(task.id() as i32, libc::SIGTERM) };
+    let exit = task.wait().unwrap();
+    assert!(!exit.success(), "the actor was stopped, not finished: {exit:?}");
+    assert!(
+        !std::path::Path::new(&format!("/proc/{actor}")).exists(),
+        "the actor outlived its task"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
