@@ -70,8 +70,14 @@ pub struct MppiConfig {
     pub clearance_cap: f64,
     /// Cost of a collision (doubled for one at the start of the rollout).
     pub collision_cost: f64,
-    /// Weight of the end point's distance to the local goal (per m).
+    /// Weight of the goal term: the mean distance to the local goal over the rollout's last
+    /// `goal_tail` share of grid points (per m).
     pub w_goal: f64,
+    /// Share of the rollout's grid points, counted from its end, whose distance to the local
+    /// goal the goal term averages (at least the end point; 0 = the end point only). The
+    /// authors' MPPI sums steps 15 to N - 2 of 20, about the last quarter; the end point alone
+    /// makes a long DDP horizon prefer commands that stop near the goal, i.e. slow ones.
+    pub goal_tail: f64,
     /// Weight of the end point's distance to the local path (per m).
     pub w_path: f64,
     /// Weight of the obstacle-proximity cost (0 at the clearance cap, 1 at contact).
@@ -102,6 +108,7 @@ impl Default for MppiConfig {
             clearance_cap: 0.5,
             collision_cost: 100.0,
             w_goal: 4.0,
+            goal_tail: 0.25,
             w_path: 4.0,
             w_obstacle: 2.0,
             w_heading: 1.0,
@@ -151,6 +158,8 @@ struct Scene<'a> {
     checks: &'a [u16],
     start: Twist,
     goal: Vec2,
+    /// First grid point of the goal term's tail.
+    tail_start: usize,
     path: &'a [Vec2],
     /// Collision threshold on the estimated clearance (m), per check density.
     margins: &'a [f64],
@@ -374,6 +383,8 @@ fn rollout(scene: &Scene<'_>, controls: &[Twist], mut record: Option<&mut Rollou
     let mut prev = scene.start;
     let (mut min_clear, mut smooth, mut evaluated) = (cfg.clearance_cap, 0.0, 0u64);
     let (mut t, mut hit) = (0.0, None);
+    // Sum and count of the tail's clear points' distances to the local goal.
+    let (mut goal_sum, mut goal_n) = (0.0, 0u32);
     if let Some(r) = record.as_deref_mut() {
         r.begin();
     }
@@ -396,18 +407,28 @@ fn rollout(scene: &Scene<'_>, controls: &[Twist], mut record: Option<&mut Rollou
             break;
         }
         min_clear = min_clear.min(clear);
+        if k >= scene.tail_start {
+            goal_sum += (scene.goal - Vec2::new(pose.x, pose.y)).norm();
+            goal_n += 1;
+        }
     }
     if let Some(r) = record {
         r.end(hit.is_none());
     }
     let end = Vec2::new(robot.x, robot.y);
     let to_goal = scene.goal - end;
+    // A rollout that collides before its tail is scored on the point where it stopped.
+    let goal_dist = if goal_n > 0 {
+        goal_sum / f64::from(goal_n)
+    } else {
+        to_goal.norm()
+    };
     let heading = if to_goal.norm() > 0.3 {
         wrap_angle(to_goal.y.atan2(to_goal.x) - robot.yaw).abs() / std::f64::consts::PI
     } else {
         0.0
     };
-    let mut cost = cfg.w_goal * to_goal.norm()
+    let mut cost = cfg.w_goal * goal_dist
         + cfg.w_path * distance_to_path(scene.path, end, scene.goal)
         + cfg.w_obstacle * (cfg.clearance_cap - min_clear) / cfg.clearance_cap
         + cfg.w_heading * heading
@@ -472,6 +493,7 @@ impl Planner for Mppi {
             checks: sched.checks(),
             start,
             goal: per.local_goal,
+            tail_start: steps.saturating_sub(((self.cfg.goal_tail * steps as f64).ceil() as usize).max(1)),
             path: per.local_path,
             margins: &self.margins,
             integrator: input.prediction.integrator,
@@ -693,6 +715,47 @@ pub(crate) mod tests {
         assert_eq!(a, b);
         assert_ne!(a, c);
         assert!(a.iter().any(|u| u.v > 0.5), "it drives");
+    }
+
+    /// The goal term of a rollout that reaches the goal early and waits there is 0 over any
+    /// tail; one that creeps and arrives only at the end pays for its tail's distances.
+    #[test]
+    fn goal_term_averages_the_tail() {
+        let mut map = LocalMap::new(sim::Footprint::JACKAL, 0.05, 0);
+        map.build(&[], 1.0, 3.0);
+        let dts = [0.1; 20];
+        let checks = [0u16; 20];
+        let cost = |goal_tail: f64, v: &dyn Fn(usize) -> f64| {
+            let cfg = MppiConfig {
+                goal_tail,
+                ..Default::default()
+            };
+            let tail_start = 20 - ((goal_tail * 20.0).ceil() as usize).max(1);
+            let scene = Scene {
+                cfg: &cfg,
+                map: &map,
+                dts: &dts,
+                checks: &checks,
+                start: Twist::new(0.0, 0.0),
+                goal: Vec2::new(1.0, 0.0),
+                tail_start,
+                path: &[],
+                margins: &[cfg.margin],
+                integrator: Integrator::Euler,
+            };
+            let controls: Vec<Twist> = (0..20).map(|k| Twist::new(v(k), 0.0)).collect();
+            let out = rollout(&scene, &controls, None);
+            assert!(out.collision_free);
+            out.cost
+        };
+        // 1 m/s for 1 s, then stopped at the goal; 0.5 m/s for 2 s, at the goal at the end.
+        let early = |k: usize| if k < 10 { 1.0 } else { 0.0 };
+        let creep = |_: usize| 0.5;
+        assert!((cost(0.5, &early) - cost(0.0, &early)).abs() < 1e-9);
+        // Tail = steps 10..19 at 0.55, 0.60, ..., 1.00 m: mean distance 0.225 m, x w_goal 4.
+        let extra = cost(0.5, &creep) - cost(0.0, &creep);
+        assert!((extra - 0.9).abs() < 1e-9, "{extra}");
+        assert!(cost(0.5, &early) - cost(0.5, &creep) < cost(0.0, &early) - cost(0.0, &creep));
     }
 
     #[test]
