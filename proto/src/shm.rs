@@ -865,6 +865,77 @@ mod tests {
         assert_eq!(checked_floats, ACTORS * per_actor);
     }
 
+    /// Fault injection: an iceoryx2 root that is not a usable directory (here a regular file)
+    /// makes every opening fail with an error naming what and why, on the learner's side and the
+    /// actor's, instead of panicking or hanging; the learner then offers gRPC only.
+    #[test]
+    fn an_unusable_root_path_fails_every_opening_with_a_reason() {
+        let _w = watchdog(60, "unusable root");
+        let mut scratch = Scratch::new(8);
+        let file = std::env::temp_dir().join(format!("adp-shm-root-file-{}", std::process::id()));
+        std::fs::write(&file, "not a directory").unwrap();
+        scratch.cfg.root = Some(file.clone());
+        let learner = ShmStepSource::open(&scratch.cfg)
+            .err()
+            .expect("a file as the root");
+        let publisher = ShmPolicyPublisher::open(&scratch.cfg)
+            .err()
+            .expect("a file as the root");
+        let actor = ShmStepSink::open(&scratch.cfg, "actor-0")
+            .err()
+            .expect("a file as the root");
+        for e in [learner.to_string(), publisher.to_string(), actor.to_string()] {
+            assert!(e.contains("cannot"), "{e}");
+        }
+        std::fs::remove_file(&file).unwrap();
+    }
+
+    /// Fault injection: more actors than the port limit. The actor beyond it is refused when it
+    /// opens its publisher (so it can use gRPC), and the actors within it lose nothing.
+    #[test]
+    fn an_actor_beyond_the_port_limit_is_refused_and_the_others_deliver() {
+        let _w = watchdog(60, "port limit");
+        let mut scratch = Scratch::new(8);
+        scratch.cfg.max_actors = 2;
+        let mut source = ShmStepSource::open(&scratch.cfg).unwrap();
+        let mut sinks: Vec<ShmStepSink> = (0..2)
+            .map(|a| ShmStepSink::open(&scratch.cfg, &format!("actor-{a}")).unwrap())
+            .collect();
+        let third = ShmStepSink::open(&scratch.cfg, "actor-2")
+            .err()
+            .expect("over the limit");
+        assert!(third.to_string().contains("publisher"), "{third}");
+        let (mut obs, mut fin) = (Vec::new(), Vec::new());
+        for (actor, sink) in sinks.iter_mut().enumerate() {
+            let (episode_id, step_index, truncated) = record(actor, 0, &mut obs, &mut fin);
+            let header = LeaseHeader {
+                incarnation: 1,
+                actor_id: actor as u64,
+                lease_id: 10 + actor as u64,
+            };
+            let step = StepView {
+                episode_id,
+                step_index,
+                policy_version: 0,
+                obs: &obs,
+                action: &ACT,
+                reward: 0.0,
+                terminal: false,
+                truncated,
+                final_obs: &fin,
+            };
+            sink.send(&header, &step).unwrap();
+            sink.flush().unwrap();
+        }
+        let mut from = Vec::new();
+        while from.len() < 2 {
+            source.drain(8, |lease, _| from.push(lease.actor_id)).unwrap();
+            thread::yield_now();
+        }
+        from.sort_unstable();
+        assert_eq!(from, [0, 1]);
+    }
+
     #[test]
     fn truncated_records_carry_final_obs_and_oversize_records_are_refused() {
         let _w = watchdog(60, "truncated / oversize");
