@@ -20,6 +20,7 @@ use clap::Parser;
 
 fn main() -> ExitCode {
     keep_freed_memory();
+    init_tracing();
     let cli = cli::Cli::parse();
     match cli::run(cli.cmd) {
         Ok(()) => ExitCode::SUCCESS,
@@ -28,6 +29,27 @@ fn main() -> ExitCode {
             ExitCode::FAILURE
         }
     }
+}
+
+/// Installs the log subscriber: the `tracing` events of every crate at the levels `RUST_LOG`
+/// selects (`info` when unset; e.g. `RUST_LOG=debug`, `RUST_LOG=actor=debug,info`, or
+/// `RUST_LOG='[actor{rank=2}]=debug'` for one actor's session), one line per event on stderr
+/// with the fields of the spans it happened in (an actor's `rank` and `actor_id`).
+///
+/// Each event is formatted into a buffer and written with one `write` to the unbuffered
+/// stderr, so the lines of the learner and of its actor processes (the same binary, run as
+/// `adp actor`), which share one stderr pipe under `adp train`, never interleave.
+fn init_tracing() {
+    use std::io::IsTerminal;
+    use tracing_subscriber::filter::{EnvFilter, LevelFilter};
+    let filter = EnvFilter::builder()
+        .with_default_directive(LevelFilter::INFO.into())
+        .from_env_lossy();
+    tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .with_ansi(std::io::stderr().is_terminal())
+        .init();
 }
 
 /// Tells glibc's allocator to keep freed memory for reuse. A TD3 update allocates and frees

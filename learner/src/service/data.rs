@@ -20,7 +20,7 @@ use tokio_stream::{Stream, StreamExt};
 use tonic::{Request, Response, Status, Streaming};
 
 use super::control::refusal_status;
-use super::shared::Shared;
+use super::shared::{Plane, Shared};
 
 thread_local! {
     static SCRATCH: RefCell<DecodeScratch> = RefCell::new(DecodeScratch::default());
@@ -43,7 +43,7 @@ fn ingest_batch(shared: &Shared, batch: &pb::StepBatch) -> (u64, u64, String) {
     SCRATCH.with_borrow_mut(|scratch| {
         for_each_step(batch, scratch, |decoded| {
             let result = match decoded {
-                Ok(view) => shared.ingest(&header, &view),
+                Ok(view) => shared.ingest(Plane::Grpc, &header, &view),
                 Err(ragged) => {
                     let why = Refusal::from(ragged);
                     shared.refuse(&why, 1);
@@ -156,13 +156,13 @@ pub fn shm_intake(
                 final_obs: &final_obs,
                 ..*view
             };
-            let _ = shared.ingest(header, &copy);
+            let _ = shared.ingest(Plane::Shm, header, &copy);
         });
         match drained {
             Ok(0) => std::thread::sleep(Duration::from_millis(1)),
             Ok(_) => {}
             Err(e) => {
-                eprintln!("learner: shared-memory receive failed: {e}");
+                tracing::error!("shared-memory receive failed: {e}");
                 std::thread::sleep(Duration::from_millis(100));
             }
         }
