@@ -131,6 +131,7 @@ impl Control for ControlService {
                     let first = Shared::open_lease(&mut core, a.lease_id, r.actor_id, a.episodes, now);
                     tracing::debug!(
                         actor_id = r.actor_id,
+                        rank = core.registry.rank_of(r.actor_id),
                         lease = a.lease_id,
                         world = a.world,
                         cycle = a.cycle,
@@ -181,8 +182,8 @@ impl Control for ControlService {
             tracing::debug!(
                 actor_id = r.actor_id,
                 lease = id,
-                reason = %lease_lost_reason,
-                "heartbeat for a lease no longer valid"
+                dropped_because = %lease_lost_reason,
+                "heartbeat names a lease that has ended (finished, expired or dropped)"
             );
         }
         Ok(Response::new(pb::HeartbeatReply {
@@ -201,6 +202,8 @@ impl Control for ControlService {
                 reason: String::new(),
             })),
             Err(why) => {
+                let _actor =
+                    tracing::info_span!("actor", actor_id = r.actor_id, lease = r.lease_id).entered();
                 self.shared.refuse(&why, 1);
                 Err(refusal_status(&why))
             }

@@ -31,6 +31,8 @@ fn ingest_batch(shared: &Shared, batch: &pb::StepBatch) -> (u64, u64, String) {
     let n = batch.steps.len() as u64;
     let run = batch.run.clone().unwrap_or_default();
     if let Err(why) = shared.validator.check_run(&run.run_id, run.incarnation) {
+        let _actor =
+            tracing::info_span!("actor", actor_id = batch.actor_id, lease = batch.lease_id).entered();
         shared.refuse(&why, n);
         return (0, n, why.to_string());
     }
@@ -46,6 +48,9 @@ fn ingest_batch(shared: &Shared, batch: &pb::StepBatch) -> (u64, u64, String) {
                 Ok(view) => shared.ingest(Plane::Grpc, &header, &view),
                 Err(ragged) => {
                     let why = Refusal::from(ragged);
+                    let _actor =
+                        tracing::info_span!("actor", actor_id = header.actor_id, lease = header.lease_id)
+                            .entered();
                     shared.refuse(&why, 1);
                     Err(why)
                 }

@@ -336,6 +336,8 @@ impl Shared {
     pub fn ingest(&self, plane: Plane, header: &LeaseHeader, step: &StepView<'_>) -> Result<(), Refusal> {
         let result = self.ingest_inner(plane, header, step);
         if let Err(why) = &result {
+            let _actor =
+                tracing::info_span!("actor", actor_id = header.actor_id, lease = header.lease_id).entered();
             self.refuse(why, 1);
         }
         result
