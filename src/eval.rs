@@ -442,13 +442,16 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
     bar.finish_and_clear();
     let cycles: u64 = results.iter().map(|x| x.4).sum();
     let secs = t0.elapsed().as_secs_f64();
-    eprintln!(
-        "{} episodes, {} planner cycles in {:.1} s ({:.0} cycles/s, {:.0}x real time per thread)",
-        results.len(),
-        cycles,
-        secs,
-        cycles as f64 / secs,
-        cycles as f64 * cfg.episode.control_dt / secs / rayon::current_num_threads() as f64
+    tracing::info!(
+        episodes = results.len(),
+        planner_cycles = cycles,
+        seconds = format_args!("{secs:.1}"),
+        cycles_per_s = format_args!("{:.0}", cycles as f64 / secs),
+        real_time_per_thread = format_args!(
+            "{:.0}x",
+            cycles as f64 * cfg.episode.control_dt / secs / rayon::current_num_threads() as f64
+        ),
+        "evaluation done"
     );
 
     let mut rows = Vec::new();

@@ -21,6 +21,7 @@ use clap::Parser;
 
 fn main() -> ExitCode {
     keep_freed_memory();
+    init_tracing();
     let cli = cli::Cli::parse();
     match cli::run(cli.cmd) {
         Ok(()) => ExitCode::SUCCESS,
@@ -29,6 +30,38 @@ fn main() -> ExitCode {
             ExitCode::FAILURE
         }
     }
+}
+
+/// Crates whose debug events (every HTTP/2 frame) would drown the project's own: logged at
+/// `info` unless `RUST_LOG` names them (e.g. `RUST_LOG=debug,h2=debug`).
+const QUIET_UNLESS_NAMED: [&str; 5] = ["h2", "hyper", "hyper_util", "tower", "tonic"];
+
+/// Installs the log subscriber: the `tracing` events of every crate at the levels `RUST_LOG`
+/// selects (`info` when unset; e.g. `RUST_LOG=debug`, `RUST_LOG=actor=debug,info`, or
+/// `RUST_LOG='info,[actor{rank=2}]=debug'` for one actor's session), one line per event on stderr
+/// with the fields of the spans it happened in (an actor's `rank` and `actor_id`).
+///
+/// Each event is formatted into a buffer and written with one `write` to the unbuffered
+/// stderr, so the lines of the learner and of its actor processes (the same binary, run as
+/// `adp actor`), which share one stderr pipe under `adp train`, never interleave.
+fn init_tracing() {
+    use std::io::IsTerminal;
+    use tracing_subscriber::filter::{EnvFilter, LevelFilter};
+    let spec = std::env::var("RUST_LOG").unwrap_or_default();
+    let mut filter = EnvFilter::builder()
+        .with_default_directive(LevelFilter::INFO.into())
+        .parse_lossy(&spec);
+    // The HTTP/2 stack logs every frame at debug: it stays at info unless `RUST_LOG` names it.
+    for target in QUIET_UNLESS_NAMED {
+        if !spec.contains(target) {
+            filter = filter.add_directive(format!("{target}=info").parse().expect("a valid directive"));
+        }
+    }
+    tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .with_ansi(std::io::stderr().is_terminal())
+        .init();
 }
 
 /// Tells glibc's allocator to keep freed memory for reuse. A TD3 update allocates and frees

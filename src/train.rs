@@ -292,11 +292,13 @@ pub fn train(config: Option<&Path>, o: &Overrides, resume: bool) -> anyhow::Resu
         |rank| (vec!["--rank".into(), rank.to_string()], vec![]),
         Instant::now(),
     )?;
-    eprintln!(
-        "adp train: run {} in {} with {actors} actor(s) (bwrap: {:?}; learner at {address}); Ctrl-C stops with a checkpoint",
-        learner.run_id(),
-        out.display(),
-        supervisor.bwrap_status()
+    tracing::info!(
+        run_id = learner.run_id(),
+        out = %out.display(),
+        actors,
+        bwrap = ?supervisor.bwrap_status(),
+        learner = %address,
+        "adp train started; Ctrl-C stops with a checkpoint"
     );
     let bar = indicatif::ProgressBar::new(cfg.run.steps);
     bar.set_style(
@@ -321,7 +323,7 @@ pub fn train(config: Option<&Path>, o: &Overrides, resume: bool) -> anyhow::Resu
     while !learner.finished() {
         std::thread::sleep(Duration::from_millis(250));
         for event in supervisor.poll(Instant::now()) {
-            bar.println(format!("supervisor: {}", describe(&event)));
+            log_supervisor_event(&event);
         }
         let s = learner.status();
         if let Some(g) = greedy.as_mut() {
@@ -363,8 +365,25 @@ pub fn train(config: Option<&Path>, o: &Overrides, resume: bool) -> anyhow::Resu
     Ok(())
 }
 
-fn describe(e: &SupervisorEvent) -> String {
-    format!("{e:?}")
+/// Logs what the actor supervisor reports: a crash as a warning, a failed restart as an error.
+fn log_supervisor_event(e: &SupervisorEvent) {
+    match e {
+        SupervisorEvent::Exited {
+            rank,
+            pid,
+            exit,
+            restart_in_ms: Some(ms),
+        } => tracing::warn!(rank, pid, ?exit, restart_in_ms = ms, "actor process crashed"),
+        SupervisorEvent::Exited { rank, pid, exit, .. } => {
+            tracing::debug!(rank, pid, ?exit, "actor process ended")
+        }
+        SupervisorEvent::Restarted { rank, pid } => tracing::info!(rank, pid, "actor process restarted"),
+        SupervisorEvent::RestartFailed {
+            rank,
+            error,
+            restart_in_ms,
+        } => tracing::error!(rank, restart_in_ms, "cannot restart the actor process: {error}"),
+    }
 }
 
 /// `adp learner`.

@@ -30,7 +30,7 @@ use std::process::{Child, Command, ExitStatus, Stdio};
 use std::sync::{Mutex, MutexGuard};
 use std::time::Duration;
 
-use learner::service::{read_addr, read_status, Status};
+use learner::service::{read_addr, read_status, RankStatus, Status};
 use proto::pb;
 
 mod common;
@@ -129,12 +129,13 @@ fn free_port() -> u16 {
     l.local_addr().unwrap().port()
 }
 
-/// The actor ids an actor's stderr says it registered as.
-fn registered_ids(log: &str) -> Vec<u64> {
-    log.lines()
-        .filter_map(|l| l.split_once("registered as ").map(|(_, rest)| rest))
-        .filter_map(|rest| rest.split_whitespace().next()?.parse().ok())
-        .collect()
+/// The counters of actor `rank` in this learner process (all zero when it never registered).
+fn rank_status(s: &Status, rank: u32) -> RankStatus {
+    s.ranks
+        .iter()
+        .find(|r| r.rank == rank)
+        .cloned()
+        .unwrap_or_default()
 }
 
 /// One child process and where its stderr goes.
@@ -181,10 +182,6 @@ impl Procs {
             may_exit: false,
         });
         self.list.len() - 1
-    }
-
-    fn log(&self, i: usize) -> String {
-        std::fs::read_to_string(&self.list[i].log).unwrap_or_default()
     }
 
     /// Every child's stderr (the last 8000 bytes of each) and the last status, for failures.
@@ -263,6 +260,11 @@ impl Procs {
             std::thread::sleep(POLL);
         }
         cond(self)
+    }
+
+    /// Lets `polls` polls pass, panicking as soon as a child exits that should not.
+    fn stay_alive(&mut self, polls: u32) {
+        let _ = self.poll(polls, |_| false);
     }
 
     /// Polls `cond`; panics with every child's stderr after `polls` polls (a watchdog against
@@ -406,7 +408,6 @@ fn a_frozen_actor_loses_its_lease_and_its_late_data_is_refused() {
         }
         attempts.push(format!("actor {rank}: no late data"));
     };
-    let victim = actors[rank as usize];
     eprintln!(
         "froze actor {rank} after {} other attempt(s): {attempts:?}",
         attempts.len()
@@ -423,24 +424,21 @@ fn a_frozen_actor_loses_its_lease_and_its_late_data_is_refused() {
         |_| status(&run).is_some_and(|s| rank_steps(&s, rank) > rank_steps(&at_stop, rank)),
     );
 
-    // The refused records were the expired lease's: the learner logged the lease of the frozen
-    // actor as expired and refused records under it.
-    let victim_ids = registered_ids(&procs.log(victim));
-    let learner_log = procs.log(learner);
-    let expired_leases: Vec<u64> = learner_log
-        .lines()
-        .filter_map(|l| {
-            let rest = l.strip_prefix("learner: lease ")?;
-            let (lease, rest) = rest.split_once(" of actor ")?;
-            let actor: u64 = rest.split_whitespace().next()?.parse().ok()?;
-            victim_ids.contains(&actor).then(|| lease.parse().ok())?
-        })
+    // The refused records were the expired lease's: the learner counted a lease of the frozen
+    // actor (one of the ids its rank registered as) as expired and refused records under it.
+    let s = status(&run).unwrap();
+    let victim_ids = rank_status(&s, rank).actor_ids;
+    let expired_leases: Vec<u64> = s
+        .leases_expired_recent
+        .iter()
+        .filter(|e| e.rank == rank && victim_ids.contains(&e.actor_id))
+        .map(|e| e.lease)
         .collect();
     assert!(!expired_leases.is_empty(), "{}", procs.report());
     assert!(
-        expired_leases.iter().any(|lease| learner_log
-            .lines()
-            .any(|l| l.starts_with("learner: refused") && l.contains(&format!(": lease {lease}: ")))),
+        s.refused_leases
+            .iter()
+            .any(|r| expired_leases.contains(&r.lease) && r.records > 0),
         "no refusal names an expired lease of actor {rank} ({expired_leases:?}){}",
         procs.report()
     );
@@ -492,8 +490,14 @@ fn actors_outlive_a_killed_learner_and_the_resumed_run_reaches_its_budget() {
     });
     let before = status(&run).unwrap();
     assert!(before.inserts < BUDGET, "{}", procs.report());
-    for &a in &actors {
-        assert!(procs.log(a).contains("steps over shm"), "{}", procs.report());
+    // Both actors sent their steps over shared memory.
+    for r in 0..2 {
+        let rs = rank_status(&before, r);
+        assert!(
+            rs.steps_shm > 0 && rs.steps_grpc == 0,
+            "rank {r}: {}",
+            procs.report()
+        );
     }
 
     // kill -9 the learner: no final checkpoint, no shutdown for the actors.
@@ -501,17 +505,10 @@ fn actors_outlive_a_killed_learner_and_the_resumed_run_reaches_its_budget() {
     procs.signal(first, libc::SIGKILL);
     let code = procs.wait_exit(first, PATIENCE);
     assert_eq!(code.signal(), Some(libc::SIGKILL), "{}", procs.report());
-    // Every actor notices the learner is gone and keeps trying to reconnect (it does not exit).
-    let reconnects: Vec<usize> = actors
-        .iter()
-        .map(|&a| procs.log(a).matches("reconnecting in").count())
-        .collect();
-    procs.wait_for("the actors to notice the dead learner", PATIENCE, |p| {
-        actors
-            .iter()
-            .zip(&reconnects)
-            .all(|(&a, &n)| p.log(a).matches("reconnecting in").count() > n)
-    });
+    // Every actor notices the learner is gone and keeps trying to reconnect: none exits while
+    // no learner answers for twice the lease TTL (their heartbeats fail, their sessions end).
+    // That they reconnected is counted by the next learner (their registrations with it).
+    procs.stay_alive(30);
 
     // The same run, resumed on the same address from the newest complete checkpoint (named
     // `ckpt-<inserts>-<updates>`; a checkpoint cut short by the kill is not complete).
@@ -522,23 +519,27 @@ fn actors_outlive_a_killed_learner_and_the_resumed_run_reaches_its_budget() {
         .unwrap_or_else(|| panic!("unexpected checkpoint name {}", ckpt.display()));
     assert!(resumed_inserts > 0, "{}", ckpt.display());
     let second = procs.spawn("learner-2", learner_cmd(&[], &cfg, &run, BUDGET, &listen, true));
-    procs.wait_for("the resumed learner", PATIENCE, |p| {
-        p.log(second).contains("serving on")
+    procs.wait_for("the resumed learner", PATIENCE, |_| {
+        status(&run).is_some_and(|s| s.incarnation != before.incarnation)
     });
-    let expected = format!(
-        "learner: resuming run {} from {} ({resumed_inserts} steps, ",
-        before.run_id,
-        ckpt.display()
-    );
-    assert!(
-        procs.log(second).contains(&expected),
-        "{expected}{}",
+    let up = status(&run).unwrap();
+    assert_eq!(up.run_id, before.run_id, "{}", procs.report());
+    let from = up
+        .resumed_from
+        .as_ref()
+        .unwrap_or_else(|| panic!("the second learner did not resume{}", procs.report()));
+    assert_eq!(
+        (from.checkpoint.as_str(), from.inserts),
+        (ckpt.display().to_string().as_str(), resumed_inserts),
+        "{}",
         procs.report()
     );
 
     // The actors (the same processes) register with the new incarnation and deliver again.
-    procs.wait_for("the actors to register again", PATIENCE, |p| {
-        actors.iter().all(|&a| registered_ids(&p.log(a)).len() >= 2)
+    procs.wait_for("the actors to register again", PATIENCE, |_| {
+        status(&run).is_some_and(|s| {
+            s.incarnation != before.incarnation && (0..2).all(|r| rank_status(&s, r).registrations >= 1)
+        })
     });
     procs.wait_for("steps from both actors after the resume", PATIENCE, |_| {
         status(&run).is_some_and(|s| {
@@ -552,14 +553,16 @@ fn actors_outlive_a_killed_learner_and_the_resumed_run_reaches_its_budget() {
 
     // The resumed run reaches its budget; the learner and the actors exit 0.
     procs.wait_all_succeed(second, &actors);
-    for &a in &actors {
+    let s = read_status(&run).unwrap();
+    // The new sessions sent their steps over shared memory too.
+    for r in 0..2 {
+        let rs = rank_status(&s, r);
         assert!(
-            procs.log(a).matches("steps over shm").count() >= 2,
-            "{}",
+            rs.steps_shm > 0 && rs.steps_grpc == 0,
+            "rank {r}: {}",
             procs.report()
         );
     }
-    let s = read_status(&run).unwrap();
     assert_eq!(s.run_id, before.run_id);
     assert!(s.updates > before.updates, "{}", procs.report());
     assert_consistent(&s, &procs);
@@ -674,12 +677,16 @@ fn learner_and_actors_in_two_network_namespaces_train_over_grpc() {
         .map(|r| procs.spawn(&format!("actor{r}"), actor_cmd(&in_b, &addr, &token, r, "grpc")))
         .collect();
     procs.wait_all_succeed(learner, &actors);
-    for &i in &actors {
-        let log = procs.log(i);
-        assert!(log.contains("steps over grpc"), "{}", procs.report());
-        assert!(!log.contains("steps over shm"), "{}", procs.report());
-    }
     let s = read_status(&run).unwrap();
+    // The actors, on "another host", sent their steps over gRPC, none over shared memory.
+    for r in 0..2 {
+        let rs = rank_status(&s, r);
+        assert!(
+            rs.steps_grpc > 0 && rs.steps_shm == 0,
+            "rank {r}: {}",
+            procs.report()
+        );
+    }
     assert_consistent(&s, &procs);
     assert_eq!(s.rank_steps.len(), 2, "{}", procs.report());
     for r in 0..2 {

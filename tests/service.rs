@@ -64,12 +64,17 @@ fn local_training_over_shared_memory_is_lossless_and_resumes() {
     assert!(s.episodes_verified > 0, "{s:?}");
     assert_eq!(s.episodes_mismatched, 0, "{s:?}");
     assert_eq!(s.refused.iter().map(|r| r.1).sum::<u64>(), 0, "{s:?}");
+    // Every actor registered once, and every step it sent came over shared memory.
+    assert_eq!(s.ranks.len(), 16, "{s:?}");
+    for r in &s.ranks {
+        assert_eq!(r.registrations, 1, "every actor registered once: {s:?}");
+        assert_eq!(r.steps_grpc, 0, "rank {}: steps over gRPC: {s:?}", r.rank);
+    }
     assert_eq!(
-        err.matches("registered as").count(),
-        16,
-        "every actor registered once: {err}"
+        s.ranks.iter().map(|r| r.steps_shm).sum::<u64>(),
+        s.steps_received,
+        "{s:?}"
     );
-    assert!(err.contains("steps over shm"), "{err}");
     assert!(run.join("export/policy.onnx").is_file());
     // The card documents the observation the actors made: the run's clip, not the default.
     let card: serde_json::Value =
@@ -98,9 +103,14 @@ fn sixteen_actors_over_grpc_deliver_every_step_exactly_once() {
         .unwrap();
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{err}");
-    assert_eq!(err.matches("steps over grpc").count(), 16, "{err}");
     let s = read_status(&run).unwrap();
     assert_eq!(s.rank_steps.len(), 16, "every actor delivered steps: {s:?}");
+    // Every actor registered once and sent its steps over gRPC, none over shared memory.
+    assert_eq!(s.ranks.len(), 16, "{s:?}");
+    for r in &s.ranks {
+        assert_eq!(r.registrations, 1, "every actor registered once: {s:?}");
+        assert!(r.steps_grpc > 0 && r.steps_shm == 0, "rank {}: {s:?}", r.rank);
+    }
     // Every stored step is in the buffer, and every reported episode arrived whole (its steps
     // matched the actor's count and checksum); these fail on a lost or duplicated record.
     assert!(s.replay_len as u64 >= s.inserts, "{s:?}");
@@ -138,9 +148,17 @@ fn assert_resumes(cfg: &Path, run: &Path, first: &Status) {
         .unwrap();
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{err}");
-    assert!(err.contains(&format!("resuming run {}", first.run_id)), "{err}");
     let s = read_status(run).unwrap();
     assert_eq!(s.run_id, first.run_id);
+    // It continued from the first run's final checkpoint (written once its budget was stored).
+    let resumed = s
+        .resumed_from
+        .as_ref()
+        .unwrap_or_else(|| panic!("the run did not resume: {s:?}"));
+    assert!(
+        resumed.inserts >= first.budget && resumed.inserts <= first.inserts,
+        "{resumed:?} {first:?}"
+    );
     assert!(
         s.inserts >= first.inserts + 300 && s.updates > first.updates,
         "{s:?}"

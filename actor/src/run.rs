@@ -25,6 +25,7 @@ use proto::shm::{ShmConfig, ShmPolicySource, ShmStepSink};
 use proto::StepView;
 use sim::episode::{EpisodeConfig, Status};
 use thiserror::Error;
+use tracing::Instrument;
 
 use crate::env::{AdpEnv, End, EnvConfig};
 use crate::exploration::Exploration;
@@ -167,6 +168,10 @@ fn status_text(s: &tonic::Status) -> String {
 
 /// Runs the actor until the learner says the run is over (`Ok`) or it has been unreachable for
 /// `give_up_after` (`Err`).
+///
+/// Each session with the learner runs in an `actor` span carrying the rank and, once
+/// registered, the actor id the learner gave it, so every event of the session (and of its
+/// heartbeat task) names the actor.
 pub fn run(setup: &ActorSetup<'_>) -> Result<(), ActorError> {
     let rt = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(1)
@@ -177,8 +182,12 @@ pub fn run(setup: &ActorSetup<'_>) -> Result<(), ActorError> {
     let mut wait = Duration::from_millis(200);
     let mut down_since: Option<Instant> = None;
     loop {
-        let why = match session(&rt, setup, &mut down_since) {
-            Ok(SessionEnd::Shutdown) => return Ok(()),
+        let span = tracing::info_span!("actor", rank = setup.rank, actor_id = tracing::field::Empty);
+        let why = match span.in_scope(|| session(&rt, setup, &mut down_since, &span)) {
+            Ok(SessionEnd::Shutdown) => {
+                span.in_scope(|| tracing::info!("the learner ended the run"));
+                return Ok(());
+            }
             Ok(SessionEnd::Reconnect(why)) => SessionError::Lost(why),
             Err(e) => e,
         };
@@ -191,10 +200,7 @@ pub fn run(setup: &ActorSetup<'_>) -> Result<(), ActorError> {
                 last: Box::new(why),
             });
         }
-        log(format_args!(
-            "actor {}: {why}; reconnecting in {wait:?}",
-            setup.rank
-        ));
+        span.in_scope(|| tracing::warn!(retry_in = ?wait, "session ended: {why}; reconnecting"));
         std::thread::sleep(wait);
         wait = (wait * 2).min(Duration::from_secs(5));
     }
@@ -262,10 +268,12 @@ fn open_planes(
     }
 }
 
+/// One session with the learner, in `span` (whose `actor_id` it records once registered).
 fn session(
     rt: &tokio::runtime::Runtime,
     setup: &ActorSetup<'_>,
     down_since: &mut Option<Instant>,
+    span: &tracing::Span,
 ) -> Result<SessionEnd, SessionError> {
     let (mut control, data) = rt.block_on(setup.learner.connect())?;
     let reply = rt
@@ -282,6 +290,7 @@ fn session(
     let run = reply.run.ok_or(SessionError::Reply("names no run"))?;
     let spec = reply.spec.ok_or(SessionError::Reply("has no run spec"))?;
     let actor_id = reply.actor_id;
+    span.record("actor_id", actor_id);
     let space: ActionSpace = spec
         .action_space
         .parse()
@@ -289,27 +298,29 @@ fn session(
     let env_cfg: EnvConfig = toml::from_str(&spec.env_toml).map_err(SessionError::Env)?;
     let dims: Vec<usize> = spec.policy_dims.iter().map(|&d| d as usize).collect();
     let mut planes = open_planes(rt, setup, &spec, data, &run, actor_id)?;
-    log(format_args!(
-        "actor {}: registered as {actor_id} with run {} ({}, {} steps over {})",
-        setup.rank,
-        run.run_id,
-        spec.planner,
-        spec.action_space,
-        if spec.data_plane == "grpc" || setup.plane == PlaneChoice::Grpc {
+    tracing::info!(
+        run_id = %run.run_id,
+        planner = %spec.planner,
+        action_space = %spec.action_space,
+        plane = if spec.data_plane == "grpc" || setup.plane == PlaneChoice::Grpc {
             "grpc"
         } else {
             "shm"
-        }
-    ));
+        },
+        "registered"
+    );
     let flags = Arc::new(Flags::default());
-    let heartbeat = rt.spawn(heartbeats(
-        control.clone(),
-        run.clone(),
-        actor_id,
-        Duration::from_millis(u64::from(spec.heartbeat_ms.max(10))),
-        Duration::from_millis(u64::from(spec.lease_ttl_ms.max(spec.heartbeat_ms).max(10))),
-        flags.clone(),
-    ));
+    let heartbeat = rt.spawn(
+        heartbeats(
+            control.clone(),
+            run.clone(),
+            actor_id,
+            Duration::from_millis(u64::from(spec.heartbeat_ms.max(10))),
+            Duration::from_millis(u64::from(spec.lease_ttl_ms.max(spec.heartbeat_ms).max(10))),
+            flags.clone(),
+        )
+        .instrument(span.clone()),
+    );
     let _stop_heartbeats = AbortOnDrop(heartbeat);
     let mut policy: Option<(u64, f64, MlpPolicy)> = None;
     let ctx = EpisodeCtx {
@@ -357,6 +368,14 @@ fn session(
             Some(pb::assignment_reply::Decision::Assign(a)) => a,
             None => return Ok(SessionEnd::Reconnect("empty assignment reply".into())),
         };
+        tracing::debug!(
+            lease = a.lease_id,
+            world = a.world,
+            cycle = a.cycle,
+            episodes = a.episodes,
+            policy_version = a.policy_version,
+            "assignment"
+        );
         flags.lease.store(a.lease_id, Ordering::Release);
         flags.lease_lost.store(false, Ordering::Release);
         // Wait for the assignment's policy version.
@@ -369,6 +388,11 @@ fn session(
                             source,
                         }
                     })?;
+                    tracing::debug!(
+                        version = update.version,
+                        sigma = update.exploration_sigma,
+                        "policy received"
+                    );
                     policy = Some((update.version, update.exploration_sigma, net));
                 }
                 Ok(None) => {}
@@ -413,11 +437,12 @@ fn session(
                     // away that lease's finished episode with a needless re-registration.
                     match planes.sink.flush() {
                         Ok(()) => {}
-                        Err(PlaneError::Refused { refused, sent, .. }) => log(format_args!(
-                            "actor {}: lease {} lost; the learner refused {refused} of its last {sent} \
-                             step records",
-                            setup.rank, a.lease_id
-                        )),
+                        Err(PlaneError::Refused { refused, sent, .. }) => tracing::warn!(
+                            lease = a.lease_id,
+                            refused,
+                            sent,
+                            "lease lost; the learner refused step records of it"
+                        ),
                         Err(e) => return Ok(SessionEnd::Reconnect(e.to_string())),
                     }
                     break;
@@ -427,6 +452,14 @@ fn session(
             if let Err(e) = planes.sink.flush() {
                 return Ok(SessionEnd::Reconnect(e.to_string()));
             }
+            tracing::debug!(
+                lease = a.lease_id,
+                episode_id,
+                steps = outcome.steps,
+                outcome = ?outcome.outcome(),
+                episode_return = outcome.episode_return,
+                "episode done"
+            );
             let report = pb::EpisodeReport {
                 run: Some(run.clone()),
                 actor_id,
@@ -438,6 +471,7 @@ fn session(
             if let Err(s) = rt.block_on(control.report_episode(report)) {
                 if s.code() == tonic::Code::NotFound {
                     // The lease expired meanwhile: the world was dealt again.
+                    tracing::debug!(lease = a.lease_id, "report refused: {}", status_text(&s));
                     break;
                 }
                 return Ok(SessionEnd::Reconnect(format!(
@@ -463,14 +497,6 @@ fn wait_for_lease_end(flags: &Flags, limit: Duration) {
     {
         std::thread::sleep(Duration::from_millis(10));
     }
-}
-
-/// Writes one line to stderr in a single `write`, so that the lines of many actor processes
-/// sharing one pipe never interleave (`eprintln!` writes each formatted piece separately).
-fn log(args: std::fmt::Arguments) {
-    use std::io::Write;
-    let line = format!("{args}\n");
-    let _ = std::io::stderr().lock().write_all(line.as_bytes());
 }
 
 /// Aborts a tokio task when dropped.
@@ -522,10 +548,11 @@ async fn heartbeats(
                     flags.lease_lost.store(true, Ordering::Release);
                     // Refusals reach the actor this way whichever plane carried its steps.
                     if !r.lease_lost_reason.is_empty() {
-                        log(format_args!(
-                            "actor {actor_id}: lease {lease_id} ended by the learner: {}",
-                            r.lease_lost_reason
-                        ));
+                        tracing::warn!(
+                            lease = lease_id,
+                            reason = %r.lease_lost_reason,
+                            "lease ended by the learner"
+                        );
                     }
                 }
                 if r.shutdown {

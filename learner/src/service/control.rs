@@ -86,12 +86,16 @@ impl Control for ControlService {
         let actor_id = {
             let mut core = self.shared.lock();
             let id = core.registry.register(r.rank, r.host.clone(), r.pid, now);
-            core.registered(id, kind);
+            core.registered(id, r.rank, kind);
             id
         };
-        eprintln!(
-            "learner: actor {actor_id} registered (rank {}, {kind} actor, {} pid {})",
-            r.rank, r.host, r.pid
+        tracing::info!(
+            actor_id,
+            rank = r.rank,
+            kind,
+            host = %r.host,
+            pid = r.pid,
+            "actor registered"
         );
         Ok(Response::new(pb::RegisterReply {
             actor_id,
@@ -125,6 +129,15 @@ impl Control for ControlService {
                 }
                 Decision::Assign(a) => {
                     let first = Shared::open_lease(&mut core, a.lease_id, r.actor_id, a.episodes, now);
+                    tracing::debug!(
+                        actor_id = r.actor_id,
+                        rank = core.registry.rank_of(r.actor_id),
+                        lease = a.lease_id,
+                        world = a.world,
+                        cycle = a.cycle,
+                        episodes = a.episodes,
+                        "lease granted"
+                    );
                     pb::assignment_reply::Decision::Assign(pb::Assignment {
                         lease_id: a.lease_id,
                         world: a.world as u32,
@@ -165,6 +178,14 @@ impl Control for ControlService {
             Some(id) if !lease_valid => core.dropped_reason(id).unwrap_or_default().to_owned(),
             _ => String::new(),
         };
+        if let (Some(id), false) = (lease, lease_valid) {
+            tracing::debug!(
+                actor_id = r.actor_id,
+                lease = id,
+                dropped_because = %lease_lost_reason,
+                "heartbeat names a lease that has ended (finished, expired or dropped)"
+            );
+        }
         Ok(Response::new(pb::HeartbeatReply {
             lease_valid,
             shutdown: core.stopping,
@@ -181,6 +202,8 @@ impl Control for ControlService {
                 reason: String::new(),
             })),
             Err(why) => {
+                let _actor =
+                    tracing::info_span!("actor", actor_id = r.actor_id, lease = r.lease_id).entered();
                 self.shared.refuse(&why, 1);
                 Err(refusal_status(&why))
             }
@@ -199,7 +222,7 @@ impl Control for ControlService {
         }
         let r = request.into_inner();
         self.check_run(&r.run)?;
-        eprintln!("learner: shutdown requested over gRPC");
+        tracing::info!("shutdown requested over gRPC");
         self.shared.request_stop(true);
         Ok(Response::new(pb::Ack::default()))
     }

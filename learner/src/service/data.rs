@@ -20,7 +20,7 @@ use tokio_stream::{Stream, StreamExt};
 use tonic::{Request, Response, Status, Streaming};
 
 use super::control::refusal_status;
-use super::shared::Shared;
+use super::shared::{Plane, Shared};
 
 thread_local! {
     static SCRATCH: RefCell<DecodeScratch> = RefCell::new(DecodeScratch::default());
@@ -31,6 +31,8 @@ fn ingest_batch(shared: &Shared, batch: &pb::StepBatch) -> (u64, u64, String) {
     let n = batch.steps.len() as u64;
     let run = batch.run.clone().unwrap_or_default();
     if let Err(why) = shared.validator.check_run(&run.run_id, run.incarnation) {
+        let _actor =
+            tracing::info_span!("actor", actor_id = batch.actor_id, lease = batch.lease_id).entered();
         shared.refuse(&why, n);
         return (0, n, why.to_string());
     }
@@ -43,9 +45,12 @@ fn ingest_batch(shared: &Shared, batch: &pb::StepBatch) -> (u64, u64, String) {
     SCRATCH.with_borrow_mut(|scratch| {
         for_each_step(batch, scratch, |decoded| {
             let result = match decoded {
-                Ok(view) => shared.ingest(&header, &view),
+                Ok(view) => shared.ingest(Plane::Grpc, &header, &view),
                 Err(ragged) => {
                     let why = Refusal::from(ragged);
+                    let _actor =
+                        tracing::info_span!("actor", actor_id = header.actor_id, lease = header.lease_id)
+                            .entered();
                     shared.refuse(&why, 1);
                     Err(why)
                 }
@@ -156,13 +161,13 @@ pub fn shm_intake(
                 final_obs: &final_obs,
                 ..*view
             };
-            let _ = shared.ingest(header, &copy);
+            let _ = shared.ingest(Plane::Shm, header, &copy);
         });
         match drained {
             Ok(0) => std::thread::sleep(Duration::from_millis(1)),
             Ok(_) => {}
             Err(e) => {
-                eprintln!("learner: shared-memory receive failed: {e}");
+                tracing::error!("shared-memory receive failed: {e}");
                 std::thread::sleep(Duration::from_millis(100));
             }
         }

@@ -30,7 +30,9 @@ use tokio::sync::watch;
 
 pub use config::{LearnerOptions, ServiceConfig};
 pub use error::ServiceError;
-pub use status::{read_status, KindStatus, Status, STATUS_FILE};
+pub use status::{
+    read_status, ExpiredLease, KindStatus, RankStatus, RefusedLease, ResumeStatus, Status, STATUS_FILE,
+};
 pub use trainer::TrainSummary;
 
 use self::shared::{Core, Shared, Totals};
@@ -122,9 +124,9 @@ fn load_resume_state(ckpt: &Path, registry_cfg: &RegistryConfig) -> Result<Train
             }
         })?;
     let totals: Totals = serde_json::from_value(state.extra["totals"].clone()).unwrap_or_else(|e| {
-        eprintln!(
-            "learner: WARNING: {}: the counters do not parse ({e}); they restart from zero",
-            ckpt.display()
+        tracing::warn!(
+            checkpoint = %ckpt.display(),
+            "the counters do not parse ({e}); they restart from zero"
         );
         Totals::default()
     });
@@ -157,7 +159,7 @@ fn newest_usable(
                     "checkpoint {} is unusable ({e}); falling back to the previous one",
                     ckpt.display()
                 );
-                eprintln!("learner: WARNING: {warning}");
+                tracing::warn!("{warning}");
                 warnings.push(warning);
             }
         }
@@ -289,13 +291,10 @@ impl RunDir {
         match retention::remove_aborted_saves(&checkpoints) {
             Ok(removed) => {
                 for dir in removed {
-                    eprintln!(
-                        "learner: removed {} (left by an aborted checkpoint save)",
-                        dir.display()
-                    );
+                    tracing::info!(dir = %dir.display(), "removed a directory left by an aborted checkpoint save");
                 }
             }
-            Err(e) => eprintln!("learner: cannot clean aborted checkpoint saves: {e}"),
+            Err(e) => tracing::warn!("cannot clean aborted checkpoint saves: {e}"),
         }
         let candidates = if checkpoints.exists() {
             retention::complete_checkpoints(&checkpoints)?
@@ -318,7 +317,7 @@ impl RunDir {
         &self,
         opts: &LearnerOptions,
         registry_cfg: &RegistryConfig,
-    ) -> Result<(TrainingState, Vec<String>), ServiceError> {
+    ) -> Result<(TrainingState, Vec<String>, Option<ResumeStatus>), ServiceError> {
         match (opts.resume, self.candidates.last()) {
             (true, None) => Err(ServiceError::NothingToResume {
                 dir: self.checkpoints.clone(),
@@ -330,14 +329,19 @@ impl RunDir {
             (true, Some(_)) => {
                 let (ckpt, state, warnings) =
                     newest_usable(&self.checkpoints, &self.candidates, registry_cfg)?;
-                eprintln!(
-                    "learner: resuming run {} from {} ({} steps, {} updates)",
-                    state.run_id,
-                    ckpt.display(),
-                    state.rate.inserts(),
-                    state.rate.updates()
+                let resumed = ResumeStatus {
+                    checkpoint: ckpt.display().to_string(),
+                    inserts: state.rate.inserts(),
+                    updates: state.rate.updates(),
+                };
+                tracing::info!(
+                    run_id = %state.run_id,
+                    checkpoint = %resumed.checkpoint,
+                    inserts = resumed.inserts,
+                    updates = resumed.updates,
+                    "resuming run"
                 );
-                Ok((state, warnings))
+                Ok((state, warnings, Some(resumed)))
             }
             (false, None) => {
                 let mut td3 = Td3::new(opts.td3.clone(), &Device::flex())?;
@@ -350,7 +354,7 @@ impl RunDir {
                     let report = td3
                         .init_actor_to_action(&target, &FitOptions::default())
                         .map_err(ServiceError::DdpInit)?;
-                    eprintln!("learner: actor initialized to the DDP schedule ({report:?})");
+                    tracing::info!("actor initialized to the DDP schedule ({report:?})");
                 }
                 let registry = Registry::new(*registry_cfg, opts.worlds.clone())?;
                 let cfg = td3.config().clone();
@@ -364,7 +368,7 @@ impl RunDir {
                     totals: Totals::default(),
                     replay: ReplayBuffer::new(&cfg),
                 };
-                Ok((state, Vec::new()))
+                Ok((state, Vec::new(), None))
             }
         }
     }
@@ -409,7 +413,7 @@ impl DataPlanes {
                 match opened_rx.recv() {
                     Ok(Ok(())) => (Some(cfg), None, Some(handle)),
                     Ok(Err(why)) => {
-                        eprintln!("learner: shared-memory data plane unavailable ({why}); actors use gRPC");
+                        tracing::warn!("shared-memory data plane unavailable ({why}); actors use gRPC");
                         let _ = handle.join();
                         (None, Some(why.to_string()), None)
                     }
@@ -522,7 +526,7 @@ impl ControlPlane {
                 ),
             )),
             Err(why) => {
-                eprintln!("learner: no Unix socket for local actors ({why}); they use {addr}");
+                tracing::warn!("no Unix socket for local actors ({why}); they use {addr}");
                 None
             }
         };
@@ -549,12 +553,12 @@ impl ControlPlane {
                 let (Ok(mut term), Ok(mut int)) =
                     (signal(SignalKind::terminate()), signal(SignalKind::interrupt()))
                 else {
-                    eprintln!("learner: cannot install signal handlers");
+                    tracing::error!("cannot install signal handlers");
                     return;
                 };
                 tokio::select! {
-                    _ = term.recv() => eprintln!("learner: SIGTERM: checkpointing and stopping"),
-                    _ = int.recv() => eprintln!("learner: SIGINT: checkpointing and stopping"),
+                    _ = term.recv() => tracing::info!("SIGTERM: checkpointing and stopping"),
+                    _ = int.recv() => tracing::info!("SIGINT: checkpointing and stopping"),
                 }
                 s.request_stop(true);
             });
@@ -582,7 +586,7 @@ impl Learner {
             episodes_per_assignment: svc.episodes_per_assignment,
             run_seed: opts.td3.seed,
         };
-        let (state, resume_warnings) = run.training_state(&opts, &registry_cfg)?;
+        let (state, resume_warnings, resumed_from) = run.training_state(&opts, &registry_cfg)?;
         let cfg = state.td3.config().clone();
         if cfg.obs_dim != actor::obs_dim(opts.space) || cfg.act_dim != opts.space.dim() {
             return Err(ServiceError::SpaceMismatch {
@@ -638,11 +642,11 @@ impl Learner {
         if core.rate.inserts() >= opts.budget_steps {
             // A finished run resumed with the same budget: nothing to collect. Say so and end
             // (final checkpoint, export) instead of waiting for steps nobody will be asked for.
-            eprintln!(
-                "learner: run {run_id} already stored {} of its {} steps; nothing to collect (pass a larger \
-                 --steps to train it further)",
-                core.rate.inserts(),
-                opts.budget_steps
+            tracing::warn!(
+                run_id = %run_id,
+                inserts = core.rate.inserts(),
+                budget = opts.budget_steps,
+                "the run already stored its budget; nothing to collect (pass a larger --steps to train it further)"
             );
             core.stopping = true;
         }
@@ -656,6 +660,7 @@ impl Learner {
             svc.progress_timeout(),
         );
         shared.resume_warnings = resume_warnings;
+        shared.resumed_from = resumed_from;
         *shared.shm_unavailable.get_mut().expect("shm note lock") = planes.shm_unavailable;
         let shared = Arc::new(shared);
         let tensorboard_dir = run.path.join("tensorboard");
@@ -686,7 +691,12 @@ impl Learner {
             .spawn(move || trainer.run())
             .map_err(ServiceError::io("cannot start the training thread"))?;
         let addr = control.addr;
-        eprintln!("learner: run {run_id} (incarnation {incarnation:016x}) serving on {addr}");
+        tracing::info!(
+            run_id = %run_id,
+            incarnation = %format_args!("{incarnation:016x}"),
+            %addr,
+            "serving"
+        );
         Ok(Self {
             shared,
             runtime: control.runtime,

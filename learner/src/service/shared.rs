@@ -19,8 +19,20 @@ use proto::{pb, StepView};
 use scheduler::{Registry, RegistryError};
 use serde::{Deserialize, Serialize};
 
+use super::status::{
+    ExpiredLease, RankStatus, RefusedLease, ResumeStatus, LEASES_REMEMBERED, RANK_IDS_REMEMBERED,
+};
 use crate::rate::RateLimiter;
 use crate::replay::{ReplayBuffer, Step, StepEnd};
+
+/// The data plane a step record arrived on.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Plane {
+    /// The shared-memory step service (actors on the learner's host).
+    Shm,
+    /// The gRPC `Data` service.
+    Grpc,
+}
 
 /// Recent episodes kept for the success rate and mean return shown in progress and TensorBoard.
 const RECENT_EPISODES: usize = 100;
@@ -155,6 +167,11 @@ pub struct Core {
     dropped: VecDeque<(u64, String)>,
     /// The kind of every actor registered with this learner process, by actor id.
     actor_kinds: HashMap<u64, String>,
+    /// Counters per rank over this learner process.
+    ranks: BTreeMap<u32, RankStatus>,
+    /// Leases that expired in this learner process, oldest first (bounded by
+    /// [`LEASES_REMEMBERED`]).
+    expired_recent: VecDeque<ExpiredLease>,
     /// No more assignments: the budget is stored or a stop was requested.
     pub stopping: bool,
     /// Stop now (signal, shutdown call) rather than after the owed updates.
@@ -189,6 +206,11 @@ pub struct Shared {
     started: Instant,
     /// Set once the training thread has finished (final checkpoint written).
     pub finished: AtomicBool,
+    /// The checkpoint this learner resumed from, if it did (shown in `status.json`).
+    pub resumed_from: Option<ResumeStatus>,
+    /// Leases named by refusals and how many records each had refused, in the order first
+    /// refused (bounded by [`LEASES_REMEMBERED`]).
+    refused_leases: Mutex<VecDeque<RefusedLease>>,
     log_budget: Mutex<u32>,
 }
 
@@ -238,6 +260,8 @@ impl Shared {
             shm_unavailable: Mutex::new(None),
             started: Instant::now(),
             finished: AtomicBool::new(false),
+            resumed_from: None,
+            refused_leases: Mutex::new(VecDeque::new()),
             log_budget: Mutex::new(50),
         }
     }
@@ -252,15 +276,48 @@ impl Shared {
         self.core.lock().expect("learner state lock poisoned")
     }
 
-    /// Counts and logs a refusal (the first 50 in full, then every 1000th).
+    /// Counts a refusal (by kind, and by lease when it names one) and logs it (the first 50
+    /// in full, then every 1000th).
     pub fn refuse(&self, why: &Refusal, n: u64) {
         self.refusals.record(why, n);
+        if let Refusal::Lease(lease, _) = why {
+            if *lease != 0 {
+                self.record_refused_lease(*lease, n);
+            }
+        }
         let mut left = self.log_budget.lock().expect("log budget");
         let total = self.refusals.total();
         if *left > 0 || total.is_multiple_of(1000) {
             *left = left.saturating_sub(1);
-            eprintln!("learner: refused {n} record(s): {why} ({total} refused so far)");
+            tracing::warn!(
+                records = n,
+                kind = why.kind().name(),
+                refused_total = total,
+                "refused: {why}"
+            );
         }
+    }
+
+    fn record_refused_lease(&self, lease: u64, n: u64) {
+        let mut leases = self.refused_leases.lock().expect("refused leases lock");
+        if let Some(l) = leases.iter_mut().rev().find(|l| l.lease == lease) {
+            l.records += n;
+            return;
+        }
+        leases.push_back(RefusedLease { lease, records: n });
+        if leases.len() > LEASES_REMEMBERED {
+            leases.pop_front();
+        }
+    }
+
+    /// The leases named by refusals (see [`RefusedLease`]), oldest first.
+    pub fn refused_leases(&self) -> Vec<RefusedLease> {
+        self.refused_leases
+            .lock()
+            .expect("refused leases lock")
+            .iter()
+            .copied()
+            .collect()
     }
 
     /// Asks the service to stop: no more assignments; with `abort`, the training thread stops
@@ -273,17 +330,20 @@ impl Shared {
         self.wake.notify_all();
     }
 
-    /// Validates one step and stores it, blocking while the rate limiter holds inserts back.
-    /// Returns the refusal when the step was refused (counted and logged).
-    pub fn ingest(&self, header: &LeaseHeader, step: &StepView<'_>) -> Result<(), Refusal> {
-        let result = self.ingest_inner(header, step);
+    /// Validates one step that arrived on `plane` and stores it, blocking while the rate
+    /// limiter holds inserts back. Returns the refusal when the step was refused (counted and
+    /// logged).
+    pub fn ingest(&self, plane: Plane, header: &LeaseHeader, step: &StepView<'_>) -> Result<(), Refusal> {
+        let result = self.ingest_inner(plane, header, step);
         if let Err(why) = &result {
+            let _actor =
+                tracing::info_span!("actor", actor_id = header.actor_id, lease = header.lease_id).entered();
             self.refuse(why, 1);
         }
         result
     }
 
-    fn ingest_inner(&self, header: &LeaseHeader, step: &StepView<'_>) -> Result<(), Refusal> {
+    fn ingest_inner(&self, plane: Plane, header: &LeaseHeader, step: &StepView<'_>) -> Result<(), Refusal> {
         if header.incarnation != self.validator.incarnation {
             return Err(Refusal::StaleIncarnation {
                 current: self.validator.incarnation,
@@ -307,7 +367,7 @@ impl Shared {
                 .0;
         }
         let now = self.now_ms();
-        let ended = core.store(header, step, now)?;
+        let ended = core.store(plane, header, step, now)?;
         if core.rate.inserts() >= self.budget {
             core.stopping = true;
         }
@@ -446,7 +506,13 @@ impl Shared {
         let mut revoked = Vec::new();
         for (id, why) in drop_now {
             if core.registry.revoke(id) {
-                eprintln!("learner: lease {id} dropped: {why}; its world is dealt again");
+                let (actor_id, rank) = core.leases.get(&id).map_or((0, u32::MAX), |l| (l.actor, l.rank));
+                tracing::warn!(
+                    lease = id,
+                    actor_id,
+                    rank,
+                    "lease dropped: {why}; its world is dealt again"
+                );
                 core.totals.leases_dropped += 1;
                 core.remember_dropped(id, why);
                 revoked.push(id);
@@ -457,11 +523,24 @@ impl Shared {
             if revoked.contains(&expired.lease_id) {
                 continue;
             }
-            eprintln!(
-                "learner: lease {} of actor {} (world {}) expired; the world is dealt again",
-                expired.lease_id, expired.actor, expired.world
+            let rank = core.registry.rank_of(expired.actor).unwrap_or(u32::MAX);
+            tracing::warn!(
+                lease = expired.lease_id,
+                actor_id = expired.actor,
+                rank,
+                world = expired.world,
+                "lease expired; the world is dealt again"
             );
             core.totals.leases_expired += 1;
+            core.expired_recent.push_back(ExpiredLease {
+                lease: expired.lease_id,
+                actor_id: expired.actor,
+                rank,
+                world: expired.world,
+            });
+            if core.expired_recent.len() > LEASES_REMEMBERED {
+                core.expired_recent.pop_front();
+            }
             core.drop_lease(expired.lease_id);
         }
         drop(core);
@@ -489,6 +568,8 @@ impl Core {
             leases: HashMap::new(),
             dropped: VecDeque::new(),
             actor_kinds: HashMap::new(),
+            ranks: BTreeMap::new(),
+            expired_recent: VecDeque::new(),
             stopping: false,
             abort: false,
         }
@@ -496,7 +577,13 @@ impl Core {
 
     /// Stores one validated step under its lease. Returns whether it ended its episode. A
     /// refusal after the lease was found valid breaks the lease (its episode cannot complete).
-    fn store(&mut self, header: &LeaseHeader, step: &StepView<'_>, now: u64) -> Result<bool, Refusal> {
+    fn store(
+        &mut self,
+        plane: Plane,
+        header: &LeaseHeader,
+        step: &StepView<'_>,
+        now: u64,
+    ) -> Result<bool, Refusal> {
         self.registry
             .check_lease(header.actor_id, header.lease_id, now)
             .map_err(lease_refusal)?;
@@ -512,7 +599,7 @@ impl Core {
                 format!("belongs to actor {}", lease.actor),
             ));
         }
-        let result = self.store_in_lease(header, step, now);
+        let result = self.store_in_lease(plane, header, step, now);
         if let Err(why) = &result {
             self.break_lease(header, why, now);
         }
@@ -521,6 +608,7 @@ impl Core {
 
     fn store_in_lease(
         &mut self,
+        plane: Plane,
         header: &LeaseHeader,
         step: &StepView<'_>,
         now: u64,
@@ -579,6 +667,11 @@ impl Core {
         self.rate.record_inserts(1);
         self.totals.steps_received += 1;
         *self.totals.rank_steps.entry(rank).or_default() += 1;
+        let r = self.rank_entry(rank);
+        match plane {
+            Plane::Shm => r.steps_shm += 1,
+            Plane::Grpc => r.steps_grpc += 1,
+        }
         let lag = self.policy_version.saturating_sub(step.policy_version);
         self.lag.0 += lag;
         self.lag.1 += 1;
@@ -608,10 +701,34 @@ impl Core {
         }
     }
 
-    /// Records a registration of `actor` as `kind`.
-    pub fn registered(&mut self, actor: u64, kind: &str) {
+    /// Records a registration of `actor` of `rank` as `kind`.
+    pub fn registered(&mut self, actor: u64, rank: u32, kind: &str) {
         self.actor_kinds.insert(actor, kind.to_owned());
         self.totals.kinds.entry(kind.to_owned()).or_default().registered += 1;
+        let r = self.rank_entry(rank);
+        r.registrations += 1;
+        r.actor_ids.push(actor);
+        if r.actor_ids.len() > RANK_IDS_REMEMBERED {
+            r.actor_ids.remove(0);
+        }
+    }
+
+    fn rank_entry(&mut self, rank: u32) -> &mut RankStatus {
+        self.ranks.entry(rank).or_insert_with(|| RankStatus {
+            rank,
+            ..RankStatus::default()
+        })
+    }
+
+    /// The counters per rank of this learner process, by rank.
+    pub fn ranks(&self) -> impl Iterator<Item = &RankStatus> {
+        self.ranks.values()
+    }
+
+    /// The leases that expired in this learner process (the newest [`LEASES_REMEMBERED`]),
+    /// oldest first.
+    pub fn expired_recent(&self) -> impl Iterator<Item = &ExpiredLease> {
+        self.expired_recent.iter()
     }
 
     /// The kind `actor` registered as (`unknown` if it is not known here).
@@ -660,10 +777,13 @@ impl Core {
             self.totals.episodes_verified += 1;
         } else {
             self.totals.episodes_mismatched += 1;
-            eprintln!(
-                "learner: episode {episode}: received {} steps (checksum {:#x}), the actor reported {steps} \
-                 ({checksum:#x})",
-                track.next_index, track.checksum
+            tracing::error!(
+                episode,
+                received_steps = track.next_index,
+                received_checksum = format_args!("{:#x}", track.checksum),
+                reported_steps = steps,
+                reported_checksum = format_args!("{checksum:#x}"),
+                "episode mismatch: the received steps differ from the actor's report"
             );
         }
     }
@@ -684,7 +804,7 @@ impl Core {
         }
         let actor = lease.actor;
         if let Err(e) = self.registry.finish(actor, lease_id, now_ms) {
-            eprintln!("learner: finishing lease {lease_id}: {e}");
+            tracing::warn!(lease = lease_id, actor_id = actor, "cannot finish the lease: {e}");
         }
         for e in ids {
             self.episodes.remove(&e);
@@ -787,6 +907,7 @@ mod tests {
         let now = shared.now_ms();
         let mut core = shared.lock();
         let actor = core.registry.register(0, "host".into(), 1, now);
+        core.registered(actor, 0, "rust");
         let Decision::Assign(a) = core.registry.next_assignment(actor, now, 0).unwrap() else {
             panic!("no assignment");
         };
@@ -878,11 +999,13 @@ mod tests {
     #[test]
     fn a_refused_step_ends_its_lease_the_actor_is_told_and_the_cycle_advances() {
         let f = fixture(td3_config(), 60_000);
-        f.shared.ingest(&f.header, &step(f.first, 0)).unwrap();
+        f.shared
+            .ingest(Plane::Grpc, &f.header, &step(f.first, 0))
+            .unwrap();
         let mut bad = step(f.first, 1);
         bad.reward = f32::NAN;
         assert_eq!(
-            f.shared.ingest(&f.header, &bad).unwrap_err().kind(),
+            f.shared.ingest(Plane::Grpc, &f.header, &bad).unwrap_err().kind(),
             RefusalKind::NotFinite
         );
         // Every later step of the episode would be refused: the lease must not stay open.
@@ -918,8 +1041,13 @@ mod tests {
     fn out_of_order_and_duplicate_steps_are_refused_and_end_the_lease() {
         for (index, what) in [(0, "duplicate"), (2, "gap")] {
             let f = fixture(td3_config(), 60_000);
-            f.shared.ingest(&f.header, &step(f.first, 0)).unwrap();
-            let e = f.shared.ingest(&f.header, &step(f.first, index)).unwrap_err();
+            f.shared
+                .ingest(Plane::Grpc, &f.header, &step(f.first, 0))
+                .unwrap();
+            let e = f
+                .shared
+                .ingest(Plane::Grpc, &f.header, &step(f.first, index))
+                .unwrap_err();
             assert_eq!(e.kind(), RefusalKind::Episode, "{what}: {e}");
             assert!(e.to_string().contains("out of order"), "{what}: {e}");
             f.shared.expire_leases_at(f.shared.now_ms());
@@ -931,7 +1059,9 @@ mod tests {
     fn a_lease_without_progress_is_dropped_although_heartbeats_keep_it_alive() {
         let timeout = 5 * TTL;
         let f = fixture(td3_config(), timeout);
-        f.shared.ingest(&f.header, &step(f.first, 0)).unwrap();
+        f.shared
+            .ingest(Plane::Grpc, &f.header, &step(f.first, 0))
+            .unwrap();
         let progress = f.shared.now_ms();
         let heartbeat = |t: u64| {
             f.shared
@@ -1014,7 +1144,7 @@ mod tests {
         let (shared, header, first) = (f.shared.clone(), f.header, f.first);
         std::thread::spawn(move || {
             for i in 0..3 {
-                shared.ingest(&header, &step(first, i)).unwrap();
+                shared.ingest(Plane::Grpc, &header, &step(first, i)).unwrap();
             }
             done_tx.send(()).unwrap();
         });
@@ -1026,11 +1156,47 @@ mod tests {
     }
 
     #[test]
+    fn expired_leases_refusals_under_them_and_planes_are_counted_by_number() {
+        let f = fixture(td3_config(), 60_000);
+        f.shared.ingest(Plane::Shm, &f.header, &step(f.first, 0)).unwrap();
+        // No heartbeat within the TTL: the lease expires; a late step under it is refused.
+        f.shared.expire_leases_at(f.shared.now_ms() + 2 * TTL);
+        let e = f
+            .shared
+            .ingest(Plane::Grpc, &f.header, &step(f.first, 1))
+            .unwrap_err();
+        assert_eq!(e.kind(), RefusalKind::Lease, "{e}");
+        let (lease, actor_id) = (f.header.lease_id, f.header.actor_id);
+        assert_eq!(
+            f.shared.refused_leases(),
+            vec![RefusedLease { lease, records: 1 }]
+        );
+        let core = f.shared.lock();
+        let expired: Vec<ExpiredLease> = core.expired_recent().copied().collect();
+        assert_eq!(expired.len(), 1);
+        assert_eq!(
+            (expired[0].lease, expired[0].actor_id, expired[0].rank),
+            (lease, actor_id, 0)
+        );
+        let ranks: Vec<RankStatus> = core.ranks().cloned().collect();
+        assert_eq!(
+            ranks,
+            vec![RankStatus {
+                rank: 0,
+                registrations: 1,
+                actor_ids: vec![actor_id],
+                steps_shm: 1,
+                steps_grpc: 0,
+            }]
+        );
+    }
+
+    #[test]
     fn steps_of_a_policy_version_not_yet_published_are_refused() {
         let f = fixture(td3_config(), 60_000);
         let mut s = step(f.first, 0);
         s.policy_version = 3;
-        let e = f.shared.ingest(&f.header, &s).unwrap_err();
+        let e = f.shared.ingest(Plane::Grpc, &f.header, &s).unwrap_err();
         assert!(e.to_string().contains("newer than the newest published"), "{e}");
     }
 }

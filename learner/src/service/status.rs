@@ -27,6 +27,64 @@ pub struct KindStatus {
     pub steps: u64,
 }
 
+/// Actor ids remembered per rank in [`RankStatus::actor_ids`].
+pub const RANK_IDS_REMEMBERED: usize = 16;
+
+/// Leases remembered in [`Status::leases_expired_recent`] and [`Status::refused_leases`]
+/// (like the registry's retired actors, a bounded record: the oldest are forgotten).
+pub const LEASES_REMEMBERED: usize = 1024;
+
+/// The counters of one actor rank in `status.json`, over this learner process (they restart
+/// with each incarnation, unlike [`Status::rank_steps`]).
+#[derive(Debug, Clone, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct RankStatus {
+    /// The rank.
+    pub rank: u32,
+    /// Registrations of this rank (an actor that reconnects registers again).
+    pub registrations: u64,
+    /// The actor ids this rank registered as, oldest first (the newest
+    /// [`RANK_IDS_REMEMBERED`]).
+    pub actor_ids: Vec<u64>,
+    /// Step records of this rank stored from the shared-memory data plane.
+    pub steps_shm: u64,
+    /// Step records of this rank stored from the gRPC data plane.
+    pub steps_grpc: u64,
+}
+
+/// A lease that expired (no heartbeat within its TTL), in `status.json`.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ExpiredLease {
+    /// The lease id.
+    pub lease: u64,
+    /// The actor that held it.
+    pub actor_id: u64,
+    /// That actor's rank.
+    pub rank: u32,
+    /// The world it was dealt (dealt again).
+    pub world: usize,
+}
+
+/// Records refused under one lease (refusals of kind `invalid_lease` name their lease), in
+/// `status.json`.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct RefusedLease {
+    /// The lease id the refused records were sent under.
+    pub lease: u64,
+    /// Records refused under it.
+    pub records: u64,
+}
+
+/// The checkpoint a resumed learner continued from, in `status.json`.
+#[derive(Debug, Clone, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ResumeStatus {
+    /// The checkpoint directory.
+    pub checkpoint: String,
+    /// Agent steps stored in it.
+    pub inserts: u64,
+    /// Gradient updates done in it.
+    pub updates: u64,
+}
+
 /// A snapshot of the learner's counters. Plain data.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct Status {
@@ -92,6 +150,21 @@ pub struct Status {
     pub shm_unavailable: Option<String>,
     /// The training thread has stopped (final checkpoint written).
     pub finished: bool,
+    /// Counters per actor rank over this learner process (registrations, actor ids, steps per
+    /// data plane), by rank.
+    #[serde(default)]
+    pub ranks: Vec<RankStatus>,
+    /// Leases this learner process saw expire, oldest first (the newest
+    /// [`LEASES_REMEMBERED`]; [`Status::leases_expired`] counts them all).
+    #[serde(default)]
+    pub leases_expired_recent: Vec<ExpiredLease>,
+    /// Leases named by refused records (kind `invalid_lease`) in this learner process, in the
+    /// order they were first refused (the newest [`LEASES_REMEMBERED`]).
+    #[serde(default)]
+    pub refused_leases: Vec<RefusedLease>,
+    /// The checkpoint this learner resumed from (`None` for a fresh run).
+    #[serde(default)]
+    pub resumed_from: Option<ResumeStatus>,
 }
 
 impl Status {
@@ -156,6 +229,10 @@ impl Status {
             resume_warnings: shared.resume_warnings.clone(),
             shm_unavailable: shared.shm_unavailable.lock().expect("shm note lock").clone(),
             finished: super::shared::is_set(&shared.finished),
+            ranks: core.ranks().cloned().collect(),
+            leases_expired_recent: core.expired_recent().copied().collect(),
+            refused_leases: shared.refused_leases(),
+            resumed_from: shared.resumed_from.clone(),
         }
     }
 

@@ -70,7 +70,7 @@ impl Trainer {
             Some(cfg) => match ShmPolicyPublisher::open(cfg) {
                 Ok(p) => Some(p),
                 Err(e) => {
-                    eprintln!("learner: cannot publish policies over shared memory ({e}); gRPC only");
+                    tracing::warn!("cannot publish policies over shared memory ({e}); gRPC only");
                     *self.shared.shm_unavailable.lock().expect("shm note lock") =
                         Some(format!("policy publisher: {e}"));
                     None
@@ -127,7 +127,7 @@ impl Trainer {
                 shm_retry = None;
                 if let Some(p) = shm_pub.as_mut() {
                     if let Err(e) = p.publish(version, sigma, &weights) {
-                        eprintln!("learner: shared-memory policy publish of version {version} failed ({e}); retrying");
+                        tracing::warn!(version, "shared-memory policy publish failed ({e}); retrying");
                         shm_retry = Some((version, sigma, Instant::now()));
                     }
                 }
@@ -150,7 +150,7 @@ impl Trainer {
                     let weights = self.snapshot_weights_of(version);
                     shm_retry = match weights.map(|w| p.publish(version, sigma, &w)) {
                         Some(Ok(())) => {
-                            eprintln!("learner: shared-memory policy version {version} published on retry");
+                            tracing::info!(version, "shared-memory policy published on retry");
                             None
                         }
                         _ => Some((version, sigma, Instant::now())),
@@ -188,7 +188,7 @@ impl Trainer {
             if last_checkpoint.elapsed().as_secs_f64() >= self.service.checkpoint_every_s {
                 last_checkpoint = Instant::now();
                 if let Err(e) = self.checkpoint() {
-                    eprintln!("learner: periodic checkpoint failed (the run goes on): {e}");
+                    tracing::error!("periodic checkpoint failed (the run goes on): {e}");
                 }
             }
         }
@@ -201,7 +201,7 @@ impl Trainer {
         let export = match export_checkpoint(&checkpoint, &export_dir, self.space) {
             Ok(_) => Some(export_dir),
             Err(e) => {
-                eprintln!("learner: export failed: {e}");
+                tracing::error!("export failed: {e}");
                 None
             }
         };
@@ -253,7 +253,7 @@ impl Trainer {
             updates,
         };
         if let Err(e) = write_status(&self.run_dir, &status) {
-            eprintln!("learner: {e}");
+            tracing::error!("{e}");
         }
         let _ = self.tensorboard.scalars(inserts, &status.scalars());
         let _ = self.tensorboard.flush();
@@ -314,9 +314,9 @@ impl Trainer {
             dir: dir.clone(),
             source,
         })?;
-        eprintln!("learner: checkpoint {}", dir.display());
+        tracing::info!(dir = %dir.display(), "checkpoint written");
         if let Err(e) = retention::prune(&root, self.service.keep_checkpoints.max(1), &[]) {
-            eprintln!("learner: pruning old checkpoints: {e}");
+            tracing::warn!("pruning old checkpoints: {e}");
         }
         Ok(dir)
     }
