@@ -80,7 +80,7 @@ pub fn run(a: &ActorArgs, rank: u32, config: &Path) -> anyhow::Result<()> {
             .spawn()
             .with_context(|| format!("cannot start the sandboxed actor {}", exe.display()))?;
         let pid = child.id();
-        eprintln!("actor rank {rank}: sandboxed as pid {pid} {bwrap}");
+        tracing::info!(rank, pid, sandbox = %bwrap, "actor sandboxed");
         let (tx, mut done) = tokio::sync::oneshot::channel();
         std::thread::Builder::new()
             .name("adp-actor-wait".into())

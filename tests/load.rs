@@ -96,15 +96,17 @@ fn sixty_four_actors_over_both_planes_lose_nothing_and_keep_their_leases() {
     // Heartbeats kept every lease alive under load, and no lease stalled.
     assert_eq!(s.leases_expired, 0, "{s:?}");
     assert_eq!(s.leases_dropped, 0, "{s:?}");
-    // Every rank delivered steps over its plane (a `shm` actor fails rather than fall back),
-    // and every actor finished a cycle's two episodes.
-    for rank in 0..ACTORS {
-        let steps = s
-            .rank_steps
-            .iter()
-            .find(|(r, _)| *r == rank)
-            .map_or(0, |(_, n)| *n);
-        assert!(steps > 0, "rank {rank} delivered nothing: {s:?}");
+    // Every rank registered once and delivered its steps over its own plane only, and every
+    // actor finished a cycle's two episodes.
+    assert_eq!(s.ranks.len(), ACTORS as usize, "{s:?}");
+    for r in &s.ranks {
+        assert_eq!(r.registrations, 1, "rank {}: {s:?}", r.rank);
+        let (mine, other) = if r.rank % 2 == 0 {
+            (r.steps_shm, r.steps_grpc)
+        } else {
+            (r.steps_grpc, r.steps_shm)
+        };
+        assert!(mine > 0 && other == 0, "rank {}: {r:?}", r.rank);
     }
     assert!(s.cycle >= 1, "{s:?}");
     assert!(status(&run).is_some());

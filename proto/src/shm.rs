@@ -875,15 +875,15 @@ mod tests {
         let file = std::env::temp_dir().join(format!("adp-shm-root-file-{}", std::process::id()));
         std::fs::write(&file, "not a directory").unwrap();
         scratch.cfg.root = Some(file.clone());
-        let learner = ShmStepSource::open(&scratch.cfg)
-            .err()
-            .expect("a file as the root");
-        let publisher = ShmPolicyPublisher::open(&scratch.cfg)
-            .err()
-            .expect("a file as the root");
-        let actor = ShmStepSink::open(&scratch.cfg, "actor-0")
-            .err()
-            .expect("a file as the root");
+        let Err(learner) = ShmStepSource::open(&scratch.cfg) else {
+            panic!("a file as the root");
+        };
+        let Err(publisher) = ShmPolicyPublisher::open(&scratch.cfg) else {
+            panic!("a file as the root");
+        };
+        let Err(actor) = ShmStepSink::open(&scratch.cfg, "actor-0") else {
+            panic!("a file as the root");
+        };
         for e in [learner.to_string(), publisher.to_string(), actor.to_string()] {
             assert!(e.contains("cannot"), "{e}");
         }
@@ -901,9 +901,9 @@ mod tests {
         let mut sinks: Vec<ShmStepSink> = (0..2)
             .map(|a| ShmStepSink::open(&scratch.cfg, &format!("actor-{a}")).unwrap())
             .collect();
-        let third = ShmStepSink::open(&scratch.cfg, "actor-2")
-            .err()
-            .expect("over the limit");
+        let Err(third) = ShmStepSink::open(&scratch.cfg, "actor-2") else {
+            panic!("over the limit");
+        };
         assert!(third.to_string().contains("publisher"), "{third}");
         let (mut obs, mut fin) = (Vec::new(), Vec::new());
         for (actor, sink) in sinks.iter_mut().enumerate() {
