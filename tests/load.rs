@@ -6,37 +6,19 @@
 //!
 //! Waits are bounded by a watchdog; nothing asserts a duration.
 
-use std::path::Path;
 use std::process::{Child, Stdio};
 use std::time::Duration;
 
 use learner::service::read_status;
 
 mod common;
-use common::{adp, fresh_dir, status};
+use common::{adp, fresh_dir, spawn_actor, status};
 
 /// Actor processes.
 const ACTORS: u32 = 64;
 
 /// Agent steps of the run: more than one cycle of 64 actors x 2 episodes needs.
 const STEPS: u64 = 12_000;
-
-fn spawn_actor(addr: &str, token: &Path, rank: u32, plane: &str) -> Child {
-    adp()
-        .args(["actor", "--learner", addr, "--data-plane", plane])
-        .args([
-            "--rank",
-            &rank.to_string(),
-            "--give-up-after",
-            "60",
-            "--token-file",
-        ])
-        .arg(token)
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .spawn()
-        .unwrap()
-}
 
 #[test]
 fn sixty_four_actors_over_both_planes_lose_nothing_and_keep_their_leases() {

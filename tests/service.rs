@@ -13,7 +13,7 @@ use proto::grpc::LearnerAddress;
 use proto::pb;
 
 mod common;
-use common::{adp, fresh_dir, refused, status};
+use common::{adp, fresh_dir, refused, spawn_actor, status};
 
 /// Polls `cond` every 100 ms; panics with `what` after `polls` polls (a watchdog against
 /// deadlocks, not a timing assertion).
@@ -166,25 +166,6 @@ fn assert_resumes(cfg: &Path, run: &Path, first: &Status) {
     assert_eq!(s.episodes_mismatched, 0);
 }
 
-fn spawn_actor(addr: &str, token: &Path, rank: u32) -> Child {
-    adp()
-        .args([
-            "actor",
-            "--learner",
-            addr,
-            "--data-plane",
-            "grpc",
-            "--rank",
-            &rank.to_string(),
-            "--token-file",
-        ])
-        .arg(token)
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .spawn()
-        .unwrap()
-}
-
 fn bad_step(obs: Vec<f32>) -> pb::StepRecord {
     pb::StepRecord {
         episode_id: 0,
@@ -215,7 +196,9 @@ fn grpc_learner_survives_a_killed_actor_and_refuses_bad_requests() {
     wait_for("learner.addr", 600, || run.join("learner.addr").is_file());
     let addr = learner::service::read_addr(&run).unwrap();
     let token_file = run.join("token");
-    let mut actors: Vec<Child> = (0..3).map(|r| spawn_actor(&addr, &token_file, r)).collect();
+    let mut actors: Vec<Child> = (0..3)
+        .map(|r| spawn_actor(&addr, &token_file, r, "grpc"))
+        .collect();
     wait_for("steps from the actors", 1200, || {
         status(&run).is_some_and(|s| s.steps_received >= 200 && s.episodes_verified >= 1)
     });

@@ -3,7 +3,7 @@
 #![allow(dead_code)]
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::{Child, Command, Output, Stdio};
 
 use learner::service::{read_status, Status};
 use learner::{checkpoint, seeded_rng, Device, RateLimiter, RunState, Td3, Td3Config};
@@ -11,6 +11,19 @@ use learner::{checkpoint, seeded_rng, Device, RateLimiter, RunState, Td3, Td3Con
 /// The `adp` binary under test.
 pub fn adp() -> Command {
     Command::new(env!("CARGO_BIN_EXE_adp"))
+}
+
+/// Starts `adp actor` of `rank` on data `plane` (auto, grpc or shm) against the learner at
+/// `addr`, its output discarded.
+pub fn spawn_actor(addr: &str, token: &Path, rank: u32, plane: &str) -> Child {
+    adp()
+        .args(["actor", "--learner", addr, "--data-plane", plane])
+        .args(["--rank", &rank.to_string(), "--token-file"])
+        .arg(token)
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap()
 }
 
 /// Runs `adp ARGS` to completion.
