@@ -17,12 +17,13 @@ Exits 0 when everything holds, 1 with a message otherwise.
 """
 
 import json
-import pathlib
 import struct
 import sys
 
 import numpy as np
 import onnxruntime as ort
+
+import check_main
 
 
 def read_safetensors(path):
@@ -92,19 +93,7 @@ def check(directory):
 
 
 def main(argv):
-    if len(argv) != 2:
-        print(__doc__.strip().splitlines()[2], file=sys.stderr)
-        return 2
-    directory = pathlib.Path(argv[1])
-    try:
-        failures = check(directory)
-    except (OSError, ValueError, KeyError) as error:
-        failures = [f"{directory}: {error}"]
-    for failure in failures:
-        print(f"check_onnx: FAIL: {failure}", file=sys.stderr)
-    if not failures:
-        print(f"check_onnx: {directory} OK (onnxruntime {ort.__version__})")
-    return 1 if failures else 0
+    return check_main.run("check_onnx", __doc__, check, argv, lambda: f" (onnxruntime {ort.__version__})")
 
 
 if __name__ == "__main__":

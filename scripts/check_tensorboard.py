@@ -12,10 +12,11 @@ and no other scalar tags. Exits 0 when they match, 1 with a message otherwise.
 
 import json
 import math
-import pathlib
 import sys
 
 from tensorboard.backend.event_processing import event_accumulator
+
+import check_main
 
 
 def check(directory):
@@ -43,19 +44,7 @@ def check(directory):
 
 
 def main(argv):
-    if len(argv) != 2:
-        print(__doc__.strip().splitlines()[2], file=sys.stderr)
-        return 2
-    directory = pathlib.Path(argv[1])
-    try:
-        failures = check(directory)
-    except (OSError, ValueError, KeyError) as error:
-        failures = [f"{directory}: {error}"]
-    for failure in failures:
-        print(f"check_tensorboard: FAIL: {failure}", file=sys.stderr)
-    if not failures:
-        print(f"check_tensorboard: {directory} OK")
-    return 1 if failures else 0
+    return check_main.run("check_tensorboard", __doc__, check, argv)
 
 
 if __name__ == "__main__":

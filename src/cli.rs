@@ -334,24 +334,9 @@ pub struct SlurmArgs {
     /// Run configuration with a [slurm] table (default: the embedded configs/slurm.toml).
     #[arg(long)]
     pub config: Option<PathBuf>,
-    /// Nodes (overrides [slurm] nodes).
-    #[arg(long)]
-    pub nodes: Option<u32>,
-    /// Actor tasks per node (overrides [slurm] actors_per_node).
-    #[arg(long)]
-    pub actors_per_node: Option<u32>,
-    /// Time limit [D-]HH:MM:SS (overrides [slurm] time).
-    #[arg(long)]
-    pub time: Option<String>,
-    /// Partition (overrides [slurm] partition).
-    #[arg(long)]
-    pub partition: Option<String>,
-    /// Account (overrides [slurm] account).
-    #[arg(long)]
-    pub account: Option<String>,
-    /// Total agent steps (overrides [run] steps).
-    #[arg(long)]
-    pub steps: Option<u64>,
+    /// Overrides of the config's [slurm] and [run] values.
+    #[command(flatten)]
+    pub overrides: slurm::SlurmOverrides,
     /// Run directory (default: runs/<name>; made absolute; its logs/ is created now).
     #[arg(long)]
     pub run_dir: Option<PathBuf>,
@@ -440,18 +425,13 @@ pub fn run(cmd: Cmd) -> anyhow::Result<()> {
         Cmd::Actor(args) => train::actor(args),
         Cmd::Stop(args) => crate::stop::command(&args),
         Cmd::Slurm(a) => {
-            let o = slurm::SlurmOverrides {
-                nodes: a.nodes,
-                actors_per_node: a.actors_per_node,
-                time: a.time,
-                partition: a.partition,
-                account: a.account,
-                steps: a.steps,
-            };
-            print!(
-                "{}",
-                slurm::generate(a.config.as_deref(), &o, a.run_dir.as_deref(), a.adp.as_deref())?
-            );
+            let script = slurm::generate(
+                a.config.as_deref(),
+                &a.overrides,
+                a.run_dir.as_deref(),
+                a.adp.as_deref(),
+            )?;
+            print!("{script}");
             Ok(())
         }
         Cmd::Eval(args) => crate::eval::command(&args),

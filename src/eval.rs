@@ -19,7 +19,7 @@ use serde::{Deserialize, Serialize};
 
 use actor::{AdpEnv, End, EnvConfig, MlpPolicy, Scratch, LASER_BEAMS};
 use planner::{
-    run::run_episode, ActionSpace, Dwa, LogMppi, Mppi, NavSystem, PlanInput, Planner, Rollouts, Schedule,
+    run::run_episode, ActionSpace, Dwa, LogMppi, Mppi, NavSystem, PlanInput, Planner, Schedule, Trace,
 };
 use sim::robot::Twist;
 use sim::{EpisodeResult, Status, World};
@@ -226,16 +226,12 @@ impl Planner for Metered {
         cmd
     }
 
-    fn rollouts(&self) -> &Rollouts {
-        self.inner.rollouts()
+    fn trace(&self) -> &Trace {
+        self.inner.trace()
     }
 
-    fn set_recording(&mut self, on: bool) {
-        self.inner.set_recording(on);
-    }
-
-    fn evaluated_points(&self) -> u64 {
-        self.inner.evaluated_points()
+    fn trace_mut(&mut self) -> &mut Trace {
+        self.inner.trace_mut()
     }
 }
 

@@ -247,20 +247,26 @@ fn actor_tls_args(cfg: &TrainConfig) -> String {
     args
 }
 
-/// Command-line overrides of `adp slurm`.
-#[derive(Debug, Default, Clone)]
+/// Command-line overrides of `adp slurm` (a clap argument group of [`crate::cli::SlurmArgs`]).
+#[derive(clap::Args, Debug, Default, Clone)]
 pub struct SlurmOverrides {
-    /// `--nodes`.
+    /// Nodes (overrides [slurm] nodes).
+    #[arg(long)]
     pub nodes: Option<u32>,
-    /// `--actors-per-node`.
+    /// Actor tasks per node (overrides [slurm] actors_per_node).
+    #[arg(long)]
     pub actors_per_node: Option<u32>,
-    /// `--time`.
+    /// Time limit [D-]HH:MM:SS (overrides [slurm] time).
+    #[arg(long)]
     pub time: Option<String>,
-    /// `--partition`.
+    /// Partition (overrides [slurm] partition).
+    #[arg(long)]
     pub partition: Option<String>,
-    /// `--account`.
+    /// Account (overrides [slurm] account).
+    #[arg(long)]
     pub account: Option<String>,
-    /// `--steps`.
+    /// Total agent steps (overrides [run] steps).
+    #[arg(long)]
     pub steps: Option<u64>,
 }
 

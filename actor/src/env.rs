@@ -407,14 +407,14 @@ impl<'w> AdpEnv<'w> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use planner::{Dwa, DwaConfig, Rollouts};
+    use planner::{Dwa, DwaConfig, Trace};
     use sim::geometry::{Circle, Pose, Vec2};
     use sim::robot::Twist;
 
     /// A planner that always sends the same command.
     struct Constant {
         cmd: Twist,
-        rollouts: Rollouts,
+        trace: Trace,
     }
 
     impl Planner for Constant {
@@ -424,19 +424,18 @@ mod tests {
         fn plan(&mut self, _: &PlanInput<'_>) -> Twist {
             self.cmd
         }
-        fn rollouts(&self) -> &Rollouts {
-            &self.rollouts
+        fn trace(&self) -> &Trace {
+            &self.trace
         }
-        fn set_recording(&mut self, _: bool) {}
-        fn evaluated_points(&self) -> u64 {
-            0
+        fn trace_mut(&mut self) -> &mut Trace {
+            &mut self.trace
         }
     }
 
     fn constant(v: f64) -> Box<dyn Planner> {
         Box::new(Constant {
             cmd: Twist::new(v, 0.0),
-            rollouts: Rollouts::default(),
+            trace: Trace::default(),
         })
     }
 

@@ -298,16 +298,11 @@ pub struct TwinCritic {
 }
 
 impl TwinCritic {
-    /// Two independently initialized critics (`q1` first from `rng`, then `q2`).
-    pub fn new(
-        obs_dim: usize,
-        act_dim: usize,
-        hidden: &[usize],
-        device: &Device,
-        rng: &mut Pcg64Mcg,
-    ) -> Self {
-        let q1 = Critic::new(obs_dim, act_dim, hidden, device, rng);
-        let q2 = Critic::new(obs_dim, act_dim, hidden, device, rng);
+    /// Two critics from `init`, called twice: `q1` first, then `q2` (with a shared seeded RNG,
+    /// that order fixes which weights each gets).
+    pub fn new(mut init: impl FnMut() -> Critic) -> Self {
+        let q1 = init();
+        let q2 = init();
         Self { q1, q2 }
     }
 

@@ -29,6 +29,7 @@
 use std::collections::{HashMap, VecDeque};
 
 use rand::Rng;
+use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
 use crate::batch::Batch;
@@ -147,18 +148,25 @@ struct OpenEpisode {
     pending: VecDeque<SlotRef>,
 }
 
-/// The n-step replay buffer (see the module docs for layout and semantics).
-///
-/// Single-writer: `push`/`abandon` take `&mut self`; sampling takes `&self` plus the caller's
-/// RNG, so the sampling stream is owned (and checkpointed) by the caller. `Send + Sync`.
-#[derive(Debug)]
-pub struct ReplayBuffer {
+/// The sizes and return parameters a buffer is built with (a snapshot must match them).
+/// Plain data.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+struct Shape {
     obs_dim: usize,
     act_dim: usize,
     laser_dim: usize,
     n_step: usize,
     gamma: f64,
     capacity: usize,
+}
+
+/// The n-step replay buffer (see the module docs for layout and semantics).
+///
+/// Single-writer: `push`/`abandon` take `&mut self`; sampling takes `&self` plus the caller's
+/// RNG, so the sampling stream is owned (and checkpointed) by the caller. `Send + Sync`.
+#[derive(Debug)]
+pub struct ReplayBuffer {
+    shape: Shape,
     /// Occupied slots (grows to `capacity`, then stays).
     len: usize,
     /// Slots written so far; slot of insert `s` is `s % capacity`.
@@ -181,12 +189,14 @@ impl ReplayBuffer {
         let capacity = config.replay_capacity;
         let rest_dim = config.obs_dim - config.laser_dim;
         Self {
-            obs_dim: config.obs_dim,
-            act_dim: config.act_dim,
-            laser_dim: config.laser_dim,
-            n_step: config.n_step,
-            gamma: config.gamma,
-            capacity,
+            shape: Shape {
+                obs_dim: config.obs_dim,
+                act_dim: config.act_dim,
+                laser_dim: config.laser_dim,
+                n_step: config.n_step,
+                gamma: config.gamma,
+                capacity,
+            },
             len: 0,
             inserted: 0,
             ready_count: 0,
@@ -213,7 +223,7 @@ impl ReplayBuffer {
 
     /// Slot capacity.
     pub fn capacity(&self) -> usize {
-        self.capacity
+        self.shape.capacity
     }
 
     /// Transitions that may be sampled now.
@@ -244,7 +254,7 @@ impl ReplayBuffer {
     /// stored on error. Completes the n-step windows of the episode's earlier steps.
     pub fn push(&mut self, episode: EpisodeId, step: &Step<'_>) -> Result<(), ReplayError> {
         self.check_obs("obs", step.obs)?;
-        check_len("action", step.action.len(), self.act_dim)?;
+        check_len("action", step.action.len(), self.shape.act_dim)?;
         check_finite("action", step.action)?;
         check_finite("reward", &[step.reward])?;
         if let StepEnd::Truncated { final_obs } = step.end {
@@ -267,13 +277,13 @@ impl ReplayBuffer {
             // New episode, or its last step was evicted (then so were all its pending steps).
             _ => OpenEpisode {
                 last: this,
-                pending: VecDeque::with_capacity(self.n_step + 1),
+                pending: VecDeque::with_capacity(self.shape.n_step + 1),
             },
         };
         open.last = this;
         open.pending.push_back(this);
         // s_t arrived: the step n back now has its full window.
-        if open.pending.len() > self.n_step {
+        if open.pending.len() > self.shape.n_step {
             let complete = open.pending.pop_front().expect("pending is non-empty");
             self.mark_ready(complete);
         }
@@ -292,7 +302,7 @@ impl ReplayBuffer {
             }
         }
         // Once per pass of the ring.
-        if (first_serial..self.inserted).any(|s| s.is_multiple_of(self.capacity as u64)) {
+        if (first_serial..self.inserted).any(|s| s.is_multiple_of(self.shape.capacity as u64)) {
             self.forget_evicted_episodes();
         }
         Ok(())
@@ -318,8 +328,8 @@ impl ReplayBuffer {
         if self.ready_count == 0 {
             return Err(ReplayError::Empty { len: self.len });
         }
-        out.obs_dim = self.obs_dim;
-        out.act_dim = self.act_dim;
+        out.obs_dim = self.shape.obs_dim;
+        out.act_dim = self.shape.act_dim;
         out.resize(batch_size);
         for row in 0..batch_size {
             // Rejection sampling over occupied slots is exactly uniform over the ready ones.
@@ -343,9 +353,9 @@ impl ReplayBuffer {
     }
 
     fn check_obs(&self, what: &'static str, obs: &[f32]) -> Result<(), ReplayError> {
-        check_len(what, obs.len(), self.obs_dim)?;
+        check_len(what, obs.len(), self.shape.obs_dim)?;
         check_finite(what, obs)?;
-        match obs[..self.laser_dim].iter().position(|v| v.abs() > 1.0) {
+        match obs[..self.shape.laser_dim].iter().position(|v| v.abs() > 1.0) {
             Some(index) => Err(ReplayError::LaserRange {
                 what,
                 index,
@@ -369,15 +379,19 @@ impl ReplayBuffer {
 
     /// Overwrite the oldest slot (or the next empty one) and return a reference to it.
     fn write_slot(&mut self, obs: &[f32], step: Option<(&[f32], f32)>, kind: u8) -> SlotRef {
-        let slot = (self.inserted % self.capacity as u64) as usize;
-        if self.len == self.capacity {
+        let slot = (self.inserted % self.shape.capacity as u64) as usize;
+        if self.len == self.shape.capacity {
             if self.flags[slot] & READY != 0 {
                 self.ready_count -= 1;
             }
         } else {
             self.len += 1;
         }
-        let (ld, rd, ad) = (self.laser_dim, self.obs_dim - self.laser_dim, self.act_dim);
+        let (ld, rd, ad) = (
+            self.shape.laser_dim,
+            self.shape.obs_dim - self.shape.laser_dim,
+            self.shape.act_dim,
+        );
         for (q, &x) in self.laser[slot * ld..(slot + 1) * ld].iter_mut().zip(&obs[..ld]) {
             *q = quantize_laser(x);
         }
@@ -401,7 +415,7 @@ impl ReplayBuffer {
     }
 
     fn read_obs(&self, slot: usize, dst: &mut [f32]) {
-        let (ld, rd) = (self.laser_dim, self.obs_dim - self.laser_dim);
+        let (ld, rd) = (self.shape.laser_dim, self.shape.obs_dim - self.shape.laser_dim);
         for (x, &q) in dst[..ld].iter_mut().zip(&self.laser[slot * ld..(slot + 1) * ld]) {
             *x = dequantize_laser(q);
         }
@@ -410,7 +424,7 @@ impl ReplayBuffer {
 
     /// Write the n-step transition starting at the ready slot `start` into row `row` of `out`.
     fn write_transition(&self, start: usize, out: &mut Batch, row: usize) {
-        let (od, ad) = (self.obs_dim, self.act_dim);
+        let (od, ad) = (self.shape.obs_dim, self.shape.act_dim);
         self.read_obs(start, &mut out.obs[row * od..(row + 1) * od]);
         out.action[row * ad..(row + 1) * ad].copy_from_slice(&self.action[start * ad..(start + 1) * ad]);
 
@@ -419,9 +433,9 @@ impl ReplayBuffer {
         let mut slot = start;
         let mut done = 0.0;
         let mut next_obs_slot = start;
-        for k in 0..self.n_step {
+        for k in 0..self.shape.n_step {
             ret += disc * f64::from(self.reward[slot]);
-            disc *= self.gamma;
+            disc *= self.shape.gamma;
             let link = self.next[slot] as usize;
             match self.flags[slot] & KIND_MASK {
                 KIND_TERMINAL => {
@@ -433,7 +447,7 @@ impl ReplayBuffer {
                     next_obs_slot = link;
                     break;
                 }
-                _ if k + 1 == self.n_step => next_obs_slot = link,
+                _ if k + 1 == self.shape.n_step => next_obs_slot = link,
                 _ => slot = link,
             }
         }

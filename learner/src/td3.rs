@@ -98,7 +98,7 @@ impl Td3 {
         let mut init = seeded_rng(config.seed, 0);
         let (obs, act) = (config.obs_dim, config.act_dim);
         let actor = Actor::new(obs, &config.actor_hidden, act, &device, &mut init);
-        let critic = TwinCritic::new(obs, act, &config.critic_hidden, &device, &mut init);
+        let critic = TwinCritic::new(|| Critic::new(obs, act, &config.critic_hidden, &device, &mut init));
         let adam = Adam::new(config.adam_epsilon);
         Ok(Self {
             actor_target: actor.valid(),

@@ -16,7 +16,7 @@ use sim::robot::{approach, Twist};
 
 use crate::local_map::LocalMap;
 use crate::recovery::{Recovery, RecoveryConfig};
-use crate::{Integrator, PlanInput, Planner, Rollouts};
+use crate::{Integrator, PlanInput, Planner, Trace};
 
 /// DWA parameters (defaults used by `adp eval`).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -99,9 +99,7 @@ pub struct Dwa {
     /// margin may still move away instead of being stuck).
     margins: Vec<f64>,
     recovery: Recovery,
-    rollouts: Rollouts,
-    recording: bool,
-    evaluated: u64,
+    trace: Trace,
 }
 
 #[derive(Clone, Copy, Debug)]
@@ -125,19 +123,13 @@ impl Dwa {
     pub fn new(cfg: DwaConfig) -> Self {
         Self {
             cfg,
-            map: LocalMap::new(
-                sim::Footprint::JACKAL,
-                cfg.map_resolution,
-                crate::schedule::DEFAULT_BOUNDARY_POINTS,
-            ),
+            map: LocalMap::jackal(cfg.map_resolution),
             w_prof: Vec::new(),
             v_prof: Vec::new(),
             cost: Vec::new(),
             margins: Vec::new(),
             recovery: Recovery::new(cfg.recovery),
-            rollouts: Rollouts::default(),
-            recording: false,
-            evaluated: 0,
+            trace: Trace::default(),
         }
     }
 }
@@ -183,16 +175,9 @@ impl Planner for Dwa {
         let sched = input.schedule;
         let steps = sched.len();
         let euler = input.prediction.integrator == Integrator::Euler;
-        self.map.prepare(
-            per.points,
-            sched,
-            input.prediction.checks,
-            input.max_speed,
-            1.0,
-            cfg.clearance_cap,
-        );
-        if let Some(cmd) = self.recovery.step(&self.map, per, &mut self.evaluated) {
-            self.rollouts.clear(sched.dts());
+        self.map.prepare(per.points, input, 1.0, cfg.clearance_cap);
+        if let Some(cmd) = self.recovery.step(&self.map, per, &mut self.trace.evaluated) {
+            self.trace.rollouts.clear(sched.dts());
             return cmd;
         }
 
@@ -232,13 +217,16 @@ impl Planner for Dwa {
         let tail_start = steps.saturating_sub(tail.max(1));
         self.margins.clear();
         for m in 0..=self.map.boundary_points() {
-            let here =
-                self.map
-                    .footprint_clearance(&Pose::default(), m, cfg.detail_within, &mut self.evaluated);
+            let here = self.map.footprint_clearance(
+                &Pose::default(),
+                m,
+                cfg.detail_within,
+                &mut self.trace.evaluated,
+            );
             self.margins.push(cfg.margin.min(here));
         }
 
-        self.rollouts.clear(sched.dts());
+        self.trace.rollouts.clear(sched.dts());
         self.cost.clear();
         for i in 0..nv {
             for j in 0..nw {
@@ -253,8 +241,8 @@ impl Planner for Dwa {
                 let mut hit = false;
                 let mut admissible = true;
                 let mut clear_time = horizon;
-                if self.recording {
-                    self.rollouts.begin();
+                if self.trace.recording {
+                    self.trace.rollouts.begin();
                 }
                 for k in 0..steps {
                     let v = self.v_prof[i * steps + k];
@@ -273,13 +261,13 @@ impl Planner for Dwa {
                     }
                     (s0, c0) = (s1, c1);
                     let pose = Pose::new(x, y, s1.atan2(c1));
-                    if self.recording {
-                        self.rollouts.push(pose);
+                    if self.trace.recording {
+                        self.trace.rollouts.push(pose);
                     }
                     let m = sched.checks()[k] as usize;
                     let clear =
                         self.map
-                            .footprint_clearance(&pose, m, cfg.detail_within, &mut self.evaluated);
+                            .footprint_clearance(&pose, m, cfg.detail_within, &mut self.trace.evaluated);
                     if clear < self.margins[m.min(self.margins.len() - 1)] {
                         // Admissible (Fox et al. 1997) when the planner's model can still stop
                         // before the obstacle: the rollout then ends at its last clear point.
@@ -302,8 +290,8 @@ impl Planner for Dwa {
                     }
                     min_clear = min_clear.min(clear);
                 }
-                if self.recording {
-                    self.rollouts.end(!hit);
+                if self.trace.recording {
+                    self.trace.rollouts.end(!hit);
                 }
                 if !admissible {
                     continue;
@@ -363,16 +351,12 @@ impl Planner for Dwa {
             .unwrap_or_default()
     }
 
-    fn rollouts(&self) -> &Rollouts {
-        &self.rollouts
+    fn trace(&self) -> &Trace {
+        &self.trace
     }
 
-    fn set_recording(&mut self, on: bool) {
-        self.recording = on;
-    }
-
-    fn evaluated_points(&self) -> u64 {
-        self.evaluated
+    fn trace_mut(&mut self) -> &mut Trace {
+        &mut self.trace
     }
 }
 

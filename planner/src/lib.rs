@@ -50,12 +50,34 @@ pub trait Planner: Send {
     fn name(&self) -> &'static str;
     /// Computes the command for this cycle.
     fn plan(&mut self, input: &PlanInput<'_>) -> Twist;
+    /// What the planner has recorded and counted.
+    fn trace(&self) -> &Trace;
+    /// The same, to switch recording on or off.
+    fn trace_mut(&mut self) -> &mut Trace;
     /// The rollouts of the last cycle (empty unless recording is on).
-    fn rollouts(&self) -> &Rollouts;
+    fn rollouts(&self) -> &Rollouts {
+        &self.trace().rollouts
+    }
     /// Turns recording of rollouts on or off (off by default: it costs time).
-    fn set_recording(&mut self, on: bool);
+    fn set_recording(&mut self, on: bool) {
+        self.trace_mut().recording = on;
+    }
     /// Collision-check points evaluated since construction (centre + boundary points).
-    fn evaluated_points(&self) -> u64;
+    fn evaluated_points(&self) -> u64 {
+        self.trace().evaluated
+    }
+}
+
+/// What a planner records for rendering and counts for the cost columns. Each planner owns
+/// one; plain data, moved with its planner (no sharing between threads).
+#[derive(Clone, Debug, Default)]
+pub struct Trace {
+    /// The rollouts of the last cycle, filled only while `recording` is on.
+    pub rollouts: Rollouts,
+    /// Whether `plan` records its rollouts (off by default: it costs time).
+    pub recording: bool,
+    /// Collision-check points evaluated since construction (centre + boundary points).
+    pub evaluated: u64,
 }
 
 /// The sampled trajectories of one planning cycle, robot frame, stored flat.

@@ -8,7 +8,7 @@
 use sim::geometry::{Footprint, Pose, Vec2};
 
 use crate::prediction::CheckMode;
-use crate::Schedule;
+use crate::PlanInput;
 
 /// Distance reported for space outside the field (m).
 pub const FAR: f64 = 10.0;
@@ -40,6 +40,12 @@ pub struct LocalMap {
 }
 
 impl LocalMap {
+    /// The field the planners use: the Jackal's footprint, cells of `res` metres, check
+    /// densities up to the schedules' default number of boundary points.
+    pub fn jackal(res: f64) -> Self {
+        Self::new(Footprint::JACKAL, res, crate::schedule::DEFAULT_BOUNDARY_POINTS)
+    }
+
     /// A field with cells of `res` metres for a robot with `footprint`, prepared for check
     /// densities up to `n` boundary points.
     pub fn new(footprint: Footprint, res: f64, n: usize) -> Self {
@@ -97,23 +103,15 @@ impl LocalMap {
         self.mode = mode;
     }
 
-    /// Prepares the field for one planning cycle: the check mode, check sets for the
-    /// schedule's density, and the distance field over everything a rollout at `max_speed` can
-    /// reach (horizon x speed + circumscribed radius + `margin` ahead and sideways, `back`
-    /// behind).
-    #[allow(clippy::too_many_arguments)]
-    pub fn prepare(
-        &mut self,
-        points: &[Vec2],
-        schedule: &Schedule,
-        mode: CheckMode,
-        max_speed: f64,
-        back: f64,
-        margin: f64,
-    ) {
-        self.mode = mode;
+    /// Prepares the field for the planning cycle of `input`: its check mode, check sets for its
+    /// schedule's density, and the distance field over everything a rollout at its speed cap
+    /// can reach (horizon x speed + circumscribed radius + `margin` ahead and sideways, `back`
+    /// behind), built from obstacle `points` (robot frame).
+    pub fn prepare(&mut self, points: &[Vec2], input: &PlanInput<'_>, back: f64, margin: f64) {
+        let schedule = input.schedule;
+        self.mode = input.prediction.checks;
         self.set_boundary_points(schedule.boundary_points());
-        let reach = max_speed * schedule.horizon() + self.radii.1 + margin;
+        let reach = input.max_speed * schedule.horizon() + self.radii.1 + margin;
         self.build(points, back, reach);
     }
 

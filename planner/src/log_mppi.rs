@@ -19,14 +19,13 @@
 use rand::{Rng, SeedableRng};
 use rand_distr::StandardNormal;
 use rand_pcg::Pcg64Mcg;
-use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use sim::geometry::{wrap_angle, Footprint, Pose, Vec2};
 use sim::robot::Twist;
 
 use crate::local_map::LocalMap;
-use crate::mppi::{average_over, mppi_weights, shift_sequence, Unicycle};
-use crate::{Integrator, PlanInput, Planner, Rollouts};
+use crate::mppi::{command, mppi_weights, roll_all, warm_start, Unicycle};
+use crate::{Integrator, PlanInput, Planner, Rollouts, Trace};
 
 /// Log-MPPI parameters (defaults used by `adp eval`).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -174,9 +173,7 @@ pub struct LogMppi {
     costs: Vec<f64>,
     weights: Vec<f64>,
     times: Vec<f64>,
-    rollouts: Rollouts,
-    recording: bool,
-    evaluated: u64,
+    trace: Trace,
 }
 
 /// What one rollout cost.
@@ -217,9 +214,7 @@ impl LogMppi {
             costs: Vec::new(),
             weights: Vec::new(),
             times: Vec::new(),
-            rollouts: Rollouts::default(),
-            recording: false,
-            evaluated: 0,
+            trace: Trace::default(),
         }
     }
 
@@ -371,16 +366,13 @@ impl Planner for LogMppi {
             cfg.lethal_margin,
         );
 
-        shift_sequence(
-            &self.nominal,
-            &self.nominal_dts,
+        warm_start(
+            &mut self.nominal,
+            &mut self.nominal_dts,
             sched.dts(),
             cfg.control_dt,
             &mut self.scratch,
         );
-        std::mem::swap(&mut self.nominal, &mut self.scratch);
-        self.nominal_dts.clear();
-        self.nominal_dts.extend_from_slice(sched.dts());
 
         self.sample(input.max_speed);
         self.outcomes
@@ -396,18 +388,16 @@ impl Planner for LogMppi {
             goal: per.local_goal,
             integrator: input.prediction.integrator,
         };
-        self.controls
-            .par_chunks(steps)
-            .zip(self.outcomes.par_iter_mut())
-            .with_min_len(16)
-            .for_each(|(u, out)| *out = rollout(&scene, u, None));
-        self.evaluated += self.outcomes.iter().map(|o| o.evaluated).sum::<u64>();
-        if self.recording {
-            self.rollouts.clear(sched.dts());
-            for u in self.controls.chunks(steps) {
-                rollout(&scene, u, Some(&mut self.rollouts));
-            }
-        }
+        let roll = |u: &[Twist], record: Option<&mut Rollouts>| rollout(&scene, u, record);
+        roll_all(
+            &self.controls,
+            steps,
+            &mut self.outcomes,
+            &mut self.trace,
+            sched.dts(),
+            roll,
+        );
+        self.trace.evaluated += self.outcomes.iter().map(|o| o.evaluated).sum::<u64>();
 
         // The path-integral update over all samples, then the Savitzky-Golay filter.
         self.costs.clear();
@@ -428,23 +418,21 @@ impl Planner for LogMppi {
             t += dt;
         }
         savitzky_golay(&self.scratch, &self.times, cfg.sg_half_window, &mut self.nominal);
-        let cmd = average_over(&self.nominal, sched.dts(), cfg.control_dt);
-        Twist::new(
-            cmd.v.clamp(0.0, input.max_speed),
-            cmd.w.clamp(-cfg.max_w, cfg.max_w),
+        command(
+            &self.nominal,
+            sched.dts(),
+            cfg.control_dt,
+            input.max_speed,
+            cfg.max_w,
         )
     }
 
-    fn rollouts(&self) -> &Rollouts {
-        &self.rollouts
+    fn trace(&self) -> &Trace {
+        &self.trace
     }
 
-    fn set_recording(&mut self, on: bool) {
-        self.recording = on;
-    }
-
-    fn evaluated_points(&self) -> u64 {
-        self.evaluated
+    fn trace_mut(&mut self) -> &mut Trace {
+        &mut self.trace
     }
 }
 

@@ -32,7 +32,7 @@ use sim::robot::{approach, Twist};
 
 use crate::dwa::distance_to_path;
 use crate::local_map::LocalMap;
-use crate::{Integrator, PlanInput, Planner, Rollouts};
+use crate::{Integrator, PlanInput, Planner, Rollouts, Trace};
 
 /// MPPI parameters (defaults used by `adp eval`).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -137,9 +137,7 @@ pub struct Mppi {
     order: Vec<usize>,
     selected_costs: Vec<f64>,
     weights: Vec<f64>,
-    rollouts: Rollouts,
-    recording: bool,
-    evaluated: u64,
+    trace: Trace,
 }
 
 /// What one rollout cost.
@@ -173,11 +171,7 @@ impl Mppi {
         Self {
             cfg,
             rng: Pcg64Mcg::seed_from_u64(seed),
-            map: LocalMap::new(
-                sim::Footprint::JACKAL,
-                cfg.map_resolution,
-                crate::schedule::DEFAULT_BOUNDARY_POINTS,
-            ),
+            map: LocalMap::jackal(cfg.map_resolution),
             nominal: Vec::new(),
             nominal_dts: Vec::new(),
             scratch: Vec::new(),
@@ -187,9 +181,7 @@ impl Mppi {
             order: Vec::new(),
             selected_costs: Vec::new(),
             weights: Vec::new(),
-            rollouts: Rollouts::default(),
-            recording: false,
-            evaluated: 0,
+            trace: Trace::default(),
         }
     }
 
@@ -325,6 +317,51 @@ pub fn average_over(seq: &[Twist], dts: &[f64], span: f64) -> Twist {
     }
 }
 
+/// Moves the warm-start `nominal` (on the grid `nominal_dts`) one control period `shift`
+/// later onto the new grid `dts`, and makes `dts` its grid. `scratch` is reused memory.
+pub(crate) fn warm_start(
+    nominal: &mut Vec<Twist>,
+    nominal_dts: &mut Vec<f64>,
+    dts: &[f64],
+    shift: f64,
+    scratch: &mut Vec<Twist>,
+) {
+    shift_sequence(nominal, nominal_dts, dts, shift, scratch);
+    std::mem::swap(nominal, scratch);
+    nominal_dts.clear();
+    nominal_dts.extend_from_slice(dts);
+}
+
+/// The command of an updated `nominal` sequence: its mean over the first control period
+/// `span`, clamped to forward speeds up to `max_speed` and turn rates up to `max_w`.
+pub(crate) fn command(nominal: &[Twist], dts: &[f64], span: f64, max_speed: f64, max_w: f64) -> Twist {
+    let cmd = average_over(nominal, dts, span);
+    Twist::new(cmd.v.clamp(0.0, max_speed), cmd.w.clamp(-max_w, max_w))
+}
+
+/// Rolls out every sample of `controls` (`steps` controls each, the grid `dts`) in parallel
+/// into `outcomes`, then, when `trace` is recording, once more serially into its rollouts.
+pub(crate) fn roll_all<O: Send>(
+    controls: &[Twist],
+    steps: usize,
+    outcomes: &mut [O],
+    trace: &mut Trace,
+    dts: &[f64],
+    roll: impl Fn(&[Twist], Option<&mut Rollouts>) -> O + Sync,
+) {
+    controls
+        .par_chunks(steps.max(1))
+        .zip(outcomes.par_iter_mut())
+        .with_min_len(16)
+        .for_each(|(u, out)| *out = roll(u, None));
+    if trace.recording {
+        trace.rollouts.clear(dts);
+        for u in controls.chunks(steps.max(1)) {
+            roll(u, Some(&mut trace.rollouts));
+        }
+    }
+}
+
 /// The rollout model: a unicycle whose velocity approaches each step's command at the
 /// acceleration limits, then moves with that velocity for the step by the prediction's
 /// integrator (robot frame, starting at the origin).
@@ -454,33 +491,26 @@ impl Planner for Mppi {
         let per = &input.perception;
         let sched = input.schedule;
         let steps = sched.len();
-        self.map.prepare(
-            per.points,
-            sched,
-            input.prediction.checks,
-            input.max_speed,
-            1.0,
-            cfg.clearance_cap,
-        );
+        self.map.prepare(per.points, input, 1.0, cfg.clearance_cap);
 
         // Warm start: the last nominal, one control period later, on this schedule's grid.
-        shift_sequence(
-            &self.nominal,
-            &self.nominal_dts,
+        warm_start(
+            &mut self.nominal,
+            &mut self.nominal_dts,
             sched.dts(),
             cfg.control_dt,
             &mut self.scratch,
         );
-        std::mem::swap(&mut self.nominal, &mut self.scratch);
-        self.nominal_dts.clear();
-        self.nominal_dts.extend_from_slice(sched.dts());
 
         let start = per.vel;
         self.margins.clear();
         for m in 0..=self.map.boundary_points() {
-            let here =
-                self.map
-                    .footprint_clearance(&Pose::default(), m, cfg.clearance_cap, &mut self.evaluated);
+            let here = self.map.footprint_clearance(
+                &Pose::default(),
+                m,
+                cfg.clearance_cap,
+                &mut self.trace.evaluated,
+            );
             self.margins.push(cfg.margin.min(here));
         }
         self.sample(start, input.max_speed);
@@ -498,18 +528,16 @@ impl Planner for Mppi {
             margins: &self.margins,
             integrator: input.prediction.integrator,
         };
-        self.controls
-            .par_chunks(steps.max(1))
-            .zip(self.outcomes.par_iter_mut())
-            .with_min_len(16)
-            .for_each(|(u, out)| *out = rollout(&scene, u, None));
-        self.evaluated += self.outcomes.iter().map(|o| o.evaluated).sum::<u64>();
-        if self.recording {
-            self.rollouts.clear(sched.dts());
-            for u in self.controls.chunks(steps.max(1)) {
-                rollout(&scene, u, Some(&mut self.rollouts));
-            }
-        }
+        let roll = |u: &[Twist], record: Option<&mut Rollouts>| rollout(&scene, u, record);
+        roll_all(
+            &self.controls,
+            steps,
+            &mut self.outcomes,
+            &mut self.trace,
+            sched.dts(),
+            roll,
+        );
+        self.trace.evaluated += self.outcomes.iter().map(|o| o.evaluated).sum::<u64>();
 
         if !self.select() {
             // Every sample collides: stop, turn toward the local goal, and restart the
@@ -529,23 +557,21 @@ impl Planner for Mppi {
             }
         }
         std::mem::swap(&mut self.nominal, &mut self.scratch);
-        let cmd = average_over(&self.nominal, sched.dts(), cfg.control_dt);
-        Twist::new(
-            cmd.v.clamp(0.0, input.max_speed),
-            cmd.w.clamp(-cfg.max_w, cfg.max_w),
+        command(
+            &self.nominal,
+            sched.dts(),
+            cfg.control_dt,
+            input.max_speed,
+            cfg.max_w,
         )
     }
 
-    fn rollouts(&self) -> &Rollouts {
-        &self.rollouts
+    fn trace(&self) -> &Trace {
+        &self.trace
     }
 
-    fn set_recording(&mut self, on: bool) {
-        self.recording = on;
-    }
-
-    fn evaluated_points(&self) -> u64 {
-        self.evaluated
+    fn trace_mut(&mut self) -> &mut Trace {
+        &mut self.trace
     }
 }
 

@@ -123,19 +123,22 @@ impl ShmConfig {
         Ok((name, label))
     }
 
-    fn node(&self, config: &Config, name: &str) -> Result<Node<Ipc>, ShmError> {
+    /// The iceoryx2 configuration of this run and a node called `name` under it.
+    fn node(&self, name: &str) -> Result<(Config, Node<Ipc>), ShmError> {
+        let config = self.iceoryx()?;
         let setup = |op, detail| ShmError::Setup {
             what: format!("node `{name}`"),
             op,
             detail,
         };
         let node_name = NodeName::new(name).map_err(|e| setup("use as a node name", format!("{e:?}")))?;
-        NodeBuilder::new()
+        let node = NodeBuilder::new()
             .name(&node_name)
-            .config(config)
+            .config(&config)
             .signal_handling_mode(SignalHandlingMode::Disabled)
             .create::<Ipc>()
-            .map_err(|e| setup("create", e.to_string()))
+            .map_err(|e| setup("create", e.to_string()))?;
+        Ok((config, node))
     }
 
     fn steps(&self, node: &Node<Ipc>) -> Result<(StepService, String), ShmError> {
@@ -378,8 +381,7 @@ impl ShmStepSink {
     /// Opens (or creates, with the same settings the learner uses) the step service of `cfg`
     /// through a new node called `node_name`, and a publisher on it.
     pub fn open(cfg: &ShmConfig, node_name: &str) -> Result<Self, PlaneError> {
-        let config = cfg.iceoryx()?;
-        let node = cfg.node(&config, node_name)?;
+        let (config, node) = cfg.node(node_name)?;
         let (service, label) = cfg.steps(&node)?;
         let publisher = service
             .publisher_builder()
@@ -505,8 +507,7 @@ impl ShmStepSource {
     /// Creates (or opens) the step service of `cfg` and subscribes to it, through a node
     /// called `adp-learner`. Only one source may exist per service.
     pub fn open(cfg: &ShmConfig) -> Result<Self, ShmError> {
-        let config = cfg.iceoryx()?;
-        let node = cfg.node(&config, "adp-learner")?;
+        let (_, node) = cfg.node("adp-learner")?;
         let (service, label) = cfg.steps(&node)?;
         let subscriber = service
             .subscriber_builder()
@@ -576,8 +577,7 @@ impl ShmPolicyPublisher {
     /// `adp-learner-policy`, a publisher for policies of up to
     /// [`ShmConfig::max_policy_floats`] floats, and its refresh thread.
     pub fn open(cfg: &ShmConfig) -> Result<Self, ShmError> {
-        let config = cfg.iceoryx()?;
-        let node = cfg.node(&config, "adp-learner-policy")?;
+        let (_, node) = cfg.node("adp-learner-policy")?;
         let (service, label) = cfg.policy(&node)?;
         let publisher = service
             .publisher_builder()
@@ -663,8 +663,7 @@ impl ShmPolicySource {
     /// new node called `node_name`, and subscribes to it. The learner's publisher hands the
     /// latest version to a new subscriber within about 20 ms.
     pub fn open(cfg: &ShmConfig, node_name: &str) -> Result<Self, PlaneError> {
-        let config = cfg.iceoryx()?;
-        let node = cfg.node(&config, node_name)?;
+        let (_, node) = cfg.node(node_name)?;
         let (service, label) = cfg.policy(&node)?;
         let subscriber = service
             .subscriber_builder()

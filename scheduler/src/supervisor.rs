@@ -128,6 +128,18 @@ enum Slot {
     Done,
 }
 
+/// Marks the slot of `rank` done after a stop and the event that reports it (a child ended
+/// by a stop is never restarted).
+fn stopped(slot: &mut Slot, rank: u32, pid: u32, exit: ExitKind) -> SupervisorEvent {
+    *slot = Slot::Done;
+    SupervisorEvent::Exited {
+        rank,
+        pid,
+        exit,
+        restart_in_ms: None,
+    }
+}
+
 /// Owns the actor processes of one node.
 ///
 /// Children die with the *thread* that spawned them (`PR_SET_PDEATHSIG`), and restarts spawn
@@ -274,13 +286,7 @@ impl Supervisor {
                 if let Slot::Running { child, .. } = slot {
                     if let Some(status) = reap_if_exited(child) {
                         let (pid, exit) = (child.id(), ExitKind::of(status));
-                        events.push(SupervisorEvent::Exited {
-                            rank,
-                            pid,
-                            exit,
-                            restart_in_ms: None,
-                        });
-                        *slot = Slot::Done;
+                        events.push(stopped(slot, rank, pid, exit));
                     }
                 }
             }
@@ -297,13 +303,7 @@ impl Supervisor {
             if let Slot::Running { child, .. } = slot {
                 let pid = child.id();
                 let exit = ExitKind::of(kill_and_reap(child));
-                events.push(SupervisorEvent::Exited {
-                    rank,
-                    pid,
-                    exit,
-                    restart_in_ms: None,
-                });
-                *slot = Slot::Done;
+                events.push(stopped(slot, rank, pid, exit));
             }
         }
         events

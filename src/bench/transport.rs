@@ -140,11 +140,11 @@ type NoPolicies =
 impl pb::data_server::Data for Sink {
     async fn push_steps(
         &self,
-        request: Request<Streaming<pb::StepBatch>>,
+        batches: Request<Streaming<pb::StepBatch>>,
     ) -> Result<Response<pb::Ack>, Status> {
-        let mut stream = request.into_inner();
-        let mut ack = pb::Ack::default();
         let mut scratch = DecodeScratch::default();
+        let mut ack = pb::Ack::default();
+        let mut stream = batches.into_inner();
         while let Some(batch) = stream.message().await? {
             let mut ring = self.ring.lock().expect("bench ring");
             let (rows, next) = &mut *ring;

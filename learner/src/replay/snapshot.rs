@@ -12,7 +12,7 @@ use std::io::Write;
 
 use serde::{Deserialize, Serialize};
 
-use super::{EpisodeId, OpenEpisode, ReplayBuffer, SlotRef, NO_SLOT, READY};
+use super::{EpisodeId, OpenEpisode, ReplayBuffer, Shape, SlotRef, NO_SLOT, READY};
 use crate::config::Td3Config;
 
 const MAGIC: &[u8; 8] = b"ADPRPLY1";
@@ -90,15 +90,12 @@ pub enum SnapshotError {
 /// `(slot, serial)` of a [`SlotRef`].
 type RefPair = (u32, u64);
 
+/// The snapshot's JSON header: the buffer's shape (flat, as the format has always been), its
+/// counters and its open episodes.
 #[derive(Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
 struct Header {
-    obs_dim: usize,
-    act_dim: usize,
-    laser_dim: usize,
-    n_step: usize,
-    gamma: f64,
-    capacity: usize,
+    #[serde(flatten)]
+    shape: Shape,
     len: usize,
     inserted: u64,
     ready_count: usize,
@@ -164,12 +161,7 @@ impl ReplayBuffer {
             .collect();
         open.sort_unstable_by_key(|(id, _, _)| *id);
         let header = Header {
-            obs_dim: self.obs_dim,
-            act_dim: self.act_dim,
-            laser_dim: self.laser_dim,
-            n_step: self.n_step,
-            gamma: self.gamma,
-            capacity: self.capacity,
+            shape: self.shape,
             len: self.len,
             inserted: self.inserted,
             ready_count: self.ready_count,
@@ -180,10 +172,10 @@ impl ReplayBuffer {
         out.write_all(&(json.len() as u64).to_le_bytes())?;
         out.write_all(&json)?;
         let n = self.len;
-        let rest_dim = self.obs_dim - self.laser_dim;
-        write_le(out, &self.laser[..n * self.laser_dim], u16::to_le_bytes)?;
+        let rest_dim = self.shape.obs_dim - self.shape.laser_dim;
+        write_le(out, &self.laser[..n * self.shape.laser_dim], u16::to_le_bytes)?;
         write_le(out, &self.rest[..n * rest_dim], f32::to_le_bytes)?;
-        write_le(out, &self.action[..n * self.act_dim], f32::to_le_bytes)?;
+        write_le(out, &self.action[..n * self.shape.act_dim], f32::to_le_bytes)?;
         write_le(out, &self.reward[..n], f32::to_le_bytes)?;
         write_le(out, &self.next[..n], u32::to_le_bytes)?;
         write_le(out, &self.serial[..n], u64::to_le_bytes)?;
@@ -206,25 +198,25 @@ impl ReplayBuffer {
         let h: Header = serde_json::from_slice(&bytes[16..header_end]).map_err(SnapshotError::Header)?;
         let mut buffer = ReplayBuffer::new(config);
         let expected = [
-            ("obs_dim", h.obs_dim, buffer.obs_dim),
-            ("act_dim", h.act_dim, buffer.act_dim),
-            ("laser_dim", h.laser_dim, buffer.laser_dim),
-            ("n_step", h.n_step, buffer.n_step),
-            ("replay_capacity", h.capacity, buffer.capacity),
+            ("obs_dim", h.shape.obs_dim, buffer.shape.obs_dim),
+            ("act_dim", h.shape.act_dim, buffer.shape.act_dim),
+            ("laser_dim", h.shape.laser_dim, buffer.shape.laser_dim),
+            ("n_step", h.shape.n_step, buffer.shape.n_step),
+            ("replay_capacity", h.shape.capacity, buffer.shape.capacity),
         ];
         for (what, got, want) in expected {
             if got != want {
                 return Err(SnapshotError::Config { what, got, want });
             }
         }
-        if h.gamma.to_bits() != buffer.gamma.to_bits() {
+        if h.shape.gamma.to_bits() != buffer.shape.gamma.to_bits() {
             return Err(SnapshotError::Gamma {
-                got: h.gamma,
-                want: buffer.gamma,
+                got: h.shape.gamma,
+                want: buffer.shape.gamma,
             });
         }
         let n = h.len;
-        if n != usize::try_from(h.inserted).map_or(h.capacity, |i| i.min(h.capacity)) {
+        if n != usize::try_from(h.inserted).map_or(h.shape.capacity, |i| i.min(h.shape.capacity)) {
             return Err(SnapshotError::Len {
                 len: n,
                 inserted: h.inserted,
@@ -233,10 +225,10 @@ impl ReplayBuffer {
         let mut reader = Reader {
             data: &bytes[header_end..],
         };
-        let rest_dim = h.obs_dim - h.laser_dim;
-        let laser = reader.take("laser", n * h.laser_dim, u16::from_le_bytes)?;
+        let rest_dim = h.shape.obs_dim - h.shape.laser_dim;
+        let laser = reader.take("laser", n * h.shape.laser_dim, u16::from_le_bytes)?;
         let rest = reader.take("rest", n * rest_dim, f32::from_le_bytes)?;
-        let action = reader.take("action", n * h.act_dim, f32::from_le_bytes)?;
+        let action = reader.take("action", n * h.shape.act_dim, f32::from_le_bytes)?;
         let reward = reader.take("reward", n, f32::from_le_bytes)?;
         let next = reader.take("next", n, u32::from_le_bytes)?;
         let serial = reader.take("serial", n, u64::from_le_bytes)?;
@@ -260,7 +252,9 @@ impl ReplayBuffer {
         }
         let mut open = HashMap::with_capacity(h.open.len());
         for (id, last, pending) in h.open {
-            if !std::iter::once(&last).chain(&pending).all(|r| in_range(r.0)) || pending.len() > h.n_step {
+            if !std::iter::once(&last).chain(&pending).all(|r| in_range(r.0))
+                || pending.len() > h.shape.n_step
+            {
                 return Err(SnapshotError::Open(id));
             }
             let pending: VecDeque<SlotRef> = pending.into_iter().map(slot_ref).collect();

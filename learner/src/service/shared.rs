@@ -599,26 +599,27 @@ impl Core {
                 format!("belongs to actor {}", lease.actor),
             ));
         }
-        let result = self.store_in_lease(plane, header, step, now);
+        let result = self.store_in_lease(plane, header.lease_id, step, now);
         if let Err(why) = &result {
             self.break_lease(header, why, now);
         }
         result
     }
 
+    /// [`Self::store`] once the step's lease `lease_id` is known to be valid and the sender's.
     fn store_in_lease(
         &mut self,
         plane: Plane,
-        header: &LeaseHeader,
+        lease_id: u64,
         step: &StepView<'_>,
         now: u64,
     ) -> Result<bool, Refusal> {
-        let lease = &self.leases[&header.lease_id];
+        let lease = &self.leases[&lease_id];
         let range = lease.first_episode..lease.first_episode + u64::from(lease.episodes);
         if !range.contains(&step.episode_id) {
             return Err(Refusal::Episode(
                 step.episode_id,
-                format!("not an episode of lease {} (expected {range:?})", header.lease_id),
+                format!("not an episode of lease {} (expected {range:?})", lease_id),
             ));
         }
         if step.policy_version > self.policy_version {
@@ -675,7 +676,7 @@ impl Core {
         let lag = self.policy_version.saturating_sub(step.policy_version);
         self.lag.0 += lag;
         self.lag.1 += 1;
-        if let Some(lease) = self.leases.get_mut(&header.lease_id) {
+        if let Some(lease) = self.leases.get_mut(&lease_id) {
             lease.progress_ms = now;
             if let Some(kind) = self.totals.kinds.get_mut(lease.kind.as_str()) {
                 kind.steps += 1;

@@ -56,7 +56,7 @@ use sampling::{
 };
 
 use crate::local_map::LocalMap;
-use crate::{Integrator, PlanInput, Planner, Rollouts};
+use crate::{Integrator, PlanInput, Planner, Trace};
 
 /// Scan points this close to the robot centre are checked exactly by the recovery
 /// motions (m): the circumscribed radius plus a back-up step, with room to spare.
@@ -101,9 +101,7 @@ pub struct NavSystem {
     scratch: Vec<Vec2>,
     /// Measured velocity of the previous cycle (dead reckoning of the memory).
     last_vel: Twist,
-    rollouts: Rollouts,
-    recording: bool,
-    evaluated: u64,
+    trace: Trace,
 }
 
 impl NavSystem {
@@ -111,11 +109,7 @@ impl NavSystem {
     pub fn new(cfg: SystemConfig, seed: u64) -> Self {
         Self {
             cfg,
-            map: LocalMap::new(
-                sim::Footprint::JACKAL,
-                cfg.map_resolution,
-                crate::schedule::DEFAULT_BOUNDARY_POINTS,
-            ),
+            map: LocalMap::jackal(cfg.map_resolution),
             rng: Pcg64Mcg::seed_from_u64(seed),
             machine: ModeMachine::new(cfg),
             nominal: Vec::new(),
@@ -134,9 +128,7 @@ impl NavSystem {
             memory: Vec::new(),
             scratch: Vec::new(),
             last_vel: Twist::default(),
-            rollouts: Rollouts::default(),
-            recording: false,
-            evaluated: 0,
+            trace: Trace::default(),
         }
     }
 
@@ -219,7 +211,7 @@ impl NavSystem {
     /// evaluated point per pose).
     fn clear_at(&mut self, poses: impl Iterator<Item = Pose>, margin: f64) -> bool {
         for pose in poses {
-            self.evaluated += 1;
+            self.trace.evaluated += 1;
             if self.exact_clearance(&pose) < margin {
                 return false;
             }
@@ -328,8 +320,8 @@ impl NavSystem {
                 .extend(std::iter::repeat_n(clamp_window(x), cfg.extra_samples));
         }
         let n = self.nominal.len();
-        if self.recording {
-            self.rollouts.clear(dts);
+        if self.trace.recording {
+            self.trace.rollouts.clear(dts);
         }
 
         // Per-step noise, drawn sequentially so the result does not depend on threads.
@@ -380,7 +372,7 @@ impl NavSystem {
             space_dirs,
             space_cap: cfg.space_cap,
             half_width: fp.half_width,
-            record: self.recording,
+            record: self.trace.recording,
         };
         let controls = &self.controls;
         self.evals[..n]
@@ -389,14 +381,14 @@ impl NavSystem {
             .with_min_len(32)
             .for_each(|(i, e)| evaluate(&ctx, &controls[i * steps..(i + 1) * steps], e));
         let evals = &mut self.evals[..n];
-        self.evaluated += evals.iter().map(|e| e.evaluated).sum::<u64>();
-        if self.recording {
+        self.trace.evaluated += evals.iter().map(|e| e.evaluated).sum::<u64>();
+        if self.trace.recording {
             for e in evals.iter() {
-                self.rollouts.begin();
+                self.trace.rollouts.begin();
                 for p in &e.poses {
-                    self.rollouts.push(*p);
+                    self.trace.rollouts.push(*p);
                 }
-                self.rollouts.end(e.feasible);
+                self.trace.rollouts.end(e.feasible);
             }
         }
 
@@ -493,7 +485,7 @@ impl NavSystem {
                 &pose,
                 m as usize,
                 self.cfg.clearance_cap,
-                &mut self.evaluated,
+                &mut self.trace.evaluated,
             );
             if clear < margin {
                 return false;
@@ -514,19 +506,13 @@ impl Planner for NavSystem {
         let sched = input.schedule;
         self.remember(per);
         self.integrator = input.prediction.integrator;
-        self.map.prepare(
-            &self.obstacles,
-            sched,
-            input.prediction.checks,
-            input.max_speed,
-            NEAR_RANGE,
-            cfg.clearance_cap,
-        );
-        if self.recording {
-            self.rollouts.clear(sched.dts());
+        self.map
+            .prepare(&self.obstacles, input, NEAR_RANGE, cfg.clearance_cap);
+        if self.trace.recording {
+            self.trace.rollouts.clear(sched.dts());
         }
         self.start_clear = self.exact_clearance(&Pose::default());
-        self.evaluated += 1;
+        self.trace.evaluated += 1;
 
         let heading_error = path_bearing(per.local_path, 0.3, per.local_goal);
         let obs = ModeObservation {
@@ -559,16 +545,12 @@ impl Planner for NavSystem {
         cmd
     }
 
-    fn rollouts(&self) -> &Rollouts {
-        &self.rollouts
+    fn trace(&self) -> &Trace {
+        &self.trace
     }
 
-    fn set_recording(&mut self, on: bool) {
-        self.recording = on;
-    }
-
-    fn evaluated_points(&self) -> u64 {
-        self.evaluated
+    fn trace_mut(&mut self) -> &mut Trace {
+        &mut self.trace
     }
 }
 
