@@ -12,6 +12,9 @@
 //!   processes notice the dead learner, register with the new incarnation, and the run
 //!   continues from the newest complete checkpoint (same run id, the counters go on) to its
 //!   budget, with nothing of the old sessions refused by the new learner;
+//! - **the shared-memory port limit** (`[service] shm_max_actors = 1`): a second actor with
+//!   `--data-plane auto` cannot attach to the learner's shared memory and streams over gRPC
+//!   instead, in the same session, and the run completes with nothing refused;
 //! - **two network namespaces**: the learner in one namespace, two actors in another, joined by
 //!   a veth pair, so steps and policies travel over gRPC on a non-loopback address. Skipped
 //!   with a reason when namespaces cannot be made (not root, no `ip`), unless
@@ -455,6 +458,59 @@ fn a_frozen_actor_loses_its_lease_and_its_late_data_is_refused() {
     for r in 0..3 {
         assert!(rank_steps(&s, r) > 0, "rank {r}: {}", procs.report());
     }
+}
+
+#[test]
+fn an_auto_actor_beyond_the_shared_memory_port_limit_streams_over_grpc() {
+    const BUDGET: u64 = 1500;
+    let _turn = take_turn();
+    let dir = fresh_dir("faults-shm-ports");
+    let run = dir.join("run");
+    let cfg = write_config(
+        &dir,
+        &TestConfig {
+            shared_memory: true,
+            lease_ttl_ms: 1500,
+            checkpoint_every_s: 60.0,
+        },
+    );
+    // One shared-memory port: the second actor cannot attach and must fall back.
+    let mut text = std::fs::read_to_string(&cfg).unwrap();
+    text.push_str("shm_max_actors = 1\n");
+    std::fs::write(&cfg, text).unwrap();
+    let mut procs = Procs::new(&dir, &run);
+    let learner = procs.spawn(
+        "learner",
+        learner_cmd(&[], &cfg, &run, BUDGET, "127.0.0.1:0", false),
+    );
+    procs.wait_for("learner.addr", PATIENCE, |_| run.join("learner.addr").is_file());
+    let addr = read_addr(&run).unwrap();
+    let token = run.join("token");
+    let first = procs.spawn("actor0", actor_cmd(&[], &addr, &token, 0, "auto"));
+    procs.wait_for("rank 0 on shared memory", PATIENCE, |_| {
+        status(&run).is_some_and(|s| rank_status(&s, 0).steps_shm > 0)
+    });
+    let second = procs.spawn("actor1", actor_cmd(&[], &addr, &token, 1, "auto"));
+    procs.wait_all_succeed(learner, &[first, second]);
+
+    let s = read_status(&run).unwrap();
+    assert_consistent(&s, &procs);
+    assert_eq!(refused_total(&s), 0, "{}", procs.report());
+    assert_eq!(s.shm_unavailable, None, "{}", procs.report());
+    let (r0, r1) = (rank_status(&s, 0), rank_status(&s, 1));
+    assert!(
+        r0.steps_shm > 0 && r0.steps_grpc == 0,
+        "rank 0: {}",
+        procs.report()
+    );
+    assert!(
+        r1.steps_grpc > 0 && r1.steps_shm == 0,
+        "rank 1: {}",
+        procs.report()
+    );
+    // The fallback is per session, not a lost registration.
+    assert_eq!((r0.registrations, r1.registrations), (1, 1), "{}", procs.report());
+    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]

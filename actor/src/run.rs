@@ -218,8 +218,14 @@ struct Flags {
 struct Planes {
     sink: Box<dyn StepSink>,
     policies: Box<dyn PolicySource>,
+    /// The data plane in use, for the log.
+    name: &'static str,
 }
 
+/// The data planes of a session: shared memory when the learner offers it on this host and
+/// the actor allows it, else gRPC. With `--data-plane auto`, shared memory that cannot be
+/// opened (all of the learner's ports taken, an unusable iceoryx2 directory) falls back to
+/// gRPC with a warning; with `shm` it is the session's error.
 fn open_planes(
     rt: &tokio::runtime::Runtime,
     setup: &ActorSetup<'_>,
@@ -239,32 +245,55 @@ fn open_planes(
             offered: spec.data_plane.clone(),
             host: proto::hostname(),
         }),
-        (PlaneChoice::Auto | PlaneChoice::Shm, Some(prefix)) => {
-            let cfg = ShmConfig {
-                service_prefix: prefix,
-                ..ShmConfig::default()
-            };
-            let node = format!("adp-actor-{}-{}", setup.rank, std::process::id());
-            Ok(Planes {
-                sink: Box::new(ShmStepSink::open(&cfg, &node)?),
-                policies: Box::new(ShmPolicySource::open(&cfg, &node)?),
-            })
-        }
-        _ => Ok(Planes {
-            sink: Box::new(GrpcStepSink::new(
-                rt.handle().clone(),
-                data.clone(),
-                &run.run_id,
-                run.incarnation,
-            )),
-            policies: Box::new(GrpcPolicySource::start(
-                rt.handle(),
-                data,
-                &run.run_id,
-                run.incarnation,
-                actor_id,
-            )),
-        }),
+        (PlaneChoice::Auto | PlaneChoice::Shm, Some(prefix)) => match open_shm(setup.rank, prefix) {
+            Ok(planes) => Ok(planes),
+            Err(e) if setup.plane == PlaneChoice::Auto => {
+                tracing::warn!(error = %e, "shared memory unavailable; streaming over gRPC");
+                Ok(open_grpc(rt, data, run, actor_id))
+            }
+            Err(e) => Err(e.into()),
+        },
+        _ => Ok(open_grpc(rt, data, run, actor_id)),
+    }
+}
+
+/// The shared-memory planes under the learner's service `prefix`. The learner created the
+/// services with its port limit; the actor requires one port of each.
+fn open_shm(rank: u32, prefix: String) -> Result<Planes, PlaneError> {
+    let cfg = ShmConfig {
+        service_prefix: prefix,
+        max_actors: 1,
+        ..ShmConfig::default()
+    };
+    let node = format!("adp-actor-{rank}-{}", std::process::id());
+    Ok(Planes {
+        sink: Box::new(ShmStepSink::open(&cfg, &node)?),
+        policies: Box::new(ShmPolicySource::open(&cfg, &node)?),
+        name: "shm",
+    })
+}
+
+fn open_grpc(
+    rt: &tokio::runtime::Runtime,
+    data: proto::grpc::DataClient,
+    run: &pb::RunRef,
+    actor_id: u64,
+) -> Planes {
+    Planes {
+        sink: Box::new(GrpcStepSink::new(
+            rt.handle().clone(),
+            data.clone(),
+            &run.run_id,
+            run.incarnation,
+        )),
+        policies: Box::new(GrpcPolicySource::start(
+            rt.handle(),
+            data,
+            &run.run_id,
+            run.incarnation,
+            actor_id,
+        )),
+        name: "grpc",
     }
 }
 
@@ -302,11 +331,7 @@ fn session(
         run_id = %run.run_id,
         planner = %spec.planner,
         action_space = %spec.action_space,
-        plane = if spec.data_plane == "grpc" || setup.plane == PlaneChoice::Grpc {
-            "grpc"
-        } else {
-            "shm"
-        },
+        plane = planes.name,
         "registered"
     );
     let flags = Arc::new(Flags::default());

@@ -21,6 +21,10 @@ pub struct ServiceConfig {
     /// for the control plane). Actors on other hosts always stream steps over gRPC. On by
     /// default.
     pub shared_memory: bool,
+    /// Most actors on the shared-memory plane at once (iceoryx2 fixes its ports when the
+    /// learner creates the services). An actor beyond it that runs `--data-plane auto` streams
+    /// over gRPC instead; one that insists on `shm` fails with the reason. Default 256.
+    pub shm_max_actors: u32,
     /// How often actors send a heartbeat (ms).
     pub heartbeat_ms: u32,
     /// A lease expires this long (ms) after the last heartbeat; its world is dealt again and
@@ -65,9 +69,13 @@ impl ServiceConfig {
         }
     }
 
-    /// Refuses settings that cannot work: a heartbeat not shorter than the lease, and a
-    /// network address other than loopback without TLS unless `allow_insecure_listen`.
+    /// Refuses settings that cannot work: a heartbeat not shorter than the lease, no port for
+    /// shared memory, and a network address other than loopback without TLS unless
+    /// `allow_insecure_listen`.
     pub fn check(&self) -> Result<(), ServiceError> {
+        if self.shared_memory && self.shm_max_actors == 0 {
+            return Err(ServiceError::ShmMaxActors);
+        }
         if self.heartbeat_ms == 0 || self.lease_ttl_ms <= self.heartbeat_ms {
             return Err(ServiceError::LeaseTtl {
                 lease_ttl_ms: self.lease_ttl_ms,
@@ -106,6 +114,7 @@ impl Default for ServiceConfig {
         Self {
             listen: "127.0.0.1:0".into(),
             shared_memory: true,
+            shm_max_actors: 256,
             heartbeat_ms: 1000,
             lease_ttl_ms: 15_000,
             progress_timeout_ms: 0,

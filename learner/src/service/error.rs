@@ -36,6 +36,9 @@ pub enum ServiceError {
         /// The lock file.
         lock: PathBuf,
     },
+    /// Shared memory is on with no port for actors.
+    #[error("[service] shm_max_actors must be at least 1 while shared_memory = true")]
+    ShmMaxActors,
     /// The lease is not longer than the heartbeat (or the heartbeat is 0).
     #[error("[service] lease_ttl_ms ({lease_ttl_ms}) must exceed heartbeat_ms ({heartbeat_ms}) > 0")]
     LeaseTtl {

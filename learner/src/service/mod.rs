@@ -398,6 +398,7 @@ impl DataPlanes {
     fn start(svc: &ServiceConfig, run_id: &str, incarnation: u64) -> Result<Self, ServiceError> {
         let shm = svc.shared_memory.then(|| ShmConfig {
             service_prefix: format!("adp/{run_id}/{incarnation:016x}"),
+            max_actors: svc.shm_max_actors as usize,
             ..ShmConfig::default()
         });
         let intake_stop = Arc::new(AtomicBool::new(false));
