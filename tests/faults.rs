@@ -15,6 +15,10 @@
 //! - **the shared-memory port limit** (`[service] shm_max_actors = 1`): a second actor with
 //!   `--data-plane auto` cannot attach to the learner's shared memory and streams over gRPC
 //!   instead, in the same session, and the run completes with nothing refused;
+//! - **a silent shared-memory policy** (`ADP_TEST_SHM_POLICY_SILENT=1`: the learner's
+//!   publisher never publishes): `auto` actors wait one lease TTL for the assignment's policy,
+//!   then watch policies over gRPC while their steps stay on shared memory, and the run
+//!   completes;
 //! - **two network namespaces**: the learner in one namespace, two actors in another, joined by
 //!   a veth pair, so steps and policies travel over gRPC on a non-loopback address. Skipped
 //!   with a reason when namespaces cannot be made (not root, no `ip`), unless
@@ -510,6 +514,50 @@ fn an_auto_actor_beyond_the_shared_memory_port_limit_streams_over_grpc() {
     );
     // The fallback is per session, not a lost registration.
     assert_eq!((r0.registrations, r1.registrations), (1, 1), "{}", procs.report());
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn actors_whose_shared_memory_policy_never_arrives_watch_it_over_grpc() {
+    const BUDGET: u64 = 1000;
+    let _turn = take_turn();
+    let dir = fresh_dir("faults-silent-policy");
+    let run = dir.join("run");
+    let cfg = write_config(
+        &dir,
+        &TestConfig {
+            shared_memory: true,
+            lease_ttl_ms: 1500,
+            checkpoint_every_s: 60.0,
+        },
+    );
+    let mut procs = Procs::new(&dir, &run);
+    // The learner's shared-memory publisher opens but never publishes.
+    let mut learner = learner_cmd(&[], &cfg, &run, BUDGET, "127.0.0.1:0", false);
+    learner.env("ADP_TEST_SHM_POLICY_SILENT", "1");
+    let learner = procs.spawn("learner", learner);
+    procs.wait_for("learner.addr", PATIENCE, |_| run.join("learner.addr").is_file());
+    let addr = read_addr(&run).unwrap();
+    let token = run.join("token");
+    let actors: Vec<usize> = (0..2)
+        .map(|r| procs.spawn(&format!("actor{r}"), actor_cmd(&[], &addr, &token, r, "auto")))
+        .collect();
+    procs.wait_all_succeed(learner, &actors);
+
+    let s = read_status(&run).unwrap();
+    assert_consistent(&s, &procs);
+    assert_eq!(refused_total(&s), 0, "{}", procs.report());
+    assert_eq!(s.shm_unavailable, None, "{}", procs.report());
+    // The steps kept to shared memory; only the policies moved to gRPC, within the session.
+    for r in 0..2 {
+        let rs = rank_status(&s, r);
+        assert!(
+            rs.steps_shm > 0 && rs.steps_grpc == 0,
+            "rank {r}: {}",
+            procs.report()
+        );
+        assert_eq!(rs.registrations, 1, "rank {r}: {}", procs.report());
+    }
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

@@ -218,8 +218,10 @@ struct Flags {
 struct Planes {
     sink: Box<dyn StepSink>,
     policies: Box<dyn PolicySource>,
-    /// The data plane in use, for the log.
+    /// The data plane of the steps (`shm` or `grpc`), for the log.
     name: &'static str,
+    /// The data plane of the policies: `shm` until a silent shared-memory source is replaced.
+    policy_plane: &'static str,
 }
 
 /// The data planes of a session: shared memory when the learner offers it on this host and
@@ -270,6 +272,7 @@ fn open_shm(rank: u32, prefix: String) -> Result<Planes, PlaneError> {
         sink: Box::new(ShmStepSink::open(&cfg, &node)?),
         policies: Box::new(ShmPolicySource::open(&cfg, &node)?),
         name: "shm",
+        policy_plane: "shm",
     })
 }
 
@@ -294,6 +297,7 @@ fn open_grpc(
             actor_id,
         )),
         name: "grpc",
+        policy_plane: "grpc",
     }
 }
 
@@ -326,7 +330,7 @@ fn session(
         .map_err(|e| SessionError::Space(Box::new(e)))?;
     let env_cfg: EnvConfig = toml::from_str(&spec.env_toml).map_err(SessionError::Env)?;
     let dims: Vec<usize> = spec.policy_dims.iter().map(|&d| d as usize).collect();
-    let mut planes = open_planes(rt, setup, &spec, data, &run, actor_id)?;
+    let mut planes = open_planes(rt, setup, &spec, data.clone(), &run, actor_id)?;
     tracing::info!(
         run_id = %run.run_id,
         planner = %spec.planner,
@@ -358,6 +362,7 @@ fn session(
     // How long a finished run may take to drain this actor's last lease before it leaves: as
     // long as the learner keeps the lease valid, up to the actor's patience with the learner.
     let drain_limit = setup.give_up_after;
+    let policy_patience = Duration::from_millis(u64::from(spec.lease_ttl_ms.max(spec.heartbeat_ms).max(10)));
     loop {
         if flags.shutdown.load(Ordering::Acquire) {
             wait_for_lease_end(&flags, drain_limit);
@@ -403,8 +408,28 @@ fn session(
         );
         flags.lease.store(a.lease_id, Ordering::Release);
         flags.lease_lost.store(false, Ordering::Release);
-        // Wait for the assignment's policy version.
+        // Wait for the assignment's policy version. A shared-memory source that has not
+        // delivered it within a lease TTL is replaced by gRPC's WatchPolicy for the rest of the
+        // session (steps stay on shared memory), before the learner's no-progress bound would
+        // drop the lease.
+        let waiting_since = Instant::now();
         loop {
+            if planes.policy_plane == "shm" && waiting_since.elapsed() >= policy_patience {
+                tracing::warn!(
+                    wanted = a.policy_version,
+                    have = policy.as_ref().map(|p| p.0),
+                    waited_ms = waiting_since.elapsed().as_millis() as u64,
+                    "no policy over shared memory; watching policies over gRPC"
+                );
+                planes.policies = Box::new(GrpcPolicySource::start(
+                    rt.handle(),
+                    data.clone(),
+                    &run.run_id,
+                    run.incarnation,
+                    actor_id,
+                ));
+                planes.policy_plane = "grpc";
+            }
             match planes.policies.poll(policy.as_ref().map(|p| p.0)) {
                 Ok(Some(update)) => {
                     let net = MlpPolicy::from_flat(&dims, update.weights).map_err(|source| {

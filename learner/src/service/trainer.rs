@@ -125,7 +125,7 @@ impl Trainer {
                 drop(core);
                 let (_, weights) = self.td3.policy().flat_weights();
                 shm_retry = None;
-                if let Some(p) = shm_pub.as_mut() {
+                if let Some(p) = shm_pub.as_mut().filter(|_| !shm_policy_silent()) {
                     if let Err(e) = p.publish(version, sigma, &weights) {
                         tracing::warn!(version, "shared-memory policy publish failed ({e}); retrying");
                         shm_retry = Some((version, sigma, Instant::now()));
@@ -320,6 +320,12 @@ impl Trainer {
         }
         Ok(dir)
     }
+}
+
+/// Test hook: with `ADP_TEST_SHM_POLICY_SILENT=1` the shared-memory policy publisher is opened
+/// but never publishes, to stand in for a shared-memory policy that never reaches the actors.
+fn shm_policy_silent() -> bool {
+    std::env::var("ADP_TEST_SHM_POLICY_SILENT").as_deref() == Ok("1")
 }
 
 /// Test hook: `ADP_TEST_SLOW_CHECKPOINT_MS` delays every checkpoint write by that long, to
