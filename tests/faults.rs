@@ -19,6 +19,9 @@
 //!   publisher never publishes): `auto` actors wait one lease TTL for the assignment's policy,
 //!   then watch policies over gRPC while their steps stay on shared memory, and the run
 //!   completes;
+//! - **a small /dev/shm**: an `auto` actor in a private mount namespace whose /dev/shm (256 KiB)
+//!   cannot hold its step segment streams over gRPC instead of dying of SIGBUS; skipped with a
+//!   reason when the namespace cannot be made, unless `ADP_REQUIRE_NETNS=1`;
 //! - **two network namespaces**: the learner in one namespace, two actors in another, joined by
 //!   a veth pair, so steps and policies travel over gRPC on a non-loopback address. Skipped
 //!   with a reason when namespaces cannot be made (not root, no `ip`), unless
@@ -513,6 +516,95 @@ fn an_auto_actor_beyond_the_shared_memory_port_limit_streams_over_grpc() {
         procs.report()
     );
     // The fallback is per session, not a lost registration.
+    assert_eq!((r0.registrations, r1.registrations), (1, 1), "{}", procs.report());
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// `unshare` prefix that gives the wrapped command a private mount namespace whose /dev/shm
+/// is a tmpfs of `size`, or why that cannot be done here (skip, unless `ADP_REQUIRE_NETNS=1`,
+/// which CI sets as root).
+fn small_dev_shm(size: &str) -> Result<Vec<String>, String> {
+    let script = format!("mount -t tmpfs -o size={size} tmpfs /dev/shm && exec \"$0\" \"$@\"");
+    let prefix: Vec<String> = [
+        "unshare",
+        "--mount",
+        "--propagation",
+        "private",
+        "sh",
+        "-c",
+        &script,
+    ]
+    .iter()
+    .map(|s| s.to_string())
+    .collect();
+    let probe = Command::new(&prefix[0])
+        .args(&prefix[1..])
+        .arg("true")
+        .output()
+        .map_err(|e| format!("unshare: {e}"))?;
+    if !probe.status.success() {
+        return Err(String::from_utf8_lossy(&probe.stderr).trim().to_owned());
+    }
+    Ok(prefix)
+}
+
+#[test]
+fn an_auto_actor_with_too_little_dev_shm_streams_over_grpc() {
+    const BUDGET: u64 = 1000;
+    let _turn = take_turn();
+    let prefix = match small_dev_shm("256k") {
+        Ok(p) => p,
+        Err(why) => {
+            assert!(
+                std::env::var("ADP_REQUIRE_NETNS").as_deref() != Ok("1"),
+                "ADP_REQUIRE_NETNS=1 but a private /dev/shm cannot be mounted: {why}"
+            );
+            eprintln!("SKIPPED: no private /dev/shm: {why}");
+            return;
+        }
+    };
+    let prefix: Vec<&str> = prefix.iter().map(String::as_str).collect();
+    let dir = fresh_dir("faults-small-shm");
+    let run = dir.join("run");
+    let cfg = write_config(
+        &dir,
+        &TestConfig {
+            shared_memory: true,
+            lease_ttl_ms: 1500,
+            checkpoint_every_s: 60.0,
+        },
+    );
+    let mut procs = Procs::new(&dir, &run);
+    let learner = procs.spawn(
+        "learner",
+        learner_cmd(&[], &cfg, &run, BUDGET, "127.0.0.1:0", false),
+    );
+    procs.wait_for("learner.addr", PATIENCE, |_| run.join("learner.addr").is_file());
+    let addr = read_addr(&run).unwrap();
+    let token = run.join("token");
+    // Rank 0 sees a /dev/shm of 256 KiB, less than its step segment (about 1.6 MB): before
+    // the room check it died of SIGBUS while opening shared memory (at 1 MiB iceoryx2 itself
+    // refuses, and the same fallback applies).
+    let actors = [
+        procs.spawn("actor0", actor_cmd(&prefix, &addr, &token, 0, "auto")),
+        procs.spawn("actor1", actor_cmd(&[], &addr, &token, 1, "auto")),
+    ];
+    procs.wait_all_succeed(learner, &actors);
+
+    let s = read_status(&run).unwrap();
+    assert_consistent(&s, &procs);
+    assert_eq!(refused_total(&s), 0, "{}", procs.report());
+    let (r0, r1) = (rank_status(&s, 0), rank_status(&s, 1));
+    assert!(
+        r0.steps_grpc > 0 && r0.steps_shm == 0,
+        "rank 0: {}",
+        procs.report()
+    );
+    assert!(
+        r1.steps_shm > 0 && r1.steps_grpc == 0,
+        "rank 1: {}",
+        procs.report()
+    );
     assert_eq!((r0.registrations, r1.registrations), (1, 1), "{}", procs.report());
     std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -64,6 +64,12 @@ const POLICY_REFRESH_PERIOD: Duration = Duration::from_millis(20);
 /// copied by actors.
 const POLICY_CHUNKS: usize = 8;
 
+/// Where iceoryx2 keeps its data segments on Linux (POSIX shared memory, a tmpfs).
+const SEGMENT_DIR: &str = "/dev/shm";
+
+/// Step records an actor's segment holds beyond the learner's queue (loans, in flight).
+const STEP_SLACK: usize = 8;
+
 /// [`SlotHead::flags`] bit: a true end of the episode.
 const TERMINAL: u32 = 1;
 /// [`SlotHead::flags`] bit: a time-limit end (`final_obs` follows the action).
@@ -232,6 +238,46 @@ impl From<ShmError> for PlaneError {
     }
 }
 
+/// Refuses a data segment of `bytes` for `what` when the shared-memory filesystem has less
+/// room left. tmpfs gives a segment its pages only when they are first written, so a segment
+/// larger than the room left is created without complaint and its writer later dies of
+/// SIGBUS; this check turns that into an error at opening, which callers degrade to gRPC.
+/// It sees the room left now, not what other segments created earlier may still claim. When
+/// the filesystem cannot be inspected, the opening goes ahead.
+fn ensure_room(bytes: u64, what: &str) -> Result<(), ShmError> {
+    let Some(free) = free_bytes(SEGMENT_DIR) else {
+        return Ok(());
+    };
+    if free >= bytes {
+        return Ok(());
+    }
+    Err(ShmError::Setup {
+        what: what.to_owned(),
+        op: "reserve room in /dev/shm",
+        detail: format!(
+            "the segment needs {:.1} MiB, {SEGMENT_DIR} has {:.1} MiB free",
+            bytes as f64 / MIB,
+            free as f64 / MIB
+        ),
+    })
+}
+
+const MIB: f64 = 1024.0 * 1024.0;
+
+/// Bytes an unprivileged writer may still use on the filesystem of `dir`.
+fn free_bytes(dir: &str) -> Option<u64> {
+    let path = std::ffi::CString::new(dir).ok()?;
+    let mut st = std::mem::MaybeUninit::<libc::statvfs>::uninit();
+    // SAFETY: `path` is a valid C string and `st` has room for one `statvfs`, which the call
+    // fills when it returns 0.
+    if unsafe { libc::statvfs(path.as_ptr(), st.as_mut_ptr()) } != 0 {
+        return None;
+    }
+    // SAFETY: the call returned 0, so it initialized `st`.
+    let st = unsafe { st.assume_init() };
+    Some(st.f_bavail.saturating_mul(st.f_frsize))
+}
+
 fn setup_error(what: &str, op: &'static str, e: impl std::fmt::Display) -> ShmError {
     ShmError::Setup {
         what: what.to_owned(),
@@ -380,7 +426,11 @@ pub struct ShmStepSink {
 impl ShmStepSink {
     /// Opens (or creates, with the same settings the learner uses) the step service of `cfg`
     /// through a new node called `node_name`, and a publisher on it.
+    /// Fails before creating anything when `/dev/shm` has no room for the sink's segment
+    /// ([`ShmConfig::queue_depth`] step records and a few more).
     pub fn open(cfg: &ShmConfig, node_name: &str) -> Result<Self, PlaneError> {
+        let bytes = (cfg.queue_depth + STEP_SLACK) * std::mem::size_of::<StepSlot>();
+        ensure_room(bytes as u64, &format!("{}/steps", cfg.service_prefix))?;
         let (config, node) = cfg.node(node_name)?;
         let (service, label) = cfg.steps(&node)?;
         let publisher = service
@@ -576,7 +626,11 @@ impl ShmPolicyPublisher {
     /// Creates (or opens) the policy service of `cfg` through a node called
     /// `adp-learner-policy`, a publisher for policies of up to
     /// [`ShmConfig::max_policy_floats`] floats, and its refresh thread.
+    /// Fails before creating anything when `/dev/shm` has no room for the publisher's segment
+    /// (a few policies of [`ShmConfig::max_policy_floats`]).
     pub fn open(cfg: &ShmConfig) -> Result<Self, ShmError> {
+        let bytes = POLICY_CHUNKS * cfg.max_policy_floats * std::mem::size_of::<f32>();
+        ensure_room(bytes as u64, &format!("{}/policy", cfg.service_prefix))?;
         let (_, node) = cfg.node("adp-learner-policy")?;
         let (service, label) = cfg.policy(&node)?;
         let publisher = service
@@ -862,6 +916,21 @@ mod tests {
             .map(|k| (5 + k % 7) * (1 + usize::from(k % 100 == 99)) + ACT.len())
             .sum();
         assert_eq!(checked_floats, ACTORS * per_actor);
+    }
+
+    /// A data segment larger than the room left on /dev/shm is refused with the service, the
+    /// need and the room named, before anything is created (tmpfs would hand the writer a
+    /// SIGBUS later).
+    #[test]
+    fn a_segment_larger_than_the_room_left_is_refused_before_creation() {
+        let free = free_bytes(SEGMENT_DIR).expect("/dev/shm can be inspected");
+        let err = ensure_room(free + (64 << 20), "adp/t/steps")
+            .unwrap_err()
+            .to_string();
+        for needle in ["adp/t/steps", "reserve room in /dev/shm", "MiB free"] {
+            assert!(err.contains(needle), "`{needle}` not in: {err}");
+        }
+        assert!(ensure_room(0, "adp/t/steps").is_ok());
     }
 
     /// Fault injection: an iceoryx2 root that is not a usable directory (here a regular file)
