@@ -80,8 +80,9 @@ def test_python_actors_train_to_the_budget_with_verified_checksums(trained):
     assert {k for k, v in s["refused"] if v} <= {"invalid_lease"}, s["refused"]
     expired = {e["lease"] for e in s["leases_expired_recent"]}
     assert all(r["lease"] in expired for r in s["refused_leases"]), s
-    for log in trained["logs"]:
-        assert "registered as" in log and "run over after" in log, log
+    # The two surviving actors registered with this learner (and exited 0 when the run was
+    # over, above).
+    assert {0, 1} <= {r["rank"] for r in s["ranks"] if r["registrations"] >= 1}, s["ranks"]
     export = trained["dir"] / "run" / "export"
     for f in ("policy.onnx", "policy.safetensors", "policy.json"):
         assert (export / f).is_file(), f
@@ -203,14 +204,14 @@ def test_actor_reconnects_to_a_restarted_learner(tmp_path):
         learner.proc.send_signal(signal.SIGKILL)
         learner.proc.wait()
         learner.log.close()
-        wait_for("the actor to notice the dead learner",
-                 lambda: "reconnecting in" in (tmp_path / "actor.log").read_text())
+        # The actor keeps trying while no learner answers (it has --give-up-after 300).
+        time.sleep(3)  # an observation window, not a limit
         assert actor.poll() is None, (tmp_path / "actor.log").read_text()
         learner = Learner(tmp_path, steps=500, listen=listen, resume=True, service=every)
         s = learner.wait_finished()
         assert wait_exit(actor, "actor exit") == 0, (tmp_path / "actor.log").read_text()
-        log = (tmp_path / "actor.log").read_text()
-        assert log.count("registered as") >= 2, log
+        # The same actor process registered with the resumed learner (counted per learner).
+        assert any(r["rank"] == 0 and r["registrations"] >= 1 for r in s["ranks"]), s["ranks"]
         assert s["run_id"] == first["run_id"] and s["incarnation"] != first["incarnation"], (s, first)
         assert s["inserts"] >= 500 and s["episodes_mismatched"] == 0, s
         assert s["episodes_verified"] > 0, s
@@ -285,7 +286,9 @@ def test_lease_loss_and_refused_data(tmp_path):
     codes = [a.returncode for a in actors]
     logs = [(tmp_path / f"actor{r}.log").read_text() for r in range(2)]
     assert codes == [0, 0], logs
-    assert "lease" in logs[1] or "reconnecting" in logs[1], logs[1]
+    # The frozen actor lost its lease, or was retired while idle and registered again.
+    regs = {r["rank"]: r["registrations"] for r in s["ranks"]}
+    assert s["leases_expired"] >= 1 or regs.get(1, 0) >= 2, s
 
 
 def test_mixed_fleet_counts_per_actor_kind(tmp_path):
