@@ -24,7 +24,7 @@ use sim::geometry::{wrap_angle, Footprint, Pose, Vec2};
 use sim::robot::Twist;
 
 use crate::local_map::LocalMap;
-use crate::mppi::{command, mppi_weights, roll_all, warm_start, Unicycle};
+use crate::mppi::{mppi_weights, roll_all, Nominal, Unicycle};
 use crate::{Integrator, PlanInput, Planner, Rollouts, Trace};
 
 /// Log-MPPI parameters (defaults used by `adp eval`).
@@ -164,9 +164,8 @@ pub struct LogMppi {
     costmap: Costmap,
     /// `boundary[m]` = m footprint boundary points (robot frame).
     boundary: Vec<Vec<Vec2>>,
-    nominal: Vec<Twist>,
-    nominal_dts: Vec<f64>,
-    scratch: Vec<Twist>,
+    /// The warm-start sequence and its grid.
+    nominal: Nominal,
     /// Sampled sequences, `samples x steps`, clamped to the limits.
     controls: Vec<Twist>,
     outcomes: Vec<Outcome>,
@@ -206,9 +205,7 @@ impl LogMppi {
             map: LocalMap::new(Footprint::JACKAL, cfg.map_resolution, n),
             costmap: Costmap::default(),
             boundary: (0..=n).map(|m| Footprint::JACKAL.boundary_points(m)).collect(),
-            nominal: Vec::new(),
-            nominal_dts: Vec::new(),
-            scratch: Vec::new(),
+            nominal: Nominal::default(),
             controls: Vec::new(),
             outcomes: Vec::new(),
             costs: Vec::new(),
@@ -229,7 +226,7 @@ impl LogMppi {
         };
         self.controls.clear();
         for i in 0..cfg.samples.max(1) {
-            for u in &self.nominal {
+            for u in &self.nominal.seq {
                 let (dv, dw) = if i == 0 {
                     (0.0, 0.0)
                 } else {
@@ -366,13 +363,7 @@ impl Planner for LogMppi {
             cfg.lethal_margin,
         );
 
-        warm_start(
-            &mut self.nominal,
-            &mut self.nominal_dts,
-            sched.dts(),
-            cfg.control_dt,
-            &mut self.scratch,
-        );
+        self.nominal.warm_start(sched.dts(), cfg.control_dt);
 
         self.sample(input.max_speed);
         self.outcomes
@@ -383,30 +374,24 @@ impl Planner for LogMppi {
             boundary: &self.boundary,
             dts: sched.dts(),
             checks: sched.checks(),
-            nominal: &self.nominal,
+            nominal: &self.nominal.seq,
             start: per.vel,
             goal: per.local_goal,
             integrator: input.prediction.integrator,
         };
         let roll = |u: &[Twist], record: Option<&mut Rollouts>| rollout(&scene, u, record);
-        roll_all(
-            &self.controls,
-            steps,
-            &mut self.outcomes,
-            &mut self.trace,
-            sched.dts(),
-            roll,
-        );
+        let dts = sched.dts();
+        roll_all(&self.controls, &mut self.outcomes, &mut self.trace, dts, roll);
         self.trace.evaluated += self.outcomes.iter().map(|o| o.evaluated).sum::<u64>();
 
         // The path-integral update over all samples, then the Savitzky-Golay filter.
         self.costs.clear();
         self.costs.extend(self.outcomes.iter().map(|o| o.cost));
         mppi_weights(&self.costs, cfg.lambda, &mut self.weights);
-        self.scratch.clear();
-        self.scratch.resize(steps, Twist::default());
+        self.nominal.scratch.clear();
+        self.nominal.scratch.resize(steps, Twist::default());
         for (seq, &wt) in self.controls.chunks(steps).zip(&self.weights) {
-            for (acc, u) in self.scratch.iter_mut().zip(seq) {
+            for (acc, u) in self.nominal.scratch.iter_mut().zip(seq) {
                 acc.v += wt * u.v;
                 acc.w += wt * u.w;
             }
@@ -417,14 +402,14 @@ impl Planner for LogMppi {
             self.times.push(t + 0.5 * dt);
             t += dt;
         }
-        savitzky_golay(&self.scratch, &self.times, cfg.sg_half_window, &mut self.nominal);
-        command(
-            &self.nominal,
-            sched.dts(),
-            cfg.control_dt,
-            input.max_speed,
-            cfg.max_w,
-        )
+        savitzky_golay(
+            &self.nominal.scratch,
+            &self.times,
+            cfg.sg_half_window,
+            &mut self.nominal.seq,
+        );
+        self.nominal
+            .command(sched.dts(), cfg.control_dt, input.max_speed, cfg.max_w)
     }
 
     fn trace(&self) -> &Trace {

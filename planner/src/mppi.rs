@@ -124,11 +124,8 @@ pub struct Mppi {
     cfg: MppiConfig,
     rng: Pcg64Mcg,
     map: LocalMap,
-    /// Nominal sequence, one command per step of `nominal_dts`.
-    nominal: Vec<Twist>,
-    nominal_dts: Vec<f64>,
-    /// Scratch sequence (the shifted or updated nominal).
-    scratch: Vec<Twist>,
+    /// The warm-start sequence and its grid.
+    nominal: Nominal,
     /// Sampled sequences, `samples x steps`, clamped to the limits.
     controls: Vec<Twist>,
     outcomes: Vec<Outcome>,
@@ -172,9 +169,7 @@ impl Mppi {
             cfg,
             rng: Pcg64Mcg::seed_from_u64(seed),
             map: LocalMap::jackal(cfg.map_resolution),
-            nominal: Vec::new(),
-            nominal_dts: Vec::new(),
-            scratch: Vec::new(),
+            nominal: Nominal::default(),
             controls: Vec::new(),
             outcomes: Vec::new(),
             margins: Vec::new(),
@@ -189,7 +184,7 @@ impl Mppi {
     /// does not depend on threads). Sample 0 is the nominal itself.
     fn sample(&mut self, start: Twist, max_speed: f64) {
         let cfg = self.cfg;
-        let steps = self.nominal.len();
+        let steps = self.nominal.seq.len();
         let n = cfg.samples.max(1);
         let n_brake = (cfg.brake_fraction * n as f64).round() as usize;
         let n_explore = (cfg.explore_fraction * n as f64).round() as usize;
@@ -210,7 +205,7 @@ impl Mppi {
                 Some(Twist::new(v_lo + a * (v_hi - v_lo), w_lo + b * (w_hi - w_lo)))
             };
             for k in 0..steps {
-                let base = constant.unwrap_or(self.nominal[k]);
+                let base = constant.unwrap_or(self.nominal.seq[k]);
                 let (dv, dw) = if i == 0 {
                     (0.0, 0.0)
                 } else {
@@ -317,46 +312,54 @@ pub fn average_over(seq: &[Twist], dts: &[f64], span: f64) -> Twist {
     }
 }
 
-/// Moves the warm-start `nominal` (on the grid `nominal_dts`) one control period `shift`
-/// later onto the new grid `dts`, and makes `dts` its grid. `scratch` is reused memory.
-pub(crate) fn warm_start(
-    nominal: &mut Vec<Twist>,
-    nominal_dts: &mut Vec<f64>,
-    dts: &[f64],
-    shift: f64,
-    scratch: &mut Vec<Twist>,
-) {
-    shift_sequence(nominal, nominal_dts, dts, shift, scratch);
-    std::mem::swap(nominal, scratch);
-    nominal_dts.clear();
-    nominal_dts.extend_from_slice(dts);
+/// The warm-start control sequence of MPPI and log-MPPI: one command per step of the grid
+/// `dts`, and scratch memory for updating it without allocation. Plain data, one per planner.
+#[derive(Clone, Debug, Default)]
+pub(crate) struct Nominal {
+    /// The sequence.
+    pub(crate) seq: Vec<Twist>,
+    /// Its grid (step lengths, s).
+    pub(crate) dts: Vec<f64>,
+    /// Scratch for the shifted or updated sequence (swapped with `seq`).
+    pub(crate) scratch: Vec<Twist>,
 }
 
-/// The command of an updated `nominal` sequence: its mean over the first control period
-/// `span`, clamped to forward speeds up to `max_speed` and turn rates up to `max_w`.
-pub(crate) fn command(nominal: &[Twist], dts: &[f64], span: f64, max_speed: f64, max_w: f64) -> Twist {
-    let cmd = average_over(nominal, dts, span);
-    Twist::new(cmd.v.clamp(0.0, max_speed), cmd.w.clamp(-max_w, max_w))
+impl Nominal {
+    /// Moves the sequence one control period `shift` later onto the new grid `dts`, and makes
+    /// `dts` its grid.
+    pub(crate) fn warm_start(&mut self, dts: &[f64], shift: f64) {
+        shift_sequence(&self.seq, &self.dts, dts, shift, &mut self.scratch);
+        std::mem::swap(&mut self.seq, &mut self.scratch);
+        self.dts.clear();
+        self.dts.extend_from_slice(dts);
+    }
+
+    /// The command of the updated sequence on the grid `dts`: its mean over the first control
+    /// period `span`, clamped to forward speeds up to `max_speed` and turn rates up to `max_w`.
+    pub(crate) fn command(&self, dts: &[f64], span: f64, max_speed: f64, max_w: f64) -> Twist {
+        let cmd = average_over(&self.seq, dts, span);
+        Twist::new(cmd.v.clamp(0.0, max_speed), cmd.w.clamp(-max_w, max_w))
+    }
 }
 
-/// Rolls out every sample of `controls` (`steps` controls each, the grid `dts`) in parallel
+/// Rolls out every sample of `controls` (one control per step of the grid `dts`) in parallel
 /// into `outcomes`, then, when `trace` is recording, once more serially into its rollouts.
 pub(crate) fn roll_all<O: Send>(
     controls: &[Twist],
-    steps: usize,
     outcomes: &mut [O],
     trace: &mut Trace,
     dts: &[f64],
     roll: impl Fn(&[Twist], Option<&mut Rollouts>) -> O + Sync,
 ) {
+    let steps = dts.len().max(1);
     controls
-        .par_chunks(steps.max(1))
+        .par_chunks(steps)
         .zip(outcomes.par_iter_mut())
         .with_min_len(16)
         .for_each(|(u, out)| *out = roll(u, None));
     if trace.recording {
         trace.rollouts.clear(dts);
-        for u in controls.chunks(steps.max(1)) {
+        for u in controls.chunks(steps) {
             roll(u, Some(&mut trace.rollouts));
         }
     }
@@ -494,13 +497,7 @@ impl Planner for Mppi {
         self.map.prepare(per.points, input, 1.0, cfg.clearance_cap);
 
         // Warm start: the last nominal, one control period later, on this schedule's grid.
-        warm_start(
-            &mut self.nominal,
-            &mut self.nominal_dts,
-            sched.dts(),
-            cfg.control_dt,
-            &mut self.scratch,
-        );
+        self.nominal.warm_start(sched.dts(), cfg.control_dt);
 
         let start = per.vel;
         self.margins.clear();
@@ -529,14 +526,8 @@ impl Planner for Mppi {
             integrator: input.prediction.integrator,
         };
         let roll = |u: &[Twist], record: Option<&mut Rollouts>| rollout(&scene, u, record);
-        roll_all(
-            &self.controls,
-            steps,
-            &mut self.outcomes,
-            &mut self.trace,
-            sched.dts(),
-            roll,
-        );
+        let dts = sched.dts();
+        roll_all(&self.controls, &mut self.outcomes, &mut self.trace, dts, roll);
         self.trace.evaluated += self.outcomes.iter().map(|o| o.evaluated).sum::<u64>();
 
         if !self.select() {
@@ -544,26 +535,21 @@ impl Planner for Mppi {
             // search from turning in place.
             let bearing = per.local_goal.y.atan2(per.local_goal.x);
             let cmd = Twist::new(0.0, bearing.clamp(-1.0, 1.0));
-            self.nominal.iter_mut().for_each(|u| *u = cmd);
+            self.nominal.seq.iter_mut().for_each(|u| *u = cmd);
             return cmd;
         }
-        self.scratch.clear();
-        self.scratch.resize(steps, Twist::default());
+        self.nominal.scratch.clear();
+        self.nominal.scratch.resize(steps, Twist::default());
         for (&i, &wt) in self.order.iter().zip(&self.weights) {
             let seq = &self.controls[i * steps..(i + 1) * steps];
-            for (acc, u) in self.scratch.iter_mut().zip(seq) {
+            for (acc, u) in self.nominal.scratch.iter_mut().zip(seq) {
                 acc.v += wt * u.v;
                 acc.w += wt * u.w;
             }
         }
-        std::mem::swap(&mut self.nominal, &mut self.scratch);
-        command(
-            &self.nominal,
-            sched.dts(),
-            cfg.control_dt,
-            input.max_speed,
-            cfg.max_w,
-        )
+        std::mem::swap(&mut self.nominal.seq, &mut self.nominal.scratch);
+        self.nominal
+            .command(sched.dts(), cfg.control_dt, input.max_speed, cfg.max_w)
     }
 
     fn trace(&self) -> &Trace {
