@@ -467,57 +467,112 @@ fn a_frozen_actor_loses_its_lease_and_its_late_data_is_refused() {
     }
 }
 
+/// A run of the shared-memory fallback tests: a learner on loopback with shared memory and a
+/// lease TTL of 1.5 s, its processes and where to reach it.
+struct FallbackRun {
+    dir: PathBuf,
+    run: PathBuf,
+    procs: Procs,
+    learner: usize,
+    addr: String,
+    token: PathBuf,
+}
+
+impl FallbackRun {
+    /// Starts the learner of `budget` steps with `service` appended to its `[service]` table and
+    /// `env` set, and waits for its address.
+    fn start(name: &str, budget: u64, service: &str, env: &[(&str, &str)]) -> Self {
+        let dir = fresh_dir(name);
+        let run = dir.join("run");
+        let cfg = write_config(
+            &dir,
+            &TestConfig {
+                shared_memory: true,
+                lease_ttl_ms: 1500,
+                checkpoint_every_s: 60.0,
+            },
+        );
+        let mut text = std::fs::read_to_string(&cfg).unwrap();
+        text.push_str(service);
+        std::fs::write(&cfg, text).unwrap();
+        let mut procs = Procs::new(&dir, &run);
+        let mut cmd = learner_cmd(&[], &cfg, &run, budget, "127.0.0.1:0", false);
+        cmd.envs(env.iter().copied());
+        let learner = procs.spawn("learner", cmd);
+        procs.wait_for("learner.addr", PATIENCE, |_| run.join("learner.addr").is_file());
+        let addr = read_addr(&run).unwrap();
+        let token = run.join("token");
+        Self {
+            dir,
+            run,
+            procs,
+            learner,
+            addr,
+            token,
+        }
+    }
+
+    /// Starts `adp actor --data-plane auto` of `rank` (behind `prefix`, e.g. `unshare ...`).
+    fn actor(&mut self, prefix: &[&str], rank: u32) -> usize {
+        let cmd = actor_cmd(prefix, &self.addr, &self.token, rank, "auto");
+        self.procs.spawn(&format!("actor{rank}"), cmd)
+    }
+
+    /// Waits for the run to end with every process exiting 0, then checks that nothing was
+    /// lost or refused and that rank r, registered once, sent its steps over `planes[r]` only.
+    fn finish(mut self, actors: &[usize], planes: &[&str]) {
+        self.procs.wait_all_succeed(self.learner, actors);
+        let s = read_status(&self.run).unwrap();
+        let procs = &self.procs;
+        assert_consistent(&s, procs);
+        assert_eq!(refused_total(&s), 0, "{}", procs.report());
+        assert_eq!(s.shm_unavailable, None, "{}", procs.report());
+        for (rank, plane) in (0..).zip(planes) {
+            let r = rank_status(&s, rank);
+            let (mine, other) = match *plane {
+                "shm" => (r.steps_shm, r.steps_grpc),
+                _ => (r.steps_grpc, r.steps_shm),
+            };
+            assert!(
+                mine > 0 && other == 0,
+                "rank {rank} not on {plane} only: {}",
+                procs.report()
+            );
+            // A fallback is within the session, not a lost registration.
+            assert_eq!(r.registrations, 1, "rank {rank}: {}", procs.report());
+        }
+        std::fs::remove_dir_all(&self.dir).unwrap();
+    }
+}
+
 #[test]
 fn an_auto_actor_beyond_the_shared_memory_port_limit_streams_over_grpc() {
-    const BUDGET: u64 = 1500;
     let _turn = take_turn();
-    let dir = fresh_dir("faults-shm-ports");
-    let run = dir.join("run");
-    let cfg = write_config(
-        &dir,
-        &TestConfig {
-            shared_memory: true,
-            lease_ttl_ms: 1500,
-            checkpoint_every_s: 60.0,
-        },
-    );
     // One shared-memory port: the second actor cannot attach and must fall back.
-    let mut text = std::fs::read_to_string(&cfg).unwrap();
-    text.push_str("shm_max_actors = 1\n");
-    std::fs::write(&cfg, text).unwrap();
-    let mut procs = Procs::new(&dir, &run);
-    let learner = procs.spawn(
-        "learner",
-        learner_cmd(&[], &cfg, &run, BUDGET, "127.0.0.1:0", false),
-    );
-    procs.wait_for("learner.addr", PATIENCE, |_| run.join("learner.addr").is_file());
-    let addr = read_addr(&run).unwrap();
-    let token = run.join("token");
-    let first = procs.spawn("actor0", actor_cmd(&[], &addr, &token, 0, "auto"));
-    procs.wait_for("rank 0 on shared memory", PATIENCE, |_| {
+    let mut t = FallbackRun::start("faults-shm-ports", 1500, "shm_max_actors = 1\n", &[]);
+    let first = t.actor(&[], 0);
+    let run = t.run.clone();
+    t.procs.wait_for("rank 0 on shared memory", PATIENCE, |_| {
         status(&run).is_some_and(|s| rank_status(&s, 0).steps_shm > 0)
     });
-    let second = procs.spawn("actor1", actor_cmd(&[], &addr, &token, 1, "auto"));
-    procs.wait_all_succeed(learner, &[first, second]);
+    let second = t.actor(&[], 1);
+    t.finish(&[first, second], &["shm", "grpc"]);
+}
 
-    let s = read_status(&run).unwrap();
-    assert_consistent(&s, &procs);
-    assert_eq!(refused_total(&s), 0, "{}", procs.report());
-    assert_eq!(s.shm_unavailable, None, "{}", procs.report());
-    let (r0, r1) = (rank_status(&s, 0), rank_status(&s, 1));
-    assert!(
-        r0.steps_shm > 0 && r0.steps_grpc == 0,
-        "rank 0: {}",
-        procs.report()
-    );
-    assert!(
-        r1.steps_grpc > 0 && r1.steps_shm == 0,
-        "rank 1: {}",
-        procs.report()
-    );
-    // The fallback is per session, not a lost registration.
-    assert_eq!((r0.registrations, r1.registrations), (1, 1), "{}", procs.report());
-    std::fs::remove_dir_all(&dir).unwrap();
+/// The namespace setup `made`, or `None` after saying why the test is skipped; with
+/// `ADP_REQUIRE_NETNS=1` (set by `.ci/run`, which runs as root) a failed setup fails the test.
+fn made_or_skip<T>(made: Result<T, String>, what: &str) -> Option<T> {
+    match made {
+        Ok(t) => Some(t),
+        Err(why) => {
+            assert!(
+                std::env::var("ADP_REQUIRE_NETNS").as_deref() != Ok("1"),
+                "ADP_REQUIRE_NETNS=1 but {what} cannot be made: {why}"
+            );
+            eprintln!("SKIPPED: {what} cannot be made: {why}");
+            None
+        }
+    }
 }
 
 /// `unshare` prefix that gives the wrapped command a private mount namespace whose /dev/shm
@@ -550,107 +605,28 @@ fn small_dev_shm(size: &str) -> Result<Vec<String>, String> {
 
 #[test]
 fn an_auto_actor_with_too_little_dev_shm_streams_over_grpc() {
-    const BUDGET: u64 = 1000;
     let _turn = take_turn();
-    let prefix = match small_dev_shm("256k") {
-        Ok(p) => p,
-        Err(why) => {
-            assert!(
-                std::env::var("ADP_REQUIRE_NETNS").as_deref() != Ok("1"),
-                "ADP_REQUIRE_NETNS=1 but a private /dev/shm cannot be mounted: {why}"
-            );
-            eprintln!("SKIPPED: no private /dev/shm: {why}");
-            return;
-        }
+    let Some(prefix) = made_or_skip(small_dev_shm("256k"), "a private /dev/shm") else {
+        return;
     };
     let prefix: Vec<&str> = prefix.iter().map(String::as_str).collect();
-    let dir = fresh_dir("faults-small-shm");
-    let run = dir.join("run");
-    let cfg = write_config(
-        &dir,
-        &TestConfig {
-            shared_memory: true,
-            lease_ttl_ms: 1500,
-            checkpoint_every_s: 60.0,
-        },
-    );
-    let mut procs = Procs::new(&dir, &run);
-    let learner = procs.spawn(
-        "learner",
-        learner_cmd(&[], &cfg, &run, BUDGET, "127.0.0.1:0", false),
-    );
-    procs.wait_for("learner.addr", PATIENCE, |_| run.join("learner.addr").is_file());
-    let addr = read_addr(&run).unwrap();
-    let token = run.join("token");
+    let mut t = FallbackRun::start("faults-small-shm", 1000, "", &[]);
     // Rank 0 sees a /dev/shm of 256 KiB, less than its step segment (about 1.6 MB): before
     // the room check it died of SIGBUS while opening shared memory (at 1 MiB iceoryx2 itself
     // refuses, and the same fallback applies).
-    let actors = [
-        procs.spawn("actor0", actor_cmd(&prefix, &addr, &token, 0, "auto")),
-        procs.spawn("actor1", actor_cmd(&[], &addr, &token, 1, "auto")),
-    ];
-    procs.wait_all_succeed(learner, &actors);
-
-    let s = read_status(&run).unwrap();
-    assert_consistent(&s, &procs);
-    assert_eq!(refused_total(&s), 0, "{}", procs.report());
-    let (r0, r1) = (rank_status(&s, 0), rank_status(&s, 1));
-    assert!(
-        r0.steps_grpc > 0 && r0.steps_shm == 0,
-        "rank 0: {}",
-        procs.report()
-    );
-    assert!(
-        r1.steps_shm > 0 && r1.steps_grpc == 0,
-        "rank 1: {}",
-        procs.report()
-    );
-    assert_eq!((r0.registrations, r1.registrations), (1, 1), "{}", procs.report());
-    std::fs::remove_dir_all(&dir).unwrap();
+    let actors = [t.actor(&prefix, 0), t.actor(&[], 1)];
+    t.finish(&actors, &["grpc", "shm"]);
 }
 
 #[test]
 fn actors_whose_shared_memory_policy_never_arrives_watch_it_over_grpc() {
-    const BUDGET: u64 = 1000;
     let _turn = take_turn();
-    let dir = fresh_dir("faults-silent-policy");
-    let run = dir.join("run");
-    let cfg = write_config(
-        &dir,
-        &TestConfig {
-            shared_memory: true,
-            lease_ttl_ms: 1500,
-            checkpoint_every_s: 60.0,
-        },
-    );
-    let mut procs = Procs::new(&dir, &run);
-    // The learner's shared-memory publisher opens but never publishes.
-    let mut learner = learner_cmd(&[], &cfg, &run, BUDGET, "127.0.0.1:0", false);
-    learner.env("ADP_TEST_SHM_POLICY_SILENT", "1");
-    let learner = procs.spawn("learner", learner);
-    procs.wait_for("learner.addr", PATIENCE, |_| run.join("learner.addr").is_file());
-    let addr = read_addr(&run).unwrap();
-    let token = run.join("token");
-    let actors: Vec<usize> = (0..2)
-        .map(|r| procs.spawn(&format!("actor{r}"), actor_cmd(&[], &addr, &token, r, "auto")))
-        .collect();
-    procs.wait_all_succeed(learner, &actors);
-
-    let s = read_status(&run).unwrap();
-    assert_consistent(&s, &procs);
-    assert_eq!(refused_total(&s), 0, "{}", procs.report());
-    assert_eq!(s.shm_unavailable, None, "{}", procs.report());
-    // The steps kept to shared memory; only the policies moved to gRPC, within the session.
-    for r in 0..2 {
-        let rs = rank_status(&s, r);
-        assert!(
-            rs.steps_shm > 0 && rs.steps_grpc == 0,
-            "rank {r}: {}",
-            procs.report()
-        );
-        assert_eq!(rs.registrations, 1, "rank {r}: {}", procs.report());
-    }
-    std::fs::remove_dir_all(&dir).unwrap();
+    // The learner's shared-memory publisher opens but never publishes. The steps keep to
+    // shared memory; only the policies move to gRPC, within the session.
+    let env = [("ADP_TEST_SHM_POLICY_SILENT", "1")];
+    let mut t = FallbackRun::start("faults-silent-policy", 1000, "", &env);
+    let actors = [t.actor(&[], 0), t.actor(&[], 1)];
+    t.finish(&actors, &["shm", "shm"]);
 }
 
 #[test]
@@ -833,16 +809,8 @@ fn learner_and_actors_in_two_network_namespaces_train_over_grpc() {
     let _turn = take_turn();
     let tag = std::process::id().to_string();
     let (a, b) = (format!("adp-learner-{tag}"), format!("adp-actors-{tag}"));
-    let _netns = match make_netns(&a, &b, &tag) {
-        Ok(ns) => ns,
-        Err(why) => {
-            assert!(
-                std::env::var("ADP_REQUIRE_NETNS").as_deref() != Ok("1"),
-                "ADP_REQUIRE_NETNS=1 but network namespaces are unavailable: {why}"
-            );
-            eprintln!("SKIPPED: cannot create network namespaces: {why}");
-            return;
-        }
+    let Some(_netns) = made_or_skip(make_netns(&a, &b, &tag), "network namespaces") else {
+        return;
     };
     let dir = fresh_dir("faults-netns");
     let run = dir.join("run");
