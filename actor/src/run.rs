@@ -220,8 +220,8 @@ struct Planes {
     policies: Box<dyn PolicySource>,
     /// The data plane of the steps (`shm` or `grpc`), for the log.
     name: &'static str,
-    /// The data plane of the policies: `shm` until a silent shared-memory source is replaced.
-    policy_plane: &'static str,
+    /// Whether policies come over shared memory (until a silent source is replaced).
+    shm_policies: bool,
 }
 
 /// The data planes of a session: shared memory when the learner offers it on this host and
@@ -272,7 +272,7 @@ fn open_shm(rank: u32, prefix: String) -> Result<Planes, PlaneError> {
         sink: Box::new(ShmStepSink::open(&cfg, &node)?),
         policies: Box::new(ShmPolicySource::open(&cfg, &node)?),
         name: "shm",
-        policy_plane: "shm",
+        shm_policies: true,
     })
 }
 
@@ -289,16 +289,26 @@ fn open_grpc(
             &run.run_id,
             run.incarnation,
         )),
-        policies: Box::new(GrpcPolicySource::start(
-            rt.handle(),
-            data,
-            &run.run_id,
-            run.incarnation,
-            actor_id,
-        )),
+        policies: grpc_policies(rt, data, run, actor_id),
         name: "grpc",
-        policy_plane: "grpc",
+        shm_policies: false,
     }
+}
+
+/// Policies streamed by the learner's `WatchPolicy`.
+fn grpc_policies(
+    rt: &tokio::runtime::Runtime,
+    data: proto::grpc::DataClient,
+    run: &pb::RunRef,
+    actor_id: u64,
+) -> Box<dyn PolicySource> {
+    Box::new(GrpcPolicySource::start(
+        rt.handle(),
+        data,
+        &run.run_id,
+        run.incarnation,
+        actor_id,
+    ))
 }
 
 /// One session with the learner, in `span` (whose `actor_id` it records once registered).
@@ -339,13 +349,14 @@ fn session(
         "registered"
     );
     let flags = Arc::new(Flags::default());
+    let lease_ttl = Duration::from_millis(u64::from(spec.lease_ttl_ms.max(spec.heartbeat_ms).max(10)));
     let heartbeat = rt.spawn(
         heartbeats(
             control.clone(),
             run.clone(),
             actor_id,
             Duration::from_millis(u64::from(spec.heartbeat_ms.max(10))),
-            Duration::from_millis(u64::from(spec.lease_ttl_ms.max(spec.heartbeat_ms).max(10))),
+            lease_ttl,
             flags.clone(),
         )
         .instrument(span.clone()),
@@ -362,7 +373,6 @@ fn session(
     // How long a finished run may take to drain this actor's last lease before it leaves: as
     // long as the learner keeps the lease valid, up to the actor's patience with the learner.
     let drain_limit = setup.give_up_after;
-    let policy_patience = Duration::from_millis(u64::from(spec.lease_ttl_ms.max(spec.heartbeat_ms).max(10)));
     loop {
         if flags.shutdown.load(Ordering::Acquire) {
             wait_for_lease_end(&flags, drain_limit);
@@ -414,21 +424,15 @@ fn session(
         // drop the lease.
         let waiting_since = Instant::now();
         loop {
-            if planes.policy_plane == "shm" && waiting_since.elapsed() >= policy_patience {
+            if planes.shm_policies && waiting_since.elapsed() >= lease_ttl {
                 tracing::warn!(
                     wanted = a.policy_version,
                     have = policy.as_ref().map(|p| p.0),
                     waited_ms = waiting_since.elapsed().as_millis() as u64,
                     "no policy over shared memory; watching policies over gRPC"
                 );
-                planes.policies = Box::new(GrpcPolicySource::start(
-                    rt.handle(),
-                    data.clone(),
-                    &run.run_id,
-                    run.incarnation,
-                    actor_id,
-                ));
-                planes.policy_plane = "grpc";
+                planes.policies = grpc_policies(rt, data.clone(), &run, actor_id);
+                planes.shm_policies = false;
             }
             match planes.policies.poll(policy.as_ref().map(|p| p.0)) {
                 Ok(Some(update)) => {

@@ -82,6 +82,7 @@ impl Trainer {
         let cfg = self.td3.config().clone();
         let mut batch = Batch::new(cfg.obs_dim, cfg.act_dim);
         let mut published: Option<u64> = None;
+        let shm_silent = shm_policy_silent();
         // A failed shared-memory publish: (version, sigma, when), retried until it works.
         let mut shm_retry: Option<(u64, f64, Instant)> = None;
         let mut last_checkpoint = Instant::now();
@@ -125,7 +126,7 @@ impl Trainer {
                 drop(core);
                 let (_, weights) = self.td3.policy().flat_weights();
                 shm_retry = None;
-                if let Some(p) = shm_pub.as_mut().filter(|_| !shm_policy_silent()) {
+                if let Some(p) = shm_pub.as_mut().filter(|_| !shm_silent) {
                     if let Err(e) = p.publish(version, sigma, &weights) {
                         tracing::warn!(version, "shared-memory policy publish failed ({e}); retrying");
                         shm_retry = Some((version, sigma, Instant::now()));
