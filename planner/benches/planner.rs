@@ -10,18 +10,23 @@ use planner::{
 };
 use sim::{Episode, EpisodeConfig};
 
+/// The planning input of `ep`'s current cycle at 1.5 m/s with `sched` and the papers' model.
+fn input<'a>(ep: &'a Episode<'_>, sched: &'a Schedule) -> PlanInput<'a> {
+    PlanInput {
+        perception: ep.perception(),
+        schedule: sched,
+        max_speed: 1.5,
+        prediction: planner::Prediction::PAPERS,
+    }
+}
+
 /// An episode on a hard world, advanced into the obstacle field with DWA-DDP.
 fn warm_episode(world: &sim::World) -> Episode<'_> {
     let mut ep = Episode::new(world, EpisodeConfig::default(), 3);
     let mut dwa = Dwa::new(DwaConfig::default());
     let sched = Schedule::ddp_default();
     for _ in 0..60 {
-        let cmd = dwa.plan(&PlanInput {
-            perception: ep.perception(),
-            schedule: &sched,
-            max_speed: 1.5,
-            prediction: planner::Prediction::PAPERS,
-        });
+        let cmd = dwa.plan(&input(&ep, &sched));
         ep.step(cmd);
     }
     ep
@@ -41,14 +46,7 @@ fn planning_cycles(c: &mut Criterion) {
         for (fidelity, sched) in [("vanilla", Schedule::vanilla()), ("ddp", Schedule::ddp_default())] {
             let mut p = make();
             c.bench_function(&format!("{planner}-{fidelity} planning cycle"), |b| {
-                b.iter(|| {
-                    black_box(p.plan(&PlanInput {
-                        perception: ep.perception(),
-                        schedule: &sched,
-                        max_speed: 1.5,
-                        prediction: planner::Prediction::PAPERS,
-                    }))
-                })
+                b.iter(|| black_box(p.plan(&input(&ep, &sched))))
             });
         }
     }
@@ -65,12 +63,7 @@ fn simulated_second(c: &mut Criterion) {
                 if ep.status() != sim::Status::Running {
                     ep = warm_episode(world);
                 }
-                let cmd = dwa.plan(&PlanInput {
-                    perception: ep.perception(),
-                    schedule: &sched,
-                    max_speed: 1.5,
-                    prediction: planner::Prediction::PAPERS,
-                });
+                let cmd = dwa.plan(&input(&ep, &sched));
                 ep.step(cmd);
             }
             black_box(ep.sim_time())

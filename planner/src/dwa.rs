@@ -165,9 +165,7 @@ fn sample(lo: f64, hi: f64, k: usize, i: usize) -> f64 {
 }
 
 impl Planner for Dwa {
-    fn name(&self) -> &'static str {
-        "dwa"
-    }
+    crate::planner_identity!("dwa");
 
     fn plan(&mut self, input: &PlanInput<'_>) -> Twist {
         let cfg = self.cfg;
@@ -349,14 +347,6 @@ impl Planner for Dwa {
             .min_by(|a, b| total(a).total_cmp(&total(b)))
             .map(|c| c.cmd)
             .unwrap_or_default()
-    }
-
-    fn trace(&self) -> &Trace {
-        &self.trace
-    }
-
-    fn trace_mut(&mut self) -> &mut Trace {
-        &mut self.trace
     }
 }
 

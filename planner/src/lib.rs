@@ -68,6 +68,26 @@ pub trait Planner: Send {
     }
 }
 
+/// The [`Planner`] methods that every planner of this crate writes alike, inside its
+/// `impl Planner` block: `name` returning the literal given, and `trace` / `trace_mut` giving
+/// the planner's field `trace`.
+macro_rules! planner_identity {
+    ($name:literal) => {
+        fn name(&self) -> &'static str {
+            $name
+        }
+
+        fn trace(&self) -> &$crate::Trace {
+            &self.trace
+        }
+
+        fn trace_mut(&mut self) -> &mut $crate::Trace {
+            &mut self.trace
+        }
+    };
+}
+pub(crate) use planner_identity;
+
 /// What a planner records for rendering and counts for the cost columns. Each planner owns
 /// one; plain data, moved with its planner (no sharing between threads).
 #[derive(Clone, Debug, Default)]

@@ -337,9 +337,7 @@ fn rollout(scene: &Scene<'_>, controls: &[Twist], mut record: Option<&mut Rollou
 }
 
 impl Planner for LogMppi {
-    fn name(&self) -> &'static str {
-        "log-mppi"
-    }
+    crate::planner_identity!("log-mppi");
 
     fn plan(&mut self, input: &PlanInput<'_>) -> Twist {
         let cfg = self.cfg;
@@ -388,14 +386,8 @@ impl Planner for LogMppi {
         self.costs.clear();
         self.costs.extend(self.outcomes.iter().map(|o| o.cost));
         mppi_weights(&self.costs, cfg.lambda, &mut self.weights);
-        self.nominal.scratch.clear();
-        self.nominal.scratch.resize(steps, Twist::default());
-        for (seq, &wt) in self.controls.chunks(steps).zip(&self.weights) {
-            for (acc, u) in self.nominal.scratch.iter_mut().zip(seq) {
-                acc.v += wt * u.v;
-                acc.w += wt * u.w;
-            }
-        }
+        let samples = self.controls.chunks(steps).zip(self.weights.iter().copied());
+        self.nominal.blend(steps, samples);
         self.times.clear();
         let mut t = 0.0;
         for &dt in sched.dts() {
@@ -408,16 +400,7 @@ impl Planner for LogMppi {
             cfg.sg_half_window,
             &mut self.nominal.seq,
         );
-        self.nominal
-            .command(sched.dts(), cfg.control_dt, input.max_speed, cfg.max_w)
-    }
-
-    fn trace(&self) -> &Trace {
-        &self.trace
-    }
-
-    fn trace_mut(&mut self) -> &mut Trace {
-        &mut self.trace
+        self.nominal.command(cfg.control_dt, input.max_speed, cfg.max_w)
     }
 }
 

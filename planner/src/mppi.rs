@@ -334,10 +334,24 @@ impl Nominal {
         self.dts.extend_from_slice(dts);
     }
 
-    /// The command of the updated sequence on the grid `dts`: its mean over the first control
+    /// Writes into `scratch` the weighted mean of `samples` (sequences of `steps` controls,
+    /// each with its weight; the weights sum to one). `seq` is left unchanged: the caller
+    /// makes the mean its new sequence, as it is or filtered.
+    pub(crate) fn blend<'a>(&mut self, steps: usize, samples: impl Iterator<Item = (&'a [Twist], f64)>) {
+        self.scratch.clear();
+        self.scratch.resize(steps, Twist::default());
+        for (seq, wt) in samples {
+            for (acc, u) in self.scratch.iter_mut().zip(seq) {
+                acc.v += wt * u.v;
+                acc.w += wt * u.w;
+            }
+        }
+    }
+
+    /// The command of the updated sequence on its grid: its mean over the first control
     /// period `span`, clamped to forward speeds up to `max_speed` and turn rates up to `max_w`.
-    pub(crate) fn command(&self, dts: &[f64], span: f64, max_speed: f64, max_w: f64) -> Twist {
-        let cmd = average_over(&self.seq, dts, span);
+    pub(crate) fn command(&self, span: f64, max_speed: f64, max_w: f64) -> Twist {
+        let cmd = average_over(&self.seq, &self.dts, span);
         Twist::new(cmd.v.clamp(0.0, max_speed), cmd.w.clamp(-max_w, max_w))
     }
 }
@@ -485,9 +499,7 @@ fn rollout(scene: &Scene<'_>, controls: &[Twist], mut record: Option<&mut Rollou
 }
 
 impl Planner for Mppi {
-    fn name(&self) -> &'static str {
-        "mppi"
-    }
+    crate::planner_identity!("mppi");
 
     fn plan(&mut self, input: &PlanInput<'_>) -> Twist {
         let cfg = self.cfg;
@@ -538,26 +550,11 @@ impl Planner for Mppi {
             self.nominal.seq.iter_mut().for_each(|u| *u = cmd);
             return cmd;
         }
-        self.nominal.scratch.clear();
-        self.nominal.scratch.resize(steps, Twist::default());
-        for (&i, &wt) in self.order.iter().zip(&self.weights) {
-            let seq = &self.controls[i * steps..(i + 1) * steps];
-            for (acc, u) in self.nominal.scratch.iter_mut().zip(seq) {
-                acc.v += wt * u.v;
-                acc.w += wt * u.w;
-            }
-        }
+        let controls = &self.controls;
+        let best = self.order.iter().map(|&i| &controls[i * steps..(i + 1) * steps]);
+        self.nominal.blend(steps, best.zip(self.weights.iter().copied()));
         std::mem::swap(&mut self.nominal.seq, &mut self.nominal.scratch);
-        self.nominal
-            .command(sched.dts(), cfg.control_dt, input.max_speed, cfg.max_w)
-    }
-
-    fn trace(&self) -> &Trace {
-        &self.trace
-    }
-
-    fn trace_mut(&mut self) -> &mut Trace {
-        &mut self.trace
+        self.nominal.command(cfg.control_dt, input.max_speed, cfg.max_w)
     }
 }
 

@@ -496,9 +496,7 @@ impl NavSystem {
 }
 
 impl Planner for NavSystem {
-    fn name(&self) -> &'static str {
-        "system"
-    }
+    crate::planner_identity!("system");
 
     fn plan(&mut self, input: &PlanInput<'_>) -> Twist {
         let cfg = self.cfg;
@@ -543,14 +541,6 @@ impl Planner for NavSystem {
         }
         self.prev = cmd;
         cmd
-    }
-
-    fn trace(&self) -> &Trace {
-        &self.trace
-    }
-
-    fn trace_mut(&mut self) -> &mut Trace {
-        &mut self.trace
     }
 }
 
