@@ -1,13 +1,15 @@
-"""Regenerates adp_client/_proto from the project's proto (proto/proto/adp/v1/adp.proto).
+"""Regenerates adp_client/_proto/adp_pb2.py from the project's proto (proto/proto/adp/v1/adp.proto).
+
+The client stubs need no generated module: adp_client/_proto/stubs.py makes them from the
+descriptors in adp_pb2.
 
 Usage: python tools/gen_stubs.py [--check]
 
-The generated modules are committed so that `pip install ./clients/python` needs no protoc;
-`--check` (run by the test suite) fails when they differ from what the proto generates now.
+The generated module is committed so that `pip install ./clients/python` needs no protoc;
+`--check` (run by the test suite) fails when it differs from what the proto generates now.
 """
 
 import pathlib
-import re
 import sys
 import tempfile
 
@@ -17,7 +19,7 @@ OUT = HERE.parent / "src" / "adp_client" / "_proto"
 
 
 def generate() -> dict:
-    """Returns {file name: text} of the stubs the proto generates now."""
+    """Returns {file name: text} of the module the proto generates now."""
     from grpc_tools import protoc
     import grpc_tools
 
@@ -29,20 +31,12 @@ def generate() -> dict:
                 f"-I{PROTO.parent}",
                 f"-I{include}",
                 f"--python_out={tmp}",
-                f"--grpc_python_out={tmp}",
                 str(PROTO),
             ]
         )
         if rc != 0:
             raise SystemExit(f"protoc failed on {PROTO} (exit {rc})")
-        files = {}
-        for name in ("adp_pb2.py", "adp_pb2_grpc.py"):
-            text = (pathlib.Path(tmp) / name).read_text()
-            # The service module imports the message module as a top-level module; inside the
-            # package it is a sibling.
-            text = re.sub(r"^import adp_pb2 as", "from . import adp_pb2 as", text, flags=re.M)
-            files[name] = text
-        return files
+        return {"adp_pb2.py": (pathlib.Path(tmp) / "adp_pb2.py").read_text()}
 
 
 def main() -> int:

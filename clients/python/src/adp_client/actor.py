@@ -15,7 +15,7 @@ import numpy as np
 
 from . import checksum as ck
 from ._proto import adp_pb2 as pb
-from ._proto import adp_pb2_grpc as rpc
+from ._proto.stubs import Stub
 from .action import ActionMap, ActionSpace
 from .policy import MlpPolicy
 
@@ -136,8 +136,8 @@ class Connection:
             self.channel = grpc.secure_channel(address, creds, options=opts)
         else:
             self.channel = grpc.insecure_channel(address, options=opts)
-        self.control = rpc.ControlStub(self.channel)
-        self.data = rpc.DataStub(self.channel)
+        self.control = Stub(self.channel, "Control")
+        self.data = Stub(self.channel, "Data")
 
     def call(self, method, request, timeout=None):
         """Calls a unary method with the token."""
