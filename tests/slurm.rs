@@ -144,8 +144,6 @@ fn slurm_job_trains_with_every_actor_task_and_exports() {
         "no export{}",
         logs(&run)
     );
-    let job_log = std::fs::read_to_string(run.join(format!("logs/job-{id}.out"))).unwrap();
-    assert!(job_log.contains("learner exited with status 0"), "{job_log}");
 }
 
 #[test]
