@@ -360,29 +360,12 @@ mod tests {
 
     /// A 3 m wide corridor along +y with one cylinder of radius 0.3 m on the straight route.
     fn blocked_corridor() -> World {
-        let mut c = Vec::new();
-        for i in 0..110 {
-            let y = -1.0 + 0.15 * i as f64;
-            c.push(Circle {
-                c: Vec2::new(-1.5, y),
-                r: 0.075,
-            });
-            c.push(Circle {
-                c: Vec2::new(1.5, y),
-                r: 0.075,
-            });
-        }
-        c.push(Circle {
-            c: Vec2::new(0.0, 4.0),
-            r: 0.3,
-        });
-        World::new(
-            0,
-            c,
-            Pose::new(0.0, 0.0, std::f64::consts::FRAC_PI_2),
-            Vec2::new(0.0, 10.0),
-            10.0,
-            vec![],
+        World::corridor(
+            1.5,
+            &[Circle {
+                c: Vec2::new(0.0, 4.0),
+                r: 0.3,
+            }],
         )
     }
 

@@ -641,25 +641,11 @@ pub(crate) mod tests {
 
     /// A 3 m wide corridor along +y with one cylinder in the middle of the straight route.
     pub(crate) fn corridor_with_cylinder() -> (World, Circle) {
-        let mut c = Vec::new();
-        for i in 0..100 {
-            let y = -1.0 + 0.15 * i as f64;
-            c.push(Circle {
-                c: Vec2::new(-1.5, y),
-                r: 0.075,
-            });
-            c.push(Circle {
-                c: Vec2::new(1.5, y),
-                r: 0.075,
-            });
-        }
         let block = Circle {
             c: Vec2::new(0.0, 4.0),
             r: 0.35,
         };
-        c.push(block);
-        let start = Pose::new(0.0, 0.0, std::f64::consts::FRAC_PI_2);
-        (World::new(0, c, start, Vec2::new(0.0, 10.0), 10.0, vec![]), block)
+        (World::corridor(1.5, &[block]), block)
     }
 
     /// Runs `planner` through [`corridor_with_cylinder`]; returns the status and the

@@ -489,34 +489,14 @@ mod tests {
 
     fn corridor(with_wall: bool) -> World {
         // Two walls of cylinders 2 m apart along +y; optionally a wall across at y = 4.
-        let mut c = Vec::new();
-        for i in 0..100 {
-            let y = -1.0 + 0.15 * i as f64;
-            c.push(Circle {
-                c: Vec2::new(-1.0, y),
+        let wall: Vec<Circle> = (0..14)
+            .filter(|_| with_wall)
+            .map(|i| Circle {
+                c: Vec2::new(-1.0 + 0.15 * i as f64, 4.0),
                 r: 0.075,
-            });
-            c.push(Circle {
-                c: Vec2::new(1.0, y),
-                r: 0.075,
-            });
-        }
-        if with_wall {
-            for i in 0..14 {
-                c.push(Circle {
-                    c: Vec2::new(-1.0 + 0.15 * i as f64, 4.0),
-                    r: 0.075,
-                });
-            }
-        }
-        World::new(
-            0,
-            c,
-            Pose::new(0.0, 0.0, std::f64::consts::FRAC_PI_2),
-            Vec2::new(0.0, 10.0),
-            10.0,
-            vec![],
-        )
+            })
+            .collect();
+        World::corridor(1.0, &wall)
     }
 
     #[test]
