@@ -66,6 +66,17 @@ struct TestConfig {
     checkpoint_every_s: f64,
 }
 
+impl TestConfig {
+    /// A fresh directory `name`, its run directory `run` and this configuration written there
+    /// (see [`write_config`]).
+    fn setup(&self, name: &str) -> (PathBuf, PathBuf, PathBuf) {
+        let dir = fresh_dir(name);
+        let cfg = write_config(&dir, self);
+        let run = dir.join("run");
+        (dir, run, cfg)
+    }
+}
+
 /// A run configuration with short episodes (so that a scheduler cycle is short), a short
 /// warm-up, small networks (the tests are about the service, not about learning), fast
 /// heartbeats and short leases.
@@ -344,16 +355,12 @@ fn assert_consistent(s: &Status, procs: &Procs) {
 fn a_frozen_actor_loses_its_lease_and_its_late_data_is_refused() {
     const BUDGET: u64 = 4000;
     let _turn = take_turn();
-    let dir = fresh_dir("faults-sigstop");
-    let run = dir.join("run");
-    let cfg = write_config(
-        &dir,
-        &TestConfig {
-            shared_memory: false,
-            lease_ttl_ms: 1500,
-            checkpoint_every_s: 600.0,
-        },
-    );
+    let (dir, run, cfg) = TestConfig {
+        shared_memory: false,
+        lease_ttl_ms: 1500,
+        checkpoint_every_s: 600.0,
+    }
+    .setup("faults-sigstop");
     let mut procs = Procs::new(&dir, &run);
     let learner = procs.spawn(
         "learner",
@@ -482,16 +489,12 @@ impl FallbackRun {
     /// Starts the learner of `budget` steps with `service` appended to its `[service]` table and
     /// `env` set, and waits for its address.
     fn start(name: &str, budget: u64, service: &str, env: &[(&str, &str)]) -> Self {
-        let dir = fresh_dir(name);
-        let run = dir.join("run");
-        let cfg = write_config(
-            &dir,
-            &TestConfig {
-                shared_memory: true,
-                lease_ttl_ms: 1500,
-                checkpoint_every_s: 60.0,
-            },
-        );
+        let (dir, run, cfg) = TestConfig {
+            shared_memory: true,
+            lease_ttl_ms: 1500,
+            checkpoint_every_s: 60.0,
+        }
+        .setup(name);
         let mut text = std::fs::read_to_string(&cfg).unwrap();
         text.push_str(service);
         std::fs::write(&cfg, text).unwrap();
@@ -633,16 +636,12 @@ fn actors_whose_shared_memory_policy_never_arrives_watch_it_over_grpc() {
 fn actors_outlive_a_killed_learner_and_the_resumed_run_reaches_its_budget() {
     const BUDGET: u64 = 1500;
     let _turn = take_turn();
-    let dir = fresh_dir("faults-restart");
-    let run = dir.join("run");
-    let cfg = write_config(
-        &dir,
-        &TestConfig {
-            shared_memory: true,
-            lease_ttl_ms: 1500,
-            checkpoint_every_s: 2.0,
-        },
-    );
+    let (dir, run, cfg) = TestConfig {
+        shared_memory: true,
+        lease_ttl_ms: 1500,
+        checkpoint_every_s: 2.0,
+    }
+    .setup("faults-restart");
     let listen = format!("127.0.0.1:{}", free_port());
     let mut procs = Procs::new(&dir, &run);
     let first = procs.spawn("learner-1", learner_cmd(&[], &cfg, &run, BUDGET, &listen, false));
@@ -812,17 +811,13 @@ fn learner_and_actors_in_two_network_namespaces_train_over_grpc() {
     let Some(_netns) = made_or_skip(make_netns(&a, &b, &tag), "network namespaces") else {
         return;
     };
-    let dir = fresh_dir("faults-netns");
-    let run = dir.join("run");
     // The learner offers shared memory; the actors, on "another host", must not take it.
-    let cfg = write_config(
-        &dir,
-        &TestConfig {
-            shared_memory: true,
-            lease_ttl_ms: 2000,
-            checkpoint_every_s: 600.0,
-        },
-    );
+    let (dir, run, cfg) = TestConfig {
+        shared_memory: true,
+        lease_ttl_ms: 2000,
+        checkpoint_every_s: 600.0,
+    }
+    .setup("faults-netns");
     // Dropped before the namespaces (declared after them): no process is left inside.
     let mut procs = Procs::new(&dir, &run);
     let in_a = ["ip", "netns", "exec", a.as_str()];
@@ -1012,16 +1007,12 @@ mod fake {
 #[test]
 fn refused_data_and_nan_reports_neither_stall_nor_break_the_run() {
     let _turn = take_turn();
-    let dir = fresh_dir("faults-refused-data");
-    let run = dir.join("run");
-    let cfg = write_config(
-        &dir,
-        &TestConfig {
-            shared_memory: false,
-            lease_ttl_ms: 2000,
-            checkpoint_every_s: 600.0,
-        },
-    );
+    let (dir, run, cfg) = TestConfig {
+        shared_memory: false,
+        lease_ttl_ms: 2000,
+        checkpoint_every_s: 600.0,
+    }
+    .setup("faults-refused-data");
     // A non-loopback address without TLS: one line naming the flag that allows it.
     let out = learner_cmd(&[], &cfg, &dir.join("insecure"), 1000, "0.0.0.0:0", false)
         .output()
@@ -1177,16 +1168,12 @@ fn refused_data_and_nan_reports_neither_stall_nor_break_the_run() {
 #[test]
 fn no_lease_expires_across_a_slow_checkpoint() {
     let _turn = take_turn();
-    let dir = fresh_dir("faults-slow-checkpoint");
-    let run = dir.join("run");
-    let cfg = write_config(
-        &dir,
-        &TestConfig {
-            shared_memory: false,
-            lease_ttl_ms: 1500,
-            checkpoint_every_s: 1.0,
-        },
-    );
+    let (dir, run, cfg) = TestConfig {
+        shared_memory: false,
+        lease_ttl_ms: 1500,
+        checkpoint_every_s: 1.0,
+    }
+    .setup("faults-slow-checkpoint");
     let mut procs = Procs::new(&dir, &run);
     let mut cmd = learner_cmd(&[], &cfg, &run, 100_000, "127.0.0.1:0", false);
     cmd.env("ADP_TEST_SLOW_CHECKPOINT_MS", "4000");

@@ -39,11 +39,12 @@ fn test_config(dir: &Path, shared_memory: bool) -> PathBuf {
     p
 }
 
-#[test]
-fn local_training_over_shared_memory_is_lossless_and_resumes() {
-    let dir = fresh_dir("train-shm");
+/// Trains 600 steps with 16 actors in a fresh directory named `name`, over shared memory or
+/// gRPC; returns the config, the run directory and the finished run's status.
+fn train_sixteen(name: &str, shm: bool) -> (PathBuf, PathBuf, Status) {
+    let dir = fresh_dir(name);
     let run = dir.join("run");
-    let cfg = test_config(&dir, true);
+    let cfg = test_config(&dir, shm);
     let out = adp()
         .args(["train", "--config"])
         .arg(&cfg)
@@ -54,6 +55,12 @@ fn local_training_over_shared_memory_is_lossless_and_resumes() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{err}");
     let s = read_status(&run).unwrap();
+    (cfg, run, s)
+}
+
+#[test]
+fn local_training_over_shared_memory_is_lossless_and_resumes() {
+    let (cfg, run, s) = train_sixteen("train-shm", true);
     assert!(s.inserts >= 600, "{s:?}");
     assert_eq!(s.leases_expired, 0, "{s:?}");
     assert_eq!(s.episodes_abandoned, 0, "{s:?}");
@@ -91,19 +98,7 @@ fn local_training_over_shared_memory_is_lossless_and_resumes() {
 
 #[test]
 fn sixteen_actors_over_grpc_deliver_every_step_exactly_once() {
-    let dir = fresh_dir("train-grpc16");
-    let run = dir.join("run");
-    let cfg = test_config(&dir, false);
-    let out = adp()
-        .args(["train", "--config"])
-        .arg(&cfg)
-        .args(["--steps", "600", "--actors", "16", "--out"])
-        .arg(&run)
-        .output()
-        .unwrap();
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success(), "{err}");
-    let s = read_status(&run).unwrap();
+    let (cfg, run, s) = train_sixteen("train-grpc16", false);
     assert_eq!(s.rank_steps.len(), 16, "every actor delivered steps: {s:?}");
     // Every actor registered once and sent its steps over gRPC, none over shared memory.
     assert_eq!(s.ranks.len(), 16, "{s:?}");
