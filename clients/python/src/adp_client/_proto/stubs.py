@@ -20,13 +20,15 @@ class Stub:
         if desc is None:
             known = ", ".join(sorted(adp_pb2.DESCRIPTOR.services_by_name))
             raise ValueError(f"adp.proto has no service {service!r} (it has {known})")
+        # The channel's call factory for each (client streams, server streams) kind.
+        factories = {
+            (False, False): channel.unary_unary,
+            (True, False): channel.stream_unary,
+            (False, True): channel.unary_stream,
+            (True, True): channel.stream_stream,
+        }
         for method in desc.methods:
-            make = {
-                (False, False): channel.unary_unary,
-                (True, False): channel.stream_unary,
-                (False, True): channel.unary_stream,
-                (True, True): channel.stream_stream,
-            }[(method.client_streaming, method.server_streaming)]
+            make = factories[(method.client_streaming, method.server_streaming)]
             request = getattr(adp_pb2, method.input_type.name)
             response = getattr(adp_pb2, method.output_type.name)
             call = make(
