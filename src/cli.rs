@@ -7,7 +7,7 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use clap::{Parser, Subcommand};
-use planner::ActionSpace;
+use planner::{ActionSpace, ComputeConfig, ComputeModel};
 use sim::splits::SplitFile;
 use sim::{Profile, World};
 
@@ -72,6 +72,13 @@ pub struct Setup {
     /// Simulator profile (ideal, gazebo-jackal, custom): overrides [episode] profile.
     #[arg(long, value_parser = parse_profile)]
     pub profile: Option<Profile>,
+    /// Onboard compute model (free, jackal-onboard, custom): overrides [compute] model, for
+    /// every row (a policy's own model otherwise applies to the rows of its evaluation).
+    #[arg(long, value_parser = parse_compute)]
+    pub compute: Option<ComputeModel>,
+    /// Multiplies every planner's cycle budget: overrides [compute] budget_scale.
+    #[arg(long)]
+    pub budget_scale: Option<f64>,
     #[command(flatten)]
     pub data: WorldData,
 }
@@ -87,7 +94,36 @@ impl Setup {
                 .validate()
                 .map_err(|e| anyhow::anyhow!("--profile {}: {e}", p.name()))?;
         }
+        self.apply_compute(&mut cfg.compute)?;
         Ok(cfg)
+    }
+
+    /// Whether `--compute` or `--budget-scale` was given.
+    pub fn compute_given(&self) -> bool {
+        self.compute.is_some() || self.budget_scale.is_some()
+    }
+
+    /// Applies `--compute` and `--budget-scale` to `compute`.
+    pub fn apply_compute(&self, compute: &mut ComputeConfig) -> anyhow::Result<()> {
+        if let Some(m) = self.compute {
+            compute.model = m;
+        }
+        if let Some(k) = self.budget_scale {
+            compute.budget_scale = k;
+        }
+        compute
+            .validate()
+            .map_err(|e| anyhow::anyhow!("--compute / --budget-scale: {e}"))
+    }
+}
+
+/// Parses a compute model name.
+fn parse_compute(s: &str) -> Result<ComputeModel, String> {
+    match s {
+        "free" => Ok(ComputeModel::Free),
+        "jackal-onboard" => Ok(ComputeModel::JackalOnboard),
+        "custom" => Ok(ComputeModel::Custom),
+        _ => Err(format!("unknown compute model {s:?} (free, jackal-onboard, custom)")),
     }
 }
 

@@ -3,7 +3,7 @@
 use anyhow::Context;
 use serde::Deserialize;
 
-use planner::{DwaConfig, LogMppiConfig, MppiConfig, SystemConfig};
+use planner::{ComputeConfig, DwaConfig, LogMppiConfig, MppiConfig, SystemConfig};
 use sim::EpisodeConfig;
 
 /// The embedded default.
@@ -23,6 +23,8 @@ pub struct EvalConfig {
     pub log_mppi: LogMppiConfig,
     /// The standalone navigation system.
     pub system: SystemConfig,
+    /// The onboard compute model every planner runs under (`[compute]`).
+    pub compute: ComputeConfig,
 }
 
 impl EvalConfig {
@@ -40,6 +42,7 @@ impl EvalConfig {
         cfg.episode
             .validate()
             .map_err(|e| anyhow::anyhow!("{name}: [episode] {e}"))?;
+        cfg.compute.validate().map_err(|e| anyhow::anyhow!("{name}: {e}"))?;
         Ok(cfg)
     }
 }

@@ -19,7 +19,8 @@ use serde::{Deserialize, Serialize};
 
 use actor::{AdpEnv, End, EnvConfig, MlpPolicy, Scratch, LASER_BEAMS};
 use planner::{
-    run::run_episode, ActionSpace, Dwa, LogMppi, Mppi, NavSystem, PlanInput, Planner, Schedule, Trace,
+    run::run_episode, ActionSpace, ComputeConfig, ComputeModel, ComputeTally, Dwa, LogMppi, Mppi, NavSystem,
+    PlanInput, Planner, Schedule, Trace,
 };
 use sim::robot::Twist;
 use sim::{EpisodeResult, Status, World};
@@ -169,8 +170,60 @@ pub struct Row {
     /// Mean wall-clock time of one planning call (ms), over every run of the row; measured
     /// on the thread that runs the episode while all cores run episodes.
     pub plan_ms_per_cycle: f64,
+    /// The compute model the row ran under (`free`, or the platform and budget scale).
+    pub compute_model: String,
+    /// Mean work per planning cycle, per unit of [`planner::Work`].
+    pub units_per_cycle: UnitsPerCycle,
+    /// Mean modelled compute per planning cycle (ms; 0 under the free model).
+    pub modelled_ms_per_cycle: f64,
+    /// Candidate samples the budget let the planner evaluate (%).
+    pub samples_evaluated_pct: f64,
+    /// Planning cycles the budget stopped before their last sample (%).
+    pub truncated_cycles_pct: f64,
+    /// Planning cycles whose modelled compute ran past the control period, so that the next
+    /// cycle started late and the robot kept its command meanwhile (%).
+    pub late_cycles_pct: f64,
     /// Every run of every world, untrimmed.
     pub per_world: Vec<WorldRuns>,
+}
+
+/// Mean work per planning cycle, by unit ([`planner::Work`]).
+#[derive(Clone, Copy, Debug, Default, Serialize)]
+pub struct UnitsPerCycle {
+    /// Distance-field cells built.
+    pub cells: f64,
+    /// Samples scored.
+    pub samples: f64,
+    /// Random numbers drawn.
+    pub draws: f64,
+    /// Integration steps.
+    pub steps: f64,
+    /// Check points.
+    pub points: f64,
+}
+
+impl UnitsPerCycle {
+    /// The per-cycle means of `t`.
+    pub fn of(t: &ComputeTally) -> Self {
+        let n = t.cycles.max(1) as f64;
+        let [cells, samples, draws, steps, points] = t.work.as_array().map(|u| u as f64 / n);
+        Self {
+            cells,
+            samples,
+            draws,
+            steps,
+            points,
+        }
+    }
+}
+
+/// A short label of a compute model: `free`, or the platform and its budget scale.
+pub fn compute_label(c: &ComputeConfig) -> String {
+    match c.model {
+        ComputeModel::Free => "free".into(),
+        _ if c.budget_scale == 1.0 => kebab(&c.model),
+        _ => format!("{} x{}", kebab(&c.model), c.budget_scale),
+    }
 }
 
 /// All runs of one world in one row.
@@ -237,10 +290,12 @@ impl Planner for Metered {
 
 /// The environment settings of an evaluation run with a trained policy: the ones it was
 /// trained with (agent period, laser clip: the observation its card documents) with no
-/// agent-step cap, so runs end by the BARN protocol of `[episode]` like every other row.
-fn eval_env_config(trained: EnvConfig) -> EnvConfig {
+/// agent-step cap, so runs end by the BARN protocol of `[episode]` like every other row, and
+/// the evaluation's compute model, so every row runs on the same computer.
+fn eval_env_config(trained: EnvConfig, compute: ComputeConfig) -> EnvConfig {
     EnvConfig {
         max_agent_steps: u32::MAX,
+        compute,
         ..trained
     }
 }
@@ -255,14 +310,14 @@ pub struct PolicyBuffers {
 
 /// The closed loop: runs `env` to its end with `net` choosing the action every agent step
 /// (deterministic: no exploration noise); `on_step(env, observation, action)` sees every step
-/// before its action is applied. Allocates nothing per step beyond what [`AdpEnv::step`] and
-/// `on_step` do.
+/// before its action is applied. Returns the result and what the planning cycles did and
+/// cost. Allocates nothing per step beyond what [`AdpEnv::step`] and `on_step` do.
 pub fn run_policy(
     mut env: AdpEnv<'_>,
     net: &MlpPolicy,
     buf: &mut PolicyBuffers,
     mut on_step: impl FnMut(&AdpEnv<'_>, &[f32], &[f32]) -> anyhow::Result<()>,
-) -> anyhow::Result<EpisodeResult> {
+) -> anyhow::Result<(EpisodeResult, ComputeTally)> {
     buf.obs.resize(env.obs_dim(), 0.0);
     buf.action.resize(env.space().dim(), 0.0);
     while env.end() == End::Continue {
@@ -271,21 +326,7 @@ pub fn run_policy(
         on_step(&env, &buf.obs, &buf.action)?;
         env.step(&buf.action)?;
     }
-    Ok(env.result().episode)
-}
-
-/// [`run_policy`] without a hook; returns the result and the planner cycles (`control_dt` is
-/// the episode's control period).
-fn run_policy_episode(
-    env: AdpEnv<'_>,
-    net: &MlpPolicy,
-    control_dt: f64,
-    buf: &mut PolicyBuffers,
-) -> anyhow::Result<(EpisodeResult, u64)> {
-    let r = run_policy(env, net, buf, |_, _, _| Ok(()))?;
-    // Every planner cycle but the last runs a full control period; the last one may end early.
-    let cycles = (r.sim_time_s / control_dt - 1e-6).ceil().max(0.0) as u64;
-    Ok((r, cycles))
+    Ok((env.result().episode, *env.compute()))
 }
 
 fn charged_time(r: &EpisodeResult) -> f64 {
@@ -398,7 +439,7 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
         .expect("static template"),
     );
     let t0 = Instant::now();
-    let results: Vec<(usize, usize, usize, EpisodeResult, u64, Arc<PlanCost>)> = jobs
+    let results: Vec<(usize, usize, usize, EpisodeResult, ComputeTally, Arc<PlanCost>)> = jobs
         .par_iter()
         .map_init(PolicyBuffers::default, |buf, &(ri, p, f, s, w, r)| {
             let seed = run_seed(plan.seed, w, r);
@@ -407,7 +448,7 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
                 inner: p.build(cfg, seed ^ 0x5eed_91a2),
                 cost: Arc::clone(&cost),
             });
-            let (res, cycles) = match policy.filter(|_| f == Fidelity::Adp) {
+            let (res, tally) = match policy.filter(|_| f == Fidelity::Adp) {
                 Some(net) => {
                     let env = AdpEnv::new(
                         &worlds[w],
@@ -415,11 +456,10 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
                         planner,
                         plan.adp.space,
                         s,
-                        eval_env_config(plan.policy_env),
+                        eval_env_config(plan.policy_env, cfg.compute),
                         seed,
                     )?;
-                    run_policy_episode(env, net, cfg.episode.control_dt, buf)
-                        .with_context(|| format!("world {w}, run {r}"))?
+                    run_policy(env, net, buf, |_, _, _| Ok(())).with_context(|| format!("world {w}, run {r}"))?
                 }
                 None => run_episode(
                     &worlds[w],
@@ -428,15 +468,16 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
                     &f.schedule(&plan.adp)?,
                     s,
                     seed,
+                    cfg.compute.resolve(p.name())?,
                     |_, _, _| {},
                 ),
             };
             bar.inc(1);
-            Ok((ri, w, r, res, cycles, cost))
+            Ok((ri, w, r, res, tally, cost))
         })
         .collect::<anyhow::Result<_>>()?;
     bar.finish_and_clear();
-    let cycles: u64 = results.iter().map(|x| x.4).sum();
+    let cycles: u64 = results.iter().map(|x| x.4.cycles).sum();
     let secs = t0.elapsed().as_secs_f64();
     tracing::info!(
         episodes = results.len(),
@@ -483,6 +524,11 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
             )
         });
         let per_call = |total: u64| total as f64 / calls.max(1) as f64;
+        let mut tally = ComputeTally::default();
+        for x in results.iter().filter(|x| x.0 == ri) {
+            tally += x.4;
+        }
+        let cycles = tally.cycles.max(1) as f64;
         rows.push(Row {
             planner: p,
             fidelity: f,
@@ -499,6 +545,12 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
             episodes,
             check_points_per_cycle: per_call(points),
             plan_ms_per_cycle: per_call(nanos) / 1e6,
+            compute_model: compute_label(&cfg.compute),
+            units_per_cycle: UnitsPerCycle::of(&tally),
+            modelled_ms_per_cycle: tally.ms_per_cycle(),
+            samples_evaluated_pct: 100.0 * tally.evaluated_share(),
+            truncated_cycles_pct: 100.0 * tally.truncated_cycles as f64 / cycles,
+            late_cycles_pct: 100.0 * tally.late_cycles as f64 / cycles,
             per_world,
         });
     }
@@ -516,12 +568,12 @@ fn kebab<T: Serialize>(v: &T) -> String {
 /// The markdown table of the rows.
 pub fn table(rows: &[Row]) -> String {
     let mut out = String::from(
-        "| planner | fidelity | max speed (m/s) | success (%) | avg time (s) | avg score | collision (%) | timeout (%) | episodes | check points / cycle | plan ms / cycle |\n\
-         |---|---|---|---|---|---|---|---|---|---|---|\n",
+        "| planner | fidelity | max speed (m/s) | success (%) | avg time (s) | avg score | collision (%) | timeout (%) | episodes | check points / cycle | plan ms / cycle | compute | model ms / cycle | samples evaluated (%) | late cycles (%) |\n\
+         |---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
     );
     for r in rows {
         out.push_str(&format!(
-            "| {} | {} | {:.1} | {:.2} | {:.2} | {:.3} | {:.2} | {:.2} | {} | {:.0} | {:.3} |\n",
+            "| {} | {} | {:.1} | {:.2} | {:.2} | {:.3} | {:.2} | {:.2} | {} | {:.0} | {:.3} | {} | {:.2} | {:.1} | {:.2} |\n",
             serde_json::to_value(r.planner)
                 .expect("enum")
                 .as_str()
@@ -538,7 +590,11 @@ pub fn table(rows: &[Row]) -> String {
             r.timeout_pct,
             r.episodes,
             r.check_points_per_cycle,
-            r.plan_ms_per_cycle
+            r.plan_ms_per_cycle,
+            r.compute_model,
+            r.modelled_ms_per_cycle,
+            r.samples_evaluated_pct,
+            r.late_cycles_pct
         ));
     }
     out
@@ -547,7 +603,7 @@ pub fn table(rows: &[Row]) -> String {
 /// `adp eval`: runs the plan the arguments describe and prints its table (and writes the rows
 /// as JSON with `--out`).
 pub fn command(a: &crate::cli::EvalArgs) -> anyhow::Result<()> {
-    let cfg = a.run.setup.eval_config()?;
+    let mut cfg = a.run.setup.eval_config()?;
     let ids = sim::splits::SplitFile::embedded().select(&a.worlds)?;
     if a.runs == 0 {
         anyhow::bail!("--runs must be at least 1");
@@ -580,6 +636,11 @@ pub fn command(a: &crate::cli::EvalArgs) -> anyhow::Result<()> {
                     l.env.agent_period_cycles,
                     l.env.laser_clip_m
                 );
+                // Every row runs on the computer the policy was trained for, unless the
+                // command line names another.
+                if !a.run.setup.compute_given() {
+                    cfg.compute = l.env.compute;
+                }
                 (ddp(l.space), Some((l.net, l.env)), Some(source))
             }
         },

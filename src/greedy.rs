@@ -194,7 +194,7 @@ impl Setup {
                 env_cfg,
                 seed,
             )?;
-            let r = run_policy(env, net, &mut buf, |env, _, out| {
+            let (r, _) = run_policy(env, net, &mut buf, |env, _, out| {
                 for (x, &a) in u.iter_mut().zip(out) {
                     *x = f64::from(a);
                 }
@@ -215,7 +215,8 @@ impl Setup {
     }
 
     /// DDP through the plain episode driver on the same worlds and seeds.
-    fn ddp(&self) -> (f64, f64) {
+    fn ddp(&self) -> anyhow::Result<(f64, f64)> {
+        let compute = self.env.compute.resolve(self.planner.name())?;
         let episode = self
             .eval
             .episode
@@ -234,13 +235,14 @@ impl Setup {
                 &schedule,
                 self.max_speed,
                 seed,
+                compute,
                 |_, _, _| {},
             );
             wins += usize::from(r.status == Status::Succeeded);
             score += r.score;
             n += 1;
         }
-        (100.0 * wins as f64 / n.max(1) as f64, score / n.max(1) as f64)
+        Ok((100.0 * wins as f64 / n.max(1) as f64, score / n.max(1) as f64))
     }
 }
 
@@ -350,7 +352,10 @@ impl GreedyMonitor {
         let setup = self.setup.clone();
         let ddp = self.ddp;
         self.job = Some(std::thread::spawn(move || {
-            let ddp = ddp.unwrap_or_else(|| setup.ddp());
+            let ddp = match ddp {
+                Some(d) => d,
+                None => setup.ddp()?,
+            };
             let (success, score, records) = setup.policy(&net)?;
             let names: Vec<&str> = setup.space.ranges().iter().map(|r| r.0).collect();
             let clutter_mean = records.iter().map(|r| r.0).sum::<f64>() / records.len().max(1) as f64;

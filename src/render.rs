@@ -62,6 +62,8 @@ pub struct RenderJob<'a> {
     pub max_speed: f64,
     /// Noise seed.
     pub seed: u64,
+    /// The compute model the planner runs under (`None`: free).
+    pub compute: Option<planner::Compute>,
     /// Rollouts are drawn every this many seconds of simulated time.
     pub rollout_every_s: f64,
     /// Footprints are drawn every this many seconds.
@@ -95,6 +97,7 @@ pub fn render(mut job: RenderJob<'_>, out: &Path) -> anyhow::Result<EpisodeResul
         schedule,
         job.max_speed,
         job.seed,
+        job.compute,
         |ep, planner, cmd| {
             let pose = ep.state().pose;
             trail.push(pose);
@@ -252,6 +255,7 @@ pub fn command(a: &crate::cli::RenderArgs) -> anyhow::Result<()> {
         schedule: a.fidelity.schedule(&adp)?,
         max_speed: a.max_speed,
         seed: a.seed,
+        compute: cfg.compute.resolve(a.planner.name())?,
         rollout_every_s: a.rollouts_every,
         footprint_every_s: a.footprint_every,
     };

@@ -19,7 +19,8 @@
 
 use planner::action::ActionError;
 use planner::schedule::DEFAULT_BOUNDARY_POINTS;
-use planner::{ActionMap, ActionSpace, PlanInput, Planner, Prediction};
+use planner::run::CycleDriver;
+use planner::{ActionMap, ActionSpace, ComputeConfig, ComputeTally, Planner, Prediction};
 use serde::{Deserialize, Serialize};
 use sim::episode::{Episode, EpisodeConfig, EpisodeResult, Status};
 use sim::{Dynamics, Profile, World};
@@ -72,6 +73,10 @@ pub struct EnvConfig {
     /// The response parameters of `profile = "custom"` (a `[env.dynamics]` table; absent
     /// otherwise).
     pub dynamics: Option<Dynamics>,
+    /// The onboard compute model the planner runs under (`[env.compute]`; default
+    /// `jackal-onboard`: a cycle budget, and the command acts after the modelled compute;
+    /// `model = "free"` prices nothing). See [`planner::compute`].
+    pub compute: ComputeConfig,
 }
 
 impl Default for EnvConfig {
@@ -91,6 +96,7 @@ impl Default for EnvConfig {
             action_map: ActionMap::DdpCentred,
             profile: Profile::default(),
             dynamics: None,
+            compute: ComputeConfig::default(),
         }
     }
 }
@@ -131,6 +137,9 @@ impl EnvConfig {
                 self.reward_scale
             ));
         }
+        self.compute
+            .validate()
+            .map_err(|e| EnvError::Config(format!("env.{e}")))?;
         self.profile
             .resolve(self.dynamics.as_ref(), "env.dynamics")
             .map(|_| ())
@@ -202,6 +211,8 @@ pub struct AdpEnv<'w> {
     space: ActionSpace,
     max_speed: f64,
     prediction: Prediction,
+    /// Plans each control period under the compute model.
+    driver: CycleDriver,
     cfg: EnvConfig,
     previous_action: Vec<f32>,
     /// The space's DDP action in box units (for the action map).
@@ -245,6 +256,11 @@ impl<'w> AdpEnv<'w> {
                 "max_speed = {max_speed} must be finite and > 0"
             )));
         }
+        let compute = cfg
+            .compute
+            .resolve(planner.name())
+            .map_err(|e| EnvError::Config(format!("env.{e}")))?;
+        let driver = CycleDriver::new(compute, episode_cfg.control_dt);
         let episode = Episode::new(world, episode_cfg, seed);
         let goal_distance = episode.state().pose.position().dist(world.goal);
         Ok(Self {
@@ -253,6 +269,7 @@ impl<'w> AdpEnv<'w> {
             space,
             max_speed,
             prediction: Prediction::for_profile(cfg.profile),
+            driver,
             cfg,
             previous_action: cfg
                 .action_map
@@ -288,6 +305,11 @@ impl<'w> AdpEnv<'w> {
     /// The underlying episode (for drawing and diagnostics).
     pub fn episode(&self) -> &Episode<'w> {
         &self.episode
+    }
+
+    /// What the planning cycles so far did and cost under the compute model.
+    pub fn compute(&self) -> &ComputeTally {
+        self.driver.tally()
     }
 
     /// Agent steps taken.
@@ -340,13 +362,15 @@ impl<'w> AdpEnv<'w> {
             .map_into(&self.policy_f64, &self.ddp_box, &mut self.action_f64);
         let schedule = self.space.schedule(&self.action_f64, DEFAULT_BOUNDARY_POINTS)?;
         for _ in 0..self.cfg.agent_period_cycles {
-            let cmd = self.planner.plan(&PlanInput {
-                perception: self.episode.perception(),
-                schedule: &schedule,
-                max_speed: self.max_speed,
-                prediction: self.prediction,
-            });
-            if self.episode.step(cmd) != Status::Running {
+            let status = self.driver.period(
+                &mut self.episode,
+                self.planner.as_mut(),
+                &schedule,
+                self.max_speed,
+                self.prediction,
+                &mut |_, _, _| {},
+            );
+            if status != Status::Running {
                 break;
             }
         }

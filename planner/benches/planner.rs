@@ -17,6 +17,7 @@ fn input<'a>(ep: &'a Episode<'_>, sched: &'a Schedule) -> PlanInput<'a> {
         schedule: sched,
         max_speed: 1.5,
         prediction: planner::Prediction::PAPERS,
+        budget: planner::Budget::UNLIMITED,
     }
 }
 

@@ -14,6 +14,7 @@ use serde::{Deserialize, Serialize};
 use sim::geometry::{Pose, Vec2};
 use sim::robot::{approach, Twist};
 
+use crate::compute::{even_order, Work};
 use crate::local_map::LocalMap;
 use crate::recovery::{Recovery, RecoveryConfig};
 use crate::{Integrator, PlanInput, Planner, Trace};
@@ -98,12 +99,17 @@ pub struct Dwa {
     /// the robot already has when that is smaller (so a robot that ended up closer than the
     /// margin may still move away instead of being stuck).
     margins: Vec<f64>,
+    /// Grid cells (`i * w_samples + j`) in evaluation order: the grid's own order, or
+    /// [`even_order`] when a compute budget may stop the cycle early.
+    order: Vec<u32>,
     recovery: Recovery,
     trace: Trace,
 }
 
 #[derive(Clone, Copy, Debug)]
 struct Candidate {
+    /// Grid cell (`i * w_samples + j`): ties between equal costs go to the lower cell.
+    cell: u32,
     cmd: Twist,
     goal: f64,
     path: f64,
@@ -128,6 +134,7 @@ impl Dwa {
             v_prof: Vec::new(),
             cost: Vec::new(),
             margins: Vec::new(),
+            order: Vec::new(),
             recovery: Recovery::new(cfg.recovery),
             trace: Trace::default(),
         }
@@ -168,12 +175,26 @@ impl Planner for Dwa {
     crate::planner_identity!("dwa");
 
     fn plan(&mut self, input: &PlanInput<'_>) -> Twist {
+        let points_before = self.trace.evaluated;
+        self.trace.cycle = Default::default();
+        let cmd = self.cycle(input);
+        self.trace.cycle.work.points = self.trace.evaluated - points_before;
+        cmd
+    }
+}
+
+impl Dwa {
+    /// One planning cycle; counts its work into `trace.cycle` (all but the points, which
+    /// [`Planner::plan`] takes from `trace.evaluated`).
+    fn cycle(&mut self, input: &PlanInput<'_>) -> Twist {
+        let points_at_start = self.trace.evaluated;
         let cfg = self.cfg;
         let per = &input.perception;
         let sched = input.schedule;
         let steps = sched.len();
         let euler = input.prediction.integrator == Integrator::Euler;
         self.map.prepare(per.points, input, 1.0, cfg.clearance_cap);
+        self.trace.cycle.work.cells = self.map.cells() as u64;
         if let Some(cmd) = self.recovery.step(&self.map, per, &mut self.trace.evaluated) {
             self.trace.rollouts.clear(sched.dts());
             return cmd;
@@ -186,6 +207,8 @@ impl Planner for Dwa {
         let w_lo = (w0 - cfg.accel_w * cfg.window_dt).max(-cfg.max_w);
         let w_hi = (w0 + cfg.accel_w * cfg.window_dt).min(cfg.max_w).max(w_lo);
         let (nv, nw) = (cfg.v_samples.max(1), cfg.w_samples.max(1));
+        // The profiles below: one step per sample and grid step of each axis.
+        self.trace.cycle.work.steps = ((nv + nw) * steps) as u64;
 
         // Velocity profiles are separable: v depends only on the v command, yaw only on w.
         self.v_prof.clear();
@@ -226,8 +249,26 @@ impl Planner for Dwa {
 
         self.trace.rollouts.clear(sched.dts());
         self.cost.clear();
-        for i in 0..nv {
-            for j in 0..nw {
+        let budget = input.budget;
+        if budget.is_limited() {
+            even_order(nv * nw, &mut self.order);
+        } else {
+            self.order.clear();
+            self.order.extend(0..(nv * nw) as u32);
+        }
+        self.trace.cycle.samples = self.order.len() as u32;
+        for &cell in &self.order {
+            let spent = Work {
+                points: self.trace.evaluated - points_at_start,
+                ..self.trace.cycle.work
+            };
+            if !budget.admits(&spent) {
+                break;
+            }
+            self.trace.cycle.work.samples += 1;
+            self.trace.cycle.evaluated += 1;
+            let (i, j) = (cell as usize / nw, cell as usize % nw);
+            {
                 let (mut x, mut y, mut s0, mut c0) = (0.0, 0.0, 0.0, 1.0);
                 let mut min_clear = cfg.clearance_cap;
                 // Distance driven up to the last clear grid point, and that point.
@@ -243,6 +284,7 @@ impl Planner for Dwa {
                     self.trace.rollouts.begin();
                 }
                 for k in 0..steps {
+                    self.trace.cycle.work.steps += 1;
                     let v = self.v_prof[i * steps + k];
                     let (w, s1, c1) = self.w_prof[j * steps + k];
                     let dt = sched.dts()[k];
@@ -300,6 +342,7 @@ impl Planner for Dwa {
                 goal_sum += end.dist(per.local_goal) * (tail_len - goal_n) as f64;
                 let cmd = Twist::new(sample(v_lo, v_hi, nv, i), sample(w_lo, w_hi, nw, j));
                 self.cost.push(Candidate {
+                    cell,
                     cmd,
                     goal: goal_sum / tail_len.max(1) as f64,
                     path: 0.5
@@ -344,7 +387,7 @@ impl Planner for Dwa {
         };
         self.cost
             .iter()
-            .min_by(|a, b| total(a).total_cmp(&total(b)))
+            .min_by(|a, b| total(a).total_cmp(&total(b)).then(a.cell.cmp(&b.cell)))
             .map(|c| c.cmd)
             .unwrap_or_default()
     }
@@ -388,6 +431,7 @@ mod tests {
                         &Schedule::ddp_default(),
                         1.0,
                         seed,
+                        None,
                         |_, _, _| {},
                     );
                     r.status
@@ -417,6 +461,7 @@ mod tests {
                 &sched,
                 1.5,
                 1,
+                None,
                 |ep, _, _| {
                     let p = ep.state().pose;
                     if (p.y - 4.0).abs() < 0.1 {
@@ -455,6 +500,7 @@ mod tests {
                 schedule: &schedule,
                 max_speed: 1.5,
                 prediction: crate::Prediction::PAPERS,
+                budget: crate::Budget::UNLIMITED,
             });
             assert!(cmd.v > 0.3, "drives on: {cmd:?}");
             assert!(cmd.w <= 0.0, "not toward the wall: {cmd:?}");
@@ -474,6 +520,7 @@ mod tests {
                 schedule: &ddp,
                 max_speed: 1.5,
                 prediction: crate::Prediction::PAPERS,
+                budget: crate::Budget::UNLIMITED,
             });
             ep.step(cmd);
         }
@@ -486,6 +533,7 @@ mod tests {
                 schedule: s,
                 max_speed: 1.5,
                 prediction: crate::Prediction::PAPERS,
+                budget: crate::Budget::UNLIMITED,
             });
             dwa.evaluated_points()
         };

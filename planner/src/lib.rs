@@ -7,6 +7,7 @@
 //! at grid points, or exact arcs with conservative checks).
 
 pub mod action;
+pub mod compute;
 pub mod dwa;
 pub mod local_map;
 pub mod log_mppi;
@@ -18,6 +19,7 @@ pub mod schedule;
 pub mod system;
 
 pub use action::{ActionMap, ActionSpace, NameError};
+pub use compute::{Budget, Compute, ComputeConfig, ComputeModel, ComputeTally, CycleWork, Work};
 pub use dwa::{Dwa, DwaConfig};
 pub use log_mppi::{LogMppi, LogMppiConfig};
 pub use mppi::{Mppi, MppiConfig};
@@ -41,6 +43,8 @@ pub struct PlanInput<'a> {
     pub max_speed: f64,
     /// How rollouts model the robot.
     pub prediction: Prediction,
+    /// The cycle's compute budget ([`Budget::UNLIMITED`] under the free model).
+    pub budget: Budget,
 }
 
 /// A local planner. One instance per episode: `plan` takes `&mut self` so planners keep
@@ -98,6 +102,8 @@ pub struct Trace {
     pub recording: bool,
     /// Collision-check points evaluated since construction (centre + boundary points).
     pub evaluated: u64,
+    /// The work of the last cycle, for the compute model ([`crate::compute`]).
+    pub cycle: CycleWork,
 }
 
 /// The sampled trajectories of one planning cycle, robot frame, stored flat.

@@ -75,6 +75,11 @@ impl LocalMap {
         &self.footprint
     }
 
+    /// Cells of the field built last (the compute model's distance-field work).
+    pub fn cells(&self) -> usize {
+        self.nx * self.ny
+    }
+
     /// Largest check density prepared.
     pub fn boundary_points(&self) -> usize {
         self.points.len() - 1

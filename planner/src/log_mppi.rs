@@ -24,6 +24,7 @@ use sim::geometry::{wrap_angle, Footprint, Pose, Vec2};
 use sim::robot::Twist;
 
 use crate::local_map::LocalMap;
+use crate::compute::{admit, even_order, Work};
 use crate::mppi::{mppi_weights, roll_all, Nominal, Unicycle};
 use crate::{Integrator, PlanInput, Planner, Rollouts, Trace};
 
@@ -172,6 +173,10 @@ pub struct LogMppi {
     costs: Vec<f64>,
     weights: Vec<f64>,
     times: Vec<f64>,
+    /// Samples in evaluation order under a compute budget ([`even_order`]).
+    eval_order: Vec<u32>,
+    /// Whether the budget let each sample be evaluated.
+    admitted: Vec<bool>,
     trace: Trace,
 }
 
@@ -211,6 +216,8 @@ impl LogMppi {
             costs: Vec::new(),
             weights: Vec::new(),
             times: Vec::new(),
+            eval_order: Vec::new(),
+            admitted: Vec::new(),
             trace: Trace::default(),
         }
     }
@@ -380,13 +387,46 @@ impl Planner for LogMppi {
         let roll = |u: &[Twist], record: Option<&mut Rollouts>| rollout(&scene, u, record);
         let dts = sched.dts();
         roll_all(&self.controls, &mut self.outcomes, &mut self.trace, dts, roll);
-        self.trace.evaluated += self.outcomes.iter().map(|o| o.evaluated).sum::<u64>();
 
-        // The path-integral update over all samples, then the Savitzky-Golay filter.
+        // What the compute budget admits: every sample drew two NLN factors (two normals
+        // each) per step, but the noise-free nominal; each rolls out every step.
+        let n = self.outcomes.len();
+        if input.budget.is_limited() {
+            even_order(n, &mut self.eval_order);
+        } else {
+            self.eval_order.clear();
+            self.eval_order.extend(0..n as u32);
+        }
+        self.admitted.resize(n, false);
+        let outcomes = &self.outcomes;
+        let work_of = |i: usize| Work {
+            samples: 1,
+            draws: if i == 0 { 0 } else { 4 * steps as u64 },
+            steps: steps as u64,
+            points: outcomes[i].evaluated,
+            cells: 0,
+        };
+        let spent = Work {
+            cells: (self.map.cells() + self.costmap.cells.len()) as u64,
+            ..Work::default()
+        };
+        let cycle = admit(&input.budget, spent, &self.eval_order, work_of, &mut self.admitted);
+        self.trace.evaluated += cycle.work.points;
+        self.trace.cycle = cycle;
+
+        // The path-integral update over the admitted samples, then the Savitzky-Golay filter.
+        let admitted = &self.admitted;
         self.costs.clear();
-        self.costs.extend(self.outcomes.iter().map(|o| o.cost));
+        self.costs
+            .extend(self.outcomes.iter().zip(admitted).filter(|(_, &a)| a).map(|(o, _)| o.cost));
         mppi_weights(&self.costs, cfg.lambda, &mut self.weights);
-        let samples = self.controls.chunks(steps).zip(self.weights.iter().copied());
+        let samples = self
+            .controls
+            .chunks(steps)
+            .zip(admitted)
+            .filter(|(_, &a)| a)
+            .map(|(u, _)| u)
+            .zip(self.weights.iter().copied());
         self.nominal.blend(steps, samples);
         self.times.clear();
         let mut t = 0.0;

@@ -30,6 +30,7 @@ use serde::{Deserialize, Serialize};
 use sim::geometry::{wrap_angle, Pose, Vec2};
 use sim::robot::{approach, Twist};
 
+use crate::compute::{admit, even_order, Work};
 use crate::dwa::distance_to_path;
 use crate::local_map::LocalMap;
 use crate::{Integrator, PlanInput, Planner, Rollouts, Trace};
@@ -132,6 +133,10 @@ pub struct Mppi {
     /// Collision threshold per check density (see [`MppiConfig::margin`]).
     margins: Vec<f64>,
     order: Vec<usize>,
+    /// Samples in evaluation order under a compute budget ([`even_order`]).
+    eval_order: Vec<u32>,
+    /// Whether the budget let each sample be evaluated.
+    admitted: Vec<bool>,
     selected_costs: Vec<f64>,
     weights: Vec<f64>,
     trace: Trace,
@@ -143,6 +148,8 @@ struct Outcome {
     cost: f64,
     collision_free: bool,
     evaluated: u64,
+    /// Integration steps rolled out.
+    steps: u64,
 }
 
 /// The cycle's inputs shared by all rollouts.
@@ -174,6 +181,8 @@ impl Mppi {
             outcomes: Vec::new(),
             margins: Vec::new(),
             order: Vec::new(),
+            eval_order: Vec::new(),
+            admitted: Vec::new(),
             selected_costs: Vec::new(),
             weights: Vec::new(),
             trace: Trace::default(),
@@ -226,17 +235,18 @@ impl Mppi {
     fn select(&mut self) -> bool {
         let cfg = self.cfg;
         self.order.clear();
+        let admitted = &self.admitted;
         if cfg.top_k == 0 {
-            self.order.extend(0..self.outcomes.len());
+            self.order.extend((0..self.outcomes.len()).filter(|&i| admitted[i]));
         } else {
             let outcomes = &self.outcomes;
             self.order
-                .extend((0..outcomes.len()).filter(|&i| outcomes[i].collision_free));
+                .extend((0..outcomes.len()).filter(|&i| admitted[i] && outcomes[i].collision_free));
             self.order
                 .sort_unstable_by(|&a, &b| outcomes[a].cost.total_cmp(&outcomes[b].cost).then(a.cmp(&b)));
             self.order.truncate(cfg.top_k);
         }
-        if !self.outcomes.iter().any(|o| o.collision_free) {
+        if !self.outcomes.iter().zip(admitted).any(|(o, &a)| a && o.collision_free) {
             return false;
         }
         self.selected_costs.clear();
@@ -244,6 +254,43 @@ impl Mppi {
             .extend(self.order.iter().map(|&i| self.outcomes[i].cost));
         mppi_weights(&self.selected_costs, cfg.lambda, &mut self.weights);
         true
+    }
+}
+
+impl Mppi {
+    /// Decides which of this cycle's samples the compute budget admits (see
+    /// [`crate::compute::admit`]) and records the cycle's work in `trace.cycle` and its points
+    /// in `trace.evaluated`. Sample `i` drew two normals per step, plus two uniforms for an
+    /// exploring sample.
+    fn budget_cycle(&mut self, input: &PlanInput<'_>, steps: usize, points_at_start: u64) {
+        let n = self.outcomes.len();
+        let cfg = &self.cfg;
+        let n_brake = (cfg.brake_fraction * n as f64).round() as usize;
+        let n_explore = (cfg.explore_fraction * n as f64).round() as usize;
+        if input.budget.is_limited() {
+            even_order(n, &mut self.eval_order);
+        } else {
+            self.eval_order.clear();
+            self.eval_order.extend(0..n as u32);
+        }
+        self.admitted.resize(n, false);
+        let spent = Work {
+            cells: self.map.cells() as u64,
+            points: self.trace.evaluated - points_at_start,
+            ..Work::default()
+        };
+        let outcomes = &self.outcomes;
+        let work_of = |i: usize| Work {
+            samples: 1,
+            draws: if i == 0 { 0 } else { 2 * steps as u64 }
+                + if i > n_brake && i <= n_brake + n_explore { 2 } else { 0 },
+            steps: outcomes[i].steps,
+            points: outcomes[i].evaluated,
+            cells: 0,
+        };
+        let cycle = admit(&input.budget, spent, &self.eval_order, work_of, &mut self.admitted);
+        self.trace.evaluated += cycle.work.points - spent.points;
+        self.trace.cycle = cycle;
     }
 }
 
@@ -439,10 +486,12 @@ fn rollout(scene: &Scene<'_>, controls: &[Twist], mut record: Option<&mut Rollou
     let (mut t, mut hit) = (0.0, None);
     // Sum and count of the tail's clear points' distances to the local goal.
     let (mut goal_sum, mut goal_n) = (0.0, 0u32);
+    let mut steps = 0u64;
     if let Some(r) = record.as_deref_mut() {
         r.begin();
     }
     for (k, (&cmd, &dt)) in controls.iter().zip(scene.dts).enumerate() {
+        steps += 1;
         smooth += (cmd.v - prev.v).powi(2) + (cmd.w - prev.w).powi(2);
         prev = cmd;
         robot.step(cmd, dt, cfg.accel_v, cfg.accel_w);
@@ -495,6 +544,7 @@ fn rollout(scene: &Scene<'_>, controls: &[Twist], mut record: Option<&mut Rollou
         cost,
         collision_free: hit.is_none(),
         evaluated,
+        steps,
     }
 }
 
@@ -506,6 +556,7 @@ impl Planner for Mppi {
         let per = &input.perception;
         let sched = input.schedule;
         let steps = sched.len();
+        let points_at_start = self.trace.evaluated;
         self.map.prepare(per.points, input, 1.0, cfg.clearance_cap);
 
         // Warm start: the last nominal, one control period later, on this schedule's grid.
@@ -540,7 +591,7 @@ impl Planner for Mppi {
         let roll = |u: &[Twist], record: Option<&mut Rollouts>| rollout(&scene, u, record);
         let dts = sched.dts();
         roll_all(&self.controls, &mut self.outcomes, &mut self.trace, dts, roll);
-        self.trace.evaluated += self.outcomes.iter().map(|o| o.evaluated).sum::<u64>();
+        self.budget_cycle(input, steps, points_at_start);
 
         if !self.select() {
             // Every sample collides: stop, turn toward the local goal, and restart the
@@ -664,6 +715,7 @@ pub(crate) mod tests {
             schedule,
             1.5,
             3,
+            None,
             |ep, _, _| {
                 closest = closest.min(ep.state().pose.position().dist(block.c));
             },
@@ -682,6 +734,7 @@ pub(crate) mod tests {
                 schedule,
                 max_speed: 1.5,
                 prediction: crate::Prediction::PAPERS,
+                budget: crate::Budget::UNLIMITED,
             });
             out.push(cmd);
             ep.step(cmd);
@@ -769,6 +822,7 @@ pub(crate) mod tests {
             schedule: &sched,
             max_speed: 1.5,
             prediction: crate::Prediction::PAPERS,
+            budget: crate::Budget::UNLIMITED,
         });
         let r = mppi.rollouts();
         assert_eq!(r.spans.len(), 50);

@@ -209,6 +209,13 @@ impl Dynamics {
     }
 }
 
+/// The share of [`Dynamics::gazebo_jackal`]'s latency that stands for the planning
+/// computation itself (s): "half a 20 Hz planning period plus the planning itself (25 + ~25
+/// ms)". When a compute model gives each cycle its own modelled compute time, the episode
+/// replaces this share by that time ([`Drive::command_after`]), so planning is not counted
+/// twice.
+pub const PLANNING_LATENCY_S: f64 = 0.025;
+
 /// The drive train between the planner's command and the robot's motion: latency queue,
 /// wheel velocity loop, skid-steer slip. One per episode; stepping does not allocate once the
 /// queue has reached its length (latency / physics step).
@@ -218,6 +225,8 @@ pub struct Drive {
     limits: RobotLimits,
     /// Physics steps between a command's issue and its effect.
     delay_ticks: u64,
+    /// The physics step (s).
+    physics_dt: f64,
     /// Physics steps taken.
     tick: u64,
     /// Commands waiting for their tick.
@@ -236,6 +245,7 @@ impl Drive {
             dynamics,
             limits,
             delay_ticks,
+            physics_dt,
             tick: 0,
             queue: VecDeque::with_capacity(delay_ticks as usize + 2),
             applied: Twist::default(),
@@ -254,6 +264,21 @@ impl Drive {
             self.applied = cmd;
         } else {
             self.queue.push_back((self.tick + self.delay_ticks, cmd));
+        }
+    }
+
+    /// Issues a command now that takes effect `compute_s` seconds of modelled planning
+    /// after the profile's latency less its planning share ([`PLANNING_LATENCY_S`], at
+    /// least 0), rounded to the physics step. Commands must be issued in order of their
+    /// effect, which the episode drivers guarantee (a cycle starts after the previous one's
+    /// compute ended).
+    pub fn command_after(&mut self, cmd: Twist, compute_s: f64) {
+        let latency = (self.dynamics.latency_s - PLANNING_LATENCY_S).max(0.0) + compute_s.max(0.0);
+        let ticks = (latency / self.physics_dt).round() as u64;
+        if ticks == 0 {
+            self.applied = cmd;
+        } else {
+            self.queue.push_back((self.tick + ticks, cmd));
         }
     }
 

@@ -356,10 +356,36 @@ impl<'w> Episode<'w> {
         if self.status != Status::Running {
             return self.status;
         }
+        self.drive.command(cmd);
+        self.advance()
+    }
+
+    /// Issues `cmd`, planned with `compute_s` seconds of modelled computation: it takes effect
+    /// after the profile's latency with its planning share replaced by `compute_s` (see
+    /// [`crate::dynamics::PLANNING_LATENCY_S`]); then simulates one control period like
+    /// [`Episode::step`].
+    pub fn step_after(&mut self, cmd: Twist, compute_s: f64) -> Status {
+        if self.status != Status::Running {
+            return self.status;
+        }
+        self.drive.command_after(cmd, compute_s);
+        self.advance()
+    }
+
+    /// Simulates one control period without a new command (the planner is still computing:
+    /// the robot keeps the command it has), then senses.
+    pub fn hold(&mut self) -> Status {
+        if self.status != Status::Running {
+            return self.status;
+        }
+        self.advance()
+    }
+
+    /// One control period of physics, then sensing.
+    fn advance(&mut self) -> Status {
         let n = (self.cfg.control_dt / self.cfg.physics_dt).round().max(1.0) as usize;
         let dt = self.cfg.control_dt / n as f64;
         let fp = self.cfg.robot.footprint;
-        self.drive.command(cmd);
         for _ in 0..n {
             let before = self.state.pose.position();
             self.drive.step(&mut self.state, dt);

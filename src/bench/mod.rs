@@ -9,9 +9,12 @@
 //!   inference, exploration; no learner), on one thread and on every core.
 //! - `train`: `adp train` end to end (learner + actor processes at one update per step),
 //!   agent steps per second once training has started.
+//! - `compute` ([`compute`], not in the default set): the unit costs of planner work on this
+//!   machine and the `jackal-onboard` compute platform derived from them.
 //!
 //! Timing is wall clock in a release build; nothing here is a test.
 
+mod compute;
 mod transport;
 
 use std::path::{Path, PathBuf};
@@ -41,6 +44,8 @@ pub enum Part {
     Collect,
     /// `adp train` end to end.
     Train,
+    /// The compute model's unit costs (fit) and platform (not run by default).
+    Compute,
 }
 
 /// What `adp bench` runs and how long.
@@ -68,6 +73,9 @@ pub struct BenchArgs {
     /// Actor processes of the end-to-end run (default: one per core).
     #[arg(long, default_value_t = 0)]
     pub train_actors: u32,
+    /// Training worlds each planner and schedule runs on (compute).
+    #[arg(long, default_value_t = 8)]
+    pub compute_worlds: usize,
     /// Also write the figures as JSON to this file.
     #[arg(long)]
     pub json: Option<PathBuf>,
@@ -128,6 +136,7 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
             Part::Transport => transport(args.records),
             Part::Collect => collect(args.collect_steps),
             Part::Train => train(args.train_steps, args.train_actors),
+            Part::Compute => compute::run(args.compute_worlds),
         }
         .with_context(|| format!("bench {part:?}"))?;
         for f in &got {

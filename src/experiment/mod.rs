@@ -179,6 +179,8 @@ pub fn run(args: &Args) -> anyhow::Result<Option<PathBuf>> {
     cfg.episode = cfg
         .episode
         .with_profile(ex.train.env.profile, ex.train.env.dynamics);
+    // Every controller runs on the computer the policies train for.
+    cfg.compute = ex.train.env.compute;
     cfg.episode.start_jitter_m = ex.eval.start_jitter_m;
     cfg.episode.start_jitter_yaw_rad = ex.eval.start_jitter_yaw_rad;
     cfg.episode

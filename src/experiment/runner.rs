@@ -197,6 +197,7 @@ fn run_one(
                 s,
                 spec.speed,
                 seed,
+                spec.cfg.compute.resolve(spec.planner.name())?,
                 |_, _, _| {},
             );
             return Ok((res, Vec::new(), Vec::new()));
@@ -212,6 +213,7 @@ fn run_one(
     };
     let eval_env = EnvConfig {
         max_agent_steps: u32::MAX,
+        compute: spec.cfg.compute,
         ..env
     };
     let mut e = AdpEnv::new(

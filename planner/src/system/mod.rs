@@ -55,6 +55,7 @@ use sampling::{
     SampleEval,
 };
 
+use crate::compute::{admit, even_order, Budget, Work};
 use crate::local_map::LocalMap;
 use crate::{Integrator, PlanInput, Planner, Trace};
 
@@ -77,6 +78,12 @@ pub struct NavSystem {
     /// Perturbed per-step controls, sample after sample.
     controls: Vec<Twist>,
     evals: Vec<SampleEval>,
+    /// Samples in evaluation order under a compute budget ([`even_order`]).
+    eval_order: Vec<u32>,
+    /// Whether the budget let each sample be evaluated.
+    admitted: Vec<bool>,
+    /// `trace.evaluated` when the current cycle started.
+    points_at_start: u64,
     order: Vec<usize>,
     top_costs: Vec<f64>,
     weights: Vec<f64>,
@@ -115,6 +122,9 @@ impl NavSystem {
             nominal: Vec::new(),
             controls: Vec::new(),
             evals: Vec::new(),
+            eval_order: Vec::new(),
+            admitted: Vec::new(),
+            points_at_start: 0,
             order: Vec::new(),
             top_costs: Vec::new(),
             weights: Vec::new(),
@@ -380,8 +390,9 @@ impl NavSystem {
             .enumerate()
             .with_min_len(32)
             .for_each(|(i, e)| evaluate(&ctx, &controls[i * steps..(i + 1) * steps], e));
+        self.admit(&input.budget, n, steps);
+        let controls = &self.controls;
         let evals = &mut self.evals[..n];
-        self.trace.evaluated += evals.iter().map(|e| e.evaluated).sum::<u64>();
         if self.trace.recording {
             for e in evals.iter() {
                 self.trace.rollouts.begin();
@@ -465,6 +476,40 @@ impl NavSystem {
         Some(first)
     }
 
+    /// Decides which of the `n` samples just evaluated the compute budget admits (see
+    /// [`crate::compute::admit`]; each drew two normals per step), marks the others
+    /// infeasible (not considered), and adds the admitted samples' work to `trace.cycle` and
+    /// their points to `trace.evaluated`.
+    fn admit(&mut self, budget: &Budget, n: usize, steps: usize) {
+        if budget.is_limited() {
+            even_order(n, &mut self.eval_order);
+        } else {
+            self.eval_order.clear();
+            self.eval_order.extend(0..n as u32);
+        }
+        self.admitted.resize(n, false);
+        let spent = Work {
+            points: self.trace.evaluated - self.points_at_start,
+            ..self.trace.cycle.work
+        };
+        let evals = &self.evals;
+        let work_of = |i: usize| Work {
+            samples: 1,
+            draws: 2 * steps as u64,
+            steps: evals[i].steps,
+            points: evals[i].evaluated,
+            cells: 0,
+        };
+        let c = admit(budget, spent, &self.eval_order, work_of, &mut self.admitted[..n]);
+        self.trace.evaluated += c.work.points - spent.points;
+        self.trace.cycle.work = c.work;
+        self.trace.cycle.samples += c.samples;
+        self.trace.cycle.evaluated += c.evaluated;
+        for (e, &a) in self.evals[..n].iter_mut().zip(&self.admitted) {
+            e.feasible &= a;
+        }
+    }
+
     /// True when the constant command `cmd` stays collision-free over the first
     /// `verify_time` seconds of the schedule.
     fn verify(&mut self, cmd: Twist, start: Twist, dts: &[f64], checks: &[u16], margin: f64) -> bool {
@@ -499,6 +544,18 @@ impl Planner for NavSystem {
     crate::planner_identity!("system");
 
     fn plan(&mut self, input: &PlanInput<'_>) -> Twist {
+        self.points_at_start = self.trace.evaluated;
+        self.trace.cycle = Default::default();
+        let cmd = self.cycle(input);
+        self.trace.cycle.work.points = self.trace.evaluated - self.points_at_start;
+        cmd
+    }
+}
+
+impl NavSystem {
+    /// One planning cycle; counts its work into `trace.cycle` (the points at the end, by
+    /// [`Planner::plan`]).
+    fn cycle(&mut self, input: &PlanInput<'_>) -> Twist {
         let cfg = self.cfg;
         let per = &input.perception;
         let sched = input.schedule;
@@ -506,6 +563,7 @@ impl Planner for NavSystem {
         self.integrator = input.prediction.integrator;
         self.map
             .prepare(&self.obstacles, input, NEAR_RANGE, cfg.clearance_cap);
+        self.trace.cycle.work.cells = self.map.cells() as u64;
         if self.trace.recording {
             self.trace.rollouts.clear(sched.dts());
         }
@@ -738,6 +796,7 @@ mod tests {
             &Schedule::ddp_default(),
             1.5,
             3,
+            None,
             |ep, _, _| {
                 let p = ep.state().pose;
                 if (p.y - 4.0).abs() < 0.3 {
@@ -770,6 +829,7 @@ mod tests {
                 schedule: sched,
                 max_speed: 1.5,
                 prediction: crate::Prediction::PAPERS,
+                budget: crate::Budget::UNLIMITED,
             });
             ep.step(cmd);
             cycle += 1;
@@ -792,6 +852,7 @@ mod tests {
                 schedule: &sched,
                 max_speed: 1.5,
                 prediction: crate::Prediction::PAPERS,
+                budget: crate::Budget::UNLIMITED,
             });
             spans = spans.max(sys.rollouts().spans.len());
             out.push(cmd);
@@ -825,6 +886,7 @@ mod tests {
             schedule: &sched,
             max_speed: 1.5,
             prediction: crate::Prediction::PAPERS,
+            budget: crate::Budget::UNLIMITED,
         };
         let first = sys.plan(&input);
         sys.plan(&input);

@@ -132,6 +132,8 @@ pub(super) struct SampleEval {
     /// Steps driven: the rollout stops (and stays) after this many steps.
     pub(super) driven: usize,
     pub(super) evaluated: u64,
+    /// Integration steps rolled out.
+    pub(super) steps: u64,
     pub(super) poses: Vec<Pose>,
 }
 
@@ -166,6 +168,7 @@ pub(super) struct RolloutCtx<'a> {
 pub(super) fn evaluate(ctx: &RolloutCtx<'_>, controls: &[Twist], e: &mut SampleEval) {
     e.poses.clear();
     e.evaluated = 0;
+    e.steps = 0;
     e.feasible = false;
     e.driven = controls.len();
     let (mut vel, mut pose) = (ctx.start, Pose::default());
@@ -174,6 +177,7 @@ pub(super) fn evaluate(ctx: &RolloutCtx<'_>, controls: &[Twist], e: &mut SampleE
     let mut last_clear = ctx.start_clear;
     for (k, (&dt, u)) in ctx.dts.iter().zip(controls).enumerate() {
         if k < e.driven {
+            e.steps += 1;
             let before = (vel, pose);
             vel.v = approach(vel.v, u.v, ctx.accel_v * dt);
             vel.w = approach(vel.w, u.w, ctx.accel_w * dt);

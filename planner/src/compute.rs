@@ -1,0 +1,682 @@
+//! The onboard compute model: what a planning cycle costs on the robot's computer.
+//!
+//! On a robot, dynamics fidelity is paid for in computation. DDP decrements fidelity "to
+//! reduce computation and reach a longer planning horizon within the same computation
+//! budget" (DDP paper, §III), and the authors' standalone planner stops each of its threads
+//! after 40 ms (`reference/adp-code-notes.md` §4.3). Without a price, the most expensive
+//! schedule is always at least as good as a cheap one. This module gives fidelity its price,
+//! deterministically (never wall-clock time: the same seed gives the same run on any machine):
+//!
+//! - every planner counts the [`Work`] of each cycle in the units its cost is made of:
+//!   distance-field cells built, candidate samples scored, random numbers drawn, rollout
+//!   integration steps, footprint check points;
+//! - a [`Platform`] prices each unit (ns) and gives each planner a cycle budget;
+//! - *budget*: samples are evaluated in an unbiased order ([`even_order`]) and a sample
+//!   starts only while the cycle's spent compute is below the budget; the rest are not
+//!   considered (the authors' per-thread time limit);
+//! - *latency*: the episode driver ([`crate::run`]) applies the command the modelled compute
+//!   time after the scan, and a cycle longer than the control period delays the next cycle
+//!   while the robot keeps its previous command ([`periods`]).
+//!
+//! [`ComputeModel::Free`] prices nothing and keeps the behaviour from before the model.
+//!
+//! Everything here is pure data and arithmetic (`Copy`, thread-safe); planners and drivers
+//! own their counters.
+
+use std::ops::{Add, AddAssign};
+
+use serde::{Deserialize, Serialize};
+
+/// Work counted in one planning cycle (or summed over many), in the units its cost is made
+/// of. Counting is exact and deterministic.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Work {
+    /// Distance-field (and costmap) cells built this cycle.
+    pub cells: u64,
+    /// Candidate rollouts started and scored (per-sample set-up and cost terms).
+    pub samples: u64,
+    /// Random numbers drawn (sampling noise).
+    pub draws: u64,
+    /// Rollout integration steps taken.
+    pub steps: u64,
+    /// Footprint collision-check points evaluated (robot centre + boundary points).
+    pub points: u64,
+}
+
+impl Work {
+    /// The counts as an array, in the field order (cells, samples, draws, steps, points).
+    pub fn as_array(&self) -> [u64; 5] {
+        [self.cells, self.samples, self.draws, self.steps, self.points]
+    }
+
+    /// The names of the units, in [`Work::as_array`] order.
+    pub const UNITS: [&'static str; 5] = ["cells", "samples", "draws", "steps", "points"];
+}
+
+impl Add for Work {
+    type Output = Work;
+
+    fn add(self, o: Work) -> Work {
+        Work {
+            cells: self.cells + o.cells,
+            samples: self.samples + o.samples,
+            draws: self.draws + o.draws,
+            steps: self.steps + o.steps,
+            points: self.points + o.points,
+        }
+    }
+}
+
+impl AddAssign for Work {
+    fn add_assign(&mut self, o: Work) {
+        *self = *self + o;
+    }
+}
+
+/// Cost of each unit of [`Work`] on a platform (ns), plus a fixed cost per cycle.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct UnitCosts {
+    /// Per planning cycle, whatever its work (perception hand-over, selection).
+    pub cycle_ns: f64,
+    /// Per distance-field cell built.
+    pub cell_ns: f64,
+    /// Per sample scored.
+    pub sample_ns: f64,
+    /// Per random number drawn.
+    pub draw_ns: f64,
+    /// Per rollout integration step.
+    pub step_ns: f64,
+    /// Per check point.
+    pub point_ns: f64,
+}
+
+impl UnitCosts {
+    /// The modelled time of `w` (ns), without the per-cycle constant.
+    pub fn work_ns(&self, w: &Work) -> f64 {
+        self.cell_ns * w.cells as f64
+            + self.sample_ns * w.samples as f64
+            + self.draw_ns * w.draws as f64
+            + self.step_ns * w.steps as f64
+            + self.point_ns * w.points as f64
+    }
+
+    /// The modelled time of one cycle that did `w` (ns).
+    pub fn cycle_ns(&self, w: &Work) -> f64 {
+        self.cycle_ns + self.work_ns(w)
+    }
+
+    /// The same costs multiplied by `k`.
+    pub fn scaled(&self, k: f64) -> UnitCosts {
+        UnitCosts {
+            cycle_ns: self.cycle_ns * k,
+            cell_ns: self.cell_ns * k,
+            sample_ns: self.sample_ns * k,
+            draw_ns: self.draw_ns * k,
+            step_ns: self.step_ns * k,
+            point_ns: self.point_ns * k,
+        }
+    }
+
+    fn validate(&self) -> Result<(), ComputeError> {
+        let fields = [
+            ("cycle_ns", self.cycle_ns),
+            ("cell_ns", self.cell_ns),
+            ("sample_ns", self.sample_ns),
+            ("draw_ns", self.draw_ns),
+            ("step_ns", self.step_ns),
+            ("point_ns", self.point_ns),
+        ];
+        for (name, v) in fields {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(ComputeError::Value {
+                    key: name,
+                    value: v,
+                    why: "must be finite and >= 0",
+                });
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Each planner's cycle budget on a platform (ms of modelled compute).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PlannerBudgets {
+    /// DWA.
+    pub dwa: f64,
+    /// MPPI.
+    pub mppi: f64,
+    /// Log-MPPI.
+    pub log_mppi: f64,
+    /// The standalone system.
+    pub system: f64,
+}
+
+/// A reference computer: unit costs and cycle budgets.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Platform {
+    /// What each unit of work costs.
+    pub costs: UnitCosts,
+    /// Each planner's cycle budget (ms).
+    pub budget_ms: PlannerBudgets,
+}
+
+impl Platform {
+    /// The onboard computer of the papers' Jackal, as modelled here (`jackal-onboard`).
+    ///
+    /// - Relative unit costs: measured on an Intel Xeon (2.3 GHz, 2 cores, the development
+    ///   machine; 2026-11-25) by `adp bench compute --compute-worlds 6`: a non-negative
+    ///   least-squares fit of each planning call's thread CPU time on its counted work, over
+    ///   17,210 calls of DWA, MPPI, Log-MPPI and the system with the vanilla, DDP and three
+    ///   constant schedules at 1.5 m/s on 6 training worlds (R^2 0.70-0.80 between runs).
+    ///   Here: 2.3 ns per cell, 970 ns per sample, 1.6 ns per draw, 14.2 ns per step,
+    ///   6.2 ns per point, no fixed cost.
+    /// - Scale: the authors' standalone planner evaluates its 550 DDP samples within a 40 ms
+    ///   limit per thread (`adp-code-notes.md` §4.3); the costs are scaled (x25.0) so that
+    ///   the system's DDP cycle on those worlds at 1.5 m/s takes 40 ms at its 95th
+    ///   percentile (it "just fits", as it did for its authors). Its median is then about
+    ///   23 ms, the "~25 ms" of planning the `gazebo-jackal` latency assumed
+    ///   ([`sim::dynamics::PLANNING_LATENCY_S`]).
+    /// - Budgets: each planner's DDP configuration (550 samples for MPPI, Log-MPPI and the
+    ///   system, the 20 x 20 DWA grid) just fits: the budget is that planner's DDP cycle
+    ///   compute at its 95th percentile on the same worlds and speed.
+    pub const JACKAL_ONBOARD: Platform = Platform {
+        costs: UnitCosts {
+            cycle_ns: 0.0,
+            cell_ns: 58.5,
+            sample_ns: 24_300.0,
+            draw_ns: 41.3,
+            step_ns: 356.0,
+            point_ns: 156.0,
+        },
+        budget_ms: PlannerBudgets {
+            dwa: 24.9,
+            mppi: 41.0,
+            log_mppi: 43.2,
+            system: 40.0,
+        },
+    };
+
+    /// The budget of the planner called `name` (ms), if it is one of this crate's.
+    pub fn budget_ms(&self, name: &str) -> Option<f64> {
+        let b = &self.budget_ms;
+        match name {
+            "dwa" => Some(b.dwa),
+            "mppi" => Some(b.mppi),
+            "log-mppi" => Some(b.log_mppi),
+            "system" => Some(b.system),
+            _ => None,
+        }
+    }
+
+    fn validate(&self) -> Result<(), ComputeError> {
+        self.costs.validate()?;
+        let b = &self.budget_ms;
+        for (key, v) in [
+            ("budget_ms.dwa", b.dwa),
+            ("budget_ms.mppi", b.mppi),
+            ("budget_ms.log_mppi", b.log_mppi),
+            ("budget_ms.system", b.system),
+        ] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(ComputeError::Value {
+                    key,
+                    value: v,
+                    why: "must be finite and > 0",
+                });
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Which platform prices the planners' work.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ComputeModel {
+    /// Nothing costs anything: no budget, and the command acts after the profile's fixed
+    /// latency (the behaviour before the model; old results stay reproducible).
+    Free,
+    /// [`Platform::JACKAL_ONBOARD`].
+    #[default]
+    JackalOnboard,
+    /// The `[compute.platform]` table of the configuration.
+    Custom,
+}
+
+/// The `[compute]` table of evaluation and training configurations.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ComputeConfig {
+    /// The platform: `free`, `jackal-onboard` (default) or `custom`.
+    pub model: ComputeModel,
+    /// Multiplies every cycle budget (the budget sweep: 0.5, 1, 2); 1 by default.
+    pub budget_scale: f64,
+    /// The platform of `model = "custom"` (must be absent otherwise).
+    pub platform: Option<Platform>,
+}
+
+impl Default for ComputeConfig {
+    fn default() -> Self {
+        Self {
+            model: ComputeModel::default(),
+            budget_scale: 1.0,
+            platform: None,
+        }
+    }
+}
+
+/// A `[compute]` table that cannot be used.
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum ComputeError {
+    /// A value out of its domain.
+    #[error("[compute] {key} = {value} is invalid: {why}")]
+    Value {
+        /// The key.
+        key: &'static str,
+        /// Its value.
+        value: f64,
+        /// What it must be.
+        why: &'static str,
+    },
+    /// `model = "custom"` without a platform, or a platform with another model.
+    #[error("[compute] model = \"custom\" needs a [compute.platform] table, and only it may have one")]
+    Platform,
+    /// A planner this model has no budget for.
+    #[error("[compute] has no budget for planner {0:?}")]
+    Planner(String),
+}
+
+/// The compute model resolved for one planner: unit costs and the cycle budget.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Compute {
+    /// Unit costs (ns).
+    pub costs: UnitCosts,
+    /// The cycle budget (ns of modelled compute).
+    pub budget_ns: f64,
+}
+
+impl ComputeConfig {
+    /// The model that prices nothing.
+    pub const FREE: ComputeConfig = ComputeConfig {
+        model: ComputeModel::Free,
+        budget_scale: 1.0,
+        platform: None,
+    };
+
+    /// Checks the table; the error names the key.
+    pub fn validate(&self) -> Result<(), ComputeError> {
+        if !(self.budget_scale.is_finite() && self.budget_scale > 0.0) {
+            return Err(ComputeError::Value {
+                key: "budget_scale",
+                value: self.budget_scale,
+                why: "must be finite and > 0",
+            });
+        }
+        match (self.model, &self.platform) {
+            (ComputeModel::Custom, Some(p)) => p.validate(),
+            (ComputeModel::Custom, None) | (_, Some(_)) => Err(ComputeError::Platform),
+            _ => Ok(()),
+        }
+    }
+
+    /// The platform, or `None` for the free model.
+    pub fn platform(&self) -> Option<Platform> {
+        match self.model {
+            ComputeModel::Free => None,
+            ComputeModel::JackalOnboard => Some(Platform::JACKAL_ONBOARD),
+            ComputeModel::Custom => self.platform,
+        }
+    }
+
+    /// The model for the planner called `name` ([`crate::Planner::name`]): `None` when free.
+    pub fn resolve(&self, name: &str) -> Result<Option<Compute>, ComputeError> {
+        self.validate()?;
+        let Some(p) = self.platform() else {
+            return Ok(None);
+        };
+        let ms = p
+            .budget_ms(name)
+            .ok_or_else(|| ComputeError::Planner(name.to_string()))?;
+        Ok(Some(Compute {
+            costs: p.costs,
+            budget_ns: ms * 1e6 * self.budget_scale,
+        }))
+    }
+}
+
+/// What a planner's budget admits, as it evaluates its samples one by one. Planners start a
+/// sample only while [`Budget::admits`] holds for the work spent so far in the cycle.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Budget {
+    costs: UnitCosts,
+    limit_ns: f64,
+}
+
+impl Budget {
+    /// No limit: every sample is evaluated, in the planner's own order.
+    pub const UNLIMITED: Budget = Budget {
+        costs: UnitCosts {
+            cycle_ns: 0.0,
+            cell_ns: 0.0,
+            sample_ns: 0.0,
+            draw_ns: 0.0,
+            step_ns: 0.0,
+            point_ns: 0.0,
+        },
+        limit_ns: f64::INFINITY,
+    };
+
+    /// The budget of `compute` (unlimited for `None`).
+    pub fn of(compute: Option<&Compute>) -> Budget {
+        match compute {
+            Some(c) => Budget {
+                costs: c.costs,
+                limit_ns: c.budget_ns,
+            },
+            None => Budget::UNLIMITED,
+        }
+    }
+
+    /// Whether the budget can stop a cycle (planners then evaluate in [`even_order`]).
+    pub fn is_limited(&self) -> bool {
+        self.limit_ns.is_finite()
+    }
+
+    /// Whether a new sample may start after `spent` work this cycle.
+    pub fn admits(&self, spent: &Work) -> bool {
+        !self.is_limited() || self.costs.cycle_ns(spent) < self.limit_ns
+    }
+}
+
+/// Writes into `out` an order of `0..n` in which every prefix is spread evenly over the
+/// indices: the rank-1 lattice `k * s mod n` with `s` the integer nearest `n / phi` (the
+/// golden ratio) that is coprime with `n`. Index 0 comes first. Samples laid out by kind or
+/// on a grid (DWA's v-major grid, MPPI's braking and exploring samples, the system's grid,
+/// warm starts and extras) are thus all represented in any prefix the budget allows, in
+/// proportion.
+pub fn even_order(n: usize, out: &mut Vec<u32>) {
+    out.clear();
+    if n == 0 {
+        return;
+    }
+    let phi = (1.0 + 5f64.sqrt()) / 2.0;
+    let mut s = ((n as f64 / phi).round() as usize).max(1);
+    while gcd(s, n) != 1 {
+        s += 1;
+    }
+    out.extend((0..n).map(|k| ((k * s) % n) as u32));
+}
+
+/// Which samples a budget admits, for planners that evaluate their samples in parallel
+/// (the outcome is the same as evaluating them one by one): walks `order`, starting each
+/// sample while `budget` admits the cycle's work so far (`spent`, then each admitted
+/// sample's `work_of`), sets `admitted[i]` for the samples that start and returns the cycle
+/// record (its `work` = `spent` + the admitted samples' work). Unlimited budgets admit every
+/// sample.
+///
+/// # Panics
+/// If `admitted` is shorter than an index of `order`.
+pub fn admit(
+    budget: &Budget,
+    spent: Work,
+    order: &[u32],
+    work_of: impl Fn(usize) -> Work,
+    admitted: &mut [bool],
+) -> CycleWork {
+    let mut c = CycleWork {
+        work: spent,
+        samples: order.len() as u32,
+        evaluated: 0,
+    };
+    admitted.iter_mut().for_each(|a| *a = false);
+    for &i in order {
+        if !budget.admits(&c.work) {
+            break;
+        }
+        admitted[i as usize] = true;
+        c.work += work_of(i as usize);
+        c.evaluated += 1;
+    }
+    c
+}
+
+fn gcd(mut a: usize, mut b: usize) -> usize {
+    while b != 0 {
+        (a, b) = (b, a % b);
+    }
+    a
+}
+
+/// Control periods a cycle of `compute_s` seconds occupies: at least one; a cycle whose
+/// compute runs past the period makes the planner miss the following timer ticks, so the
+/// next cycle starts at the first tick after it finished and the robot keeps its previous
+/// command in between.
+pub fn periods(compute_s: f64, control_dt: f64) -> u32 {
+    // A cycle that ends within a nanosecond of a tick still makes that tick.
+    ((compute_s - 1e-9) / control_dt).ceil().max(1.0) as u32
+}
+
+/// What the planning cycles of a run did and cost: summed by the episode drivers.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct ComputeTally {
+    /// Planning cycles run.
+    pub cycles: u64,
+    /// Their work.
+    pub work: Work,
+    /// Their modelled compute (ms; 0 under the free model).
+    pub modelled_ms: f64,
+    /// Candidate samples the cycles had.
+    pub samples: u64,
+    /// Of those, evaluated within the budget.
+    pub evaluated_samples: u64,
+    /// Cycles the budget stopped before their last sample.
+    pub truncated_cycles: u64,
+    /// Cycles whose compute ran past the control period (the next cycle started late).
+    pub late_cycles: u64,
+}
+
+impl AddAssign for ComputeTally {
+    fn add_assign(&mut self, o: ComputeTally) {
+        self.cycles += o.cycles;
+        self.work += o.work;
+        self.modelled_ms += o.modelled_ms;
+        self.samples += o.samples;
+        self.evaluated_samples += o.evaluated_samples;
+        self.truncated_cycles += o.truncated_cycles;
+        self.late_cycles += o.late_cycles;
+    }
+}
+
+/// One planning cycle as a planner reports it ([`crate::Trace::cycle`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct CycleWork {
+    /// The cycle's work.
+    pub work: Work,
+    /// Candidate samples the cycle had (0 for a cycle without sampling, e.g. recovery).
+    pub samples: u32,
+    /// Of those, evaluated within the budget.
+    pub evaluated: u32,
+}
+
+impl ComputeTally {
+    /// Adds one cycle that did `c` and took `compute_s` modelled seconds of a period of
+    /// `control_dt`.
+    pub fn record(&mut self, c: &CycleWork, compute_s: f64, control_dt: f64) {
+        self.cycles += 1;
+        self.work += c.work;
+        self.modelled_ms += compute_s * 1e3;
+        self.samples += u64::from(c.samples);
+        self.evaluated_samples += u64::from(c.evaluated);
+        if c.evaluated < c.samples {
+            self.truncated_cycles += 1;
+        }
+        if periods(compute_s, control_dt) > 1 {
+            self.late_cycles += 1;
+        }
+    }
+
+    /// Mean modelled compute per cycle (ms).
+    pub fn ms_per_cycle(&self) -> f64 {
+        self.modelled_ms / self.cycles.max(1) as f64
+    }
+
+    /// Share of the candidate samples the budget allowed (1 when there were none).
+    pub fn evaluated_share(&self) -> f64 {
+        if self.samples == 0 {
+            1.0
+        } else {
+            self.evaluated_samples as f64 / self.samples as f64
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn costs() -> UnitCosts {
+        UnitCosts {
+            cycle_ns: 1000.0,
+            cell_ns: 1.0,
+            sample_ns: 10.0,
+            draw_ns: 2.0,
+            step_ns: 3.0,
+            point_ns: 4.0,
+        }
+    }
+
+    #[test]
+    fn cycle_cost_is_the_priced_sum_of_the_units() {
+        let w = Work {
+            cells: 100,
+            samples: 2,
+            draws: 5,
+            steps: 7,
+            points: 11,
+        };
+        // 1000 + 100 + 20 + 10 + 21 + 44
+        assert_eq!(costs().cycle_ns(&w), 1195.0);
+        assert_eq!(costs().scaled(2.0).cycle_ns(&w), 2390.0);
+    }
+
+    #[test]
+    fn budget_admits_while_spent_is_below_the_limit() {
+        let b = Budget::of(Some(&Compute {
+            costs: costs(),
+            budget_ns: 1100.0,
+        }));
+        assert!(b.is_limited());
+        let mut w = Work::default();
+        assert!(b.admits(&w));
+        w.cells = 99;
+        assert!(b.admits(&w));
+        w.cells = 100;
+        assert!(!b.admits(&w));
+        assert!(Budget::UNLIMITED.admits(&Work {
+            points: u64::MAX / 8,
+            ..w
+        }));
+    }
+
+    #[test]
+    fn even_order_is_a_permutation_whose_prefixes_cover_the_grid() {
+        let mut o = Vec::new();
+        even_order(400, &mut o);
+        assert_eq!(o[0], 0);
+        let mut sorted = o.clone();
+        sorted.sort_unstable();
+        assert_eq!(sorted, (0..400).collect::<Vec<u32>>());
+        // The first quarter of a 20 x 20 v-major grid meets every v row and every w column.
+        let rows: std::collections::BTreeSet<u32> = o[..100].iter().map(|i| i / 20).collect();
+        let cols: std::collections::BTreeSet<u32> = o[..100].iter().map(|i| i % 20).collect();
+        assert_eq!((rows.len(), cols.len()), (20, 20));
+        // MPPI's layout: 28 braking samples (1..=28) and 110 exploring ones (29..=138) of 550
+        // keep their shares in the first 100.
+        even_order(550, &mut o);
+        let brake = o[..100].iter().filter(|&&i| (1..=28).contains(&i)).count();
+        let explore = o[..100].iter().filter(|&&i| (29..=138).contains(&i)).count();
+        assert!((4..=6).contains(&brake), "{brake}");
+        assert!((19..=21).contains(&explore), "{explore}");
+        even_order(1, &mut o);
+        assert_eq!(o, [0]);
+    }
+
+    /// Hand-counted: a fixed 1,000 ns per cycle, 400 ns of map work spent, then samples of
+    /// 10 + 3 x 4 + 4 x 5 = 42 ns each (1 sample, 4 steps, 5 points). With a 1,600 ns budget,
+    /// samples start at 1,400, 1,442, 1,484, 1,526 and 1,568 ns: exactly 5 fit, the first 5
+    /// of the order.
+    #[test]
+    fn a_budget_admits_exactly_the_samples_that_fit_in_order() {
+        let budget = Budget::of(Some(&Compute {
+            costs: costs(),
+            budget_ns: 1600.0,
+        }));
+        let spent = Work {
+            cells: 400,
+            ..Work::default()
+        };
+        let one = Work {
+            samples: 1,
+            steps: 4,
+            points: 5,
+            ..Work::default()
+        };
+        let mut order = Vec::new();
+        even_order(12, &mut order);
+        let mut admitted = vec![true; 12];
+        let c = admit(&budget, spent, &order, |_| one, &mut admitted);
+        assert_eq!((c.samples, c.evaluated), (12, 5));
+        assert_eq!(c.work.samples, 5);
+        assert_eq!(c.work.points, 25);
+        let chosen: Vec<u32> = (0..12u32).filter(|&i| admitted[i as usize]).collect();
+        let mut first: Vec<u32> = order[..5].to_vec();
+        first.sort_unstable();
+        assert_eq!(chosen, first);
+        let all = admit(&Budget::UNLIMITED, spent, &order, |_| one, &mut admitted);
+        assert_eq!(all.evaluated, 12);
+        assert!(admitted.iter().all(|&a| a));
+    }
+
+    #[test]
+    fn a_cycle_past_the_period_occupies_the_next_ticks() {
+        assert_eq!(periods(0.0, 0.05), 1);
+        assert_eq!(periods(0.05, 0.05), 1);
+        assert_eq!(periods(0.0501, 0.05), 2);
+        assert_eq!(periods(0.1, 0.05), 2);
+        assert_eq!(periods(0.12, 0.05), 3);
+    }
+
+    #[test]
+    fn config_resolves_budgets_and_refuses_bad_tables() {
+        let free = ComputeConfig::FREE;
+        assert_eq!(free.resolve("dwa"), Ok(None));
+        let mut custom = ComputeConfig {
+            model: ComputeModel::Custom,
+            budget_scale: 0.5,
+            platform: Some(Platform {
+                costs: costs(),
+                budget_ms: PlannerBudgets {
+                    dwa: 10.0,
+                    mppi: 20.0,
+                    log_mppi: 30.0,
+                    system: 40.0,
+                },
+            }),
+        };
+        let c = custom.resolve("system").unwrap().unwrap();
+        assert_eq!(c.budget_ns, 20e6);
+        assert_eq!(custom.resolve("nope"), Err(ComputeError::Planner("nope".into())));
+        custom.budget_scale = 0.0;
+        assert!(matches!(custom.resolve("dwa"), Err(ComputeError::Value { key: "budget_scale", .. })));
+        custom.budget_scale = 1.0;
+        custom.model = ComputeModel::JackalOnboard;
+        assert_eq!(custom.validate(), Err(ComputeError::Platform));
+        let parsed: ComputeConfig = toml::from_str("model = \"free\"").unwrap();
+        assert_eq!(parsed, ComputeConfig::FREE);
+        assert!(toml::from_str::<ComputeConfig>("model = \"fast\"").is_err());
+    }
+}

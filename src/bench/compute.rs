@@ -1,0 +1,280 @@
+//! `adp bench compute`: measures what each unit of planner work costs on this machine and
+//! derives the `jackal-onboard` compute platform from it ([`planner::compute`]).
+//!
+//! Every planner (DWA, MPPI, Log-MPPI, the system) runs the vanilla, DDP and three constant
+//! decremental schedules at 1.5 m/s on the first training worlds, one thread, free compute
+//! model; every planning call's counted [`Work`] and its CPU time (the thread's CPU clock,
+//! so the load of other processes does not count) are recorded. A non-negative least-squares fit of time on (1, cells, samples, draws, steps,
+//! points) gives the unit costs here. The platform scales them so that the system's DDP
+//! cycle takes 40 ms at its 95th percentile (the authors' per-thread limit for their 550 DDP
+//! samples), and gives each planner the budget its own DDP cycle needs at the 95th
+//! percentile. The result is printed as a `[compute.platform]` table.
+
+use anyhow::Context;
+use planner::compute::{PlannerBudgets, Platform, UnitCosts};
+use planner::{PlanInput, Planner, Schedule, Trace, Work};
+use sim::robot::Twist;
+
+use crate::config::EvalConfig;
+use crate::eval::PlannerKind;
+
+use super::{figure, Figure};
+
+/// The anchor: the system's DDP cycle at its 95th percentile on the reference platform (ms).
+const SYSTEM_DDP_P95_MS: f64 = 40.0;
+
+/// One planning call: the planner, whether the schedule was DDP, its work and CPU time (ns).
+struct Call {
+    planner: PlannerKind,
+    ddp: bool,
+    work: Work,
+    ns: f64,
+}
+
+/// A planner that records each call's work and time.
+struct Timed<'a> {
+    inner: Box<dyn Planner>,
+    kind: PlannerKind,
+    ddp: bool,
+    calls: &'a mut Vec<Call>,
+}
+
+impl Planner for Timed<'_> {
+    fn name(&self) -> &'static str {
+        self.inner.name()
+    }
+
+    fn plan(&mut self, input: &PlanInput<'_>) -> Twist {
+        let t = thread_cpu_ns();
+        let cmd = self.inner.plan(input);
+        let ns = thread_cpu_ns() - t;
+        self.calls.push(Call {
+            planner: self.kind,
+            ddp: self.ddp,
+            work: self.inner.trace().cycle.work,
+            ns,
+        });
+        cmd
+    }
+
+    fn trace(&self) -> &Trace {
+        self.inner.trace()
+    }
+
+    fn trace_mut(&mut self) -> &mut Trace {
+        self.inner.trace_mut()
+    }
+}
+
+/// CPU time of the calling thread (ns): other processes' load does not count.
+fn thread_cpu_ns() -> f64 {
+    let mut ts = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: `ts` is a valid, writable timespec; the clock id is a constant Linux supports.
+    unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) };
+    ts.tv_sec as f64 * 1e9 + ts.tv_nsec as f64
+}
+
+/// Solves the least-squares fit `y ~ X b` over the columns in `active` (normal equations,
+/// Gaussian elimination with partial pivoting); inactive coefficients are 0.
+fn least_squares(x: &[[f64; 6]], y: &[f64], active: &[bool; 6]) -> [f64; 6] {
+    let cols: Vec<usize> = (0..6).filter(|&j| active[j]).collect();
+    let k = cols.len();
+    let mut a = vec![vec![0.0; k + 1]; k];
+    for (row, &yi) in x.iter().zip(y) {
+        for (p, &cp) in cols.iter().enumerate() {
+            for (q, &cq) in cols.iter().enumerate() {
+                a[p][q] += row[cp] * row[cq];
+            }
+            a[p][k] += row[cp] * yi;
+        }
+    }
+    for i in 0..k {
+        let piv = (i..k)
+            .max_by(|&r, &s| a[r][i].abs().total_cmp(&a[s][i].abs()))
+            .unwrap_or(i);
+        a.swap(i, piv);
+        let d = a[i][i];
+        if d.abs() < 1e-30 {
+            continue;
+        }
+        for r in 0..k {
+            if r != i {
+                let f = a[r][i] / d;
+                for c in i..=k {
+                    a[r][c] -= f * a[i][c];
+                }
+            }
+        }
+    }
+    let mut b = [0.0; 6];
+    for (p, &c) in cols.iter().enumerate() {
+        b[c] = if a[p][p].abs() < 1e-30 { 0.0 } else { a[p][k] / a[p][p] };
+    }
+    b
+}
+
+/// Non-negative least squares by elimination: refits without the most negative coefficient
+/// until none is negative.
+fn nonnegative_fit(x: &[[f64; 6]], y: &[f64]) -> [f64; 6] {
+    let mut active = [true; 6];
+    loop {
+        let b = least_squares(x, y, &active);
+        let worst = (0..6).filter(|&j| active[j] && b[j] < 0.0).min_by(|&i, &j| b[i].total_cmp(&b[j]));
+        match worst {
+            Some(j) => active[j] = false,
+            None => return b,
+        }
+    }
+}
+
+fn percentile(mut v: Vec<f64>, q: f64) -> f64 {
+    if v.is_empty() {
+        return 0.0;
+    }
+    v.sort_by(f64::total_cmp);
+    v[((v.len() - 1) as f64 * q).round() as usize]
+}
+
+/// Runs the measurement on the first `worlds` training worlds and prints the fit and the
+/// platform.
+pub fn run(worlds: usize) -> anyhow::Result<Vec<Figure>> {
+    let mut cfg = EvalConfig::load(None)?;
+    cfg.compute = planner::ComputeConfig::FREE;
+    let ids: Vec<usize> = sim::splits::SplitFile::embedded()
+        .select("train")?
+        .into_iter()
+        .take(worlds.max(1))
+        .collect();
+    let mut schedules = vec![(Schedule::vanilla(), false), (Schedule::ddp_default(), true)];
+    for (p, t, n, alpha) in [(1.0, 1.6, 15, 0.6), (1.3, 1.9, 18, 0.3), (1.7, 2.2, 22, 0.0)] {
+        schedules.push((Schedule::decremental(p, t, n, alpha, 20)?, false));
+    }
+    let kinds = [
+        PlannerKind::Dwa,
+        PlannerKind::Mppi,
+        PlannerKind::LogMppi,
+        PlannerKind::System,
+    ];
+    let pool = rayon::ThreadPoolBuilder::new().num_threads(1).build()?;
+    let mut calls = Vec::with_capacity(1 << 20);
+    pool.install(|| -> anyhow::Result<()> {
+        for &kind in &kinds {
+            for (sched, ddp) in &schedules {
+                for &w in &ids {
+                    let world = sim::barn::world(w).with_context(|| format!("world {w}"))?;
+                    let seed = crate::eval::run_seed(7, w, 0);
+                    let mut timed = Timed {
+                        inner: kind.build(&cfg, seed),
+                        kind,
+                        ddp: *ddp,
+                        calls: &mut calls,
+                    };
+                    planner::run::run_episode(world, cfg.episode, &mut timed, sched, 1.5, seed, None, |_, _, _| {});
+                }
+            }
+        }
+        Ok(())
+    })?;
+    let row = |w: &Work| {
+        let [c, s, d, st, p] = w.as_array().map(|u| u as f64);
+        [1.0, c, s, d, st, p]
+    };
+    let x: Vec<[f64; 6]> = calls.iter().map(|c| row(&c.work)).collect();
+    let y: Vec<f64> = calls.iter().map(|c| c.ns).collect();
+    let b = nonnegative_fit(&x, &y);
+    let here = UnitCosts {
+        cycle_ns: b[0],
+        cell_ns: b[1],
+        sample_ns: b[2],
+        draw_ns: b[3],
+        step_ns: b[4],
+        point_ns: b[5],
+    };
+    let mean = y.iter().sum::<f64>() / y.len().max(1) as f64;
+    let (mut ss_res, mut ss_tot) = (0.0, 0.0);
+    for (c, &yi) in calls.iter().zip(&y) {
+        ss_res += (yi - here.cycle_ns(&c.work)).powi(2);
+        ss_tot += (yi - mean).powi(2);
+    }
+    let r2 = 1.0 - ss_res / ss_tot.max(1e-30);
+    let ddp_p95 = |k: PlannerKind, costs: &UnitCosts| {
+        percentile(
+            calls
+                .iter()
+                .filter(|c| c.planner == k && c.ddp)
+                .map(|c| costs.cycle_ns(&c.work))
+                .collect(),
+            0.95,
+        )
+    };
+    let scale = SYSTEM_DDP_P95_MS * 1e6 / ddp_p95(PlannerKind::System, &here).max(1.0);
+    let costs = here.scaled(scale);
+    let budget = |k| (ddp_p95(k, &costs) / 1e6 * 100.0).round() / 100.0;
+    let platform = Platform {
+        costs,
+        budget_ms: PlannerBudgets {
+            dwa: budget(PlannerKind::Dwa),
+            mppi: budget(PlannerKind::Mppi),
+            log_mppi: budget(PlannerKind::LogMppi),
+            system: budget(PlannerKind::System),
+        },
+    };
+    println!(
+        "unit costs on this machine (ns, {} planning calls, R^2 {r2:.3}): {here:?}",
+        calls.len()
+    );
+    println!("scale to the reference platform: x{scale:.2}");
+    println!(
+        "[compute.platform]\n{}",
+        toml::to_string(&platform).unwrap_or_default()
+    );
+    let mut figs = vec![figure("compute model fit, R^2 of per-call CPU time", r2, "")];
+    for k in kinds {
+        let measured = percentile(
+            calls
+                .iter()
+                .filter(|c| c.planner == k && c.ddp)
+                .map(|c| c.ns)
+                .collect(),
+            0.5,
+        );
+        let fitted = percentile(
+            calls
+                .iter()
+                .filter(|c| c.planner == k && c.ddp)
+                .map(|c| here.cycle_ns(&c.work))
+                .collect(),
+            0.5,
+        );
+        figs.push(figure(
+            format!("{} DDP cycle here, median: measured (fit {:.3} ms)", k.name(), fitted / 1e6),
+            measured / 1e6,
+            "ms",
+        ));
+    }
+    Ok(figs)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_fit_recovers_nonnegative_unit_costs() {
+        // y = 500 + 2 cells + 3 points, with an irrelevant column.
+        let x: Vec<[f64; 6]> = (0..50)
+            .map(|i| {
+                let i = f64::from(i);
+                [1.0, 10.0 * i, (i * 7.0) % 5.0, 0.0, (i * 3.0) % 11.0, 100.0 - i]
+            })
+            .collect();
+        let y: Vec<f64> = x.iter().map(|r| 500.0 + 2.0 * r[1] + 3.0 * r[5]).collect();
+        let b = nonnegative_fit(&x, &y);
+        for (got, want) in b.iter().zip([500.0, 2.0, 0.0, 0.0, 0.0, 3.0]) {
+            assert!((got - want).abs() < 1e-6, "{b:?}");
+        }
+    }
+}
