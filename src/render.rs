@@ -4,7 +4,8 @@
 //! ADP paper. At the same moments the rollout the planner predicts for the command it chose
 //! (its own model: nominal accelerations, the profile's integrator, dots at the grid points)
 //! is drawn in purple beside the path the robot really drove (red), so the gap between the
-//! planner's model and the robot shows. PNG or SVG by the output's extension.
+//! planner's model and the robot shows. Samples the compute budget left out (rolled out for the
+//! picture only) are grey. PNG or SVG by the output's extension.
 
 use std::path::Path;
 
@@ -22,8 +23,10 @@ const SCALE: f64 = 90.0;
 
 /// Rollouts recorded at one moment, in the world frame.
 struct Moment {
-    /// `(start pose, poses, collision_free)` per rollout.
+    /// `(poses, collision_free)` per rollout the planner considered.
     rollouts: Vec<(Vec<Pose>, bool)>,
+    /// Rollouts the compute budget left out, drawn grey.
+    skipped: Vec<Vec<Pose>>,
     origin: Pose,
     dts: Vec<f64>,
     /// The predicted rollout of the chosen command (world frame), one point per grid step.
@@ -107,11 +110,18 @@ pub fn render(mut job: RenderJob<'_>, out: &Path) -> anyhow::Result<EpisodeResul
                     .map(|p| pose.to_world(p.position()))
                     .collect();
                 let r = planner.rollouts();
+                let world = |&(a, b, _): &(usize, usize, bool)| -> Vec<Pose> {
+                    r.poses[a..b].iter().map(|p| compose(&pose, p)).collect()
+                };
+                let skipped = |i: usize| r.skipped.get(i).copied().unwrap_or(false);
                 moments.push(Moment {
-                    rollouts: r
-                        .spans
-                        .iter()
-                        .map(|&(a, b, ok)| (r.poses[a..b].iter().map(|p| compose(&pose, p)).collect(), ok))
+                    rollouts: (r.spans.iter().enumerate())
+                        .filter(|&(i, _)| !skipped(i))
+                        .map(|(_, s)| (world(s), s.2))
+                        .collect(),
+                    skipped: (r.spans.iter().enumerate())
+                        .filter(|&(i, _)| skipped(i))
+                        .map(|(_, s)| world(s))
                         .collect(),
                     origin: pose,
                     dts: r.dts.clone(),
@@ -186,8 +196,17 @@ where
         root.draw(&Circle::new(px(c.c), r, RGBColor(90, 90, 90).filled()))
             .map_err(e)?;
     }
-    // Rollouts at the chosen moments, segment by segment.
+    // Rollouts at the chosen moments, segment by segment; first those the compute budget
+    // left out, in grey.
     for m in moments {
+        for poses in &m.skipped {
+            let line: Vec<(i32, i32)> = std::iter::once(m.origin.position())
+                .chain(poses.iter().map(|p| p.position()))
+                .map(px)
+                .collect();
+            root.draw(&PathElement::new(line, RGBColor(200, 200, 200).stroke_width(1)))
+                .map_err(e)?;
+        }
         for (poses, ok) in &m.rollouts {
             let mut prev = m.origin.position();
             for (k, p) in poses.iter().enumerate() {

@@ -507,6 +507,73 @@ mod tests {
         }
     }
 
+    /// One cycle of a 2 x 2 grid on 5 steps of 0.1 s with 4 boundary points, in open space
+    /// at 1 m/s: the field spans x in [-1, reach], y in [-reach, reach] with reach = 1.0 x 0.5
+    /// + 0.33278 (circumscribed radius) + 0.5 (clearance cap) = 1.33278 m, at 0.05 m: 48 x 55
+    /// = 2,640 cells. Steps: the v and w profiles (2 + 2) x 5 = 20, the 4 rollouts 4 x 5 =
+    /// 20. Points: the margins at the robot's pose for 0..=4 boundary points (5 checks) and
+    /// one check per rollout step (20), each only the centre (nothing within reach). No draws.
+    #[test]
+    fn one_cycle_counts_its_units_and_a_budget_stops_it_in_the_even_order() {
+        let perception = sim::Perception {
+            ranges: &[],
+            points: &[],
+            vel: Twist::default(),
+            local_goal: Vec2::new(2.0, 0.0),
+            local_path: &[],
+            goal: Vec2::new(5.0, 0.0),
+        };
+        let schedule = Schedule::uniform(0.1, 5, 4).unwrap();
+        let cfg = DwaConfig {
+            v_samples: 2,
+            w_samples: 2,
+            ..DwaConfig::default()
+        };
+        let plan = |budget| {
+            let mut dwa = Dwa::new(cfg);
+            dwa.set_recording(true);
+            dwa.plan(&PlanInput {
+                perception,
+                schedule: &schedule,
+                max_speed: 1.0,
+                prediction: crate::Prediction::PAPERS,
+                budget,
+            });
+            (dwa.trace().cycle, dwa.rollouts().spans.len(), dwa.evaluated_points())
+        };
+        let (c, rollouts, points) = plan(crate::Budget::UNLIMITED);
+        let want = Work {
+            cells: 2640,
+            samples: 4,
+            draws: 0,
+            steps: 40,
+            points: 25,
+        };
+        assert_eq!((c.work, c.samples, c.evaluated, rollouts, points), (want, 4, 4, 4, 25));
+        // 1 ns per step, point and sample: 25 ns spent before the first rollout, 11 per
+        // rollout; a 50 ns budget starts rollouts at 25, 36 and 47 ns: 3 of 4, the first
+        // three of the even order (0, 3, 2, 1).
+        let costs = crate::compute::UnitCosts {
+            cycle_ns: 0.0,
+            cell_ns: 0.0,
+            sample_ns: 1.0,
+            draw_ns: 0.0,
+            step_ns: 1.0,
+            point_ns: 1.0,
+        };
+        let budget = crate::Budget::of(Some(&crate::Compute {
+            costs,
+            budget_ns: 50.0,
+        }));
+        let (c, rollouts, _) = plan(budget);
+        assert_eq!((c.samples, c.evaluated, rollouts), (4, 3, 3));
+        assert_eq!(c.work.samples, 3);
+        assert_eq!(c.work.steps, 20 + 15);
+        let mut order = Vec::new();
+        crate::compute::even_order(4, &mut order);
+        assert_eq!(order, [0, 3, 2, 1]);
+    }
+
     #[test]
     fn ddp_checks_fewer_points_than_uniform_at_equal_horizon() {
         // Same scene, same 2 s horizon and 20 steps: uniform (full checks) vs DDP.

@@ -115,6 +115,9 @@ pub struct Rollouts {
     pub spans: Vec<(usize, usize, bool)>,
     /// The step lengths of the schedule used (pose k of a rollout ends step k).
     pub dts: Vec<f64>,
+    /// Per rollout of `spans`: rolled out for the picture but not considered, because the
+    /// cycle's compute budget was spent before its turn ([`crate::compute`]).
+    pub skipped: Vec<bool>,
 }
 
 impl Rollouts {
@@ -122,6 +125,7 @@ impl Rollouts {
     pub fn clear(&mut self, dts: &[f64]) {
         self.poses.clear();
         self.spans.clear();
+        self.skipped.clear();
         self.dts.clear();
         self.dts.extend_from_slice(dts);
     }
@@ -129,6 +133,17 @@ impl Rollouts {
     /// Starts a rollout.
     pub fn begin(&mut self) {
         self.spans.push((self.poses.len(), self.poses.len(), true));
+        self.skipped.push(false);
+    }
+
+    /// Marks the rollouts whose `admitted` flag is false as skipped (no-op unless there is
+    /// one flag per rollout).
+    pub fn mark_skipped(&mut self, admitted: &[bool]) {
+        if admitted.len() == self.skipped.len() {
+            for (s, &a) in self.skipped.iter_mut().zip(admitted) {
+                *s = !a;
+            }
+        }
     }
 
     /// Appends a pose to the current rollout.

@@ -413,6 +413,7 @@ impl Planner for LogMppi {
         let cycle = admit(&input.budget, spent, &self.eval_order, work_of, &mut self.admitted);
         self.trace.evaluated += cycle.work.points;
         self.trace.cycle = cycle;
+        self.trace.rollouts.mark_skipped(&self.admitted);
 
         // The path-integral update over the admitted samples, then the Savitzky-Golay filter.
         let admitted = &self.admitted;

@@ -291,6 +291,7 @@ impl Mppi {
         let cycle = admit(&input.budget, spent, &self.eval_order, work_of, &mut self.admitted);
         self.trace.evaluated += cycle.work.points - spent.points;
         self.trace.cycle = cycle;
+        self.trace.rollouts.mark_skipped(&self.admitted);
     }
 }
 
@@ -752,6 +753,48 @@ pub(crate) mod tests {
             assert!(closest > 0.35 + 0.215, "closest approach {closest}");
             assert!(mppi.evaluated_points() > 0);
         }
+    }
+
+    /// One cycle of 5 samples over 4 steps with 4 boundary points in open space: sample 0 is
+    /// the noise-free nominal (no draws), sample 1 explores (round(0.2 x 5) = 1; round(0.05 x
+    /// 5) = 0 brake): 2 uniforms + 2 normals per step = 10 draws, samples 2..4 draw 8 each:
+    /// 34 draws. 20 steps; the margins (5 checks) and one centre check per step (20).
+    #[test]
+    fn one_cycle_counts_its_units() {
+        let perception = sim::Perception {
+            ranges: &[],
+            points: &[],
+            vel: Twist::default(),
+            local_goal: Vec2::new(2.0, 0.0),
+            local_path: &[],
+            goal: Vec2::new(5.0, 0.0),
+        };
+        let schedule = Schedule::uniform(0.1, 4, 4).unwrap();
+        let mut mppi = Mppi::new(
+            MppiConfig {
+                samples: 5,
+                ..MppiConfig::default()
+            },
+            3,
+        );
+        mppi.plan(&PlanInput {
+            perception,
+            schedule: &schedule,
+            max_speed: 1.0,
+            prediction: crate::Prediction::PAPERS,
+            budget: crate::Budget::UNLIMITED,
+        });
+        let c = mppi.trace().cycle;
+        // Field: reach = 1.0 x 0.4 + 0.33278 + 0.5 = 1.23278 m: 46 x 51 cells at 0.05 m.
+        let want = crate::Work {
+            cells: 46 * 51,
+            samples: 5,
+            draws: 34,
+            steps: 20,
+            points: 25,
+        };
+        assert_eq!((c.work, c.samples, c.evaluated), (want, 5, 5));
+        assert_eq!(mppi.evaluated_points(), 25);
     }
 
     #[test]

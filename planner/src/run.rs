@@ -105,3 +105,118 @@ pub fn run_episode(
     }
     (ep.result(), *driver.tally())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::compute::{UnitCosts, Work};
+    use crate::{CycleWork, Trace};
+    use sim::EpisodeConfig;
+
+    /// Drives straight at 1 m/s and reports 1,000 check points of work every cycle.
+    struct Straight {
+        trace: Trace,
+        calls: u32,
+    }
+
+    impl Planner for Straight {
+        fn name(&self) -> &'static str {
+            "dwa"
+        }
+
+        fn plan(&mut self, _: &PlanInput<'_>) -> Twist {
+            self.calls += 1;
+            self.trace.cycle = CycleWork {
+                work: Work {
+                    points: 1000,
+                    ..Work::default()
+                },
+                samples: 1,
+                evaluated: 1,
+            };
+            Twist::new(1.0, 0.0)
+        }
+
+        fn trace(&self) -> &Trace {
+            &self.trace
+        }
+
+        fn trace_mut(&mut self) -> &mut Trace {
+            &mut self.trace
+        }
+    }
+
+    fn compute(point_ns: f64) -> Compute {
+        Compute {
+            costs: UnitCosts {
+                cycle_ns: 0.0,
+                cell_ns: 0.0,
+                sample_ns: 0.0,
+                draw_ns: 0.0,
+                step_ns: 0.0,
+                point_ns,
+            },
+            budget_ns: f64::INFINITY,
+        }
+    }
+
+    /// Runs 6 control periods; returns the planning calls, the tally and the speed after each
+    /// period.
+    fn drive(compute: Option<Compute>) -> (u32, ComputeTally, Vec<f64>) {
+        let world = World::corridor(1.5, &[]);
+        let cfg = EpisodeConfig::default().with_profile(sim::Profile::Ideal, None);
+        let mut ep = Episode::new(&world, cfg, 1);
+        let mut p = Straight {
+            trace: Trace::default(),
+            calls: 0,
+        };
+        let mut d = CycleDriver::new(compute, cfg.control_dt);
+        let mut speeds = Vec::new();
+        for _ in 0..6 {
+            d.period(&mut ep, &mut p, &Schedule::vanilla(), 1.0, Prediction::IDEAL, &mut |_, _, _| {});
+            speeds.push(ep.state().vel.v);
+        }
+        (p.calls, *d.tally(), speeds)
+    }
+
+    #[test]
+    fn the_command_waits_for_the_modelled_compute_and_a_late_cycle_holds_the_next() {
+        // Free: every period plans; the ideal robot (no latency) moves in the first period.
+        let (calls, tally, speeds) = drive(None);
+        assert_eq!((calls, tally.cycles, tally.late_cycles), (6, 6, 0));
+        assert!(speeds[0] > 0.0);
+        // 30 ms of compute (1,000 points x 30 us): the command acts 0.03 s into the first
+        // period (the ideal profile has no latency to replace), still every period plans.
+        let (calls, tally, speeds) = drive(Some(compute(30_000.0)));
+        assert_eq!((calls, tally.late_cycles), (6, 0));
+        assert!((tally.modelled_ms - 180.0).abs() < 1e-9);
+        let (_, _, free) = drive(None);
+        assert!(speeds[0] > 0.0 && speeds[0] < free[0], "{speeds:?} vs {free:?}");
+        // 70 ms: each cycle takes two periods, so every other period holds the command.
+        let (calls, tally, _) = drive(Some(compute(70_000.0)));
+        assert_eq!((calls, tally.cycles, tally.late_cycles), (3, 3, 3));
+    }
+
+    #[test]
+    fn same_seed_same_trajectory_under_a_budget() {
+        let world = sim::barn::world(120).unwrap();
+        let run = || {
+            let mut dwa = crate::Dwa::new(crate::DwaConfig::default());
+            let compute = crate::ComputeConfig::default().resolve("dwa").unwrap();
+            run_episode(
+                world,
+                EpisodeConfig::default(),
+                &mut dwa,
+                &Schedule::ddp_default(),
+                1.5,
+                7,
+                compute,
+                |_, _, _| {},
+            )
+        };
+        let (a, ta) = run();
+        let (b, tb) = run();
+        assert_eq!((a, ta), (b, tb));
+        assert!(ta.modelled_ms > 0.0 && ta.samples > 0);
+    }
+}

@@ -462,6 +462,33 @@ mod tests {
         assert_eq!(dr.applied(), Twist::new(0.0, 0.0));
     }
 
+    /// With a modelled compute time the command acts after the profile's latency less its
+    /// planning share plus that time: 0.075 - 0.025 + 0.03 = 0.08 s, 8 physics steps.
+    #[test]
+    fn modelled_compute_replaces_the_planning_share_of_the_latency() {
+        let d = Dynamics {
+            latency_s: 0.075,
+            ..Dynamics::IDEAL
+        };
+        let (mut dr, mut s) = drive(d);
+        dr.command_after(Twist::new(1.0, 0.0), 0.03);
+        for _ in 0..8 {
+            assert_eq!(dr.applied(), Twist::default());
+            dr.step(&mut s, 0.01);
+        }
+        assert_eq!(dr.applied(), Twist::default(), "due at the start of step 9");
+        dr.step(&mut s, 0.01);
+        assert_eq!(dr.applied(), Twist::new(1.0, 0.0));
+        // A profile without latency: the compute time alone (0.02 s, 2 steps).
+        let (mut dr, mut s) = drive(Dynamics::IDEAL);
+        dr.command_after(Twist::new(1.0, 0.0), 0.02);
+        dr.step(&mut s, 0.01);
+        dr.step(&mut s, 0.01);
+        assert_eq!(dr.applied(), Twist::default());
+        dr.step(&mut s, 0.01);
+        assert_eq!(dr.applied(), Twist::new(1.0, 0.0));
+    }
+
     #[test]
     fn slip_makes_the_base_turn_less_the_faster_and_tighter() {
         let d = Dynamics::gazebo_jackal();

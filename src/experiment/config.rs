@@ -109,9 +109,15 @@ pub struct SearchSection {
     /// Candidate actions: DDP's, then DDP with one dimension at either end (for spaces of at
     /// most 8 dimensions), then seeded uniform draws, up to this many.
     pub candidates: usize,
-    /// Runs per world and candidate.
+    /// Runs per world that the finalists get (the resource ceiling of the halving).
     pub runs: usize,
-    /// Seed of the draws and of the runs.
+    /// Successive halving: every candidate first runs `first_pairs` (world, run) pairs; each
+    /// rung keeps the best `1 / eta` by mean score and gives the survivors `eta` times the
+    /// pairs, until `runs` runs of every world are reached ([`super::controls::halving`]).
+    pub eta: usize,
+    /// (World, run) pairs of the first rung.
+    pub first_pairs: usize,
+    /// Seed of the draws, of the pair order and of the runs.
     pub seed: u64,
 }
 
@@ -119,8 +125,10 @@ impl Default for SearchSection {
     fn default() -> Self {
         Self {
             worlds: "train".into(),
-            candidates: 24,
-            runs: 1,
+            candidates: 243,
+            runs: 9,
+            eta: 3,
+            first_pairs: 25,
             seed: 1,
         }
     }
@@ -452,8 +460,12 @@ impl Experiment {
         jitter
             .validate()
             .map_err(|e| anyhow::anyhow!("{name}: [eval] {e}"))?;
-        if raw.constant_search.candidates == 0 || raw.constant_search.runs == 0 {
-            bail!("{name}: [constant_search] candidates and runs must be at least 1");
+        let cs = &raw.constant_search;
+        if cs.candidates == 0 || cs.runs == 0 || cs.first_pairs == 0 || cs.eta < 2 {
+            bail!(
+                "{name}: [constant_search] candidates, runs and first_pairs must be at least 1 and \
+                 eta at least 2"
+            );
         }
         let sl = &raw.slurm;
         if sl.nodes == 0 || sl.tasks == 0 || sl.cpus_per_task == 0 || sl.time.is_empty() {

@@ -131,6 +131,63 @@ pub struct Candidate {
     pub score: f64,
     /// Success rate over every search run (%).
     pub success_pct: f64,
+    /// (World, run) pairs it ran (the halving's resource; absent in older records: 0).
+    #[serde(default)]
+    pub pairs: usize,
+    /// Mean modelled compute per planning cycle over its runs (ms; 0 under the free model).
+    #[serde(default)]
+    pub compute_ms_per_cycle: f64,
+    /// What its runs' planning cycles did and cost, summed.
+    #[serde(default)]
+    pub compute: planner::ComputeTally,
+}
+
+/// The rungs of a successive-halving search of `n` candidates: `(survivors, pairs)` per rung,
+/// where every survivor of a rung has run the first `pairs` (world, run) pairs. The first rung
+/// runs all `n` on `first` pairs; each next rung keeps `ceil(previous / eta)` and multiplies
+/// the pairs by `eta`, capped at `total`; the search ends at the rung that reaches `total`
+/// pairs or keeps a single candidate.
+pub fn halving(n: usize, eta: usize, first: usize, total: usize) -> Vec<(usize, usize)> {
+    let eta = eta.max(2);
+    let mut rungs = vec![(n.max(1), first.clamp(1, total.max(1)))];
+    loop {
+        let (k, pairs) = *rungs.last().expect("one rung");
+        if pairs >= total || k <= 1 {
+            return rungs;
+        }
+        rungs.push((k.div_ceil(eta), (pairs * eta).min(total)));
+    }
+}
+
+/// The (world, run) pairs of a search in the order candidates run them: run 0 of every world,
+/// then run 1, ..., each run's worlds in a seeded shuffle, so any prefix spreads over the
+/// worlds.
+pub fn search_pairs(worlds: &[usize], runs: usize, seed: u64) -> Vec<(usize, usize)> {
+    let mut out = Vec::with_capacity(worlds.len() * runs);
+    for r in 0..runs {
+        let mut ws = worlds.to_vec();
+        let mut rng = SplitMix64::new(seed ^ (r as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
+        for i in (1..ws.len()).rev() {
+            ws.swap(i, rng.below(i + 1));
+        }
+        out.extend(ws.into_iter().map(|w| (w, r)));
+    }
+    out
+}
+
+/// The indices of the `k` best of `ids` by [`rank_key`] (best first).
+pub fn keep_best(c: &[Candidate], ids: &[usize], k: usize) -> Vec<usize> {
+    let mut ids = ids.to_vec();
+    ids.sort_by(|&a, &b| rank_key(&c[b], &c[a]).then(a.cmp(&b)));
+    ids.truncate(k);
+    ids
+}
+
+/// Orders two candidates by score, then success (greater is better).
+fn rank_key(a: &Candidate, b: &Candidate) -> std::cmp::Ordering {
+    a.score
+        .total_cmp(&b.score)
+        .then(a.success_pct.total_cmp(&b.success_pct))
 }
 
 /// The search's record (`search/ARM.json`).
@@ -140,25 +197,24 @@ pub struct SearchResult {
     pub space: ActionSpace,
     /// Worlds searched on (training worlds only).
     pub worlds: Vec<usize>,
-    /// Runs per world and candidate.
+    /// Runs per world of the finalists.
     pub runs: usize,
+    /// `(candidates, pairs)` of each rung of the halving ([`halving`]).
+    #[serde(default)]
+    pub rungs: Vec<(usize, usize)>,
     /// Every candidate, in search order.
     pub candidates: Vec<Candidate>,
     /// Index of the winner in `candidates`.
     pub best: usize,
 }
 
-/// The index of the best candidate: highest mean score, then highest success, then the
-/// earliest (DDP's first, so DDP wins ties).
+/// The index of the best candidate among those that ran the most pairs (the search's
+/// finalists): highest mean score, then highest success, then the earliest (DDP's first, so
+/// DDP wins ties).
 pub fn best_constant(c: &[Candidate]) -> usize {
-    let mut best = 0;
-    for (i, x) in c.iter().enumerate().skip(1) {
-        let b = &c[best];
-        if x.score > b.score || (x.score == b.score && x.success_pct > b.success_pct) {
-            best = i;
-        }
-    }
-    best
+    let most = c.iter().map(|x| x.pairs).max().unwrap_or(0);
+    let finalists: Vec<usize> = (0..c.len()).filter(|&i| c[i].pairs == most).collect();
+    keep_best(c, &finalists, 1).first().copied().unwrap_or(0)
 }
 
 /// A seeded reservoir of `k` observations out of `seen`, the pool of the state-shuffled
@@ -190,16 +246,57 @@ mod tests {
         }
     }
 
-    #[test]
-    fn best_constant_prefers_score_then_success_then_ddp() {
-        let c = |score, success_pct| Candidate {
+    fn cand(score: f64, success_pct: f64, pairs: usize) -> Candidate {
+        Candidate {
             action: vec![],
             params: vec![],
             score,
             success_pct,
-        };
+            pairs,
+            compute_ms_per_cycle: 0.0,
+            compute: Default::default(),
+        }
+    }
+
+    #[test]
+    fn best_constant_prefers_finalists_then_score_then_success_then_ddp() {
+        let c = |score, success| cand(score, success, 10);
         assert_eq!(best_constant(&[c(0.4, 90.0), c(0.45, 80.0), c(0.45, 85.0)]), 2);
         assert_eq!(best_constant(&[c(0.4, 90.0), c(0.4, 90.0)]), 0);
+        // A candidate dropped at an early rung (fewer pairs) never wins, however lucky.
+        assert_eq!(best_constant(&[cand(0.49, 100.0, 25), c(0.4, 90.0), c(0.41, 80.0)]), 2);
+        assert_eq!(keep_best(&[c(0.1, 0.0), c(0.3, 0.0), c(0.2, 0.0)], &[0, 1, 2], 2), [1, 2]);
+    }
+
+    /// 243 candidates, thirds kept, 25 pairs first, 75 worlds x 9 runs at most: 243 on 25,
+    /// 81 on 75, 27 on 225, 9 on all 675 pairs: 6,075 + 4,050 x 3 = 18,225 episodes.
+    #[test]
+    fn halving_keeps_a_third_and_triples_the_pairs_up_to_the_ceiling() {
+        let rungs = halving(243, 3, 25, 675);
+        assert_eq!(rungs, [(243, 25), (81, 75), (27, 225), (9, 675)]);
+        let episodes: usize = std::iter::once(0)
+            .chain(rungs.iter().map(|r| r.1))
+            .zip(&rungs)
+            .map(|(before, &(k, upto))| k * (upto - before))
+            .sum();
+        assert_eq!(episodes, 18_225);
+        assert_eq!(halving(5, 3, 1, 100), [(5, 1), (2, 3), (1, 9)]);
+        assert_eq!(halving(1, 3, 10, 5), [(1, 5)]);
+    }
+
+    #[test]
+    fn search_pairs_run_every_world_once_per_run_in_a_seeded_order() {
+        let worlds: Vec<usize> = (150..225).collect();
+        let p = search_pairs(&worlds, 3, 1);
+        assert_eq!(p.len(), 225);
+        for r in 0..3 {
+            let mut ws: Vec<usize> = p[r * 75..(r + 1) * 75].iter().map(|x| x.0).collect();
+            assert!(p[r * 75..(r + 1) * 75].iter().all(|x| x.1 == r));
+            ws.sort_unstable();
+            assert_eq!(ws, worlds);
+        }
+        assert_ne!(p[..75], p[75..150].iter().map(|x| (x.0, 0)).collect::<Vec<_>>()[..]);
+        assert_eq!(p, search_pairs(&worlds, 3, 1));
     }
 
     /// The untrained export loads like a trained one and outputs DDP's action.

@@ -35,7 +35,10 @@ use crate::eval::run_seed;
 use crate::policy::{EvalPolicy, LearnedPolicy};
 
 use config::{planner_name, space_label, speed_label, Arm, Experiment, Restrict};
-use controls::{best_constant, candidates, shuffle_pool, write_untrained_export, Candidate, SearchResult};
+use controls::{
+    best_constant, candidates, halving, keep_best, search_pairs, shuffle_pool, write_untrained_export, Candidate,
+    SearchResult,
+};
 use plan::{pending, stages, write_atomic, Layout, Stage};
 use record::{EvalRecord, Summary};
 use report::{comparisons, ArmData, Comparison};
@@ -393,6 +396,7 @@ fn test_spec<'a>(ctx: &'a Ctx<'_>, a: &Arm, trace: bool) -> RunSpec<'a> {
         speed: a.speed,
         world_ids: &ctx.test_worlds,
         runs: ctx.ex.eval.runs,
+        pairs: &[],
         seed: ctx.ex.eval.seed,
         trace,
     }
@@ -413,6 +417,7 @@ fn record(ctx: &Ctx<'_>, a: &Arm, controller: &str, ev: runner::Evaluation) -> E
         seed: ctx.ex.eval.seed,
         per_world: ev.per_world,
         trace: ev.trace,
+        compute: ev.compute,
     }
 }
 
@@ -424,41 +429,71 @@ fn run_stage(ctx: &Ctx<'_>, stage: &Stage, out: &Path) -> anyhow::Result<()> {
         Stage::Train { .. } => unreachable!("training runs outside the pool"),
         Stage::Search { arm } => {
             let a = &ex.arms[arm];
-            let mut found = Vec::new();
-            for action in candidates(a.space, ex.search.candidates, ex.search.seed) {
-                let spec = RunSpec {
-                    cfg: &ctx.cfg,
-                    worlds: ctx.worlds,
-                    planner: a.planner,
-                    speed: a.speed,
-                    world_ids: &ex.search_worlds,
-                    runs: ex.search.runs,
-                    seed: ex.search.seed,
-                    trace: false,
-                };
-                let ev = evaluate(&spec, &Controller::Schedule(a.space.schedule(&action, points)?))?;
-                let runs: Vec<_> = ev.per_world.iter().flat_map(|w| w.runs.iter()).collect();
-                let n = runs.len().max(1) as f64;
-                found.push(Candidate {
-                    params: a.space.to_params(&action)?,
-                    action,
-                    score: runs.iter().map(|r| r.score).sum::<f64>() / n,
-                    success_pct: 100.0
-                        * runs.iter().filter(|r| r.status == sim::Status::Succeeded).count() as f64
-                        / n,
-                });
-                let c = found.last().expect("pushed");
+            let s = &ex.search;
+            let mut found = candidates(a.space, s.candidates, s.seed)
+                .into_iter()
+                .map(|action| {
+                    Ok(Candidate {
+                        params: a.space.to_params(&action)?,
+                        action,
+                        score: 0.0,
+                        success_pct: 0.0,
+                        pairs: 0,
+                        compute_ms_per_cycle: 0.0,
+                        compute: Default::default(),
+                    })
+                })
+                .collect::<anyhow::Result<Vec<_>>>()?;
+            // Successive halving over (world, run) pairs shared by every candidate, so the
+            // candidates pair by seed at every rung.
+            let pairs = search_pairs(&ex.search_worlds, s.runs, s.seed);
+            let rungs = halving(found.len(), s.eta, s.first_pairs, pairs.len());
+            let mut sums = vec![(0.0, 0usize); found.len()];
+            let mut alive: Vec<usize> = (0..found.len()).collect();
+            let mut done = 0;
+            for (k, &(keep, upto)) in rungs.iter().enumerate() {
+                alive = keep_best(&found, &alive, keep);
+                for &i in &alive {
+                    let spec = RunSpec {
+                        cfg: &ctx.cfg,
+                        worlds: ctx.worlds,
+                        planner: a.planner,
+                        speed: a.speed,
+                        world_ids: &[],
+                        runs: 0,
+                        pairs: &pairs[done..upto],
+                        seed: s.seed,
+                        trace: false,
+                    };
+                    let schedule = a.space.schedule(&found[i].action, points)?;
+                    let ev = evaluate(&spec, &Controller::Schedule(schedule))?;
+                    let c = &mut found[i];
+                    for r in ev.per_world.iter().flat_map(|w| w.runs.iter()) {
+                        sums[i].0 += r.score;
+                        sums[i].1 += usize::from(r.status == sim::Status::Succeeded);
+                    }
+                    c.pairs = upto;
+                    c.score = sums[i].0 / upto as f64;
+                    c.success_pct = 100.0 * sums[i].1 as f64 / upto as f64;
+                    c.compute += ev.compute;
+                    c.compute_ms_per_cycle = c.compute.ms_per_cycle();
+                }
+                let top = &found[keep_best(&found, &alive, 1)[0]];
                 eprintln!(
-                    "  candidate {}: score {:.3}, success {:.1} %",
-                    found.len(),
-                    c.score,
-                    c.success_pct
+                    "  rung {k}: {} candidates x {upto} (world, run) pairs; best score {:.4}, success \
+                     {:.1} %, {:.1} ms per cycle",
+                    alive.len(),
+                    top.score,
+                    top.success_pct,
+                    top.compute_ms_per_cycle
                 );
+                done = upto;
             }
             let result = SearchResult {
                 space: a.space,
                 worlds: ex.search_worlds.clone(),
-                runs: ex.search.runs,
+                runs: s.runs,
+                rungs,
                 best: best_constant(&found),
                 candidates: found,
             };
@@ -548,6 +583,7 @@ fn shuffle_observations(ctx: &Ctx<'_>, a: &Arm, p: &LearnedPolicy) -> anyhow::Re
         speed: a.speed,
         world_ids: &ctx.ex.pool_worlds,
         runs: 1,
+        pairs: &[],
         seed: ctx.ex.shuffle.seed,
         trace: false,
     };

@@ -40,6 +40,10 @@ pub struct EvalRecord {
     pub per_world: Vec<WorldOutcome>,
     /// Agent steps of run 0 of every world (trained policies only).
     pub trace: Vec<TracePoint>,
+    /// What every run's planning cycles did and cost under the compute model (absent from
+    /// records written before the model: zero).
+    #[serde(default)]
+    pub compute: planner::ComputeTally,
 }
 
 /// The table values of a set of runs after trimming.
@@ -141,6 +145,7 @@ mod tests {
                 ],
             }],
             trace: vec![],
+            compute: Default::default(),
         };
         // Charged times 10, 50, 8, 50: trim 1 drops 8 and one 50; kept: 10 (success), 50.
         assert_eq!(rec.per_world_values(), vec![(4, 0.5, 0.2)]);

@@ -204,8 +204,9 @@ pub fn render(ex: &Experiment, data: &[ArmData], figures: &[(String, String)], n
     );
     let _ = writeln!(
         out,
-        "Controls: **DDP** (p = 1.7, T = 2 s, N = 20); the **best constant** action of a search of {} \
-         candidates x {} run(s) on {} training worlds (`{}`), ranked by mean score; the \
+        "Controls: **DDP** (p = 1.7, T = 2 s, N = 20); the **best constant** action of a successive-halving \
+         search of {} candidates (finalists: {} run(s) of each of {} training worlds, `{}`), ranked by \
+         mean score; the \
          **untrained** DDP-initialized policy (the learner at step 0); the **state-shuffled** \
          trained policy, whose every action is computed from an observation drawn from a seeded \
          reservoir of {} observations of its own runs on training worlds. ADP cells are mean ± sd \
@@ -424,6 +425,7 @@ mod tests {
                 })
                 .collect(),
             trace: vec![],
+            compute: Default::default(),
         }
     }
 

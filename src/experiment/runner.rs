@@ -13,7 +13,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use actor::{AdpEnv, End, EnvConfig, MlpPolicy, Scratch};
-use planner::{run::run_episode, ActionSpace, Schedule};
+use planner::{run::run_episode, ActionSpace, ComputeTally, Schedule};
 use sim::{EpisodeResult, World};
 
 use crate::config::EvalConfig;
@@ -75,6 +75,9 @@ pub struct RunSpec<'a> {
     pub world_ids: &'a [usize],
     /// Runs per world.
     pub runs: usize,
+    /// When not empty: exactly these (world, run) pairs, instead of every run of
+    /// `world_ids` (the constant search's rungs).
+    pub pairs: &'a [(usize, usize)],
     /// Base seed.
     pub seed: u64,
     /// Record the chosen schedule and the clutter of every agent step of run 0 of every
@@ -120,6 +123,8 @@ pub struct Evaluation {
     pub trace: Vec<TracePoint>,
     /// Observations seen (when collecting; see [`observations`]).
     pub observations: Vec<Vec<f32>>,
+    /// What every run's planning cycles did and cost, summed.
+    pub compute: ComputeTally,
 }
 
 /// Runs `ctrl` on every world and run of `spec`.
@@ -134,7 +139,15 @@ pub fn observations(spec: &RunSpec<'_>, ctrl: &Controller<'_>) -> anyhow::Result
 }
 
 fn run_all(spec: &RunSpec<'_>, ctrl: &Controller<'_>, collect: bool) -> anyhow::Result<Evaluation> {
-    for &w in spec.world_ids {
+    let jobs: Vec<(usize, usize)> = if spec.pairs.is_empty() {
+        spec.world_ids
+            .iter()
+            .flat_map(|&w| (0..spec.runs).map(move |r| (w, r)))
+            .collect()
+    } else {
+        spec.pairs.to_vec()
+    };
+    for &(w, _) in &jobs {
         spec.worlds.get(w).with_context(|| {
             format!(
                 "world {w} is not in the loaded data ({} worlds)",
@@ -142,12 +155,7 @@ fn run_all(spec: &RunSpec<'_>, ctrl: &Controller<'_>, collect: bool) -> anyhow::
             )
         })?;
     }
-    let jobs: Vec<(usize, usize)> = spec
-        .world_ids
-        .iter()
-        .flat_map(|&w| (0..spec.runs).map(move |r| (w, r)))
-        .collect();
-    type RunOut = (EpisodeResult, Vec<TracePoint>, Vec<Vec<f32>>);
+    type RunOut = (EpisodeResult, ComputeTally, Vec<TracePoint>, Vec<Vec<f32>>);
     let results: Vec<RunOut> = jobs
         .par_iter()
         .map_init(Scratch::default, |scratch, &(w, r)| {
@@ -157,7 +165,9 @@ fn run_all(spec: &RunSpec<'_>, ctrl: &Controller<'_>, collect: bool) -> anyhow::
     let mut per_world: Vec<WorldOutcome> = Vec::new();
     let mut trace = Vec::new();
     let mut observations = Vec::new();
-    for (&(w, _), (res, tr, obs)) in jobs.iter().zip(results) {
+    let mut compute = ComputeTally::default();
+    for (&(w, _), (res, tally, tr, obs)) in jobs.iter().zip(results) {
+        compute += tally;
         match per_world.last_mut() {
             Some(last) if last.world == w => last.runs.push(res),
             _ => per_world.push(WorldOutcome {
@@ -172,11 +182,12 @@ fn run_all(spec: &RunSpec<'_>, ctrl: &Controller<'_>, collect: bool) -> anyhow::
         per_world,
         trace,
         observations,
+        compute,
     })
 }
 
-/// One run; returns its result, its trace (run 0 with `spec.trace`) and, with `collect`,
-/// its observations.
+/// One run; returns its result, its planning cycles' compute, its trace (run 0 with
+/// `spec.trace`) and, with `collect`, its observations.
 fn run_one(
     spec: &RunSpec<'_>,
     ctrl: &Controller<'_>,
@@ -184,13 +195,13 @@ fn run_one(
     r: usize,
     collect: bool,
     scratch: &mut Scratch,
-) -> anyhow::Result<(EpisodeResult, Vec<TracePoint>, Vec<Vec<f32>>)> {
+) -> anyhow::Result<(EpisodeResult, ComputeTally, Vec<TracePoint>, Vec<Vec<f32>>)> {
     let seed = run_seed(spec.seed, w, r);
     let world = &spec.worlds[w];
     let mut planner = spec.planner.build(spec.cfg, seed ^ 0x5eed_91a2);
     let (net, env, space, pool) = match ctrl {
         Controller::Schedule(s) => {
-            let (res, _) = run_episode(
+            let (res, tally) = run_episode(
                 world,
                 spec.cfg.episode,
                 planner.as_mut(),
@@ -200,7 +211,7 @@ fn run_one(
                 spec.cfg.compute.resolve(spec.planner.name())?,
                 |_, _, _| {},
             );
-            return Ok((res, Vec::new(), Vec::new()));
+            return Ok((res, tally, Vec::new(), Vec::new()));
         }
         Controller::Policy { net, env, space } => (*net, *env, *space, None),
         Controller::Shuffled {
@@ -250,7 +261,7 @@ fn run_one(
         }
         e.step(&action)?;
     }
-    Ok((e.result().episode, trace, seen))
+    Ok((e.result().episode, *e.compute(), trace, seen))
 }
 
 /// A seeded reservoir sample (algorithm R) of at most `k` of `items`, in draw order.
@@ -308,6 +319,7 @@ mod tests {
             speed: 1.5,
             world_ids: &[3],
             runs: 1,
+            pairs: &[],
             seed: 9,
             trace: true,
         };

@@ -113,6 +113,7 @@ pub fn merge(shards: Vec<EvalRecord>, worlds: &[usize]) -> anyhow::Result<EvalRe
         }
         out.per_world.extend(s.per_world);
         out.trace.extend(s.trace);
+        out.compute += s.compute;
     }
     let position = |w: usize| worlds.iter().position(|&x| x == w);
     let mut got: Vec<usize> = out.per_world.iter().map(|w| w.world).collect();
@@ -177,6 +178,7 @@ mod tests {
                     params: vec![],
                 })
                 .collect(),
+            compute: Default::default(),
         }
     }
 
