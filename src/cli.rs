@@ -123,7 +123,9 @@ fn parse_compute(s: &str) -> Result<ComputeModel, String> {
         "free" => Ok(ComputeModel::Free),
         "jackal-onboard" => Ok(ComputeModel::JackalOnboard),
         "custom" => Ok(ComputeModel::Custom),
-        _ => Err(format!("unknown compute model {s:?} (free, jackal-onboard, custom)")),
+        _ => Err(format!(
+            "unknown compute model {s:?} (free, jackal-onboard, custom)"
+        )),
     }
 }
 

@@ -42,7 +42,9 @@ impl EvalConfig {
         cfg.episode
             .validate()
             .map_err(|e| anyhow::anyhow!("{name}: [episode] {e}"))?;
-        cfg.compute.validate().map_err(|e| anyhow::anyhow!("{name}: {e}"))?;
+        cfg.compute
+            .validate()
+            .map_err(|e| anyhow::anyhow!("{name}: {e}"))?;
         Ok(cfg)
     }
 }

@@ -459,7 +459,8 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
                         eval_env_config(plan.policy_env, cfg.compute),
                         seed,
                     )?;
-                    run_policy(env, net, buf, |_, _, _| Ok(())).with_context(|| format!("world {w}, run {r}"))?
+                    run_policy(env, net, buf, |_, _, _| Ok(()))
+                        .with_context(|| format!("world {w}, run {r}"))?
                 }
                 None => run_episode(
                     &worlds[w],
@@ -777,11 +778,11 @@ mod tests {
                 planner,
                 space,
                 1.5,
-                eval_env_config(EnvConfig::default()),
+                eval_env_config(EnvConfig::default(), cfg.compute),
                 seed,
             )
             .unwrap();
-            let closed = run_policy_episode(env, &net, episode.control_dt, &mut buf).unwrap();
+            let closed = run_policy(env, &net, &mut buf, |_, _, _| Ok(())).unwrap();
             let mut planner = PlannerKind::Dwa.build(&cfg, seed);
             let plain = run_episode(
                 world,
@@ -790,6 +791,7 @@ mod tests {
                 &schedule,
                 1.5,
                 seed,
+                cfg.compute.resolve("dwa").unwrap(),
                 |_, _, _| {},
             );
             assert_eq!(closed, plain, "world {w}");

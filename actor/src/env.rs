@@ -18,8 +18,8 @@
 //!   robot's footprint and its lidar returns.
 
 use planner::action::ActionError;
-use planner::schedule::DEFAULT_BOUNDARY_POINTS;
 use planner::run::CycleDriver;
+use planner::schedule::DEFAULT_BOUNDARY_POINTS;
 use planner::{ActionMap, ActionSpace, ComputeConfig, ComputeTally, Planner, Prediction};
 use serde::{Deserialize, Serialize};
 use sim::episode::{Episode, EpisodeConfig, EpisodeResult, Status};
@@ -431,7 +431,7 @@ impl<'w> AdpEnv<'w> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use planner::{Dwa, DwaConfig, Trace};
+    use planner::{Dwa, DwaConfig, PlanInput, Trace};
     use sim::geometry::{Circle, Pose, Vec2};
     use sim::robot::Twist;
 
@@ -847,9 +847,11 @@ mod tests {
             &planner::Schedule::ddp_default(),
             1.5,
             11,
+            e.config().compute.resolve("dwa").unwrap(),
             |_, _, _| {},
         );
         assert_eq!(r.episode, plain);
-        assert_eq!(u64::from(r.agent_steps), cycles.div_ceil(5));
+        assert_eq!(&cycles, e.compute());
+        assert_eq!(u64::from(r.agent_steps), cycles.cycles.div_ceil(5));
     }
 }

@@ -671,7 +671,13 @@ mod tests {
         assert_eq!(c.budget_ns, 20e6);
         assert_eq!(custom.resolve("nope"), Err(ComputeError::Planner("nope".into())));
         custom.budget_scale = 0.0;
-        assert!(matches!(custom.resolve("dwa"), Err(ComputeError::Value { key: "budget_scale", .. })));
+        assert!(matches!(
+            custom.resolve("dwa"),
+            Err(ComputeError::Value {
+                key: "budget_scale",
+                ..
+            })
+        ));
         custom.budget_scale = 1.0;
         custom.model = ComputeModel::JackalOnboard;
         assert_eq!(custom.validate(), Err(ComputeError::Platform));

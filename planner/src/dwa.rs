@@ -508,11 +508,12 @@ mod tests {
     }
 
     /// One cycle of a 2 x 2 grid on 5 steps of 0.1 s with 4 boundary points, in open space
-    /// at 1 m/s: the field spans x in [-1, reach], y in [-reach, reach] with reach = 1.0 x 0.5
-    /// + 0.33278 (circumscribed radius) + 0.5 (clearance cap) = 1.33278 m, at 0.05 m: 48 x 55
-    /// = 2,640 cells. Steps: the v and w profiles (2 + 2) x 5 = 20, the 4 rollouts 4 x 5 =
-    /// 20. Points: the margins at the robot's pose for 0..=4 boundary points (5 checks) and
-    /// one check per rollout step (20), each only the centre (nothing within reach). No draws.
+    /// at 1 m/s. The field spans x in [-1, reach] and y in [-reach, reach], where reach is
+    /// 1.0 x 0.5 plus the circumscribed radius 0.33278 plus the clearance cap 0.5, i.e.
+    /// 1.33278 m: at 0.05 m that is 48 x 55 = 2,640 cells. Steps: the v and w profiles,
+    /// (2 + 2) x 5 = 20, and the 4 rollouts, 4 x 5 = 20. Points: the margins at the robot's
+    /// pose for 0..=4 boundary points (5 checks) and one check per rollout step (20), each
+    /// only the centre (nothing within reach). No draws.
     #[test]
     fn one_cycle_counts_its_units_and_a_budget_stops_it_in_the_even_order() {
         let perception = sim::Perception {
@@ -539,7 +540,11 @@ mod tests {
                 prediction: crate::Prediction::PAPERS,
                 budget,
             });
-            (dwa.trace().cycle, dwa.rollouts().spans.len(), dwa.evaluated_points())
+            (
+                dwa.trace().cycle,
+                dwa.rollouts().spans.len(),
+                dwa.evaluated_points(),
+            )
         };
         let (c, rollouts, points) = plan(crate::Budget::UNLIMITED);
         let want = Work {
@@ -549,7 +554,10 @@ mod tests {
             steps: 40,
             points: 25,
         };
-        assert_eq!((c.work, c.samples, c.evaluated, rollouts, points), (want, 4, 4, 4, 25));
+        assert_eq!(
+            (c.work, c.samples, c.evaluated, rollouts, points),
+            (want, 4, 4, 4, 25)
+        );
         // 1 ns per step, point and sample: 25 ns spent before the first rollout, 11 per
         // rollout; a 50 ns budget starts rollouts at 25, 36 and 47 ns: 3 of 4, the first
         // three of the even order (0, 3, 2, 1).

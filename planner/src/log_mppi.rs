@@ -23,8 +23,8 @@ use serde::{Deserialize, Serialize};
 use sim::geometry::{wrap_angle, Footprint, Pose, Vec2};
 use sim::robot::Twist;
 
-use crate::local_map::LocalMap;
 use crate::compute::{admit, even_order, Work};
+use crate::local_map::LocalMap;
 use crate::mppi::{mppi_weights, roll_all, Nominal, Unicycle};
 use crate::{Integrator, PlanInput, Planner, Rollouts, Trace};
 
@@ -410,7 +410,13 @@ impl Planner for LogMppi {
             cells: (self.map.cells() + self.costmap.cells.len()) as u64,
             ..Work::default()
         };
-        let cycle = admit(&input.budget, spent, &self.eval_order, work_of, &mut self.admitted);
+        let cycle = admit(
+            &input.budget,
+            spent,
+            &self.eval_order,
+            work_of,
+            &mut self.admitted,
+        );
         self.trace.evaluated += cycle.work.points;
         self.trace.cycle = cycle;
         self.trace.rollouts.mark_skipped(&self.admitted);
@@ -418,8 +424,13 @@ impl Planner for LogMppi {
         // The path-integral update over the admitted samples, then the Savitzky-Golay filter.
         let admitted = &self.admitted;
         self.costs.clear();
-        self.costs
-            .extend(self.outcomes.iter().zip(admitted).filter(|(_, &a)| a).map(|(o, _)| o.cost));
+        self.costs.extend(
+            self.outcomes
+                .iter()
+                .zip(admitted)
+                .filter(|(_, &a)| a)
+                .map(|(o, _)| o.cost),
+        );
         mppi_weights(&self.costs, cfg.lambda, &mut self.weights);
         let samples = self
             .controls

@@ -237,7 +237,8 @@ impl Mppi {
         self.order.clear();
         let admitted = &self.admitted;
         if cfg.top_k == 0 {
-            self.order.extend((0..self.outcomes.len()).filter(|&i| admitted[i]));
+            self.order
+                .extend((0..self.outcomes.len()).filter(|&i| admitted[i]));
         } else {
             let outcomes = &self.outcomes;
             self.order
@@ -246,7 +247,12 @@ impl Mppi {
                 .sort_unstable_by(|&a, &b| outcomes[a].cost.total_cmp(&outcomes[b].cost).then(a.cmp(&b)));
             self.order.truncate(cfg.top_k);
         }
-        if !self.outcomes.iter().zip(admitted).any(|(o, &a)| a && o.collision_free) {
+        if !self
+            .outcomes
+            .iter()
+            .zip(admitted)
+            .any(|(o, &a)| a && o.collision_free)
+        {
             return false;
         }
         self.selected_costs.clear();
@@ -283,12 +289,22 @@ impl Mppi {
         let work_of = |i: usize| Work {
             samples: 1,
             draws: if i == 0 { 0 } else { 2 * steps as u64 }
-                + if i > n_brake && i <= n_brake + n_explore { 2 } else { 0 },
+                + if i > n_brake && i <= n_brake + n_explore {
+                    2
+                } else {
+                    0
+                },
             steps: outcomes[i].steps,
             points: outcomes[i].evaluated,
             cells: 0,
         };
-        let cycle = admit(&input.budget, spent, &self.eval_order, work_of, &mut self.admitted);
+        let cycle = admit(
+            &input.budget,
+            spent,
+            &self.eval_order,
+            work_of,
+            &mut self.admitted,
+        );
         self.trace.evaluated += cycle.work.points - spent.points;
         self.trace.cycle = cycle;
         self.trace.rollouts.mark_skipped(&self.admitted);
@@ -755,10 +771,11 @@ pub(crate) mod tests {
         }
     }
 
-    /// One cycle of 5 samples over 4 steps with 4 boundary points in open space: sample 0 is
-    /// the noise-free nominal (no draws), sample 1 explores (round(0.2 x 5) = 1; round(0.05 x
-    /// 5) = 0 brake): 2 uniforms + 2 normals per step = 10 draws, samples 2..4 draw 8 each:
-    /// 34 draws. 20 steps; the margins (5 checks) and one centre check per step (20).
+    /// One cycle of 5 samples over 4 steps with 4 boundary points in open space. Sample 0 is
+    /// the noise-free nominal (no draws); sample 1 explores, since round(0.2 x 5) is 1 and
+    /// round(0.05 x 5) is 0 (no braking sample): 2 uniforms and 2 normals per step, 10 draws;
+    /// samples 2..4 draw 8 each: 34 draws. 20 steps; the margins (5 checks) and one centre
+    /// check per step (20).
     #[test]
     fn one_cycle_counts_its_units() {
         let perception = sim::Perception {

@@ -173,7 +173,14 @@ mod tests {
         let mut d = CycleDriver::new(compute, cfg.control_dt);
         let mut speeds = Vec::new();
         for _ in 0..6 {
-            d.period(&mut ep, &mut p, &Schedule::vanilla(), 1.0, Prediction::IDEAL, &mut |_, _, _| {});
+            d.period(
+                &mut ep,
+                &mut p,
+                &Schedule::vanilla(),
+                1.0,
+                Prediction::IDEAL,
+                &mut |_, _, _| {},
+            );
             speeds.push(ep.state().vel.v);
         }
         (p.calls, *d.tally(), speeds)

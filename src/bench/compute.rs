@@ -111,7 +111,11 @@ fn least_squares(x: &[[f64; 6]], y: &[f64], active: &[bool; 6]) -> [f64; 6] {
     }
     let mut b = [0.0; 6];
     for (p, &c) in cols.iter().enumerate() {
-        b[c] = if a[p][p].abs() < 1e-30 { 0.0 } else { a[p][k] / a[p][p] };
+        b[c] = if a[p][p].abs() < 1e-30 {
+            0.0
+        } else {
+            a[p][k] / a[p][p]
+        };
     }
     b
 }
@@ -122,7 +126,9 @@ fn nonnegative_fit(x: &[[f64; 6]], y: &[f64]) -> [f64; 6] {
     let mut active = [true; 6];
     loop {
         let b = least_squares(x, y, &active);
-        let worst = (0..6).filter(|&j| active[j] && b[j] < 0.0).min_by(|&i, &j| b[i].total_cmp(&b[j]));
+        let worst = (0..6)
+            .filter(|&j| active[j] && b[j] < 0.0)
+            .min_by(|&i, &j| b[i].total_cmp(&b[j]));
         match worst {
             Some(j) => active[j] = false,
             None => return b,
@@ -172,7 +178,16 @@ pub fn run(worlds: usize) -> anyhow::Result<Vec<Figure>> {
                         ddp: *ddp,
                         calls: &mut calls,
                     };
-                    planner::run::run_episode(world, cfg.episode, &mut timed, sched, 1.5, seed, None, |_, _, _| {});
+                    planner::run::run_episode(
+                        world,
+                        cfg.episode,
+                        &mut timed,
+                        sched,
+                        1.5,
+                        seed,
+                        None,
+                        |_, _, _| {},
+                    );
                 }
             }
         }
@@ -250,7 +265,11 @@ pub fn run(worlds: usize) -> anyhow::Result<Vec<Figure>> {
             0.5,
         );
         figs.push(figure(
-            format!("{} DDP cycle here, median: measured (fit {:.3} ms)", k.name(), fitted / 1e6),
+            format!(
+                "{} DDP cycle here, median: measured (fit {:.3} ms)",
+                k.name(),
+                fitted / 1e6
+            ),
             measured / 1e6,
             "ms",
         ));

@@ -134,6 +134,33 @@ impl Default for SearchSection {
     }
 }
 
+/// `[compute_sweep]`: DDP, the best constant and every ADP seed of one arm evaluated under
+/// other cycle budgets of the training compute model, and without a compute model.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SweepSection {
+    /// Budget multipliers of `[train.env.compute]` (empty: no sweep).
+    pub budget_scales: Vec<f64>,
+    /// Also evaluate under `model = "free"` (no budget, no modelled latency).
+    pub free: bool,
+    /// Runs per test world of each sweep evaluation.
+    pub runs: usize,
+    /// The arm swept (index into the arms in file order: planners x spaces x speeds x
+    /// training worlds).
+    pub arm: usize,
+}
+
+impl Default for SweepSection {
+    fn default() -> Self {
+        Self {
+            budget_scales: Vec::new(),
+            free: false,
+            runs: 5,
+            arm: 0,
+        }
+    }
+}
+
 /// `[shuffle]`: the state-shuffled control.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -238,6 +265,8 @@ struct RawFile {
     #[serde(default)]
     shuffle: ShuffleSection,
     #[serde(default)]
+    compute_sweep: SweepSection,
+    #[serde(default)]
     stats: StatsSection,
     #[serde(default)]
     figures: FiguresSection,
@@ -323,6 +352,8 @@ pub struct Experiment {
     pub search: SearchSection,
     /// `[shuffle]`.
     pub shuffle: ShuffleSection,
+    /// `[compute_sweep]`.
+    pub sweep: SweepSection,
     /// `[stats]`.
     pub stats: StatsSection,
     /// `[slurm]`.
@@ -539,11 +570,27 @@ impl Experiment {
                 }
             }
         }
+        let sweep = raw.compute_sweep;
+        if !sweep.budget_scales.is_empty() || sweep.free {
+            if sweep.arm >= arms.len() {
+                bail!(
+                    "{name}: [compute_sweep] arm = {} but the experiment has {} arm(s)",
+                    sweep.arm,
+                    arms.len()
+                );
+            }
+            if sweep.runs == 0 || sweep.budget_scales.iter().any(|k| !(k.is_finite() && *k > 0.0)) {
+                bail!(
+                    "{name}: [compute_sweep] runs must be at least 1 and every budget scale finite and > 0"
+                );
+            }
+        }
         Ok(Self {
             section: raw.experiment,
             eval: raw.eval,
             search: raw.constant_search,
             shuffle: raw.shuffle,
+            sweep,
             stats: raw.stats,
             slurm: raw.slurm,
             train,
@@ -554,6 +601,21 @@ impl Experiment {
             pool_worlds,
             render_world,
         })
+    }
+
+    /// The compute models of the budget sweep, in order (empty without a sweep).
+    pub fn sweep_points(&self) -> Vec<planner::ComputeConfig> {
+        let base = self.train.env.compute;
+        let mut out: Vec<planner::ComputeConfig> = (self.sweep.budget_scales.iter())
+            .map(|&k| planner::ComputeConfig {
+                budget_scale: base.budget_scale * k,
+                ..base
+            })
+            .collect();
+        if self.sweep.free {
+            out.push(planner::ComputeConfig::FREE);
+        }
+        out
     }
 
     /// The training configuration of `arm`'s seed `seed` (0-based): `[train]` with the arm's

@@ -264,8 +264,14 @@ mod tests {
         assert_eq!(best_constant(&[c(0.4, 90.0), c(0.45, 80.0), c(0.45, 85.0)]), 2);
         assert_eq!(best_constant(&[c(0.4, 90.0), c(0.4, 90.0)]), 0);
         // A candidate dropped at an early rung (fewer pairs) never wins, however lucky.
-        assert_eq!(best_constant(&[cand(0.49, 100.0, 25), c(0.4, 90.0), c(0.41, 80.0)]), 2);
-        assert_eq!(keep_best(&[c(0.1, 0.0), c(0.3, 0.0), c(0.2, 0.0)], &[0, 1, 2], 2), [1, 2]);
+        assert_eq!(
+            best_constant(&[cand(0.49, 100.0, 25), c(0.4, 90.0), c(0.41, 80.0)]),
+            2
+        );
+        assert_eq!(
+            keep_best(&[c(0.1, 0.0), c(0.3, 0.0), c(0.2, 0.0)], &[0, 1, 2], 2),
+            [1, 2]
+        );
     }
 
     /// 243 candidates, thirds kept, 25 pairs first, 75 worlds x 9 runs at most: 243 on 25,
@@ -295,7 +301,10 @@ mod tests {
             ws.sort_unstable();
             assert_eq!(ws, worlds);
         }
-        assert_ne!(p[..75], p[75..150].iter().map(|x| (x.0, 0)).collect::<Vec<_>>()[..]);
+        assert_ne!(
+            p[..75],
+            p[75..150].iter().map(|x| (x.0, 0)).collect::<Vec<_>>()[..]
+        );
         assert_eq!(p, search_pairs(&worlds, 3, 1));
     }
 

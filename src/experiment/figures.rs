@@ -466,3 +466,95 @@ mod tests {
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }
+
+/// One point of the compute figure: a controller or a search candidate.
+#[derive(Clone, Debug)]
+pub struct ComputePoint {
+    /// Its label (empty for the plain search candidates).
+    pub label: String,
+    /// Mean modelled compute per planning cycle (ms).
+    pub ms: f64,
+    /// Mean BARN score.
+    pub score: f64,
+    /// Success rate (%).
+    pub success_pct: f64,
+}
+
+/// Success and score against modelled compute per planning cycle, in a 2 x 2 grid: on the
+/// left every constant-search candidate on the training worlds (grey; the finalists dark;
+/// the labelled points, e.g. DDP and the winner, coloured), on the right the controllers on
+/// the test worlds (DDP, the best constant, the untrained policy, each ADP seed).
+pub fn compute_pareto(
+    search: &[ComputePoint],
+    finalists: &[bool],
+    test: &[ComputePoint],
+    title: &str,
+    out: &Path,
+) -> anyhow::Result<()> {
+    fonts();
+    let root = BitMapBackend::new(out, (1100, 800)).into_drawing_area();
+    root.fill(&WHITE).map_err(err)?;
+    let root = root.titled(title, (FAMILY, 20)).map_err(err)?;
+    let panels = root.split_evenly((2, 2));
+    let all = || search.iter().chain(test);
+    let (lo, hi) = all().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| {
+        (a.min(p.ms), b.max(p.ms))
+    });
+    let pad = ((hi - lo) * 0.08).max(0.5);
+    let x_range = (lo - pad).max(0.0)..hi + pad;
+    type Get = fn(&ComputePoint) -> f64;
+    let metrics: [(&str, Get); 2] = [("score", |p| p.score), ("success (%)", |p| p.success_pct)];
+    for (row, (name, get)) in metrics.iter().enumerate() {
+        for (col, (points, where_)) in [(search, "search, training worlds"), (test, "test worlds")]
+            .into_iter()
+            .enumerate()
+        {
+            let area = &panels[row * 2 + col];
+            let (ylo, yhi) = points
+                .iter()
+                .map(get)
+                .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| {
+                    (a.min(v), b.max(v))
+                });
+            if !ylo.is_finite() {
+                continue;
+            }
+            let ypad = ((yhi - ylo) * 0.1).max(if row == 0 { 0.002 } else { 0.5 });
+            let mut chart = ChartBuilder::on(area)
+                .caption(format!("{name}, {where_}"), (FAMILY, 15))
+                .margin(10)
+                .x_label_area_size(35)
+                .y_label_area_size(55)
+                .build_cartesian_2d(x_range.clone(), ylo - ypad..yhi + ypad)
+                .map_err(err)?;
+            chart
+                .configure_mesh()
+                .x_desc("modelled compute per planning cycle (ms)")
+                .label_style((FAMILY, 12))
+                .draw()
+                .map_err(err)?;
+            let plain = points.iter().enumerate().filter(|(_, p)| p.label.is_empty());
+            chart
+                .draw_series(plain.map(|(i, p)| {
+                    let dark = finalists.get(i).copied().unwrap_or(false) && col == 0;
+                    let c = if dark {
+                        RGBColor(60, 60, 60)
+                    } else {
+                        RGBColor(170, 170, 170)
+                    };
+                    Circle::new((p.ms, get(p)), if dark { 4 } else { 3 }, c.filled())
+                }))
+                .map_err(err)?;
+            for (k, p) in points.iter().filter(|p| !p.label.is_empty()).enumerate() {
+                let c = colour(k);
+                let at = (p.ms, get(p));
+                chart.draw_series([Circle::new(at, 6, c.filled())]).map_err(err)?;
+                chart
+                    .draw_series([Text::new(p.label.clone(), at, (FAMILY, 12).into_font().color(&c))])
+                    .map_err(err)?;
+            }
+        }
+    }
+    root.present()
+        .with_context(|| format!("cannot write {}", out.display()))
+}

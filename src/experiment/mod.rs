@@ -36,10 +36,10 @@ use crate::policy::{EvalPolicy, LearnedPolicy};
 
 use config::{planner_name, space_label, speed_label, Arm, Experiment, Restrict};
 use controls::{
-    best_constant, candidates, halving, keep_best, search_pairs, shuffle_pool, write_untrained_export, Candidate,
-    SearchResult,
+    best_constant, candidates, halving, keep_best, search_pairs, shuffle_pool, write_untrained_export,
+    Candidate, SearchResult,
 };
-use plan::{pending, stages, write_atomic, Layout, Stage};
+use plan::{pending, stages, write_atomic, Layout, Stage, SweepPlan, SweepWho};
 use record::{EvalRecord, Summary};
 use report::{comparisons, ArmData, Comparison};
 use runner::{evaluate, observations, Controller, RunSpec};
@@ -202,7 +202,7 @@ pub fn run(args: &Args) -> anyhow::Result<Option<PathBuf>> {
         .num_threads(args.jobs.unwrap_or(0))
         .build()
         .context("cannot start worker threads")?;
-    let all = stages(&ex.arms, ex.seeds);
+    let all = stages(&ex.arms, ex.seeds, sweep_plan(&ex));
     let todo = pending(&all, &ctx.layout, &ex.arms, Path::exists);
     eprintln!(
         "adp experiment {}: {} arm(s) x {} seed(s), {} stage(s), {} to run, in {}",
@@ -302,7 +302,29 @@ fn describe(stage: &Stage, arms: &[Arm]) -> String {
         Stage::EvalShuffled { arm, seed } => {
             format!("evaluate the state-shuffled {} seed {seed}", arms[arm].id())
         }
+        Stage::Sweep { arm, point, who } => {
+            format!("budget sweep point {point} of {}: {who:?}", arms[arm].id())
+        }
     }
+}
+
+/// The budget sweep of `ex`, if it has one.
+fn sweep_plan(ex: &Experiment) -> Option<SweepPlan> {
+    let points = ex.sweep_points().len();
+    (points > 0).then_some(SweepPlan {
+        arm: ex.sweep.arm,
+        points,
+    })
+}
+
+/// The best constant action of arm `arm`, from its search's file.
+fn best_action(ctx: &Ctx<'_>, arm: usize) -> anyhow::Result<Vec<f64>> {
+    let search_file = ctx.layout.output(&Stage::Search { arm }, &ctx.ex.arms);
+    let text = std::fs::read_to_string(&search_file)
+        .with_context(|| format!("cannot read {}", search_file.display()))?;
+    let search: SearchResult = serde_json::from_str(&text)
+        .with_context(|| format!("{}: not a search result", search_file.display()))?;
+    Ok(search.candidates[search.best].action.clone())
 }
 
 /// Whether a run directory has a checkpoint to resume from.
@@ -511,14 +533,55 @@ fn run_stage(ctx: &Ctx<'_>, stage: &Stage, out: &Path) -> anyhow::Result<()> {
             )?;
             record(ctx, a, "ddp", ev).save(out)
         }
+        Stage::Sweep { arm, point, who } => {
+            let a = &ex.arms[arm];
+            let mut cfg = ctx.cfg.clone();
+            cfg.compute = ex.sweep_points()[point];
+            let spec = RunSpec {
+                cfg: &cfg,
+                runs: ex.sweep.runs,
+                ..test_spec(ctx, a, false)
+            };
+            let (name, ev, action, policy) = match who {
+                SweepWho::Ddp => (
+                    "ddp",
+                    evaluate(&spec, &Controller::Schedule(Schedule::ddp_default()))?,
+                    None,
+                    None,
+                ),
+                SweepWho::Constant => {
+                    let action = best_action(ctx, arm)?;
+                    let ctrl = Controller::Schedule(a.space.schedule(&action, points)?);
+                    ("constant", evaluate(&spec, &ctrl)?, Some(action), None)
+                }
+                SweepWho::Adp { seed } => {
+                    let dir = ctx.layout.run_dir(a, seed).join("export");
+                    let p = load_policy(&dir, a.space)?;
+                    let ctrl = Controller::Policy {
+                        net: &p.net,
+                        env: p.env,
+                        space: p.space,
+                    };
+                    (
+                        "adp",
+                        evaluate(&spec, &ctrl)?,
+                        None,
+                        Some(dir.display().to_string()),
+                    )
+                }
+            };
+            let mut rec = record(ctx, a, name, ev);
+            rec.runs = ex.sweep.runs;
+            rec.action = action;
+            rec.policy = policy;
+            if let SweepWho::Adp { seed } = who {
+                rec.seed_index = Some(seed);
+            }
+            rec.save(out)
+        }
         Stage::EvalConstant { arm } => {
             let a = &ex.arms[arm];
-            let search_file = ctx.layout.output(&Stage::Search { arm }, &ex.arms);
-            let text = std::fs::read_to_string(&search_file)
-                .with_context(|| format!("cannot read {}", search_file.display()))?;
-            let search: SearchResult = serde_json::from_str(&text)
-                .with_context(|| format!("{}: not a search result", search_file.display()))?;
-            let action = search.candidates[search.best].action.clone();
+            let action = best_action(ctx, arm)?;
             let ev = evaluate(
                 &test_spec(ctx, a, false),
                 &Controller::Schedule(a.space.schedule(&action, points)?),
@@ -624,6 +687,22 @@ fn arm_data(ctx: &Ctx<'_>, arm: usize) -> anyhow::Result<ArmData> {
         adp.extend(read(Stage::EvalAdp { arm, seed })?);
         shuffled.extend(read(Stage::EvalShuffled { arm, seed })?);
     }
+    let mut sweep = Vec::new();
+    if sweep_plan(ex).is_some_and(|s| s.arm == arm) {
+        for (point, compute) in ex.sweep_points().iter().enumerate() {
+            let at = |who| read(Stage::Sweep { arm, point, who });
+            let mut adp = Vec::new();
+            for seed in 0..ex.seeds {
+                adp.extend(at(SweepWho::Adp { seed })?);
+            }
+            sweep.push(report::SweepPoint {
+                label: crate::eval::compute_label(compute),
+                ddp: at(SweepWho::Ddp)?,
+                constant: at(SweepWho::Constant)?,
+                adp,
+            });
+        }
+    }
     Ok(ArmData {
         arm: a.clone(),
         ddp: read(Stage::EvalDdp {
@@ -635,6 +714,7 @@ fn arm_data(ctx: &Ctx<'_>, arm: usize) -> anyhow::Result<ArmData> {
         untrained: read(Stage::EvalUntrained { arm })?,
         adp,
         shuffled,
+        sweep,
     })
 }
 
@@ -749,6 +829,59 @@ fn write_report(ctx: &Ctx<'_>) -> anyhow::Result<PathBuf> {
                 format!("figures/{file}"),
             ));
         }
+        // (iv) success and score against modelled compute: the search and the controls.
+        if let Some(search) = &d.search {
+            let most = search.candidates.iter().map(|c| c.pairs).max().unwrap_or(0);
+            let points: Vec<figures::ComputePoint> = (search.candidates.iter().enumerate())
+                .map(|(i, c)| figures::ComputePoint {
+                    label: match i {
+                        0 => "DDP".into(),
+                        _ if i == search.best => "best constant".into(),
+                        _ => String::new(),
+                    },
+                    ms: c.compute_ms_per_cycle,
+                    score: c.score,
+                    success_pct: c.success_pct,
+                })
+                .collect();
+            let finalists: Vec<bool> = search.candidates.iter().map(|c| c.pairs == most).collect();
+            let named = |label: String, r: &EvalRecord| {
+                let s = r.summary();
+                figures::ComputePoint {
+                    label,
+                    ms: s.compute_ms,
+                    score: s.score,
+                    success_pct: s.success_pct,
+                }
+            };
+            let mut test: Vec<figures::ComputePoint> = Vec::new();
+            test.extend(d.ddp.iter().map(|r| named("DDP".into(), r)));
+            test.extend(d.constant.iter().map(|r| named("best constant".into(), r)));
+            test.extend(d.untrained.iter().map(|r| named("untrained".into(), r)));
+            test.extend(
+                d.adp
+                    .iter()
+                    .enumerate()
+                    .map(|(k, r)| named(format!("ADP seed {k}"), r)),
+            );
+            let file = format!("compute-{id}.png");
+            figures::compute_pareto(
+                &points,
+                &finalists,
+                &test,
+                &format!("{id}: success and score against modelled compute per cycle"),
+                &fig_dir.join(&file),
+            )?;
+            figs.push((
+                format!(
+                    "{id}: success and score against modelled compute per planning cycle (left: the {} \
+                     search candidates on the training worlds, finalists dark; right: the controls on \
+                     the test worlds)",
+                    search.candidates.len()
+                ),
+                format!("figures/{file}"),
+            ));
+        }
         // (iii) schedule against clutter.
         let trace: Vec<runner::TracePoint> = d.adp.iter().flat_map(|r| r.trace.iter().cloned()).collect();
         if !trace.is_empty() {
@@ -788,10 +921,15 @@ fn write_report(ctx: &Ctx<'_>) -> anyhow::Result<PathBuf> {
             ));
             rendered = true;
         }
-        let missing = pending(&stages(&ex.arms, ex.seeds), &ctx.layout, &ex.arms, Path::exists)
-            .into_iter()
-            .filter(|s| stage_arm(s, &ex.arms) == Some(arm))
-            .count();
+        let missing = pending(
+            &stages(&ex.arms, ex.seeds, sweep_plan(ex)),
+            &ctx.layout,
+            &ex.arms,
+            Path::exists,
+        )
+        .into_iter()
+        .filter(|s| stage_arm(s, &ex.arms) == Some(arm))
+        .count();
         if missing > 0 {
             notes.push(format!(
                 "{id}: {missing} stage(s) not finished yet; their rows are missing"
@@ -838,7 +976,8 @@ fn stage_arm(s: &Stage, arms: &[Arm]) -> Option<usize> {
         | Stage::EvalConstant { arm }
         | Stage::EvalUntrained { arm }
         | Stage::EvalAdp { arm, .. }
-        | Stage::EvalShuffled { arm, .. } => Some(arm),
+        | Stage::EvalShuffled { arm, .. }
+        | Stage::Sweep { arm, .. } => Some(arm),
         Stage::EvalDdp { planner, speed } => {
             arms.iter().position(|a| a.planner == planner && a.speed == speed)
         }

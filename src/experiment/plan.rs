@@ -12,6 +12,7 @@
 //! | DDP on the test worlds (per planner and speed) | `eval/ddp-PLANNER-SPEED.json` |
 //! | best constant, untrained policy | `eval/A/constant.json`, `eval/A/untrained.json` (and its export `eval/A/untrained-policy/`) |
 //! | trained policy and its state-shuffled twin, seed k | `eval/A/seed-k/adp.json`, `eval/A/seed-k/shuffled.json` |
+//! | budget sweep point i: DDP, best constant, seed k | `eval/A/sweep-i/ddp.json`, `.../constant.json`, `.../seed-k.json` |
 
 use std::path::{Path, PathBuf};
 
@@ -65,6 +66,38 @@ pub enum Stage {
         /// Seed index.
         seed: usize,
     },
+    /// Evaluate a controller of the budget sweep under its compute model.
+    Sweep {
+        /// Arm index.
+        arm: usize,
+        /// Index of the sweep point ([`super::config::Experiment::sweep_points`]).
+        point: usize,
+        /// Which controller.
+        who: SweepWho,
+    },
+}
+
+/// The controllers of the budget sweep.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SweepWho {
+    /// The DDP schedule.
+    Ddp,
+    /// The arm's best constant.
+    Constant,
+    /// A trained policy.
+    Adp {
+        /// Seed index.
+        seed: usize,
+    },
+}
+
+/// The budget sweep of an experiment: the arm swept and its number of points.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct SweepPlan {
+    /// Arm index.
+    pub arm: usize,
+    /// Sweep points.
+    pub points: usize,
 }
 
 /// Where the files of an experiment directory live.
@@ -115,6 +148,14 @@ impl Layout {
                 .arm_eval_dir(&arms[arm])
                 .join(format!("seed-{seed}"))
                 .join("shuffled.json"),
+            Stage::Sweep { arm, point, who } => {
+                let dir = self.arm_eval_dir(&arms[arm]).join(format!("sweep-{point}"));
+                match who {
+                    SweepWho::Ddp => dir.join("ddp.json"),
+                    SweepWho::Constant => dir.join("constant.json"),
+                    SweepWho::Adp { seed } => dir.join(format!("seed-{seed}.json")),
+                }
+            }
         }
     }
 }
@@ -122,8 +163,9 @@ impl Layout {
 /// Every stage of `arms` x `seeds`, in an order that respects their dependencies: all
 /// training first (the longest work, so a job that stops early has its policies), then the
 /// constant searches, then the evaluations. DDP runs once per (planner, speed), shared by the
-/// arms that differ only in action space or training worlds.
-pub fn stages(arms: &[Arm], seeds: usize) -> Vec<Stage> {
+/// arms that differ only in action space or training worlds. The budget sweep, if any, comes
+/// last.
+pub fn stages(arms: &[Arm], seeds: usize, sweep: Option<SweepPlan>) -> Vec<Stage> {
     let mut out = Vec::new();
     for arm in 0..arms.len() {
         for seed in 0..seeds {
@@ -149,6 +191,14 @@ pub fn stages(arms: &[Arm], seeds: usize) -> Vec<Stage> {
         for seed in 0..seeds {
             out.push(Stage::EvalAdp { arm, seed });
             out.push(Stage::EvalShuffled { arm, seed });
+        }
+    }
+    if let Some(SweepPlan { arm, points }) = sweep {
+        for point in 0..points {
+            let who = [SweepWho::Ddp, SweepWho::Constant]
+                .into_iter()
+                .chain((0..seeds).map(|seed| SweepWho::Adp { seed }));
+            out.extend(who.map(|who| Stage::Sweep { arm, point, who }));
         }
     }
     out
@@ -197,8 +247,22 @@ mod tests {
     }
 
     #[test]
+    fn the_budget_sweep_comes_last_with_ddp_the_constant_and_every_seed_per_point() {
+        let plain = stages(&arms(), 2, None);
+        let s = stages(&arms(), 2, Some(SweepPlan { arm: 1, points: 3 }));
+        assert_eq!(s[..plain.len()], plain[..]);
+        let sweep = &s[plain.len()..];
+        assert_eq!(sweep.len(), 3 * (2 + 2));
+        assert!(sweep.iter().all(|x| matches!(x, Stage::Sweep { arm: 1, .. })));
+        let layout = Layout { dir: "/e".into() };
+        let files: std::collections::BTreeSet<PathBuf> =
+            sweep.iter().map(|x| layout.output(x, &arms())).collect();
+        assert_eq!(files.len(), sweep.len(), "one file per sweep stage");
+    }
+
+    #[test]
     fn stages_cover_every_arm_and_seed_once_with_ddp_shared() {
-        let s = stages(&arms(), 2);
+        let s = stages(&arms(), 2, None);
         let count = |f: &dyn Fn(&Stage) -> bool| s.iter().filter(|x| f(x)).count();
         assert_eq!(count(&|x| matches!(x, Stage::Train { .. })), 4);
         assert_eq!(
@@ -227,14 +291,15 @@ mod tests {
         let _ = std::fs::remove_dir_all(&dir);
         let layout = Layout { dir: dir.clone() };
         let arms = arms();
-        let all = stages(&arms, 1);
+        let all = stages(&arms, 1, None);
         let first_arm = |s: &Stage| match *s {
             Stage::Train { arm, .. }
             | Stage::Search { arm }
             | Stage::EvalConstant { arm }
             | Stage::EvalUntrained { arm }
             | Stage::EvalAdp { arm, .. }
-            | Stage::EvalShuffled { arm, .. } => arm == 0,
+            | Stage::EvalShuffled { arm, .. }
+            | Stage::Sweep { arm, .. } => arm == 0,
             Stage::EvalDdp { .. } => true,
         };
         for s in all.iter().filter(|s| first_arm(s)) {

@@ -59,6 +59,9 @@ pub struct Summary {
     pub collision_pct: f64,
     /// Timeouts (%).
     pub timeout_pct: f64,
+    /// Mean modelled compute per planning cycle over every run, untrimmed (ms; 0 under the
+    /// free model).
+    pub compute_ms: f64,
 }
 
 impl EvalRecord {
@@ -84,6 +87,7 @@ impl EvalRecord {
             score,
             collision_pct,
             timeout_pct,
+            compute_ms: self.compute.ms_per_cycle(),
         }
     }
 

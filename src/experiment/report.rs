@@ -28,6 +28,22 @@ pub struct ArmData {
     pub adp: Vec<EvalRecord>,
     /// Their state-shuffled twins.
     pub shuffled: Vec<EvalRecord>,
+    /// The budget sweep (the swept arm only): per sweep point, its compute label and the
+    /// records of DDP, the best constant and the ADP seeds found.
+    pub sweep: Vec<SweepPoint>,
+}
+
+/// One point of the budget sweep.
+#[derive(Clone, Debug)]
+pub struct SweepPoint {
+    /// The compute model (`free`, or the platform and budget scale).
+    pub label: String,
+    /// DDP.
+    pub ddp: Option<EvalRecord>,
+    /// The best constant.
+    pub constant: Option<EvalRecord>,
+    /// The ADP seeds finished.
+    pub adp: Vec<EvalRecord>,
 }
 
 /// ADP against one control, paired over worlds and runs.
@@ -143,7 +159,7 @@ fn pm(values: &[f64], decimals: usize) -> String {
 }
 
 /// The table cells of a method: one record, or several seeds.
-fn cells(recs: &[&EvalRecord]) -> [String; 5] {
+fn cells(recs: &[&EvalRecord]) -> [String; 6] {
     let s: Vec<Summary> = recs.iter().map(|r| r.summary()).collect();
     let col = |f: fn(&Summary) -> f64, d| pm(&s.iter().map(f).collect::<Vec<_>>(), d);
     [
@@ -152,6 +168,7 @@ fn cells(recs: &[&EvalRecord]) -> [String; 5] {
         col(|x| x.score, 3),
         col(|x| x.collision_pct, 2),
         col(|x| x.timeout_pct, 2),
+        col(|x| x.compute_ms, 1),
     ]
 }
 
@@ -167,12 +184,13 @@ fn methods(d: &ArmData) -> Vec<(String, Vec<&EvalRecord>)> {
     ]
 }
 
-const METRICS: [&str; 5] = [
+const METRICS: [&str; 6] = [
     "success (%) ↑",
     "avg time (s) ↓",
     "avg score ↑",
     "collision (%) ↓",
     "timeout (%) ↓",
+    "compute (ms / cycle)",
 ];
 
 /// The report's markdown. `figures` are (caption, file name relative to the report).
@@ -240,7 +258,7 @@ pub fn render(ex: &Experiment, data: &[ArmData], figures: &[(String, String)], n
             }
         }
         let _ = writeln!(out, "{header}\n{rule}");
-        let rows: Vec<Vec<(String, [String; 5])>> = arms
+        let rows: Vec<Vec<(String, [String; 6])>> = arms
             .iter()
             .map(|d| methods(d).into_iter().map(|(n, r)| (n, cells(&r))).collect())
             .collect();
@@ -273,8 +291,9 @@ pub fn render(ex: &Experiment, data: &[ArmData], figures: &[(String, String)], n
             let _ = writeln!(out, "### {p}, {v} m/s\n");
             let _ = writeln!(
                 out,
-                "| method | {} |\n|---|---|---|---|---|---|",
-                METRICS.join(" | ")
+                "| method | {} |\n|---|{}",
+                METRICS.join(" | "),
+                "---|".repeat(METRICS.len())
             );
             let group: Vec<&ArmData> = data
                 .iter()
@@ -296,9 +315,50 @@ pub fn render(ex: &Experiment, data: &[ArmData], figures: &[(String, String)], n
             out.push('\n');
         }
     }
+    // The budget sweep.
+    for d in data.iter().filter(|d| !d.sweep.is_empty()) {
+        let _ = writeln!(
+            out,
+            "## Budget sweep: {} under other compute budgets
+
+DDP, the best constant and ADP \
+             (mean ± sd over seeds) on the test worlds with {} run(s) each, under the training \
+             compute model with its cycle budgets scaled, and without a compute model (`free`: no \
+             budget, the profile's fixed latency). Cells: success (%) / score / modelled compute \
+             per cycle (ms).\n",
+            d.arm.id(),
+            d.sweep[0]
+                .ddp
+                .as_ref()
+                .or(d.sweep[0].constant.as_ref())
+                .map_or(0, |r| r.runs)
+        );
+        let _ = writeln!(out, "| compute | DDP | best constant | ADP |\n|---|---|---|---|");
+        for p in &d.sweep {
+            let cell = |recs: Vec<&EvalRecord>| {
+                if recs.is_empty() {
+                    return "–".to_string();
+                }
+                let c = cells(&recs);
+                format!("{} / {} / {}", c[0], c[2], c[5])
+            };
+            let _ = writeln!(
+                out,
+                "| {} | {} | {} | {} |",
+                p.label,
+                cell(p.ddp.iter().collect()),
+                cell(p.constant.iter().collect()),
+                cell(p.adp.iter().collect())
+            );
+        }
+        out.push('\n');
+    }
     // The constants found.
     let _ = writeln!(out, "## Best constant schedules (searched on training worlds)\n");
-    let _ = writeln!(out, "| arm | action (normalized) | physical parameters | search score | search success (%) | candidates |\n|---|---|---|---|---|---|");
+    let _ = writeln!(
+        out,
+        "| arm | action (normalized) | physical parameters | search score | search success (%) | compute (ms / cycle) | (world, run) pairs | candidates | DDP in the search: score, compute (ms / cycle) |\n|---|---|---|---|---|---|---|---|---|"
+    );
     for d in data {
         if let Some(s) = &d.search {
             let b = &s.candidates[s.best];
@@ -315,13 +375,17 @@ pub fn render(ex: &Experiment, data: &[ArmData], figures: &[(String, String)], n
             let action: Vec<String> = b.action.iter().map(|v| format!("{v:.3}")).collect();
             let _ = writeln!(
                 out,
-                "| {} | [{}] | {} | {:.3} | {:.1} | {} |",
+                "| {} | [{}] | {} | {:.3} | {:.1} | {:.1} | {} | {} | {:.3}, {:.1} |",
                 d.arm.id(),
                 action.join(", "),
                 params.join(", "),
                 b.score,
                 b.success_pct,
-                s.candidates.len()
+                b.compute_ms_per_cycle,
+                b.pairs,
+                s.candidates.len(),
+                s.candidates[0].score,
+                s.candidates[0].compute_ms_per_cycle,
             );
         }
     }
