@@ -100,11 +100,12 @@ fn least_squares(x: &[[f64; 6]], y: &[f64], active: &[bool; 6]) -> [f64; 6] {
         if d.abs() < 1e-30 {
             continue;
         }
-        for r in 0..k {
+        let pivot = a[i].clone();
+        for (r, row) in a.iter_mut().enumerate() {
             if r != i {
-                let f = a[r][i] / d;
-                for c in i..=k {
-                    a[r][c] -= f * a[i][c];
+                let f = row[i] / d;
+                for (x, &p) in row[i..].iter_mut().zip(&pivot[i..]) {
+                    *x -= f * p;
                 }
             }
         }

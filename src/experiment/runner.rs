@@ -155,7 +155,6 @@ fn run_all(spec: &RunSpec<'_>, ctrl: &Controller<'_>, collect: bool) -> anyhow::
             )
         })?;
     }
-    type RunOut = (EpisodeResult, ComputeTally, Vec<TracePoint>, Vec<Vec<f32>>);
     let results: Vec<RunOut> = jobs
         .par_iter()
         .map_init(Scratch::default, |scratch, &(w, r)| {
@@ -186,6 +185,10 @@ fn run_all(spec: &RunSpec<'_>, ctrl: &Controller<'_>, collect: bool) -> anyhow::
     })
 }
 
+/// What one run returns: its result, its planning cycles' compute, its trace and its
+/// observations.
+type RunOut = (EpisodeResult, ComputeTally, Vec<TracePoint>, Vec<Vec<f32>>);
+
 /// One run; returns its result, its planning cycles' compute, its trace (run 0 with
 /// `spec.trace`) and, with `collect`, its observations.
 fn run_one(
@@ -195,7 +198,7 @@ fn run_one(
     r: usize,
     collect: bool,
     scratch: &mut Scratch,
-) -> anyhow::Result<(EpisodeResult, ComputeTally, Vec<TracePoint>, Vec<Vec<f32>>)> {
+) -> anyhow::Result<RunOut> {
     let seed = run_seed(spec.seed, w, r);
     let world = &spec.worlds[w];
     let mut planner = spec.planner.build(spec.cfg, seed ^ 0x5eed_91a2);
