@@ -22,7 +22,9 @@ pub struct LocalMap {
     origin: Vec2,
     nx: usize,
     ny: usize,
-    /// Distance (m) from each cell centre to the nearest obstacle cell centre.
+    /// `nx` and `ny` as floats: the bounds test of a lookup compares before it converts.
+    extent: (f64, f64),
+    /// Distance (m) from each cell centre to the nearest obstacle cell centre (`dist[iy * nx + ix]`).
     dist: Vec<f32>,
     footprint: Footprint,
     /// Inscribed and circumscribed radii of the footprint (m), cached for the hot loop.
@@ -33,11 +35,16 @@ pub struct LocalMap {
     half_gap: Vec<f64>,
     /// How [`LocalMap::footprint_clearance`] treats what is not checked.
     mode: CheckMode,
+    /// Whether row `iy` holds an obstacle cell (rows without one skip the x pass).
+    occupied: Vec<bool>,
     scratch_f: Vec<f32>,
     scratch_d: Vec<f32>,
     scratch_v: Vec<usize>,
     scratch_z: Vec<f32>,
 }
+
+/// Squared cell distance of "no obstacle" during the transform.
+const INF: f32 = 1e20;
 
 impl LocalMap {
     /// The field the planners use: the Jackal's footprint, cells of `res` metres, check
@@ -55,12 +62,14 @@ impl LocalMap {
             origin: Vec2::default(),
             nx: 0,
             ny: 0,
+            extent: (0.0, 0.0),
             dist: Vec::new(),
             footprint,
             radii: (footprint.inscribed_radius(), footprint.circumscribed_radius()),
             points: Vec::new(),
             half_gap: Vec::new(),
             mode: CheckMode::Conservative,
+            occupied: Vec::new(),
             scratch_f: Vec::new(),
             scratch_d: Vec::new(),
             scratch_v: Vec::new(),
@@ -126,13 +135,16 @@ impl LocalMap {
         self.origin = Vec2::new(-back, -reach);
         self.nx = ((back + reach) / self.res).ceil() as usize + 1;
         self.ny = ((2.0 * reach) / self.res).ceil() as usize + 1;
+        self.extent = (self.nx as f64, self.ny as f64);
         let (nx, ny) = (self.nx, self.ny);
-        const INF: f32 = 1e20;
         self.dist.clear();
         self.dist.resize(nx * ny, INF);
+        self.occupied.clear();
+        self.occupied.resize(ny, false);
         for p in points {
-            if let Some(i) = self.index(*p) {
-                self.dist[i] = 0.0;
+            if let Some((ix, iy)) = self.cell(*p) {
+                self.dist[iy * nx + ix] = 0.0;
+                self.occupied[iy] = true;
             }
         }
         let n = nx.max(ny);
@@ -140,20 +152,24 @@ impl LocalMap {
         self.scratch_d.resize(n, 0.0);
         self.scratch_v.resize(n, 0);
         self.scratch_z.resize(n + 1, 0.0);
-        // Rows (along x), then columns (along y), on squared distances in cell units.
-        for y in 0..ny {
-            self.scratch_f[..nx].copy_from_slice(&self.dist[y * nx..(y + 1) * nx]);
-            edt_1d(
-                &self.scratch_f[..nx],
-                &mut self.scratch_d[..nx],
-                &mut self.scratch_v,
-                &mut self.scratch_z,
-            );
-            self.dist[y * nx..(y + 1) * nx].copy_from_slice(&self.scratch_d[..nx]);
+        // Rows (along x), then columns (along y), on squared distances in cell units. A row
+        // without obstacles stays "infinite" and is skipped.
+        for (iy, row) in self.dist.chunks_exact_mut(nx).enumerate() {
+            if self.occupied[iy] {
+                self.scratch_f[..nx].copy_from_slice(row);
+                edt_1d(
+                    &self.scratch_f[..nx],
+                    row,
+                    &mut self.scratch_v,
+                    &mut self.scratch_z,
+                );
+            }
         }
+        // The column pass writes metres directly (no separate conversion pass).
+        let res = self.res as f32;
         for x in 0..nx {
-            for y in 0..ny {
-                self.scratch_f[y] = self.dist[y * nx + x];
+            for (y, f) in self.scratch_f[..ny].iter_mut().enumerate() {
+                *f = self.dist[y * nx + x];
             }
             edt_1d(
                 &self.scratch_f[..ny],
@@ -161,32 +177,40 @@ impl LocalMap {
                 &mut self.scratch_v,
                 &mut self.scratch_z,
             );
-            for y in 0..ny {
-                self.dist[y * nx + x] = self.scratch_d[y];
+            for (y, &d) in self.scratch_d[..ny].iter().enumerate() {
+                self.dist[y * nx + x] = if d >= INF { FAR as f32 } else { d.sqrt() * res };
             }
-        }
-        let res = self.res as f32;
-        for d in &mut self.dist {
-            *d = if *d >= INF { FAR as f32 } else { d.sqrt() * res };
         }
     }
 
-    fn index(&self, p: Vec2) -> Option<usize> {
+    /// The cell holding `p`, if inside the field.
+    #[inline]
+    fn cell(&self, p: Vec2) -> Option<(usize, usize)> {
         let fx = (p.x - self.origin.x) * self.inv_res;
         let fy = (p.y - self.origin.y) * self.inv_res;
-        if fx < 0.0 || fy < 0.0 {
-            return None;
+        // For 0 <= f, trunc(f) < n exactly when f < n: bounds in float, one conversion each.
+        if fx >= 0.0 && fy >= 0.0 && fx < self.extent.0 && fy < self.extent.1 {
+            Some((fx as usize, fy as usize))
+        } else {
+            None
         }
-        let (ix, iy) = (fx as usize, fy as usize);
-        (ix < self.nx && iy < self.ny).then_some(iy * self.nx + ix)
+    }
+
+    /// The raw field value (cell-centre distance, m) at `p`, or `outside`.
+    #[inline]
+    fn raw(&self, p: Vec2, outside: f32) -> f32 {
+        match self.cell(p) {
+            Some((ix, iy)) => self.dist[iy * self.nx + ix],
+            None => outside,
+        }
     }
 
     /// Distance from `p` (robot frame) to the nearest obstacle point, estimated as the
     /// cell-centre distance minus half a cell (within about +0.036 / -0.1 m of the exact
     /// value), or [`FAR`] outside the field.
     pub fn distance(&self, p: Vec2) -> f64 {
-        match self.index(p) {
-            Some(i) => (self.dist[i] as f64 - 0.5 * self.res).max(0.0),
+        match self.cell(p) {
+            Some((ix, iy)) => (self.dist[iy * self.nx + ix] as f64 - 0.5 * self.res).max(0.0),
             None => FAR,
         }
     }
@@ -227,13 +251,11 @@ impl LocalMap {
         let (s, co) = pose.yaw.sin_cos();
         // The smallest raw cell distance first, the half-cell correction once: the same
         // value as the smallest `distance` (the correction is monotone).
+        let outside = FAR as f32 + 0.5 * self.res as f32;
         let mut raw = f32::INFINITY;
         for b in &self.points[m] {
             let p = Vec2::new(c.x + co * b.x - s * b.y, c.y + s * b.x + co * b.y);
-            raw = raw.min(match self.index(p) {
-                Some(i) => self.dist[i],
-                None => FAR as f32 + 0.5 * self.res as f32,
-            });
+            raw = raw.min(self.raw(p, outside));
         }
         let nearest = (raw as f64 - 0.5 * self.res).max(0.0);
         *evaluated += m as u64;
@@ -323,6 +345,35 @@ mod tests {
             );
         }
         assert_eq!(map.distance(Vec2::new(50.0, 0.0)), FAR);
+    }
+
+    #[test]
+    fn field_is_the_exact_cell_centre_distance() {
+        // Every cell holds exactly sqrt(min integer squared cell distance) x res, whatever
+        // the pass order: the planners' results depend on these bits.
+        let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(5);
+        let pts: Vec<Vec2> = (0..150)
+            .map(|_| Vec2::new(rng.random_range(-1.5..3.5), rng.random_range(-3.5..3.5)))
+            .collect();
+        let mut map = LocalMap::new(Footprint::JACKAL, 0.05, 20);
+        map.build(&pts, 1.0, 3.0);
+        let cells: Vec<(usize, usize)> = pts.iter().filter_map(|p| map.cell(*p)).collect();
+        for ix in 0..map.nx {
+            for iy in 0..map.ny {
+                let d2 = cells
+                    .iter()
+                    .map(|&(x, y)| (x.abs_diff(ix).pow(2) + y.abs_diff(iy).pow(2)) as f32)
+                    .fold(f32::INFINITY, f32::min);
+                assert_eq!(
+                    map.dist[iy * map.nx + ix],
+                    d2.sqrt() * 0.05f32,
+                    "cell ({ix}, {iy})"
+                );
+            }
+        }
+        // No obstacle at all: FAR everywhere.
+        map.build(&[], 1.0, 3.0);
+        assert!(map.dist.iter().all(|&d| d == FAR as f32));
     }
 
     #[test]

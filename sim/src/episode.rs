@@ -464,9 +464,15 @@ impl<'w> Episode<'w> {
         self.undrifted = 0.0;
         let pose = self.believed_pose();
         self.lidar.points(&self.ranges, &mut self.points);
+        // `pose.to_world` per point, with the rotation's sine and cosine computed once.
+        let (s, c) = pose.yaw.sin_cos();
+        let origin = pose.position();
         let pts = &self.points;
-        self.costmap
-            .mark(pose.position(), pts.iter().map(|p| pose.to_world(*p)));
+        self.costmap.mark(
+            origin,
+            pts.iter()
+                .map(|p| Vec2::new(c * p.x - s * p.y, s * p.x + c * p.y) + origin),
+        );
         let due = self.cycles.is_multiple_of(self.cfg.replan_every as u64);
         if self.path.is_empty() || due {
             if self.global.plan(

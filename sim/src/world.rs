@@ -245,8 +245,10 @@ impl ObstacleIndex {
             return None;
         }
         let p = o + d * t0;
-        let mut ix = (((p.x - self.min.x) / self.cell).floor() as isize).clamp(0, self.nx as isize - 1);
-        let mut iy = (((p.y - self.min.y) / self.cell).floor() as isize).clamp(0, self.ny as isize - 1);
+        // Truncation, not floor: the two differ only below 0, where the clamp gives 0 either
+        // way (and floor is a library call on the baseline x86-64 target).
+        let mut ix = (((p.x - self.min.x) / self.cell) as isize).clamp(0, self.nx as isize - 1);
+        let mut iy = (((p.y - self.min.y) / self.cell) as isize).clamp(0, self.ny as isize - 1);
         let step_x: isize = if d.x > 0.0 { 1 } else { -1 };
         let step_y: isize = if d.y > 0.0 { 1 } else { -1 };
         let next_boundary = |i: isize, step: isize, lo: f64, o_a: f64, d_a: f64| {

@@ -1,0 +1,82 @@
+//! Behaviour pins: each planner x fidelity drives a short corridor episode to a trajectory
+//! checksum that must not change. A speed-up that changes floating-point results, or any
+//! behaviour change, fails here; a deliberate change updates the pins and says why.
+
+use planner::run::run_episode;
+use planner::{
+    Dwa, DwaConfig, LogMppi, LogMppiConfig, Mppi, MppiConfig, NavSystem, Planner, Schedule, SystemConfig,
+};
+use sim::{Circle, EpisodeConfig, Vec2, World};
+
+/// FNV-1a over the exact bits of every pose the robot passes at each planning cycle, and of
+/// the result.
+fn checksum(planner: &mut dyn Planner, schedule: &Schedule, world: &World) -> u64 {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    let mut eat = |bits: u64| {
+        for b in bits.to_le_bytes() {
+            h ^= u64::from(b);
+            h = h.wrapping_mul(0x0000_0100_0000_01b3);
+        }
+    };
+    let (result, cycles) = run_episode(
+        world,
+        EpisodeConfig::default(),
+        planner,
+        schedule,
+        1.5,
+        7,
+        |ep, _, cmd| {
+            let s = ep.state();
+            for x in [s.pose.x, s.pose.y, s.pose.yaw, cmd.v, cmd.w] {
+                eat(x.to_bits());
+            }
+        },
+    );
+    eat(cycles);
+    for x in [result.time_s, result.distance_m] {
+        eat(x.to_bits());
+    }
+    h
+}
+
+#[test]
+fn every_planner_reproduces_its_trajectory() {
+    // A corridor 1.2 m wide with two posts to weave around.
+    let posts = [
+        Circle {
+            c: Vec2::new(0.25, 3.0),
+            r: 0.15,
+        },
+        Circle {
+            c: Vec2::new(-0.3, 6.0),
+            r: 0.15,
+        },
+    ];
+    let world = World::corridor(1.2, &posts);
+    let mut got = Vec::new();
+    for (fidelity, schedule) in [("vanilla", Schedule::vanilla()), ("ddp", Schedule::ddp_default())] {
+        let planners: [(&str, Box<dyn Planner>); 4] = [
+            ("dwa", Box::new(Dwa::new(DwaConfig::default()))),
+            ("mppi", Box::new(Mppi::new(MppiConfig::default(), 3))),
+            ("log-mppi", Box::new(LogMppi::new(LogMppiConfig::default(), 3))),
+            ("system", Box::new(NavSystem::new(SystemConfig::default(), 3))),
+        ];
+        for (name, mut p) in planners {
+            got.push(format!(
+                "{name} {fidelity} {:#018x}",
+                checksum(p.as_mut(), &schedule, &world)
+            ));
+        }
+    }
+    let want = [
+        "dwa vanilla 0x333f65407c501733",
+        "mppi vanilla 0xf40036eb93be24e2",
+        "log-mppi vanilla 0x313dc3df05941c8b",
+        "system vanilla 0xee5ed3bbf670cb26",
+        "dwa ddp 0x94949ef171af0d89",
+        "mppi ddp 0xe8def17b4891aeac",
+        "log-mppi ddp 0x1bf839b1149cf83b",
+        "system ddp 0x914faaa76e75012e",
+    ];
+    assert_eq!(got, want);
+}
