@@ -489,6 +489,8 @@ mod tests {
         )
     }
 
+    /// An environment on the free compute model: these tests pin the reward and episode
+    /// logic, which the compute model does not touch (and `Constant` has no budget).
     fn env<'w>(world: &'w World, planner: Box<dyn Planner>, cfg: EnvConfig, seed: u64) -> AdpEnv<'w> {
         AdpEnv::new(
             world,
@@ -496,7 +498,10 @@ mod tests {
             planner,
             ActionSpace::Decremental,
             1.5,
-            cfg,
+            EnvConfig {
+                compute: ComputeConfig::FREE,
+                ..cfg
+            },
             seed,
         )
         .unwrap()
@@ -695,7 +700,10 @@ mod tests {
             constant(0.0),
             ActionSpace::Decremental,
             1.5,
-            EnvConfig::default(),
+            EnvConfig {
+                compute: ComputeConfig::FREE,
+                ..EnvConfig::default()
+            },
             1,
         )
         .unwrap();

@@ -25,6 +25,8 @@ fn checksum(planner: &mut dyn Planner, schedule: &Schedule, world: &World) -> u6
         schedule,
         1.5,
         7,
+        // The free compute model: these pins are the behaviour from before the model.
+        None,
         |ep, _, cmd| {
             let s = ep.state();
             for x in [s.pose.x, s.pose.y, s.pose.yaw, cmd.v, cmd.w] {
@@ -32,7 +34,7 @@ fn checksum(planner: &mut dyn Planner, schedule: &Schedule, world: &World) -> u6
             }
         },
     );
-    eat(cycles);
+    eat(cycles.cycles);
     for x in [result.time_s, result.distance_m] {
         eat(x.to_bits());
     }
