@@ -122,9 +122,10 @@ fn least_squares(x: &[[f64; 6]], y: &[f64], active: &[bool; 6]) -> [f64; 6] {
 }
 
 /// Non-negative least squares by elimination: refits without the most negative coefficient
-/// until none is negative.
+/// until none is negative. Units that no call used get 0.
 fn nonnegative_fit(x: &[[f64; 6]], y: &[f64]) -> [f64; 6] {
-    let mut active = [true; 6];
+    // A unit no call used has no cost to fit (and would make the normal equations singular).
+    let mut active: [bool; 6] = std::array::from_fn(|j| x.iter().any(|r| r[j] != 0.0));
     loop {
         let b = least_squares(x, y, &active);
         let worst = (0..6)
@@ -288,7 +289,14 @@ mod tests {
         let x: Vec<[f64; 6]> = (0..50)
             .map(|i| {
                 let i = f64::from(i);
-                [1.0, 10.0 * i, (i * 7.0) % 5.0, 0.0, (i * 3.0) % 11.0, 100.0 - i]
+                [
+                    1.0,
+                    10.0 * i,
+                    (i * 7.0) % 5.0,
+                    0.0,
+                    (i * 3.0) % 11.0,
+                    (i * i) % 13.0,
+                ]
             })
             .collect();
         let y: Vec<f64> = x.iter().map(|r| 500.0 + 2.0 * r[1] + 3.0 * r[5]).collect();

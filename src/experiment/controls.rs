@@ -265,7 +265,7 @@ mod tests {
         assert_eq!(best_constant(&[c(0.4, 90.0), c(0.4, 90.0)]), 0);
         // A candidate dropped at an early rung (fewer pairs) never wins, however lucky.
         assert_eq!(
-            best_constant(&[cand(0.49, 100.0, 25), c(0.4, 90.0), c(0.41, 80.0)]),
+            best_constant(&[cand(0.49, 100.0, 5), c(0.4, 90.0), c(0.41, 80.0)]),
             2
         );
         assert_eq!(
