@@ -256,6 +256,7 @@ fn grpc_learner_survives_a_killed_actor_and_refuses_bad_requests() {
                 .next_assignment(pb::AssignmentRequest {
                     run: Some(run_ref.clone()),
                     actor_id: reg.actor_id,
+                    actor_secret: reg.actor_secret.clone(),
                 })
                 .await
                 .unwrap()
@@ -271,6 +272,7 @@ fn grpc_learner_survives_a_killed_actor_and_refuses_bad_requests() {
             run: Some(run_ref.clone()),
             actor_id: reg.actor_id,
             lease_id: lease.lease_id,
+            actor_secret: reg.actor_secret.clone(),
             steps: vec![
                 pb::StepRecord {
                     episode_id: lease.first_episode_id,
