@@ -15,10 +15,9 @@ use proto::plane::LeaseHeader;
 use proto::shm::{ShmConfig, ShmError, ShmStepSource};
 use proto::validate::Refusal;
 use proto::StepView;
-use tokio_stream::{Stream, StreamExt};
+use tokio_stream::Stream;
 use tonic::{Request, Response, Status, Streaming};
 
-use super::control::refusal_status;
 use super::shared::{Plane, Shared};
 
 thread_local! {
@@ -85,7 +84,7 @@ fn ingest_batch(shared: &Shared, batch: &pb::StepBatch) -> (u64, u64, String) {
 }
 
 /// The `adp.v1.Data` service's `PushSteps` (`WatchPolicy` is answered by
-/// [`super::watch::DataRoutes`] before a request reaches this service).
+/// [`super::policy_streams::DataRoutes`] before a request reaches this service).
 pub struct DataService {
     pub(super) shared: Arc<Shared>,
 }

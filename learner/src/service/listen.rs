@@ -225,13 +225,20 @@ impl<IO: AsyncRead + Unpin> AsyncRead for Guarded<IO> {
                 }
                 Poll::Ready(Ok(()))
             }
-            Poll::Pending => match &mut this.handshake {
-                Some(deadline) if deadline.as_mut().poll(cx).is_ready() => Poll::Ready(Err(io::Error::new(
-                    io::ErrorKind::TimedOut,
-                    "no HTTP/2 preface or TLS handshake within [service] handshake_timeout_ms",
-                ))),
-                _ => Poll::Pending,
-            },
+            Poll::Pending => {
+                let expired = this
+                    .handshake
+                    .as_mut()
+                    .is_some_and(|deadline| deadline.as_mut().poll(cx).is_ready());
+                if expired {
+                    Poll::Ready(Err(io::Error::new(
+                        io::ErrorKind::TimedOut,
+                        "no HTTP/2 preface or TLS handshake within [service] handshake_timeout_ms",
+                    )))
+                } else {
+                    Poll::Pending
+                }
+            }
             other => other,
         }
     }

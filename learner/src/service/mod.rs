@@ -12,10 +12,10 @@ mod control;
 mod data;
 mod error;
 mod listen;
+mod policy_streams;
 pub mod shared;
 pub mod status;
 mod trainer;
-mod watch;
 
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
@@ -498,13 +498,13 @@ impl ControlPlane {
         );
         let policy = policy_rx.clone();
         let data = tonic::service::interceptor::InterceptedService::new(
-            watch::DataRoutes {
+            policy_streams::DataRoutes {
                 // Requests are step batches (bounded).
                 inner: pb::data_server::DataServer::new(data::DataService {
                     shared: shared.clone(),
                 })
                 .max_decoding_message_size(proto::grpc::MAX_REQUEST_BYTES),
-                streams: Arc::new(watch::PolicyStreams::new(
+                streams: Arc::new(policy_streams::PolicyStreams::new(
                     shared.clone(),
                     policy_rx,
                     svc.max_policy_streams,
