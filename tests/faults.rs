@@ -1100,6 +1100,46 @@ fn refused_data_and_nan_reports_neither_stall_nor_break_the_run() {
             "{refused_stop}"
         );
 
+        // A checksum mismatch is detected; a NaN report is refused; a good one verifies.
+        let mut b = fake::register(&addr, &token, 91).await;
+        let lease = b.assignment(PATIENCE).await;
+        let first = lease.first_episode_id;
+        let report = |episode_id, steps, steps_checksum, episode_return| pb::EpisodeReport {
+            lease_id: lease.lease_id,
+            episode_id,
+            steps,
+            steps_checksum,
+            episode_return,
+            score: 0.0,
+            time_s: 5.0,
+            outcome: pb::Outcome::Collision as i32,
+            ..Default::default()
+        };
+        let (steps, sum) = fake::episode(first, 3);
+        assert_eq!(b.push(lease.lease_id, steps).await.accepted, 3);
+        b.report(report(first, 3, sum ^ 1, -1.5)).await.unwrap();
+        let (steps, sum) = fake::episode(first + 1, 2);
+        assert_eq!(b.push(lease.lease_id, steps).await.accepted, 2);
+        let e = b.report(report(first + 1, 2, sum, f64::NAN)).await.unwrap_err();
+        assert_eq!(e.code(), tonic::Code::InvalidArgument, "{e}");
+        assert!(e.message().contains("episode_return"), "{e}");
+        b.report(report(first + 1, 2, sum, -1.0)).await.unwrap();
+    });
+    procs.wait_for("the counters of the refusals", PATIENCE, |_| {
+        status(&run).is_some_and(|s| {
+            s.leases_dropped == 1
+                && s.episodes_mismatched == 1
+                && s.episodes_verified == 1
+                && s.open_leases == 0
+                && s.cycle >= 1
+                && refused(&s, "not_finite") == 2
+        })
+    });
+    let before = status(&run).unwrap();
+    assert_eq!(before.leases_expired, 0, "{before:?}");
+    assert!(before.mean_return.is_some_and(f64::is_finite), "{before:?}");
+
+    rt.block_on(async {
         // Issue 30: an actor cannot speak for another. Mallory names victim's id and lease
         // (with her own credential, and with none): every call is refused as unauthenticated,
         // nothing reaches the buffer, and the victim keeps its lease and goes on.
@@ -1111,7 +1151,7 @@ fn refused_data_and_nan_reports_neither_stall_nor_break_the_run() {
             .await;
         assert_eq!((ack.accepted, ack.refused), (1, 0), "{ack:?}");
         let mut mallory = fake::register(&addr, &token, 93).await;
-        let before = status(&run).map_or(0, |s| s.steps_received);
+        let stored = status(&run).map_or(0, |s| s.steps_received);
         for secret in [mallory.secret.clone(), proto::Bytes::new()] {
             let mut forged = fake::Actor {
                 control: mallory.control.clone(),
@@ -1177,47 +1217,9 @@ fn refused_data_and_nan_reports_neither_stall_nor_break_the_run() {
         let _ = mallory.heartbeat(0).await;
         procs.wait_for("the impersonation refusals", PATIENCE, |_| {
             status(&run)
-                .is_some_and(|s| refused(&s, "unauthenticated") >= 10 && s.steps_received >= before + 2)
+                .is_some_and(|s| refused(&s, "unauthenticated") >= 10 && s.steps_received >= stored + 2)
         });
-
-        // A checksum mismatch is detected; a NaN report is refused; a good one verifies.
-        let mut b = fake::register(&addr, &token, 91).await;
-        let lease = b.assignment(PATIENCE).await;
-        let first = lease.first_episode_id;
-        let report = |episode_id, steps, steps_checksum, episode_return| pb::EpisodeReport {
-            lease_id: lease.lease_id,
-            episode_id,
-            steps,
-            steps_checksum,
-            episode_return,
-            score: 0.0,
-            time_s: 5.0,
-            outcome: pb::Outcome::Collision as i32,
-            ..Default::default()
-        };
-        let (steps, sum) = fake::episode(first, 3);
-        assert_eq!(b.push(lease.lease_id, steps).await.accepted, 3);
-        b.report(report(first, 3, sum ^ 1, -1.5)).await.unwrap();
-        let (steps, sum) = fake::episode(first + 1, 2);
-        assert_eq!(b.push(lease.lease_id, steps).await.accepted, 2);
-        let e = b.report(report(first + 1, 2, sum, f64::NAN)).await.unwrap_err();
-        assert_eq!(e.code(), tonic::Code::InvalidArgument, "{e}");
-        assert!(e.message().contains("episode_return"), "{e}");
-        b.report(report(first + 1, 2, sum, -1.0)).await.unwrap();
     });
-    procs.wait_for("the counters of the refusals", PATIENCE, |_| {
-        status(&run).is_some_and(|s| {
-            s.leases_dropped == 1
-                && s.episodes_mismatched == 1
-                && s.episodes_verified == 1
-                && s.open_leases == 0
-                && s.cycle >= 1
-                && refused(&s, "not_finite") == 2
-        })
-    });
-    let before = status(&run).unwrap();
-    assert_eq!(before.leases_expired, 0, "{before:?}");
-    assert!(before.mean_return.is_some_and(f64::is_finite), "{before:?}");
 
     // SIGTERM: checkpoint and exit; the run resumes with its buffer.
     procs.signal(learner, libc::SIGTERM);
