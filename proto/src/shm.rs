@@ -1085,6 +1085,7 @@ mod tests {
                 incarnation: 1,
                 actor_id: 2,
                 lease_id: 3,
+                secret: [7; 16],
                 episode_id: 4,
                 policy_version: 5,
                 step_index: 6,
@@ -1098,8 +1099,14 @@ mod tests {
         });
         let (lease, step) = read_slot(&slot);
         assert_eq!(
-            (lease.actor_id, step.step_index, step.terminal, step.truncated),
-            (2, 6, false, false)
+            (
+                lease.actor_id,
+                lease.secret,
+                step.step_index,
+                step.terminal,
+                step.truncated
+            ),
+            (2, [7; 16], 6, false, false)
         );
         assert!(step.obs.is_empty() && step.action.is_empty() && step.final_obs.is_empty());
         let validator = Validator {
