@@ -1221,6 +1221,40 @@ fn refused_data_and_nan_reports_neither_stall_nor_break_the_run() {
         });
     });
 
+    rt.block_on(async {
+        // Issue 30, smaller items: observation bytes that are not a multiple of 4, and a step
+        // index at the episode cap (`max_agent_steps = 80` here), are refused and end their
+        // lease like every other malformed step.
+        let (mut ragged, _) = fake::step(0, 0, -0.5, false);
+        ragged.obs = ragged.obs.slice(..ragged.obs.len() - 1);
+        for (rank, bad, why) in [
+            (94, ragged, "multiple of 4"),
+            (95, fake::step(0, 80, -0.5, false).0, "max_agent_steps"),
+        ] {
+            let mut c = fake::register(&addr, &token, rank).await;
+            let lease = c.assignment(PATIENCE).await;
+            let bad = pb::StepRecord {
+                episode_id: lease.first_episode_id,
+                ..bad
+            };
+            let ack = c.push(lease.lease_id, vec![bad]).await;
+            assert_eq!((ack.accepted, ack.refused), (0, 1), "{ack:?}");
+            assert!(ack.reason.contains(why), "{ack:?}");
+            let mut told = None;
+            for _ in 0..PATIENCE {
+                let r = c.heartbeat(lease.lease_id).await;
+                if !r.lease_valid {
+                    told = Some(r.lease_lost_reason);
+                    break;
+                }
+                tokio::time::sleep(POLL).await;
+            }
+            let told =
+                told.unwrap_or_else(|| panic!("watchdog: the lease stayed valid ({why}){}", procs.report()));
+            assert!(told.contains(why), "{told}");
+        }
+    });
+
     // SIGTERM: checkpoint and exit; the run resumes with its buffer.
     procs.signal(learner, libc::SIGTERM);
     let code = procs.wait_exit(learner, PATIENCE);
@@ -1239,6 +1273,9 @@ fn refused_data_and_nan_reports_neither_stall_nor_break_the_run() {
     assert!(s.replay_len >= 6, "{s:?}");
     assert_eq!((s.episodes_mismatched, s.episodes_verified), (1, 1), "{s:?}");
     assert!(s.resume_warnings.is_empty(), "{s:?}");
+    // Refusal counters continue across the resume like every other counter.
+    assert!(refused(&stopped, "unauthenticated") >= 10, "{stopped:?}");
+    assert_eq!(s.refused, stopped.refused, "refusal counters after the resume");
     // The operator stops it with the run directory's operator credential (kept across the
     // resume), and it ends as cleanly as on SIGTERM.
     let out = adp().args(["stop", "--run-dir"]).arg(&run).output().unwrap();

@@ -54,6 +54,10 @@ fn train_sixteen(name: &str, shm: bool) -> (PathBuf, PathBuf, Status) {
         .unwrap();
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{err}");
+    // The run directory holds the token and the operator credential: this user's only.
+    use std::os::unix::fs::PermissionsExt;
+    let mode = std::fs::metadata(&run).unwrap().permissions().mode() & 0o777;
+    assert_eq!(mode, 0o700, "run directory mode {mode:o}");
     let s = read_status(&run).unwrap();
     (cfg, run, s)
 }
