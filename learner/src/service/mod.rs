@@ -14,6 +14,7 @@ mod error;
 mod listen;
 mod policy_streams;
 pub mod shared;
+mod size_status;
 pub mod status;
 mod trainer;
 
@@ -489,16 +490,19 @@ impl ControlPlane {
                 .map_err(ServiceError::Tls)?;
         }
         let control = tonic::service::interceptor::InterceptedService::new(
-            pb::control_server::ControlServer::new(control::ControlService {
-                shared: shared.clone(),
-                operator,
-            })
-            .max_decoding_message_size(proto::grpc::MAX_CONTROL_REQUEST_BYTES),
+            // Oversized requests are refused with RESOURCE_EXHAUSTED.
+            size_status::SizeStatus(
+                pb::control_server::ControlServer::new(control::ControlService {
+                    shared: shared.clone(),
+                    operator,
+                })
+                .max_decoding_message_size(proto::grpc::MAX_CONTROL_REQUEST_BYTES),
+            ),
             auth.clone(),
         );
         let policy = policy_rx.clone();
         let data = tonic::service::interceptor::InterceptedService::new(
-            policy_streams::DataRoutes {
+            size_status::SizeStatus(policy_streams::DataRoutes {
                 // Requests are step batches (bounded).
                 inner: pb::data_server::DataServer::new(data::DataService {
                     shared: shared.clone(),
@@ -510,7 +514,7 @@ impl ControlPlane {
                     svc.max_policy_streams,
                     svc.policy_streams_per_actor,
                 )),
-            },
+            }),
             auth,
         );
         // One cap over both servers, fitted to the open-file limit so that connections can
