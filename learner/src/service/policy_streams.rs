@@ -168,7 +168,12 @@ impl PolicyStreams {
                 let _open = &slot;
                 Ok::<_, Infallible>(Frame::data(streams.frame(&p)))
             });
-        Ok(Body::new(StreamBody::new(frames)))
+        // When the policies end (the learner stops), the stream ends as a gRPC stream does: with
+        // trailers saying OK.
+        let mut trailers = http::HeaderMap::new();
+        trailers.insert("grpc-status", http::HeaderValue::from_static("0"));
+        let end = tokio_stream::once(Ok(Frame::trailers(trailers)));
+        Ok(Body::new(StreamBody::new(frames.chain(end))))
     }
 }
 
