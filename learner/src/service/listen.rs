@@ -29,6 +29,9 @@ pub const FDS_RESERVED: u64 = 32;
 /// The longest pause of an accept loop that keeps failing (e.g. `EMFILE`).
 const MAX_BACKOFF: Duration = Duration::from_secs(1);
 
+/// The connection cap is logged at most once this often per listener.
+const CAP_REPORT_EVERY: Duration = Duration::from_secs(10);
+
 /// The limits every accepted connection is held to; shared by the learner's servers.
 #[derive(Clone)]
 pub struct ConnectionLimits {
@@ -148,15 +151,25 @@ pub fn incoming<L: Listener>(
     let (tx, rx) = mpsc::channel(1);
     tokio::spawn(async move {
         let mut backoff = Duration::from_millis(10);
+        // When the cap was last reported, and how often it was reached since: one line per
+        // [`CAP_REPORT_EVERY`] however many connections queue.
+        let mut reported: Option<tokio::time::Instant> = None;
+        let mut reached = 0u64;
         loop {
             let slot = match limits.slots.clone().try_acquire_owned() {
                 Ok(slot) => slot,
                 Err(_) => {
-                    tracing::warn!(
-                        listener = label,
-                        max_connections = limits.max,
-                        "connection limit reached; new connections wait until one closes"
-                    );
+                    reached += 1;
+                    if reported.is_none_or(|t| t.elapsed() >= CAP_REPORT_EVERY) {
+                        tracing::warn!(
+                            listener = label,
+                            max_connections = limits.max,
+                            times = reached,
+                            "connection limit reached; new connections wait until one closes"
+                        );
+                        reported = Some(tokio::time::Instant::now());
+                        reached = 0;
+                    }
                     match limits.slots.clone().acquire_owned().await {
                         Ok(slot) => slot,
                         Err(_) => return,
