@@ -241,3 +241,179 @@ fn ten_thousand_distinct_ranks_leave_a_small_status() {
             && size < 100 * 1024
     });
 }
+
+/// Oversized requests (a 64 KiB+ registration, a 1 MiB+ step batch) are refused with
+/// RESOURCE_EXHAUSTED, and the learner serves the next request. Also prints (never asserts)
+/// how long `Register` and `Heartbeat` take on this idle loopback learner.
+#[test]
+fn oversized_requests_are_resource_exhausted() {
+    let dir = fresh_dir("hostile-sizes");
+    let (_learner, _run, addr, token) = learner(&dir, "");
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    rt.block_on(async {
+        let (mut control, mut data, reply) = register(&addr, &token, 0).await;
+        let big = control
+            .register(pb::RegisterRequest {
+                rank: 1,
+                host: "h".repeat(proto::grpc::MAX_CONTROL_REQUEST_BYTES + 1),
+                pid: 1,
+                ..Default::default()
+            })
+            .await
+            .unwrap_err();
+        assert_eq!(big.code(), tonic::Code::ResourceExhausted, "{big}");
+        let batch = pb::StepBatch {
+            run: reply.run.clone(),
+            actor_id: reply.actor_id,
+            lease_id: 1,
+            actor_secret: reply.actor_secret.clone(),
+            steps: vec![pb::StepRecord {
+                obs: vec![0u8; proto::grpc::MAX_REQUEST_BYTES + 4].into(),
+                ..Default::default()
+            }],
+        };
+        let big = data.push_steps(tokio_stream::iter([batch])).await.unwrap_err();
+        assert_eq!(big.code(), tonic::Code::ResourceExhausted, "{big}");
+
+        // Timings (printed, not asserted): each call over the same TCP connection.
+        let times = |label: &str, mut v: Vec<Duration>| {
+            v.sort();
+            eprintln!(
+                "{label}: median {:?}, p90 {:?}, max {:?} over {} calls",
+                v[v.len() / 2],
+                v[v.len() * 9 / 10],
+                v[v.len() - 1],
+                v.len()
+            );
+        };
+        let mut regs = Vec::new();
+        for rank in 0..200 {
+            let t = std::time::Instant::now();
+            control
+                .register(pb::RegisterRequest {
+                    rank: 100 + rank,
+                    host: "test".into(),
+                    pid: 1,
+                    ..Default::default()
+                })
+                .await
+                .unwrap();
+            regs.push(t.elapsed());
+        }
+        times("Register", regs);
+        let mut beats = Vec::new();
+        for _ in 0..200 {
+            let t = std::time::Instant::now();
+            control
+                .heartbeat(pb::HeartbeatRequest {
+                    run: reply.run.clone(),
+                    actor_id: reply.actor_id,
+                    lease_id: 0,
+                    actor_secret: reply.actor_secret.clone(),
+                })
+                .await
+                .unwrap();
+            beats.push(t.elapsed());
+        }
+        times("Heartbeat", beats);
+    });
+}
+
+/// With the open-file limit at 64 (soft and hard, so the learner cannot raise it) and silent
+/// connections queued far beyond it, the learner still serves an honest actor, and on SIGTERM
+/// its checkpoint completes: the run resumes from it.
+#[test]
+fn at_a_64_file_limit_an_honest_actor_is_served_and_the_sigterm_checkpoint_completes() {
+    if std::process::Command::new("prlimit")
+        .arg("--version")
+        .output()
+        .is_err()
+    {
+        eprintln!("skipped: no prlimit");
+        return;
+    }
+    let dir = fresh_dir("hostile-nofile");
+    let cfg = dir.join("test.toml");
+    std::fs::write(
+        &cfg,
+        "[service]\nshared_memory = false\nddp_init = false\nheartbeat_ms = 200\nlease_ttl_ms = 1000\n\
+         status_every_s = 0.2\nhandshake_timeout_ms = 1000\n",
+    )
+    .unwrap();
+    let run = dir.join("run");
+    let start = |resume: bool| {
+        let mut cmd = std::process::Command::new("prlimit");
+        if !resume {
+            cmd.arg("--nofile=64:64");
+        }
+        cmd.arg("--")
+            .arg(adp().get_program())
+            .args(["learner", "--config"])
+            .arg(&cfg)
+            .args(["--steps", "100000", "--listen", "127.0.0.1:0", "--out"])
+            .arg(&run);
+        if resume {
+            cmd.arg("--resume");
+        }
+        let log = if resume {
+            "resumed.stderr"
+        } else {
+            "learner.stderr"
+        };
+        Learner(
+            cmd.stdin(Stdio::null())
+                .stdout(Stdio::null())
+                .stderr(std::fs::File::create(dir.join(log)).unwrap())
+                .spawn()
+                .unwrap(),
+        )
+    };
+    let mut learner = start(false);
+    poll("learner.addr", || run.join("learner.addr").is_file());
+    poll("the first status", || status(&run).is_some());
+    let addr = learner::service::read_addr(&run).unwrap();
+    let token = proto::auth::read_token_file(&run.join("token")).unwrap();
+    // Far more silent connections than the learner has descriptors: the kernel queues them;
+    // the learner takes what its cap allows and closes each after the handshake timeout.
+    let silent: Vec<TcpStream> = (0..200).map(|_| TcpStream::connect(&addr).unwrap()).collect();
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    rt.block_on(async {
+        let (mut control, _data, reply) = register(&addr, &token, 0).await;
+        for _ in 0..5 {
+            let hb = control
+                .heartbeat(pb::HeartbeatRequest {
+                    run: reply.run.clone(),
+                    actor_id: reply.actor_id,
+                    lease_id: 0,
+                    actor_secret: reply.actor_secret.clone(),
+                })
+                .await
+                .unwrap()
+                .into_inner();
+            assert!(!hb.shutdown);
+        }
+    });
+    // More silent connections while the learner stops: its checkpoint must still be written.
+    let more: Vec<TcpStream> = (0..100).map(|_| TcpStream::connect(&addr).unwrap()).collect();
+    let stopped = unsafe { libc::kill(learner.0.id() as i32, libc::SIGTERM) };
+    assert_eq!(stopped, 0);
+    let mut code = None;
+    poll("the learner to exit after SIGTERM", || {
+        code = learner.0.try_wait().unwrap();
+        code.is_some()
+    });
+    let log = std::fs::read_to_string(dir.join("learner.stderr")).unwrap();
+    assert!(code.unwrap().success(), "{code:?}\n{log}");
+    drop((silent, more));
+    let first = status(&run).unwrap();
+    assert!(first.finished, "{first:?}");
+    let _resumed = start(true);
+    poll("the resumed learner's status", || {
+        status(&run).is_some_and(|s| s.incarnation != first.incarnation)
+    });
+    let s = status(&run).unwrap();
+    assert!(
+        s.resumed_from.is_some(),
+        "no checkpoint to resume from: {s:?}\n{log}"
+    );
+}
