@@ -187,9 +187,20 @@ fn run_id(name: &str) -> String {
     format!("{name}-{secs}-{}", std::process::id())
 }
 
+/// Creates `dir` (and missing parents) readable by this user only (mode 0700), as the learner
+/// would: the run directory holds the run's token and the operator credential.
+fn create_private_dir(dir: &Path) -> anyhow::Result<()> {
+    use std::os::unix::fs::DirBuilderExt;
+    std::fs::DirBuilder::new()
+        .recursive(true)
+        .mode(0o700)
+        .create(dir)
+        .with_context(|| format!("cannot create {}", dir.display()))
+}
+
 /// The run directory's token: created (mode 0600) on a fresh run, read on a resumed one.
 fn run_token(run_dir: &Path) -> anyhow::Result<(PathBuf, String)> {
-    std::fs::create_dir_all(run_dir).with_context(|| format!("cannot create {}", run_dir.display()))?;
+    create_private_dir(run_dir)?;
     let path = run_dir.join("token");
     let token = read_or_create_token_file(&path)?;
     Ok((path, token))
@@ -230,7 +241,7 @@ fn prepare(config: Option<&Path>, o: &Overrides, resume: bool) -> anyhow::Result
     if resume && !out.is_dir() {
         bail!("--resume: run directory {} does not exist", out.display());
     }
-    std::fs::create_dir_all(&out).with_context(|| format!("cannot create {}", out.display()))?;
+    create_private_dir(&out)?;
     let copy = out.join("config.toml");
     let text = toml::to_string_pretty(&cfg).expect("config serializes");
     std::fs::write(&copy, text).with_context(|| format!("cannot write {}", copy.display()))?;

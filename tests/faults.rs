@@ -869,6 +869,8 @@ mod fake {
         pub data: DataClient,
         pub run: pb::RunRef,
         pub id: u64,
+        /// The registration's credential (sent with every request).
+        pub secret: proto::Bytes,
     }
 
     pub async fn register(addr: &str, token: &str, rank: u32) -> Actor {
@@ -893,6 +895,7 @@ mod fake {
             data,
             run: reply.run.unwrap(),
             id: reply.actor_id,
+            secret: reply.actor_secret,
         }
     }
 
@@ -905,6 +908,7 @@ mod fake {
                     .next_assignment(pb::AssignmentRequest {
                         run: Some(self.run.clone()),
                         actor_id: self.id,
+                        actor_secret: self.secret.clone(),
                     })
                     .await
                     .unwrap()
@@ -924,6 +928,7 @@ mod fake {
                 actor_id: self.id,
                 lease_id: lease,
                 steps,
+                actor_secret: self.secret.clone(),
             };
             self.data
                 .push_steps(tokio_stream::iter(vec![batch]))
@@ -938,6 +943,7 @@ mod fake {
                     run: Some(self.run.clone()),
                     actor_id: self.id,
                     lease_id: lease,
+                    actor_secret: self.secret.clone(),
                 })
                 .await
                 .unwrap()
@@ -949,6 +955,7 @@ mod fake {
                 .report_episode(pb::EpisodeReport {
                     run: Some(self.run.clone()),
                     actor_id: self.id,
+                    actor_secret: self.secret.clone(),
                     ..r
                 })
                 .await
@@ -1132,6 +1139,122 @@ fn refused_data_and_nan_reports_neither_stall_nor_break_the_run() {
     assert_eq!(before.leases_expired, 0, "{before:?}");
     assert!(before.mean_return.is_some_and(f64::is_finite), "{before:?}");
 
+    rt.block_on(async {
+        // Issue 30: an actor cannot speak for another. Mallory names victim's id and lease
+        // (with her own credential, and with none): every call is refused as unauthenticated,
+        // nothing reaches the buffer, and the victim keeps its lease and goes on.
+        let mut victim = fake::register(&addr, &token, 92).await;
+        let lease = victim.assignment(PATIENCE).await;
+        let first = lease.first_episode_id;
+        let ack = victim
+            .push(lease.lease_id, vec![fake::step(first, 0, -0.5, false).0])
+            .await;
+        assert_eq!((ack.accepted, ack.refused), (1, 0), "{ack:?}");
+        let mut mallory = fake::register(&addr, &token, 93).await;
+        let stored = status(&run).map_or(0, |s| s.steps_received);
+        for secret in [mallory.secret.clone(), proto::Bytes::new()] {
+            let mut forged = fake::Actor {
+                control: mallory.control.clone(),
+                data: mallory.data.clone(),
+                run: mallory.run.clone(),
+                id: victim.id,
+                secret,
+            };
+            // Her step 1 would be next in order, and a NaN would break the lease: neither lands.
+            let ack = forged
+                .push(
+                    lease.lease_id,
+                    vec![
+                        fake::step(first, 1, -0.5, false).0,
+                        fake::step(first, 2, f32::NAN, false).0,
+                    ],
+                )
+                .await;
+            assert_eq!((ack.accepted, ack.refused), (0, 2), "{ack:?}");
+            assert!(ack.reason.contains("secret"), "{ack:?}");
+            let hb = forged
+                .control
+                .heartbeat(pb::HeartbeatRequest {
+                    run: Some(forged.run.clone()),
+                    actor_id: victim.id,
+                    lease_id: lease.lease_id,
+                    actor_secret: forged.secret.clone(),
+                })
+                .await
+                .unwrap_err();
+            assert_eq!(hb.code(), tonic::Code::Unauthenticated, "{hb}");
+            let rep = forged
+                .report(pb::EpisodeReport {
+                    lease_id: lease.lease_id,
+                    episode_id: first,
+                    steps: 1,
+                    ..Default::default()
+                })
+                .await
+                .unwrap_err();
+            assert_eq!(rep.code(), tonic::Code::Unauthenticated, "{rep}");
+            let watch = forged
+                .data
+                .watch_policy(pb::PolicyRequest {
+                    run: Some(forged.run.clone()),
+                    actor_id: victim.id,
+                    have_version: 0,
+                    actor_secret: forged.secret.clone(),
+                })
+                .await
+                .unwrap_err();
+            assert_eq!(watch.code(), tonic::Code::Unauthenticated, "{watch}");
+        }
+        let ack = victim
+            .push(lease.lease_id, vec![fake::step(first, 1, -0.5, false).0])
+            .await;
+        assert_eq!(
+            (ack.accepted, ack.refused),
+            (1, 0),
+            "the victim lost its lease: {ack:?}"
+        );
+        assert!(victim.heartbeat(lease.lease_id).await.lease_valid);
+        let _ = mallory.heartbeat(0).await;
+        procs.wait_for("the impersonation refusals", PATIENCE, |_| {
+            status(&run)
+                .is_some_and(|s| refused(&s, "unauthenticated") >= 10 && s.steps_received >= stored + 2)
+        });
+    });
+
+    rt.block_on(async {
+        // Issue 30, smaller items: observation bytes that are not a multiple of 4, and a step
+        // index at the episode cap (`max_agent_steps = 80` here), are refused and end their
+        // lease like every other malformed step.
+        let (mut ragged, _) = fake::step(0, 0, -0.5, false);
+        ragged.obs = ragged.obs.slice(..ragged.obs.len() - 1);
+        for (rank, bad, why) in [
+            (94, ragged, "multiple of 4"),
+            (95, fake::step(0, 80, -0.5, false).0, "max_agent_steps"),
+        ] {
+            let mut c = fake::register(&addr, &token, rank).await;
+            let lease = c.assignment(PATIENCE).await;
+            let bad = pb::StepRecord {
+                episode_id: lease.first_episode_id,
+                ..bad
+            };
+            let ack = c.push(lease.lease_id, vec![bad]).await;
+            assert_eq!((ack.accepted, ack.refused), (0, 1), "{ack:?}");
+            assert!(ack.reason.contains(why), "{ack:?}");
+            let mut told = None;
+            for _ in 0..PATIENCE {
+                let r = c.heartbeat(lease.lease_id).await;
+                if !r.lease_valid {
+                    told = Some(r.lease_lost_reason);
+                    break;
+                }
+                tokio::time::sleep(POLL).await;
+            }
+            let told =
+                told.unwrap_or_else(|| panic!("watchdog: the lease stayed valid ({why}){}", procs.report()));
+            assert!(told.contains(why), "{told}");
+        }
+    });
+
     // SIGTERM: checkpoint and exit; the run resumes with its buffer.
     procs.signal(learner, libc::SIGTERM);
     let code = procs.wait_exit(learner, PATIENCE);
@@ -1150,6 +1273,9 @@ fn refused_data_and_nan_reports_neither_stall_nor_break_the_run() {
     assert!(s.replay_len >= 6, "{s:?}");
     assert_eq!((s.episodes_mismatched, s.episodes_verified), (1, 1), "{s:?}");
     assert!(s.resume_warnings.is_empty(), "{s:?}");
+    // Refusal counters continue across the resume like every other counter.
+    assert!(refused(&stopped, "unauthenticated") >= 10, "{stopped:?}");
+    assert_eq!(s.refused, stopped.refused, "refusal counters after the resume");
     // The operator stops it with the run directory's operator credential (kept across the
     // resume), and it ends as cleanly as on SIGTERM.
     let out = adp().args(["stop", "--run-dir"]).arg(&run).output().unwrap();

@@ -54,6 +54,10 @@ fn train_sixteen(name: &str, shm: bool) -> (PathBuf, PathBuf, Status) {
         .unwrap();
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{err}");
+    // The run directory holds the token and the operator credential: this user's only.
+    use std::os::unix::fs::PermissionsExt;
+    let mode = std::fs::metadata(&run).unwrap().permissions().mode() & 0o777;
+    assert_eq!(mode, 0o700, "run directory mode {mode:o}");
     let s = read_status(&run).unwrap();
     (cfg, run, s)
 }
@@ -256,6 +260,7 @@ fn grpc_learner_survives_a_killed_actor_and_refuses_bad_requests() {
                 .next_assignment(pb::AssignmentRequest {
                     run: Some(run_ref.clone()),
                     actor_id: reg.actor_id,
+                    actor_secret: reg.actor_secret.clone(),
                 })
                 .await
                 .unwrap()
@@ -271,6 +276,7 @@ fn grpc_learner_survives_a_killed_actor_and_refuses_bad_requests() {
             run: Some(run_ref.clone()),
             actor_id: reg.actor_id,
             lease_id: lease.lease_id,
+            actor_secret: reg.actor_secret.clone(),
             steps: vec![
                 pb::StepRecord {
                     episode_id: lease.first_episode_id,

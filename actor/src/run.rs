@@ -20,7 +20,7 @@ use planner::{ActionSpace, Planner};
 use proto::checksum::step_checksum;
 use proto::grpc::{ControlClient, GrpcPolicySource, GrpcStepSink, LearnerAddress};
 use proto::pb;
-use proto::plane::{LeaseHeader, PlaneError, PolicySource, StepSink};
+use proto::plane::{ActorSecret, LeaseHeader, PlaneError, PolicySource, StepSink};
 use proto::shm::{ShmConfig, ShmPolicySource, ShmStepSink};
 use proto::StepView;
 use sim::episode::{EpisodeConfig, Status};
@@ -235,6 +235,7 @@ fn open_planes(
     data: proto::grpc::DataClient,
     run: &pb::RunRef,
     actor_id: u64,
+    secret: &ActorSecret,
 ) -> Result<Planes, SessionError> {
     let shm = spec
         .data_plane
@@ -251,11 +252,11 @@ fn open_planes(
             Ok(planes) => Ok(planes),
             Err(e) if setup.plane == PlaneChoice::Auto => {
                 tracing::warn!(error = %e, "shared memory unavailable; streaming over gRPC");
-                Ok(open_grpc(rt, data, run, actor_id))
+                Ok(open_grpc(rt, data, run, actor_id, secret))
             }
             Err(e) => Err(e.into()),
         },
-        _ => Ok(open_grpc(rt, data, run, actor_id)),
+        _ => Ok(open_grpc(rt, data, run, actor_id, secret)),
     }
 }
 
@@ -281,6 +282,7 @@ fn open_grpc(
     data: proto::grpc::DataClient,
     run: &pb::RunRef,
     actor_id: u64,
+    secret: &ActorSecret,
 ) -> Planes {
     Planes {
         sink: Box::new(GrpcStepSink::new(
@@ -289,7 +291,7 @@ fn open_grpc(
             &run.run_id,
             run.incarnation,
         )),
-        policies: grpc_policies(rt, data, run, actor_id),
+        policies: grpc_policies(rt, data, run, actor_id, secret),
         name: "grpc",
         shm_policies: false,
     }
@@ -301,6 +303,7 @@ fn grpc_policies(
     data: proto::grpc::DataClient,
     run: &pb::RunRef,
     actor_id: u64,
+    secret: &ActorSecret,
 ) -> Box<dyn PolicySource> {
     Box::new(GrpcPolicySource::start(
         rt.handle(),
@@ -308,6 +311,7 @@ fn grpc_policies(
         &run.run_id,
         run.incarnation,
         actor_id,
+        secret,
     ))
 }
 
@@ -333,6 +337,10 @@ fn session(
     let run = reply.run.ok_or(SessionError::Reply("names no run"))?;
     let spec = reply.spec.ok_or(SessionError::Reply("has no run spec"))?;
     let actor_id = reply.actor_id;
+    let secret: ActorSecret = reply.actor_secret[..]
+        .try_into()
+        .map_err(|_| SessionError::Reply("has no 16-byte actor secret"))?;
+    let wire_secret = reply.actor_secret.clone();
     span.record("actor_id", actor_id);
     let space: ActionSpace = spec
         .action_space
@@ -340,7 +348,7 @@ fn session(
         .map_err(|e| SessionError::Space(Box::new(e)))?;
     let env_cfg: EnvConfig = toml::from_str(&spec.env_toml).map_err(SessionError::Env)?;
     let dims: Vec<usize> = spec.policy_dims.iter().map(|&d| d as usize).collect();
-    let mut planes = open_planes(rt, setup, &spec, data.clone(), &run, actor_id)?;
+    let mut planes = open_planes(rt, setup, &spec, data.clone(), &run, actor_id, &secret)?;
     tracing::info!(
         run_id = %run.run_id,
         planner = %spec.planner,
@@ -355,6 +363,7 @@ fn session(
             control.clone(),
             run.clone(),
             actor_id,
+            wire_secret.clone(),
             Duration::from_millis(u64::from(spec.heartbeat_ms.max(10))),
             lease_ttl,
             flags.clone(),
@@ -386,6 +395,7 @@ fn session(
         let reply = rt.block_on(control.next_assignment(pb::AssignmentRequest {
             run: Some(run.clone()),
             actor_id,
+            actor_secret: wire_secret.clone(),
         }));
         let decision = match reply {
             Ok(r) => r.into_inner().decision,
@@ -431,7 +441,7 @@ fn session(
                     waited_ms = waiting_since.elapsed().as_millis() as u64,
                     "no policy over shared memory; watching policies over gRPC"
                 );
-                planes.policies = grpc_policies(rt, data.clone(), &run, actor_id);
+                planes.policies = grpc_policies(rt, data.clone(), &run, actor_id, &secret);
                 planes.shm_policies = false;
             }
             match planes.policies.poll(policy.as_ref().map(|p| p.0)) {
@@ -467,6 +477,7 @@ fn session(
             incarnation: run.incarnation,
             actor_id,
             lease_id: a.lease_id,
+            secret,
         };
         for i in 0..a.episodes {
             if flags.lease_lost.load(Ordering::Acquire) {
@@ -518,6 +529,7 @@ fn session(
                 run: Some(run.clone()),
                 actor_id,
                 lease_id: a.lease_id,
+                actor_secret: wire_secret.clone(),
                 last_of_assignment: i + 1 == a.episodes,
                 policy_version: *version,
                 ..outcome
@@ -572,6 +584,7 @@ async fn heartbeats(
     mut control: ControlClient,
     run: pb::RunRef,
     actor_id: u64,
+    secret: proto::Bytes,
     every: Duration,
     ttl: Duration,
     flags: Arc<Flags>,
@@ -585,6 +598,7 @@ async fn heartbeats(
             run: Some(run.clone()),
             actor_id,
             lease_id,
+            actor_secret: secret.clone(),
         });
         match tokio::time::timeout(every.max(Duration::from_secs(1)), call).await {
             Ok(Ok(r)) => {

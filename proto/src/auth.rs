@@ -173,6 +173,32 @@ impl ServerAuth {
     }
 }
 
+/// A fresh actor credential: 16 bytes from the kernel's random source (`getrandom(2)`, which
+/// needs no file descriptor, so registrations still work when the open-file limit is reached).
+pub fn new_actor_secret() -> Result<crate::plane::ActorSecret, std::io::Error> {
+    let mut raw = [0u8; 16];
+    let mut filled = 0;
+    while filled < raw.len() {
+        // SAFETY: the pointer and length describe the unfilled tail of `raw`.
+        let n = unsafe { libc::getrandom(raw[filled..].as_mut_ptr().cast(), raw.len() - filled, 0) };
+        match n {
+            n if n > 0 => filled += n as usize,
+            _ => {
+                let e = std::io::Error::last_os_error();
+                if e.kind() != std::io::ErrorKind::Interrupted {
+                    return Err(e);
+                }
+            }
+        }
+    }
+    Ok(raw)
+}
+
+/// Whether `got` is the credential `expected` (compared in constant time).
+pub fn secret_matches(expected: &crate::plane::ActorSecret, got: &[u8]) -> bool {
+    constant_time_eq(expected, got)
+}
+
 /// Equality whose time does not depend on where the inputs differ.
 fn constant_time_eq(a: &[u8], b: &[u8]) -> bool {
     a.len() == b.len() && a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0

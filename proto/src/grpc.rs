@@ -19,7 +19,7 @@ use tonic::transport::{Channel, Endpoint};
 use crate::auth::{AuthError, ClientAuth, TlsFiles};
 use crate::floats::{self, RaggedBytes};
 use crate::pb;
-use crate::plane::{LeaseHeader, PlaneError, PolicySource, PolicyUpdate, StepSink};
+use crate::plane::{ActorSecret, LeaseHeader, PlaneError, PolicySource, PolicyUpdate, StepSink};
 use crate::validate::StepView;
 
 /// Largest gRPC message either side accepts (a policy snapshot is about 2.5 MB; a step batch of
@@ -283,6 +283,7 @@ impl StepSink for GrpcStepSink {
     fn send(&mut self, header: &LeaseHeader, step: &StepView<'_>) -> Result<(), PlaneError> {
         let same = self.batch.actor_id == header.actor_id
             && self.batch.lease_id == header.lease_id
+            && self.batch.actor_secret[..] == header.secret[..]
             && self.run.incarnation == header.incarnation;
         if !same || self.batch.steps.len() >= BATCH_RECORDS {
             self.push_batch()?;
@@ -292,6 +293,7 @@ impl StepSink for GrpcStepSink {
             self.batch.run = Some(self.run.clone());
             self.batch.actor_id = header.actor_id;
             self.batch.lease_id = header.lease_id;
+            self.batch.actor_secret = crate::Bytes::copy_from_slice(&header.secret);
         }
         self.batch.steps.push(encode_step(step));
         Ok(())
@@ -334,13 +336,15 @@ struct Latest {
 }
 
 impl GrpcPolicySource {
-    /// Starts watching policies of run `run_id` / `incarnation` for `actor_id` on `handle`.
+    /// Starts watching policies of run `run_id` / `incarnation` for `actor_id` (whose
+    /// registration credential is `secret`) on `handle`.
     pub fn start(
         handle: &Handle,
         mut client: DataClient,
         run_id: &str,
         incarnation: u64,
         actor_id: u64,
+        secret: &ActorSecret,
     ) -> Self {
         let latest = Arc::new(Mutex::new(Latest::default()));
         let shared = latest.clone();
@@ -351,6 +355,7 @@ impl GrpcPolicySource {
             }),
             actor_id,
             have_version: 0,
+            actor_secret: crate::Bytes::copy_from_slice(secret),
         };
         let task = handle.spawn(async move {
             let fail = |e: String| shared.lock().expect("policy slot").error = Some(e);

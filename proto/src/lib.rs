@@ -31,6 +31,9 @@ pub mod pb {
 
 pub use validate::{Refusal, RefusalCounts, Spaces, StepView};
 
+/// The byte-buffer type of the generated messages' `bytes` fields.
+pub use prost::bytes::Bytes;
+
 /// This machine's host name (from `/proc/sys/kernel/hostname`; `localhost` if unreadable).
 /// Actors and learner compare it to decide whether shared memory can carry the data plane.
 pub fn hostname() -> String {

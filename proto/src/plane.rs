@@ -6,6 +6,9 @@ use thiserror::Error;
 
 use crate::validate::StepView;
 
+/// The credential of one registration (`RegisterReply.actor_secret`): 16 random bytes.
+pub type ActorSecret = [u8; 16];
+
 /// Who sends a step record: the lease it is delivered under. Plain data.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct LeaseHeader {
@@ -15,6 +18,9 @@ pub struct LeaseHeader {
     pub actor_id: u64,
     /// The lease of the assignment the step belongs to.
     pub lease_id: u64,
+    /// The actor's credential from its registration; a record whose secret does not match
+    /// `actor_id` is refused before it is used.
+    pub secret: ActorSecret,
 }
 
 /// A policy version as an actor receives it.

@@ -298,11 +298,12 @@ fn transfer_error(service: &str, op: &'static str, e: impl std::fmt::Display) ->
 /// a valid value.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, ZeroCopySend)]
-#[type_name("adp.shm.SlotHead.v1")]
+#[type_name("adp.shm.SlotHead.v2")]
 struct SlotHead {
     incarnation: u64,
     actor_id: u64,
     lease_id: u64,
+    secret: [u8; 16],
     episode_id: u64,
     policy_version: u64,
     step_index: u32,
@@ -317,7 +318,7 @@ struct SlotHead {
 /// back in `data` (the rest zero).
 #[repr(C)]
 #[derive(Debug, ZeroCopySend)]
-#[type_name("adp.shm.StepSlot.v1")]
+#[type_name("adp.shm.StepSlot.v2")]
 struct StepSlot {
     head: SlotHead,
     data: [f32; MAX_STEP_FLOATS],
@@ -367,6 +368,7 @@ fn read_slot(slot: &StepSlot) -> (LeaseHeader, StepView<'_>) {
         incarnation: h.incarnation,
         actor_id: h.actor_id,
         lease_id: h.lease_id,
+        secret: h.secret,
     };
     let step = StepView {
         episode_id: h.episode_id,
@@ -504,6 +506,7 @@ impl StepSink for ShmStepSink {
             incarnation: header.incarnation,
             actor_id: header.actor_id,
             lease_id: header.lease_id,
+            secret: header.secret,
             episode_id: step.episode_id,
             policy_version: step.policy_version,
             step_index: step.step_index,
@@ -849,6 +852,7 @@ mod tests {
                         incarnation: 7,
                         actor_id: actor as u64,
                         lease_id: 1000 + actor as u64,
+                        secret: [0; 16],
                     };
                     let (mut obs, mut fin) = (Vec::new(), Vec::new());
                     for k in 0..EACH {
@@ -980,6 +984,7 @@ mod tests {
                 incarnation: 1,
                 actor_id: actor as u64,
                 lease_id: 10 + actor as u64,
+                secret: [0; 16],
             };
             let step = StepView {
                 episode_id,
@@ -1014,6 +1019,7 @@ mod tests {
             incarnation: 3,
             actor_id: 4,
             lease_id: 5,
+            secret: [0; 16],
         };
         let obs: Vec<f32> = (0..746).map(|i| i as f32 / 746.0).collect();
         let fin: Vec<f32> = obs.iter().map(|v| -v).collect();
@@ -1079,6 +1085,7 @@ mod tests {
                 incarnation: 1,
                 actor_id: 2,
                 lease_id: 3,
+                secret: [7; 16],
                 episode_id: 4,
                 policy_version: 5,
                 step_index: 6,
@@ -1092,8 +1099,14 @@ mod tests {
         });
         let (lease, step) = read_slot(&slot);
         assert_eq!(
-            (lease.actor_id, step.step_index, step.terminal, step.truncated),
-            (2, 6, false, false)
+            (
+                lease.actor_id,
+                lease.secret,
+                step.step_index,
+                step.terminal,
+                step.truncated
+            ),
+            (2, [7; 16], 6, false, false)
         );
         assert!(step.obs.is_empty() && step.action.is_empty() && step.final_obs.is_empty());
         let validator = Validator {
@@ -1176,6 +1189,7 @@ mod tests {
             incarnation: 1,
             actor_id: 1,
             lease_id: 1,
+            secret: [0; 16],
         };
         let step = StepView {
             episode_id: 0,
@@ -1265,6 +1279,7 @@ mod tests {
                 incarnation: 1,
                 actor_id: 1,
                 lease_id: 1,
+                secret: [0; 16],
             };
             loop {
                 let step = StepView {

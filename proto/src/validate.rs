@@ -268,6 +268,26 @@ impl RefusalCounts {
         RefusalKind::ALL.iter().map(|k| self.get(*k)).sum()
     }
 
+    /// Adds `n` to the kind named `name` (a [`RefusalKind::name`]), e.g. counts restored from a
+    /// checkpoint. Returns whether the name is a kind.
+    pub fn add_named(&self, name: &str, n: u64) -> bool {
+        match RefusalKind::ALL.iter().find(|k| k.name() == name) {
+            Some(k) => {
+                self.counts[*k as usize].fetch_add(n, Ordering::Relaxed);
+                true
+            }
+            None => false,
+        }
+    }
+
+    /// The count of every kind by name.
+    pub fn by_name(&self) -> std::collections::BTreeMap<String, u64> {
+        RefusalKind::ALL
+            .iter()
+            .map(|k| (k.name().to_owned(), self.get(*k)))
+            .collect()
+    }
+
     /// `(name, count)` of every kind.
     pub fn snapshot(&self) -> Vec<(&'static str, u64)> {
         RefusalKind::ALL

@@ -184,6 +184,10 @@ pub struct RegistrySnapshot {
     expired_leases_total: u64,
     assignments_total: u64,
     episodes_reported_total: u64,
+    /// The most episodes issued to any forgotten rank: a rank registering later starts from
+    /// here, so its seeds never repeat those of a forgotten rank of the same number.
+    #[serde(default)]
+    episode_floor: u64,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -246,6 +250,8 @@ pub struct Registry {
     expired_leases_total: u64,
     assignments_total: u64,
     episodes_reported_total: u64,
+    /// See [`RegistrySnapshot::episode_floor`].
+    episode_floor: u64,
 }
 
 impl Registry {
@@ -264,6 +270,7 @@ impl Registry {
                 expired_leases_total: 0,
                 assignments_total: 0,
                 episodes_reported_total: 0,
+                episode_floor: 0,
             },
         )
     }
@@ -303,6 +310,7 @@ impl Registry {
             expired_leases_total: snapshot.expired_leases_total,
             assignments_total: snapshot.assignments_total,
             episodes_reported_total: snapshot.episodes_reported_total,
+            episode_floor: snapshot.episode_floor,
         })
     }
 
@@ -323,6 +331,7 @@ impl Registry {
             expired_leases_total: self.expired_leases_total,
             assignments_total: self.assignments_total,
             episodes_reported_total: self.episodes_reported_total,
+            episode_floor: self.episode_floor,
         }
     }
 
@@ -344,7 +353,8 @@ impl Registry {
         self.settle(now_ms);
         let id = self.next_actor_id;
         self.next_actor_id += 1;
-        let slot = self.ranks.entry(rank).or_insert((None, 0));
+        let floor = self.episode_floor;
+        let slot = self.ranks.entry(rank).or_insert((None, floor));
         if let Some(old) = slot.0.replace(id) {
             let record = self.actors.get_mut(&old).expect("a rank's actor is registered");
             record.liveness = Liveness::Retired;
@@ -519,6 +529,56 @@ impl Registry {
     pub fn tick(&mut self, now_ms: u64) -> Vec<Expired> {
         self.settle(now_ms);
         std::mem::take(&mut self.expired_queue)
+    }
+
+    /// Forgets ranks whose actor is dead and holds no lease (and ranks without an actor since a
+    /// restore, counted as last seen at time 0): those not seen for `after_ms` or more, and all
+    /// but the `keep` most recently seen. Their actor records go too (calls naming those ids
+    /// are then refused as unknown). Their episode counters fold into a floor that every rank
+    /// registering later starts from, so seeds never repeat. Returns the forgotten ranks with
+    /// their actor ids.
+    pub fn forget_dead_ranks(
+        &mut self,
+        now_ms: u64,
+        after_ms: u64,
+        keep: usize,
+    ) -> Vec<(u32, Option<ActorId>)> {
+        self.settle(now_ms);
+        let mut dead: Vec<(u64, u32, Option<ActorId>)> = self
+            .ranks
+            .iter()
+            .filter_map(|(&rank, &(id, _))| match id {
+                None => Some((0, rank, None)),
+                Some(id) => {
+                    let record = &self.actors[&id];
+                    (record.liveness == Liveness::Dead && record.lease.is_none()).then_some((
+                        record.last_seen_ms,
+                        rank,
+                        Some(id),
+                    ))
+                }
+            })
+            .collect();
+        if dead.len() <= keep && dead.iter().all(|d| now_ms.saturating_sub(d.0) < after_ms) {
+            return Vec::new();
+        }
+        // Most recently seen first.
+        dead.sort_by(|a, b| b.0.cmp(&a.0).then(a.1.cmp(&b.1)));
+        let mut forgotten = Vec::new();
+        for (i, (seen, rank, id)) in dead.into_iter().enumerate() {
+            if i < keep && now_ms.saturating_sub(seen) < after_ms {
+                continue;
+            }
+            let (_, issued) = self.ranks.remove(&rank).expect("listed above");
+            self.episode_floor = self.episode_floor.max(issued);
+            if let Some(id) = id {
+                self.actors.remove(&id);
+                self.turns.remove(&id);
+            }
+            forgotten.push((rank, id));
+        }
+        self.advance_if_done();
+        forgotten
     }
 
     /// The rank of actor `id` (also of a retired or dead one), if it ever registered here.
@@ -935,6 +995,46 @@ mod tests {
                 .map(|info| (info.id, info.pid))
                 .collect::<Vec<_>>(),
             [(other, 101), (new, 200)]
+        );
+    }
+
+    #[test]
+    fn dead_ranks_are_forgotten_and_their_seeds_never_repeat() {
+        let mut registry = registry(3, 1);
+        let first = registry.register(7, "h".into(), 1, 0);
+        let a = assign(&mut registry, first, 0);
+        for _ in 0..a.episodes {
+            registry.episode_done(first, a.lease_id, 1).unwrap();
+        }
+        registry.finish(first, a.lease_id, 1).unwrap();
+        for rank in 100..110 {
+            registry.register(rank, "h".into(), 1, 2);
+        }
+        // All silent, so dead after one TTL: keep the 4 most recently seen for now.
+        let now = 2 + TTL + 1;
+        let forgotten = registry.forget_dead_ranks(now, 10 * TTL, 4);
+        assert_eq!(forgotten.len(), 7, "{forgotten:?}");
+        assert!(
+            forgotten.contains(&(7, Some(first))),
+            "the least recently seen goes first"
+        );
+        assert_eq!(registry.snapshot().rank_episodes.len(), 4);
+        assert_eq!(
+            registry.next_assignment(first, now, 0),
+            Err(RegistryError::UnknownActor { actor: first })
+        );
+        // Past the time bound every dead rank goes.
+        assert_eq!(registry.forget_dead_ranks(now + 10 * TTL, 10 * TTL, 4).len(), 4);
+        assert!(registry.snapshot().rank_episodes.is_empty());
+        // Rank 7 again: its episode counter continues from the floor, so no seed repeats.
+        let later = now + 10 * TTL;
+        let again = registry.register(7, "h".into(), 1, later);
+        let b = assign(&mut registry, again, later);
+        assert!(
+            b.seeds.iter().all(|s| !a.seeds.contains(s)),
+            "{:?} {:?}",
+            a.seeds,
+            b.seeds
         );
     }
 

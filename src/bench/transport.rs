@@ -42,6 +42,7 @@ fn publish(
         incarnation: 1,
         actor_id: actor,
         lease_id: 1,
+        secret: [0; 16],
     };
     for k in 0..count {
         let step = StepView {

@@ -257,6 +257,13 @@ def test_lease_loss_and_refused_data(tmp_path):
                 sess.flush()
             assert (e.value.refused, e.value.sent) == (2, 2)
             assert "not finite" in e.value.reason, e.value.reason
+            # Without its own actor secret a request naming this actor is refused
+            # (UNAUTHENTICATED) and its lease is kept.
+            assert len(sess.secret) == 16
+            good, sess.secret = sess.secret, bytes(16)
+            with pytest.raises(_Reconnect, match="UNAUTHENTICATED"):
+                sess.next_assignment()
+            sess.secret = good
             # A request for an older incarnation is refused: the client re-registers.
             sess.run.incarnation ^= 1
             with pytest.raises(_Reconnect, match="FAILED_PRECONDITION"):
@@ -265,7 +272,7 @@ def test_lease_loss_and_refused_data(tmp_path):
             sess.close()
             conn.close()
         wait_for("refusals in status.json", lambda: (s := learner.status()) and refused(s, "not_finite") == 1
-                 and refused(s, "bad_shape") == 1)
+                 and refused(s, "bad_shape") == 1 and refused(s, "unauthenticated") >= 1)
         # A wrong token is a clear configuration error, not a retry loop.
         bad = tmp_path / "bad-token"
         bad.write_text("not-the-token\n")

@@ -58,6 +58,27 @@ pub struct ServiceConfig {
     pub ddp_init: bool,
     /// TLS for the gRPC server (`cert` and `key`; with `ca`, clients must present certificates).
     pub tls: Option<TlsFiles>,
+    /// Most connections (TCP and Unix socket together) served at once; further ones wait in
+    /// the kernel's backlog until one closes (logged when reached). The learner also lowers it
+    /// to what its open-file limit leaves after the files it needs for itself (checkpoints,
+    /// status). Default 1024.
+    pub max_connections: u32,
+    /// A connection that has not sent the HTTP/2 preface (or the start of its TLS handshake)
+    /// within this long (ms) is closed. Default 5000.
+    pub handshake_timeout_ms: u32,
+    /// Most `WatchPolicy` streams open at once over all actors (more are refused with
+    /// RESOURCE_EXHAUSTED). Every stream shares one encoded copy of the newest policy. Default
+    /// 1024.
+    pub max_policy_streams: u32,
+    /// Most `WatchPolicy` streams open at once per actor (an actor needs one). Default 2.
+    pub policy_streams_per_actor: u32,
+    /// Ranks whose actor has been dead (no heartbeat, no lease) for this long (ms) are
+    /// forgotten: their records leave `status.json` and checkpoints, their counters are
+    /// added to the aggregate of pruned ranks. Default 600000 (10 minutes).
+    pub rank_forget_ms: u64,
+    /// Most ranks whose actor is dead kept in `status.json` and checkpoints (the most
+    /// recently seen); older dead ones are forgotten before `rank_forget_ms`. Default 256.
+    pub dead_ranks_kept: u32,
 }
 
 impl ServiceConfig {
@@ -127,6 +148,12 @@ impl Default for ServiceConfig {
             status_every_s: 1.0,
             ddp_init: true,
             tls: None,
+            max_connections: 1024,
+            handshake_timeout_ms: 5000,
+            max_policy_streams: 1024,
+            policy_streams_per_actor: 2,
+            rank_forget_ms: 600_000,
+            dead_ranks_kept: 256,
         }
     }
 }

@@ -41,6 +41,20 @@ impl ControlService {
             })
     }
 
+    /// Refuses a request naming `actor_id` without that actor's credential (counting a wrong
+    /// credential).
+    fn check_secret(&self, actor_id: u64, secret: &[u8]) -> Result<(), Status> {
+        self.shared.authenticate(actor_id, secret).map_err(|why| {
+            // A wrong credential is counted; an id that is not (or no longer) registered is
+            // the ordinary answer to an actor whose learner restarted or retired it.
+            if matches!(why, Refusal::Unauthenticated(_)) {
+                let _actor = tracing::info_span!("actor", actor_id).entered();
+                self.shared.refuse(&why, 1);
+            }
+            refusal_status(&why)
+        })
+    }
+
     fn run_ref(&self) -> pb::RunRef {
         pb::RunRef {
             run_id: self.shared.validator.run_id.clone(),
@@ -82,11 +96,13 @@ impl Control for ControlService {
                 return Err(refusal_status(&why));
             }
         };
+        let secret = proto::auth::new_actor_secret()
+            .map_err(|e| Status::unavailable(format!("cannot make an actor secret: {e}")))?;
         let now = self.shared.now_ms();
         let actor_id = {
             let mut core = self.shared.lock();
             let id = core.registry.register(r.rank, r.host.clone(), r.pid, now);
-            core.registered(id, r.rank, kind);
+            core.registered(id, r.rank, kind, secret);
             id
         };
         tracing::info!(
@@ -101,6 +117,7 @@ impl Control for ControlService {
             actor_id,
             run: Some(self.run_ref()),
             spec: Some(self.shared.spec.clone()),
+            actor_secret: proto::Bytes::copy_from_slice(&secret),
         }))
     }
 
@@ -110,6 +127,7 @@ impl Control for ControlService {
     ) -> Result<Response<pb::AssignmentReply>, Status> {
         let r = request.into_inner();
         self.check_run(&r.run)?;
+        self.check_secret(r.actor_id, &r.actor_secret)?;
         let now = self.shared.now_ms();
         let mut core = self.shared.lock();
         let decision = if core.stopping {
@@ -164,6 +182,7 @@ impl Control for ControlService {
     ) -> Result<Response<pb::HeartbeatReply>, Status> {
         let r = request.into_inner();
         self.check_run(&r.run)?;
+        self.check_secret(r.actor_id, &r.actor_secret)?;
         let now = self.shared.now_ms();
         let mut core = self.shared.lock();
         let lease = (r.lease_id != 0).then_some(r.lease_id);

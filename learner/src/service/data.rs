@@ -15,11 +15,9 @@ use proto::plane::LeaseHeader;
 use proto::shm::{ShmConfig, ShmError, ShmStepSource};
 use proto::validate::Refusal;
 use proto::StepView;
-use tokio::sync::watch;
-use tokio_stream::{Stream, StreamExt};
+use tokio_stream::Stream;
 use tonic::{Request, Response, Status, Streaming};
 
-use super::control::refusal_status;
 use super::shared::{Plane, Shared};
 
 thread_local! {
@@ -36,10 +34,24 @@ fn ingest_batch(shared: &Shared, batch: &pb::StepBatch) -> (u64, u64, String) {
         shared.refuse(&why, n);
         return (0, n, why.to_string());
     }
+    // Who sends decides whether anything of the batch is looked at: a batch naming another
+    // actor (without its credential) is refused whole, before a record is decoded.
+    let secret = match shared.authenticate(batch.actor_id, &batch.actor_secret) {
+        Ok(()) => batch.actor_secret[..]
+            .try_into()
+            .expect("a matching secret has the credential's length"),
+        Err(why) => {
+            let _actor =
+                tracing::info_span!("actor", actor_id = batch.actor_id, lease = batch.lease_id).entered();
+            shared.refuse(&why, n);
+            return (0, n, why.to_string());
+        }
+    };
     let header = LeaseHeader {
         incarnation: run.incarnation,
         actor_id: batch.actor_id,
         lease_id: batch.lease_id,
+        secret,
     };
     let (mut accepted, mut refused, mut reason) = (0, 0, String::new());
     SCRATCH.with_borrow_mut(|scratch| {
@@ -47,10 +59,12 @@ fn ingest_batch(shared: &Shared, batch: &pb::StepBatch) -> (u64, u64, String) {
             let result = match decoded {
                 Ok(view) => shared.ingest(Plane::Grpc, &header, &view),
                 Err(ragged) => {
+                    // Like every other malformed step, it ends its lease.
                     let why = Refusal::from(ragged);
                     let _actor =
                         tracing::info_span!("actor", actor_id = header.actor_id, lease = header.lease_id)
                             .entered();
+                    shared.break_lease(&header, &why);
                     shared.refuse(&why, 1);
                     Err(why)
                 }
@@ -69,10 +83,10 @@ fn ingest_batch(shared: &Shared, batch: &pb::StepBatch) -> (u64, u64, String) {
     (accepted, refused, reason)
 }
 
-/// The `adp.v1.Data` service.
+/// The `adp.v1.Data` service's `PushSteps` (`WatchPolicy` is answered by
+/// [`super::policy_streams::DataRoutes`] before a request reaches this service).
 pub struct DataService {
     pub(super) shared: Arc<Shared>,
-    pub(super) policy: watch::Receiver<Arc<pb::PolicySnapshot>>,
 }
 
 type PolicyStream = Pin<Box<dyn Stream<Item = Result<pb::PolicySnapshot, Status>> + Send>>;
@@ -103,21 +117,11 @@ impl Data for DataService {
 
     async fn watch_policy(
         &self,
-        request: Request<pb::PolicyRequest>,
+        _request: Request<pb::PolicyRequest>,
     ) -> Result<Response<PolicyStream>, Status> {
-        let r = request.into_inner();
-        let run = r.run.unwrap_or_default();
-        if let Err(why) = self.shared.validator.check_run(&run.run_id, run.incarnation) {
-            self.shared.refuse(&why, 1);
-            return Err(refusal_status(&why));
-        }
-        let have = r.have_version;
-        // The channel starts with an empty placeholder until the first policy is published:
-        // never send it (an actor would take it for a policy without weights).
-        let stream = tokio_stream::wrappers::WatchStream::new(self.policy.clone())
-            .filter(move |p| !p.weights.is_empty() && (p.version > have || have == 0))
-            .map(|p| Ok(pb::PolicySnapshot::clone(&p)));
-        Ok(Response::new(Box::pin(stream)))
+        Err(Status::internal(
+            "WatchPolicy is served by the learner's policy streams, not here",
+        ))
     }
 }
 

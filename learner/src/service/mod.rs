@@ -11,7 +11,10 @@ mod config;
 mod control;
 mod data;
 mod error;
+mod listen;
+mod policy_streams;
 pub mod shared;
+mod size_status;
 pub mod status;
 mod trainer;
 
@@ -487,24 +490,40 @@ impl ControlPlane {
                 .map_err(ServiceError::Tls)?;
         }
         let control = tonic::service::interceptor::InterceptedService::new(
-            pb::control_server::ControlServer::new(control::ControlService {
-                shared: shared.clone(),
-                operator,
-            })
-            .max_decoding_message_size(proto::grpc::MAX_CONTROL_REQUEST_BYTES),
+            // Oversized requests are refused with RESOURCE_EXHAUSTED.
+            size_status::SizeStatus(
+                pb::control_server::ControlServer::new(control::ControlService {
+                    shared: shared.clone(),
+                    operator,
+                })
+                .max_decoding_message_size(proto::grpc::MAX_CONTROL_REQUEST_BYTES),
+            ),
             auth.clone(),
         );
         let policy = policy_rx.clone();
         let data = tonic::service::interceptor::InterceptedService::new(
-            pb::data_server::DataServer::new(data::DataService {
-                shared: shared.clone(),
-                policy: policy_rx,
-            })
-            // Requests are step batches (bounded); replies carry policy snapshots.
-            .max_decoding_message_size(proto::grpc::MAX_REQUEST_BYTES)
-            .max_encoding_message_size(proto::grpc::MAX_MESSAGE_BYTES),
+            size_status::SizeStatus(policy_streams::DataRoutes {
+                // Requests are step batches (bounded).
+                inner: pb::data_server::DataServer::new(data::DataService {
+                    shared: shared.clone(),
+                })
+                .max_decoding_message_size(proto::grpc::MAX_REQUEST_BYTES),
+                streams: Arc::new(policy_streams::PolicyStreams::new(
+                    shared.clone(),
+                    policy_rx,
+                    svc.max_policy_streams,
+                    svc.policy_streams_per_actor,
+                )),
+            }),
             auth,
         );
+        // One cap over both servers, fitted to the open-file limit so that connections can
+        // never take the descriptors a checkpoint needs.
+        let limits = listen::ConnectionLimits::new(
+            listen::fit_connections_to_fd_limit(svc.max_connections as usize),
+            Duration::from_millis(u64::from(svc.handshake_timeout_ms)),
+        );
+        let _in_runtime = runtime.enter();
         let (server_stop, stop_rx) = watch::channel(false);
         let stopped = |mut rx: watch::Receiver<bool>| async move {
             let _ = rx.wait_for(|s| *s).await;
@@ -521,7 +540,7 @@ impl ControlPlane {
                         .add_service(control.clone())
                         .add_service(data.clone())
                         .serve_with_incoming_shutdown(
-                            tokio_stream::wrappers::UnixListenerStream::new(unix),
+                            listen::incoming(unix, limits.clone(), "unix"),
                             stopped(stop_rx.clone()),
                         ),
                 ),
@@ -532,10 +551,9 @@ impl ControlPlane {
             }
         };
         let router = builder.add_service(control).add_service(data);
-        let server = runtime.spawn(router.serve_with_incoming_shutdown(
-            tokio_stream::wrappers::TcpListenerStream::new(listener),
-            stopped(stop_rx),
-        ));
+        let server = runtime.spawn(
+            router.serve_with_incoming_shutdown(listen::incoming(listener, limits, "tcp"), stopped(stop_rx)),
+        );
         write_atomic(&run_dir.join(ADDR_FILE), &format!("{addr}\n"))?;
 
         // Lease expiry.
@@ -661,6 +679,24 @@ impl Learner {
             svc.progress_timeout(),
         );
         shared.resume_warnings = resume_warnings;
+        shared.rank_forget_ms = svc.rank_forget_ms;
+        shared.dead_ranks_kept = svc.dead_ranks_kept as usize;
+        shared.max_episode_steps = match toml::from_str::<actor::EnvConfig>(&opts.env_toml) {
+            Ok(env) => env.max_agent_steps,
+            Err(e) => {
+                tracing::warn!("the environment settings do not parse ({e}); episode lengths are not capped");
+                u32::MAX
+            }
+        };
+        // Refusal counters continue across a resume like every other counter.
+        let restored = std::mem::take(&mut shared.core.get_mut().expect("core lock").totals.refusals);
+        for (name, n) in restored {
+            if !shared.refusals.add_named(&name, n) {
+                tracing::warn!(
+                    "the checkpoint counts refusals of an unknown kind `{name}` ({n}); not restored"
+                );
+            }
+        }
         shared.resumed_from = resumed_from;
         *shared.shm_unavailable.get_mut().expect("shm note lock") = planes.shm_unavailable;
         let shared = Arc::new(shared);

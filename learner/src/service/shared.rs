@@ -13,7 +13,7 @@ use std::sync::{Arc, Condvar, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
 use proto::checksum::step_checksum;
-use proto::plane::LeaseHeader;
+use proto::plane::{ActorSecret, LeaseHeader};
 use proto::validate::{Refusal, RefusalCounts, Validator};
 use proto::{pb, StepView};
 use scheduler::{Registry, RegistryError};
@@ -130,6 +130,24 @@ pub struct Totals {
     /// Counters per actor kind (`rust`, `python`, `unknown`, ...).
     #[serde(default)]
     pub kinds: BTreeMap<String, KindTotals>,
+    /// Refused records by reason (`RefusalKind` names), as of the checkpoint; a resumed
+    /// learner continues counting from them.
+    #[serde(default)]
+    pub refusals: BTreeMap<String, u64>,
+    /// The ranks forgotten so far (dead, see `[service] rank_forget_ms`), in aggregate.
+    #[serde(default)]
+    pub pruned_ranks: PrunedRanks,
+}
+
+/// Counters of forgotten ranks, in aggregate (checkpointed with [`Totals`]).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct PrunedRanks {
+    /// Ranks forgotten.
+    pub ranks: u64,
+    /// Their step records stored (their entries left [`Totals::rank_steps`]).
+    pub steps: u64,
+    /// Their registrations in the learner processes that forgot them.
+    pub registrations: u64,
 }
 
 impl Totals {
@@ -167,6 +185,9 @@ pub struct Core {
     dropped: VecDeque<(u64, String)>,
     /// The kind of every actor registered with this learner process, by actor id.
     actor_kinds: HashMap<u64, String>,
+    /// The credential of every current registration, by actor id (a retired or forgotten id
+    /// has none: requests naming it are refused).
+    secrets: HashMap<u64, ActorSecret>,
     /// Counters per rank over this learner process.
     ranks: BTreeMap<u32, RankStatus>,
     /// Leases that expired in this learner process, oldest first (bounded by
@@ -201,6 +222,15 @@ pub struct Shared {
     pub progress_timeout_ms: u64,
     /// Checkpoints a resume skipped and why (shown in `status.json`).
     pub resume_warnings: Vec<String>,
+    /// Ranks whose actor has been dead this long (ms) are forgotten (`[service]
+    /// rank_forget_ms`; never until the learner sets it).
+    pub rank_forget_ms: u64,
+    /// Most dead ranks remembered (`[service] dead_ranks_kept`; no bound until the learner
+    /// sets it).
+    pub dead_ranks_kept: usize,
+    /// The longest episode actors make (`max_agent_steps` of the environment settings): a step
+    /// with a higher index is refused. `u32::MAX` (no cap) until the learner sets it.
+    pub max_episode_steps: u32,
     /// Why the shared-memory data plane is not in use, when it was offered but failed.
     pub shm_unavailable: Mutex<Option<String>>,
     started: Instant,
@@ -257,6 +287,9 @@ impl Shared {
             idle_retry_ms,
             progress_timeout_ms,
             resume_warnings: Vec::new(),
+            max_episode_steps: u32::MAX,
+            rank_forget_ms: u64::MAX,
+            dead_ranks_kept: usize::MAX,
             shm_unavailable: Mutex::new(None),
             started: Instant::now(),
             finished: AtomicBool::new(false),
@@ -351,12 +384,14 @@ impl Shared {
             });
         }
         if let Err(why) = self.validator.check_step(step) {
-            // The episode can never complete: end its lease (the actor is told).
+            // The episode can never complete: end its lease (the actor is told), unless the
+            // sender is not the lease's actor.
             let now = self.now_ms();
             self.lock().break_lease(header, &why, now);
             return Err(why);
         }
         let mut core = self.lock();
+        core.check_secret(header.actor_id, &header.secret)?;
         // Hold inserts back while the learner lags, but only while an update can run: with
         // nothing ready to sample no update can make room, and waiting would deadlock.
         while core.rate.inserts_allowed() == 0 && core.replay.ready_len() > 0 && !core.abort {
@@ -367,6 +402,17 @@ impl Shared {
                 .0;
         }
         let now = self.now_ms();
+        if step.step_index >= self.max_episode_steps {
+            let why = Refusal::Episode(
+                step.episode_id,
+                format!(
+                    "step {} beyond the episode cap of {} agent steps (max_agent_steps)",
+                    step.step_index, self.max_episode_steps
+                ),
+            );
+            core.break_lease(header, &why, now);
+            return Err(why);
+        }
         let ended = core.store(plane, header, step, now)?;
         if core.rate.inserts() >= self.budget {
             core.stopping = true;
@@ -400,6 +446,19 @@ impl Shared {
         first
     }
 
+    /// Refuses a request naming `actor_id` that does not carry that actor's credential
+    /// (see [`Core::check_secret`]).
+    pub fn authenticate(&self, actor_id: u64, secret: &[u8]) -> Result<(), Refusal> {
+        self.lock().check_secret(actor_id, secret)
+    }
+
+    /// Marks the lease of a step that could not be decoded as broken (see
+    /// [`Core::break_lease`]): every malformed step ends its lease.
+    pub fn break_lease(&self, header: &LeaseHeader, why: &Refusal) {
+        let now = self.now_ms();
+        self.lock().break_lease(header, why, now);
+    }
+
     /// Handles an episode report: statistics, verification against the received steps, and the
     /// end of the lease once all its episodes are reported and complete.
     pub fn report(&self, r: &pb::EpisodeReport) -> Result<(), Refusal> {
@@ -407,6 +466,7 @@ impl Shared {
         self.validator.check_run(&run.run_id, run.incarnation)?;
         let now = self.now_ms();
         let mut core = self.lock();
+        core.check_secret(r.actor_id, &r.actor_secret)?;
         core.registry
             .check_lease(r.actor_id, r.lease_id, now)
             .map_err(lease_refusal)?;
@@ -519,6 +579,12 @@ impl Shared {
             }
             core.drop_lease(id);
         }
+        let forgotten = core
+            .registry
+            .forget_dead_ranks(now, self.rank_forget_ms, self.dead_ranks_kept);
+        for (rank, actor) in forgotten {
+            core.forget_rank(rank, actor);
+        }
         for expired in core.registry.tick(now) {
             if revoked.contains(&expired.lease_id) {
                 continue;
@@ -568,6 +634,7 @@ impl Core {
             leases: HashMap::new(),
             dropped: VecDeque::new(),
             actor_kinds: HashMap::new(),
+            secrets: HashMap::new(),
             ranks: BTreeMap::new(),
             expired_recent: VecDeque::new(),
             stopping: false,
@@ -686,12 +753,14 @@ impl Core {
     }
 
     /// Marks the open lease of a refused step as broken (dropped by the next lease tick), if
-    /// the step was sent by the lease's actor under a currently valid lease.
+    /// the step was sent by the lease's actor (with its credential) under a currently valid
+    /// lease.
     fn break_lease(&mut self, header: &LeaseHeader, why: &Refusal, now: u64) {
-        if self
-            .registry
-            .check_lease(header.actor_id, header.lease_id, now)
-            .is_err()
+        if self.check_secret(header.actor_id, &header.secret).is_err()
+            || self
+                .registry
+                .check_lease(header.actor_id, header.lease_id, now)
+                .is_err()
         {
             return;
         }
@@ -702,8 +771,33 @@ impl Core {
         }
     }
 
-    /// Records a registration of `actor` of `rank` as `kind`.
-    pub fn registered(&mut self, actor: u64, rank: u32, kind: &str) {
+    /// Refuses a request naming `actor` whose `secret` is not the credential of that
+    /// registration (compared in constant time): [`Refusal::Unauthenticated`] for a wrong
+    /// secret, [`Refusal::UnknownActor`] for an id without one (retired, forgotten or never
+    /// registered here).
+    pub fn check_secret(&self, actor: u64, secret: &[u8]) -> Result<(), Refusal> {
+        match self.secrets.get(&actor) {
+            Some(expected) if proto::auth::secret_matches(expected, secret) => Ok(()),
+            Some(_) => Err(Refusal::Unauthenticated(format!(
+                "the actor secret does not match actor {actor} (each registration gets its own; \
+                 send RegisterReply.actor_secret)"
+            ))),
+            None if self.registry.rank_of(actor).is_some() => Err(Refusal::UnknownActor(
+                actor,
+                "retired (its rank registered again)".into(),
+            )),
+            None => Err(Refusal::UnknownActor(actor, "not registered".into())),
+        }
+    }
+
+    /// Records a registration of `actor` of `rank` as `kind` with credential `secret`; the
+    /// rank's previous registration (retired by the registry) loses its credential.
+    pub fn registered(&mut self, actor: u64, rank: u32, kind: &str, secret: ActorSecret) {
+        if let Some(previous) = self.ranks.get(&rank).and_then(|r| r.actor_ids.last()) {
+            self.secrets.remove(previous);
+            self.actor_kinds.remove(previous);
+        }
+        self.secrets.insert(actor, secret);
         self.actor_kinds.insert(actor, kind.to_owned());
         self.totals.kinds.entry(kind.to_owned()).or_default().registered += 1;
         let r = self.rank_entry(rank);
@@ -712,6 +806,22 @@ impl Core {
         if r.actor_ids.len() > RANK_IDS_REMEMBERED {
             r.actor_ids.remove(0);
         }
+    }
+
+    /// Forgets the records of `rank` (and of its last actor), which the registry forgot:
+    /// its counters go into [`Totals::pruned_ranks`].
+    fn forget_rank(&mut self, rank: u32, actor: Option<u64>) {
+        let pruned = &mut self.totals.pruned_ranks;
+        pruned.ranks += 1;
+        pruned.steps += self.totals.rank_steps.remove(&rank).unwrap_or(0);
+        if let Some(r) = self.ranks.remove(&rank) {
+            pruned.registrations += r.registrations;
+        }
+        if let Some(id) = actor {
+            self.secrets.remove(&id);
+            self.actor_kinds.remove(&id);
+        }
+        tracing::debug!(rank, actor_id = actor, "forgot a dead rank");
     }
 
     fn rank_entry(&mut self, rank: u32) -> &mut RankStatus {
@@ -908,7 +1018,7 @@ mod tests {
         let now = shared.now_ms();
         let mut core = shared.lock();
         let actor = core.registry.register(0, "host".into(), 1, now);
-        core.registered(actor, 0, "rust");
+        core.registered(actor, 0, "rust", SECRET);
         let Decision::Assign(a) = core.registry.next_assignment(actor, now, 0).unwrap() else {
             panic!("no assignment");
         };
@@ -920,6 +1030,7 @@ mod tests {
                 incarnation: 9,
                 actor_id: actor,
                 lease_id: a.lease_id,
+                secret: SECRET,
             },
             first,
         }
@@ -935,6 +1046,9 @@ mod tests {
             ..Td3Config::default()
         }
     }
+
+    /// The fixture actor's credential.
+    const SECRET: ActorSecret = [7; 16];
 
     const OBS: [f32; 3] = [0.1, 0.2, 0.3];
     const ACTION: [f32; 1] = [0.5];
@@ -961,6 +1075,7 @@ mod tests {
             }),
             actor_id: f.header.actor_id,
             lease_id: f.header.lease_id,
+            actor_secret: proto::Bytes::copy_from_slice(&SECRET),
             episode_id: f.first,
             episode_return,
             score: 0.1,

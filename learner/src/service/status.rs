@@ -7,7 +7,7 @@ use serde::{Deserialize, Serialize};
 
 use super::ServiceError;
 
-use super::shared::{Core, Shared};
+use super::shared::{Core, PrunedRanks, Shared};
 
 /// Name of the status file in the run directory.
 pub const STATUS_FILE: &str = "status.json";
@@ -165,6 +165,11 @@ pub struct Status {
     /// The checkpoint this learner resumed from (`None` for a fresh run).
     #[serde(default)]
     pub resumed_from: Option<ResumeStatus>,
+    /// Ranks forgotten over the run (dead for `[service] rank_forget_ms`, or beyond
+    /// `dead_ranks_kept`), in aggregate: they are no longer in [`Status::ranks`] or
+    /// [`Status::rank_steps`].
+    #[serde(default)]
+    pub pruned_ranks: PrunedRanks,
 }
 
 impl Status {
@@ -233,6 +238,7 @@ impl Status {
             leases_expired_recent: core.expired_recent().copied().collect(),
             refused_leases: shared.refused_leases(),
             resumed_from: shared.resumed_from.clone(),
+            pruned_ranks: t.pruned_ranks,
         }
     }
 

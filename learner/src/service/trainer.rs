@@ -14,7 +14,7 @@ use proto::shm::{ShmConfig, ShmPolicyPublisher};
 use rand_pcg::Pcg64Mcg;
 use tokio::sync::watch;
 
-use super::shared::Shared;
+use super::shared::{Shared, Totals};
 use super::status::{write_status, Status};
 use super::{ServiceConfig, ServiceError};
 use crate::batch::Batch;
@@ -193,7 +193,7 @@ impl Trainer {
                 }
             }
         }
-        let checkpoint = self.checkpoint()?;
+        let checkpoint = self.final_checkpoint()?;
         let (inserts, updates) = {
             let core = self.shared.lock();
             (core.rate.inserts(), core.rate.updates())
@@ -260,6 +260,26 @@ impl Trainer {
         let _ = self.tensorboard.flush();
     }
 
+    /// The last checkpoint of the run: retried (up to [`FINAL_CHECKPOINT_TRIES`] times, a
+    /// second apart) when it cannot be written for a reason that may pass (the open-file limit
+    /// reached, a full disk being cleaned up), each failure reported. A failed attempt leaves
+    /// only a `.tmp-` directory, which never counts as a checkpoint, so the previous complete
+    /// checkpoint stays the one a resume uses.
+    fn final_checkpoint(&mut self) -> Result<PathBuf, ServiceError> {
+        let mut attempt = 1;
+        loop {
+            match self.checkpoint() {
+                Ok(dir) => return Ok(dir),
+                Err(e) if attempt < FINAL_CHECKPOINT_TRIES => {
+                    tracing::error!(attempt, "final checkpoint failed ({e}); retrying in 1 s");
+                    attempt += 1;
+                    std::thread::sleep(Duration::from_secs(1));
+                }
+                Err(e) => return Err(e),
+            }
+        }
+    }
+
     /// Writes a checkpoint of the whole run (networks, optimizers, RNGs, rate limiter, registry,
     /// counters, and the replay buffer when configured) and prunes old ones.
     ///
@@ -283,7 +303,10 @@ impl Trainer {
                 policy_version: core.policy_version,
                 extra: serde_json::json!({
                     "registry": core.registry.snapshot(),
-                    "totals": core.totals,
+                    "totals": Totals {
+                        refusals: self.shared.refusals.by_name(),
+                        ..core.totals.clone()
+                    },
                 }),
                 environment: self.environment.clone(),
             };
@@ -322,6 +345,10 @@ impl Trainer {
         Ok(dir)
     }
 }
+
+/// Attempts at the final checkpoint before the learner gives up (see
+/// `Trainer::final_checkpoint`).
+const FINAL_CHECKPOINT_TRIES: u32 = 5;
 
 /// Test hook: with `ADP_TEST_SHM_POLICY_SILENT=1` the shared-memory policy publisher is opened
 /// but never publishes, to stand in for a shared-memory policy that never reaches the actors.

@@ -197,6 +197,12 @@ class Session:
             env_toml=s.env_toml,
         )
         self.actor_id = reply.actor_id
+        # This registration's credential: every request naming actor_id carries it.
+        self.secret = bytes(reply.actor_secret)
+        if len(self.secret) != 16:
+            # A learner older than per-actor credentials (this client speaks the current contract).
+            raise ConfigError(f"register: the learner sent a {len(self.secret)}-byte actor secret, not 16 "
+                              "(a learner older than this client?)")
         self._lock = threading.Lock()
         self.lease = 0
         self.lease_lost = threading.Event()
@@ -225,7 +231,8 @@ class Session:
             try:
                 r = self.conn.call(
                     self.conn.control.Heartbeat,
-                    pb.HeartbeatRequest(run=self.run, actor_id=self.actor_id, lease_id=lease),
+                    pb.HeartbeatRequest(run=self.run, actor_id=self.actor_id, lease_id=lease,
+                                        actor_secret=self.secret),
                     timeout=max(every, 1.0),
                 )
             except grpc.RpcError as e:
@@ -252,7 +259,8 @@ class Session:
         have = 0
         while not self._stop.is_set():
             try:
-                self._watch_call = self.conn.watch(pb.PolicyRequest(run=self.run, actor_id=self.actor_id, have_version=have))
+                self._watch_call = self.conn.watch(pb.PolicyRequest(run=self.run, actor_id=self.actor_id, have_version=have,
+                                                                   actor_secret=self.secret))
                 for snap in self._watch_call:
                     net = MlpPolicy(self.info.policy_dims, snap.weights)
                     with self._policy_cv:
@@ -280,7 +288,7 @@ class Session:
         try:
             r = self.conn.call(
                 self.conn.control.NextAssignment,
-                pb.AssignmentRequest(run=self.run, actor_id=self.actor_id),
+                pb.AssignmentRequest(run=self.run, actor_id=self.actor_id, actor_secret=self.secret),
                 timeout=30.0,
             )
         except grpc.RpcError as e:
@@ -322,7 +330,8 @@ class Session:
         `_Reconnect` when the call fails."""
         if not self._batch:
             return
-        batch = pb.StepBatch(run=self.run, actor_id=self.actor_id, lease_id=self._batch_lease, steps=self._batch)
+        batch = pb.StepBatch(run=self.run, actor_id=self.actor_id, lease_id=self._batch_lease, steps=self._batch,
+                             actor_secret=self.secret)
         n = len(self._batch)
         self._batch = []
         try:
@@ -336,6 +345,7 @@ class Session:
         """Reports an episode; False when its lease expired meanwhile (NOT_FOUND)."""
         report.run.CopyFrom(self.run)
         report.actor_id = self.actor_id
+        report.actor_secret = self.secret
         try:
             self.conn.call(self.conn.control.ReportEpisode, report, timeout=30.0)
         except grpc.RpcError as e:
