@@ -257,16 +257,21 @@ impl Dwa {
             self.order.extend(0..(nv * nw) as u32);
         }
         self.trace.cycle.samples = self.order.len() as u32;
+        // Counted in locals, written back after the loop (the hot loop stays in registers).
+        let mut work = self.trace.cycle.work;
+        let mut started = 0u32;
         for &cell in &self.order {
-            let spent = Work {
-                points: self.trace.evaluated - points_at_start,
-                ..self.trace.cycle.work
-            };
-            if !budget.admits(&spent) {
-                break;
+            if budget.is_limited() {
+                let spent = Work {
+                    points: self.trace.evaluated - points_at_start,
+                    ..work
+                };
+                if !budget.admits(&spent) {
+                    break;
+                }
             }
-            self.trace.cycle.work.samples += 1;
-            self.trace.cycle.evaluated += 1;
+            work.samples += 1;
+            started += 1;
             let (i, j) = (cell as usize / nw, cell as usize % nw);
             {
                 let (mut x, mut y, mut s0, mut c0) = (0.0, 0.0, 0.0, 1.0);
@@ -284,7 +289,7 @@ impl Dwa {
                     self.trace.rollouts.begin();
                 }
                 for k in 0..steps {
-                    self.trace.cycle.work.steps += 1;
+                    work.steps += 1;
                     let v = self.v_prof[i * steps + k];
                     let (w, s1, c1) = self.w_prof[j * steps + k];
                     let dt = sched.dts()[k];
@@ -358,6 +363,8 @@ impl Dwa {
                 });
             }
         }
+        self.trace.cycle.work = work;
+        self.trace.cycle.evaluated = started;
         if self.cost.is_empty() {
             // Nothing is safe: stop and turn toward the local goal.
             let bearing = per.local_goal.y.atan2(per.local_goal.x);

@@ -305,6 +305,7 @@ fn transport(records: usize) -> anyhow::Result<Vec<Figure>> {
 fn collect_steps(
     net: &MlpPolicy,
     cfg: &TrainConfig,
+    env: actor::EnvConfig,
     worlds: &[usize],
     thread: usize,
     steps: u64,
@@ -326,7 +327,7 @@ fn collect_steps(
             kind.build(&eval, seed),
             space,
             cfg.run.max_speed,
-            cfg.env,
+            env,
             seed,
         )?;
         let mut exploration = Exploration::new(0.2, seed);
@@ -354,15 +355,23 @@ fn collect(steps: u64) -> anyhow::Result<Vec<Figure>> {
     let net = MlpPolicy::from_flat(&dims, weights)?;
     let steps = steps.max(10);
     let t = Instant::now();
-    let one = collect_steps(&net, &cfg, &worlds, 0, steps)?;
+    let one = collect_steps(&net, &cfg, cfg.env, &worlds, 0, steps)?;
     let single = one as f64 / t.elapsed().as_secs_f64();
+    // The same steps without the compute model: what counting and budgeting cost.
+    let free = actor::EnvConfig {
+        compute: planner::ComputeConfig::FREE,
+        ..cfg.env
+    };
+    let t = Instant::now();
+    let one_free = collect_steps(&net, &cfg, free, &worlds, 0, steps)?;
+    let single_free = one_free as f64 / t.elapsed().as_secs_f64();
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
     let t = Instant::now();
     let total: u64 = std::thread::scope(|s| {
         let handles: Vec<_> = (0..cores)
             .map(|i| {
                 let (net, cfg, worlds) = (&net, &cfg, &worlds);
-                s.spawn(move || collect_steps(net, cfg, worlds, i + 1, steps))
+                s.spawn(move || collect_steps(net, cfg, cfg.env, worlds, i + 1, steps))
             })
             .collect();
         handles
@@ -381,7 +390,20 @@ fn collect(steps: u64) -> anyhow::Result<Vec<Figure>> {
             single,
             "1/s",
         )
-        .at_least(400.0),
+        .at_least(1000.0),
+        figure(
+            "collection, agent steps/s on one core, compute model free",
+            single_free,
+            "1/s",
+        ),
+        figure(
+            format!(
+                "collection with the compute model ({}) / free (the episodes differ: latency)",
+                crate::eval::compute_label(&cfg.env.compute)
+            ),
+            single / single_free,
+            "x",
+        ),
         figure(
             format!("collection, agent steps/s on {cores} threads"),
             all,
@@ -491,6 +513,6 @@ mod tests {
         let net = MlpPolicy::from_flat(&dims, vec![0.0; actor::policy::param_count(&dims)]).unwrap();
         let worlds = cfg.worlds().unwrap();
         // 250 steps cannot fit in one episode (capped at 200 agent steps).
-        assert_eq!(collect_steps(&net, &cfg, &worlds, 0, 250).unwrap(), 250);
+        assert_eq!(collect_steps(&net, &cfg, cfg.env, &worlds, 0, 250).unwrap(), 250);
     }
 }
