@@ -444,6 +444,18 @@ pub fn admit(
     c
 }
 
+/// Writes into `out` the order in which a planner evaluates its `n` samples under `budget`:
+/// [`even_order`] when the budget can stop the cycle, the planner's own order `0..n` (so an
+/// unlimited cycle computes exactly what it did before the model) otherwise.
+pub fn evaluation_order(budget: &Budget, n: usize, out: &mut Vec<u32>) {
+    if budget.is_limited() {
+        even_order(n, out);
+    } else {
+        out.clear();
+        out.extend(0..n as u32);
+    }
+}
+
 fn gcd(mut a: usize, mut b: usize) -> usize {
     while b != 0 {
         (a, b) = (b, a % b);

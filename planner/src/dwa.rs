@@ -14,7 +14,7 @@ use serde::{Deserialize, Serialize};
 use sim::geometry::{Pose, Vec2};
 use sim::robot::{approach, Twist};
 
-use crate::compute::{even_order, Work};
+use crate::compute::{evaluation_order, Work};
 use crate::local_map::LocalMap;
 use crate::recovery::{Recovery, RecoveryConfig};
 use crate::{Integrator, PlanInput, Planner, Trace};
@@ -100,7 +100,7 @@ pub struct Dwa {
     /// margin may still move away instead of being stuck).
     margins: Vec<f64>,
     /// Grid cells (`i * w_samples + j`) in evaluation order: the grid's own order, or
-    /// [`even_order`] when a compute budget may stop the cycle early.
+    /// [`crate::compute::even_order`] when a compute budget may stop the cycle early.
     order: Vec<u32>,
     recovery: Recovery,
     trace: Trace,
@@ -250,12 +250,7 @@ impl Dwa {
         self.trace.rollouts.clear(sched.dts());
         self.cost.clear();
         let budget = input.budget;
-        if budget.is_limited() {
-            even_order(nv * nw, &mut self.order);
-        } else {
-            self.order.clear();
-            self.order.extend(0..(nv * nw) as u32);
-        }
+        evaluation_order(&budget, nv * nw, &mut self.order);
         self.trace.cycle.samples = self.order.len() as u32;
         // Counted in locals, written back after the loop (the hot loop stays in registers).
         let mut work = self.trace.cycle.work;

@@ -23,7 +23,7 @@ use serde::{Deserialize, Serialize};
 use sim::geometry::{wrap_angle, Footprint, Pose, Vec2};
 use sim::robot::Twist;
 
-use crate::compute::{admit, even_order, Work};
+use crate::compute::{admit, evaluation_order, Work};
 use crate::local_map::LocalMap;
 use crate::mppi::{mppi_weights, roll_all, Nominal, Unicycle};
 use crate::{Integrator, PlanInput, Planner, Rollouts, Trace};
@@ -173,7 +173,7 @@ pub struct LogMppi {
     costs: Vec<f64>,
     weights: Vec<f64>,
     times: Vec<f64>,
-    /// Samples in evaluation order under a compute budget ([`even_order`]).
+    /// Samples in evaluation order under a compute budget ([`crate::compute::even_order`]).
     eval_order: Vec<u32>,
     /// Whether the budget let each sample be evaluated.
     admitted: Vec<bool>,
@@ -391,12 +391,7 @@ impl Planner for LogMppi {
         // What the compute budget admits: every sample drew two NLN factors (two normals
         // each) per step, but the noise-free nominal; each rolls out every step.
         let n = self.outcomes.len();
-        if input.budget.is_limited() {
-            even_order(n, &mut self.eval_order);
-        } else {
-            self.eval_order.clear();
-            self.eval_order.extend(0..n as u32);
-        }
+        evaluation_order(&input.budget, n, &mut self.eval_order);
         self.admitted.resize(n, false);
         let outcomes = &self.outcomes;
         let work_of = |i: usize| Work {

@@ -30,7 +30,7 @@ use serde::{Deserialize, Serialize};
 use sim::geometry::{wrap_angle, Pose, Vec2};
 use sim::robot::{approach, Twist};
 
-use crate::compute::{admit, even_order, Work};
+use crate::compute::{admit, evaluation_order, Work};
 use crate::dwa::distance_to_path;
 use crate::local_map::LocalMap;
 use crate::{Integrator, PlanInput, Planner, Rollouts, Trace};
@@ -133,7 +133,7 @@ pub struct Mppi {
     /// Collision threshold per check density (see [`MppiConfig::margin`]).
     margins: Vec<f64>,
     order: Vec<usize>,
-    /// Samples in evaluation order under a compute budget ([`even_order`]).
+    /// Samples in evaluation order under a compute budget ([`crate::compute::even_order`]).
     eval_order: Vec<u32>,
     /// Whether the budget let each sample be evaluated.
     admitted: Vec<bool>,
@@ -273,12 +273,7 @@ impl Mppi {
         let cfg = &self.cfg;
         let n_brake = (cfg.brake_fraction * n as f64).round() as usize;
         let n_explore = (cfg.explore_fraction * n as f64).round() as usize;
-        if input.budget.is_limited() {
-            even_order(n, &mut self.eval_order);
-        } else {
-            self.eval_order.clear();
-            self.eval_order.extend(0..n as u32);
-        }
+        evaluation_order(&input.budget, n, &mut self.eval_order);
         self.admitted.resize(n, false);
         let spent = Work {
             cells: self.map.cells() as u64,

@@ -557,11 +557,7 @@ fn run_stage(ctx: &Ctx<'_>, stage: &Stage, out: &Path) -> anyhow::Result<()> {
                 SweepWho::Adp { seed } => {
                     let dir = ctx.layout.run_dir(a, seed).join("export");
                     let p = load_policy(&dir, a.space)?;
-                    let ctrl = Controller::Policy {
-                        net: &p.net,
-                        env: p.env,
-                        space: p.space,
-                    };
+                    let ctrl = Controller::of(&p);
                     (
                         "adp",
                         evaluate(&spec, &ctrl)?,
@@ -597,11 +593,7 @@ fn run_stage(ctx: &Ctx<'_>, stage: &Stage, out: &Path) -> anyhow::Result<()> {
                 write_untrained_export(&ex.train_config(a, 0), a.space, &dir)?;
             }
             let p = load_policy(&dir, a.space)?;
-            let ctrl = Controller::Policy {
-                net: &p.net,
-                env: p.env,
-                space: p.space,
-            };
+            let ctrl = Controller::of(&p);
             let mut rec = record(ctx, a, "untrained", evaluate(&test_spec(ctx, a, false), &ctrl)?);
             rec.policy = Some(dir.display().to_string());
             rec.save(out)
@@ -610,11 +602,7 @@ fn run_stage(ctx: &Ctx<'_>, stage: &Stage, out: &Path) -> anyhow::Result<()> {
             let a = &ex.arms[arm];
             let dir = ctx.layout.run_dir(a, seed).join("export");
             let p = load_policy(&dir, a.space)?;
-            let policy = Controller::Policy {
-                net: &p.net,
-                env: p.env,
-                space: p.space,
-            };
+            let policy = Controller::of(&p);
             let (name, ev) = if matches!(stage, Stage::EvalAdp { .. }) {
                 ("adp", evaluate(&test_spec(ctx, a, true), &policy)?)
             } else {
@@ -650,11 +638,7 @@ fn shuffle_observations(ctx: &Ctx<'_>, a: &Arm, p: &LearnedPolicy) -> anyhow::Re
         seed: ctx.ex.shuffle.seed,
         trace: false,
     };
-    let ctrl = Controller::Policy {
-        net: &p.net,
-        env: p.env,
-        space: p.space,
-    };
+    let ctrl = Controller::of(p);
     let seen = observations(&spec, &ctrl)?.observations;
     Ok(shuffle_pool(&seen, ctx.ex.shuffle.pool, ctx.ex.shuffle.seed))
 }

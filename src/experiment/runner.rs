@@ -61,6 +61,17 @@ pub enum Controller<'a> {
     },
 }
 
+impl<'a> Controller<'a> {
+    /// A trained (or untrained) policy run greedily on each step's own observation.
+    pub fn of(p: &'a crate::policy::LearnedPolicy) -> Self {
+        Controller::Policy {
+            net: &p.net,
+            env: p.env,
+            space: p.space,
+        }
+    }
+}
+
 /// Where and how often to run.
 pub struct RunSpec<'a> {
     /// Planner tunables and the episode protocol.

@@ -55,7 +55,7 @@ use sampling::{
     SampleEval,
 };
 
-use crate::compute::{admit, even_order, Budget, Work};
+use crate::compute::{admit, evaluation_order, Budget, Work};
 use crate::local_map::LocalMap;
 use crate::{Integrator, PlanInput, Planner, Trace};
 
@@ -78,7 +78,7 @@ pub struct NavSystem {
     /// Perturbed per-step controls, sample after sample.
     controls: Vec<Twist>,
     evals: Vec<SampleEval>,
-    /// Samples in evaluation order under a compute budget ([`even_order`]).
+    /// Samples in evaluation order under a compute budget ([`crate::compute::even_order`]).
     eval_order: Vec<u32>,
     /// Whether the budget let each sample be evaluated.
     admitted: Vec<bool>,
@@ -486,12 +486,7 @@ impl NavSystem {
     /// infeasible (not considered), and adds the admitted samples' work to `trace.cycle` and
     /// their points to `trace.evaluated`.
     fn admit(&mut self, budget: &Budget, n: usize, steps: usize) {
-        if budget.is_limited() {
-            even_order(n, &mut self.eval_order);
-        } else {
-            self.eval_order.clear();
-            self.eval_order.extend(0..n as u32);
-        }
+        evaluation_order(budget, n, &mut self.eval_order);
         self.admitted.resize(n, false);
         let spent = Work {
             points: self.trace.evaluated - self.points_at_start,
