@@ -246,16 +246,16 @@ pub fn run_seed(base: u64, world: usize, run: usize) -> u64 {
     z ^ (z >> 31)
 }
 
-/// What one episode's planning cost: planning calls, collision-check points and time.
+/// The wall time one episode's planning calls took (ns); the work they did is in the run's
+/// [`ComputeTally`].
 #[derive(Debug, Default)]
 struct PlanCost {
-    calls: AtomicU64,
-    points: AtomicU64,
     nanos: AtomicU64,
 }
 
-/// A planner wrapped to meter its cost into a shared [`PlanCost`] (shared because a policy
-/// episode moves its planner into the environment). `Send`, like the planner it wraps.
+/// A planner wrapped to meter its wall time into a shared [`PlanCost`] (shared because a
+/// policy episode moves its planner into the environment). `Send`, like the planner it
+/// wraps.
 struct Metered {
     inner: Box<dyn Planner>,
     cost: Arc<PlanCost>,
@@ -267,15 +267,10 @@ impl Planner for Metered {
     }
 
     fn plan(&mut self, input: &PlanInput<'_>) -> Twist {
-        let before = self.inner.evaluated_points();
         let t0 = Instant::now();
         let cmd = self.inner.plan(input);
         let nanos = t0.elapsed().as_nanos() as u64;
-        let c = &self.cost;
-        c.calls.fetch_add(1, Ordering::Relaxed);
-        c.nanos.fetch_add(nanos, Ordering::Relaxed);
-        c.points
-            .fetch_add(self.inner.evaluated_points() - before, Ordering::Relaxed);
+        self.cost.nanos.fetch_add(nanos, Ordering::Relaxed);
         cmd
     }
 
@@ -517,17 +512,11 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
             .collect();
         let (success_pct, avg_time_s, avg_score, collision_pct, timeout_pct, episodes) =
             summarize(&per_world, plan.trim);
-        let (calls, points, nanos) = results.iter().filter(|x| x.0 == ri).fold((0, 0, 0), |acc, x| {
-            (
-                acc.0 + x.5.calls.load(Ordering::Relaxed),
-                acc.1 + x.5.points.load(Ordering::Relaxed),
-                acc.2 + x.5.nanos.load(Ordering::Relaxed),
-            )
-        });
-        let per_call = |total: u64| total as f64 / calls.max(1) as f64;
         let mut tally = ComputeTally::default();
+        let mut nanos = 0;
         for x in results.iter().filter(|x| x.0 == ri) {
             tally += x.4;
+            nanos += x.5.nanos.load(Ordering::Relaxed);
         }
         let cycles = tally.cycles.max(1) as f64;
         rows.push(Row {
@@ -544,8 +533,8 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
             collision_pct,
             timeout_pct,
             episodes,
-            check_points_per_cycle: per_call(points),
-            plan_ms_per_cycle: per_call(nanos) / 1e6,
+            check_points_per_cycle: tally.work.points as f64 / cycles,
+            plan_ms_per_cycle: nanos as f64 / cycles / 1e6,
             compute_model: compute_label(&cfg.compute),
             units_per_cycle: UnitsPerCycle::of(&tally),
             modelled_ms_per_cycle: tally.ms_per_cycle(),

@@ -92,6 +92,16 @@ pub struct UnitCosts {
 }
 
 impl UnitCosts {
+    /// Nothing costs anything.
+    pub const ZERO: UnitCosts = UnitCosts {
+        cycle_ns: 0.0,
+        cell_ns: 0.0,
+        sample_ns: 0.0,
+        draw_ns: 0.0,
+        step_ns: 0.0,
+        point_ns: 0.0,
+    };
+
     /// The modelled time of `w` (ns), without the per-cycle constant.
     pub fn work_ns(&self, w: &Work) -> f64 {
         self.cell_ns * w.cells as f64
@@ -359,14 +369,7 @@ pub struct Budget {
 impl Budget {
     /// No limit: every sample is evaluated, in the planner's own order.
     pub const UNLIMITED: Budget = Budget {
-        costs: UnitCosts {
-            cycle_ns: 0.0,
-            cell_ns: 0.0,
-            sample_ns: 0.0,
-            draw_ns: 0.0,
-            step_ns: 0.0,
-            point_ns: 0.0,
-        },
+        costs: UnitCosts::ZERO,
         limit_ns: f64::INFINITY,
     };
 

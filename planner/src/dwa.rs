@@ -564,12 +564,10 @@ mod tests {
         // rollout; a 50 ns budget starts rollouts at 25, 36 and 47 ns: 3 of 4, the first
         // three of the even order (0, 3, 2, 1).
         let costs = crate::compute::UnitCosts {
-            cycle_ns: 0.0,
-            cell_ns: 0.0,
             sample_ns: 1.0,
-            draw_ns: 0.0,
             step_ns: 1.0,
             point_ns: 1.0,
+            ..crate::compute::UnitCosts::ZERO
         };
         let budget = crate::Budget::of(Some(&crate::Compute {
             costs,

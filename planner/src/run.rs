@@ -149,12 +149,8 @@ mod tests {
     fn compute(point_ns: f64) -> Compute {
         Compute {
             costs: UnitCosts {
-                cycle_ns: 0.0,
-                cell_ns: 0.0,
-                sample_ns: 0.0,
-                draw_ns: 0.0,
-                step_ns: 0.0,
                 point_ns,
+                ..UnitCosts::ZERO
             },
             budget_ns: f64::INFINITY,
         }

@@ -260,11 +260,7 @@ impl Drive {
 
     /// Issues a command now; it takes effect after the latency.
     pub fn command(&mut self, cmd: Twist) {
-        if self.delay_ticks == 0 {
-            self.applied = cmd;
-        } else {
-            self.queue.push_back((self.tick + self.delay_ticks, cmd));
-        }
+        self.enqueue(cmd, self.delay_ticks);
     }
 
     /// Issues a command now that takes effect `compute_s` seconds of modelled planning
@@ -274,7 +270,11 @@ impl Drive {
     /// compute ended).
     pub fn command_after(&mut self, cmd: Twist, compute_s: f64) {
         let latency = (self.dynamics.latency_s - PLANNING_LATENCY_S).max(0.0) + compute_s.max(0.0);
-        let ticks = (latency / self.physics_dt).round() as u64;
+        self.enqueue(cmd, (latency / self.physics_dt).round() as u64);
+    }
+
+    /// Applies `cmd` now (`ticks` = 0) or queues it for `ticks` physics steps from now.
+    fn enqueue(&mut self, cmd: Twist, ticks: u64) {
         if ticks == 0 {
             self.applied = cmd;
         } else {
