@@ -90,8 +90,8 @@ impl Default for DwaConfig {
 pub struct Dwa {
     cfg: DwaConfig,
     map: LocalMap,
-    /// Per w sample and step: (w, sin yaw, cos yaw).
-    w_prof: Vec<(f64, f64, f64)>,
+    /// Per w sample and step: the yaw rate and the heading it has reached.
+    w_prof: Vec<YawStep>,
     /// Per v sample and step: v.
     v_prof: Vec<f64>,
     cost: Vec<Candidate>,
@@ -104,6 +104,20 @@ pub struct Dwa {
     order: Vec<u32>,
     recovery: Recovery,
     trace: Trace,
+}
+
+/// One step of a yaw profile: everything about a rollout's heading that does not depend on its
+/// speed sample, so the `v_samples` rollouts sharing it do not recompute it.
+#[derive(Clone, Copy, Debug)]
+struct YawStep {
+    /// Yaw rate (rad/s).
+    w: f64,
+    /// `(sin, cos)` of the integrated yaw (the arc integration's terms).
+    sin_cos: (f64, f64),
+    /// The pose's yaw: the integrated yaw wrapped by `atan2`.
+    yaw: f64,
+    /// `(sin, cos)` of `yaw` (the footprint's rotation in the collision check).
+    rot: (f64, f64),
 }
 
 #[derive(Clone, Copy, Debug)]
@@ -228,7 +242,13 @@ impl Dwa {
                 w = approach(w, cmd, cfg.accel_w * dt);
                 yaw += w * dt;
                 let (s, c) = yaw.sin_cos();
-                self.w_prof.push((w, s, c));
+                let wrapped = s.atan2(c);
+                self.w_prof.push(YawStep {
+                    w,
+                    sin_cos: (s, c),
+                    yaw: wrapped,
+                    rot: wrapped.sin_cos(),
+                });
             }
         }
 
@@ -286,7 +306,8 @@ impl Dwa {
                 for k in 0..steps {
                     work.steps += 1;
                     let v = self.v_prof[i * steps + k];
-                    let (w, s1, c1) = self.w_prof[j * steps + k];
+                    let step = self.w_prof[j * steps + k];
+                    let (w, (s1, c1)) = (step.w, step.sin_cos);
                     let dt = sched.dts()[k];
                     if euler {
                         // Forward Euler along the heading after the step (the authors' motion()).
@@ -300,14 +321,17 @@ impl Dwa {
                         y += v * dt * s0;
                     }
                     (s0, c0) = (s1, c1);
-                    let pose = Pose::new(x, y, s1.atan2(c1));
                     if self.trace.recording {
-                        self.trace.rollouts.push(pose);
+                        self.trace.rollouts.push(Pose::new(x, y, step.yaw));
                     }
                     let m = sched.checks()[k] as usize;
-                    let clear =
-                        self.map
-                            .footprint_clearance(&pose, m, cfg.detail_within, &mut self.trace.evaluated);
+                    let clear = self.map.clearance_at(
+                        Vec2::new(x, y),
+                        || step.rot,
+                        m,
+                        cfg.detail_within,
+                        &mut self.trace.evaluated,
+                    );
                     if clear < self.margins[m.min(self.margins.len() - 1)] {
                         // Admissible (Fox et al. 1997) when the planner's model can still stop
                         // before the obstacle: the rollout then ends at its last clear point.

@@ -230,7 +230,22 @@ impl LocalMap {
     ///   the `m` checked points. Between the points the footprint is assumed free, so fewer
     ///   points can miss an obstacle (optimistic, as DDP's reduced checks are).
     pub fn footprint_clearance(&self, pose: &Pose, m: usize, enough: f64, evaluated: &mut u64) -> f64 {
-        let c = pose.position();
+        self.clearance_at(pose.position(), || pose.yaw.sin_cos(), m, enough, evaluated)
+    }
+
+    /// [`LocalMap::footprint_clearance`] of the footprint centred at `c` whose heading's
+    /// `(sin, cos)` `heading` gives, called only when the boundary points are checked. A caller
+    /// that meets the same heading many times (DWA: one per yaw profile and step, shared by
+    /// every speed sample) computes it once; the result is the same, bit for bit.
+    #[inline]
+    pub fn clearance_at(
+        &self,
+        c: Vec2,
+        heading: impl FnOnce() -> (f64, f64),
+        m: usize,
+        enough: f64,
+        evaluated: &mut u64,
+    ) -> f64 {
         let dc = self.distance(c);
         *evaluated += 1;
         let (inscribed, circumscribed) = self.radii;
@@ -248,7 +263,7 @@ impl LocalMap {
                 CheckMode::GridPoints => dc - inscribed,
             };
         }
-        let (s, co) = pose.yaw.sin_cos();
+        let (s, co) = heading();
         // The smallest raw cell distance first, the half-cell correction once: the same
         // value as the smallest `distance` (the correction is monotone).
         let outside = FAR as f32 + 0.5 * self.res as f32;

@@ -98,7 +98,13 @@ impl Pose {
 
 /// Wraps an angle to (-pi, pi].
 pub fn wrap_angle(a: f64) -> f64 {
-    let mut a = a % std::f64::consts::TAU;
+    // `a % TAU` is `a` itself when |a| < TAU: the library remainder only runs for larger
+    // angles (same result, bit for bit; most callers pass a difference of two wrapped angles).
+    let mut a = if a.abs() < std::f64::consts::TAU {
+        a
+    } else {
+        a % std::f64::consts::TAU
+    };
     if a > std::f64::consts::PI {
         a -= std::f64::consts::TAU;
     } else if a <= -std::f64::consts::PI {
@@ -230,6 +236,25 @@ mod tests {
         assert!((wrap_angle(-3.0 * PI) - PI).abs() < 1e-12);
         assert!((wrap_angle(0.5) - 0.5).abs() < 1e-12);
         assert!((wrap_angle(2.0 * PI + 0.1) - 0.1).abs() < 1e-12);
+        // The short cut for |a| < 2 pi gives the remainder's result exactly, at the edges too.
+        let by_remainder = |a: f64| {
+            let r = a % std::f64::consts::TAU;
+            if r > PI {
+                r - std::f64::consts::TAU
+            } else if r <= -PI {
+                r + std::f64::consts::TAU
+            } else {
+                r
+            }
+        };
+        let tau = std::f64::consts::TAU;
+        let edges = [PI, -PI, tau, -tau, tau.next_down(), (-tau).next_up(), 0.0, -0.0];
+        for k in 0..4001 {
+            let a = -7.0 + 14.0 * k as f64 / 4000.0;
+            for x in edges.iter().copied().chain([a, a * 3.0]) {
+                assert_eq!(wrap_angle(x).to_bits(), by_remainder(x).to_bits(), "{x}");
+            }
+        }
     }
 
     #[test]
