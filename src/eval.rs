@@ -92,6 +92,14 @@ impl std::str::FromStr for PlannerKind {
 }
 
 impl PlannerKind {
+    /// Every planner, in table order.
+    pub const ALL: [PlannerKind; 4] = [
+        PlannerKind::Dwa,
+        PlannerKind::Mppi,
+        PlannerKind::LogMppi,
+        PlannerKind::System,
+    ];
+
     /// The planner's name in configuration files, on the command line and in tables (`dwa`,
     /// `mppi`, `log-mppi`, `system`).
     pub fn name(self) -> &'static str {

@@ -24,11 +24,15 @@ use super::{figure, Figure};
 const SYSTEM_DDP_P95_MS: f64 = 40.0;
 
 /// One planning call: the planner, whether the schedule was DDP, its work and CPU time (ns).
-struct Call {
-    planner: PlannerKind,
-    ddp: bool,
-    work: Work,
-    ns: f64,
+pub(super) struct Call {
+    /// The planner.
+    pub(super) planner: PlannerKind,
+    /// Whether the schedule was DDP.
+    pub(super) ddp: bool,
+    /// The work the call counted.
+    pub(super) work: Work,
+    /// The calling thread's CPU time over the call (ns).
+    pub(super) ns: f64,
 }
 
 /// A planner that records each call's work and time.
@@ -138,7 +142,7 @@ fn nonnegative_fit(x: &[[f64; 6]], y: &[f64]) -> [f64; 6] {
     }
 }
 
-fn percentile(mut v: Vec<f64>, q: f64) -> f64 {
+pub(super) fn percentile(mut v: Vec<f64>, q: f64) -> f64 {
     if v.is_empty() {
         return 0.0;
     }
@@ -146,9 +150,14 @@ fn percentile(mut v: Vec<f64>, q: f64) -> f64 {
     v[((v.len() - 1) as f64 * q).round() as usize]
 }
 
-/// Runs the measurement on the first `worlds` training worlds and prints the fit and the
-/// platform.
-pub fn run(worlds: usize) -> anyhow::Result<Vec<Figure>> {
+/// Drives every planner in `kinds` with every schedule on the first `worlds` training worlds
+/// at 1.5 m/s, one thread, free compute model, and returns every planning call's work and
+/// CPU time. The schedules are `(schedule, is DDP)`.
+pub(super) fn measure_calls(
+    worlds: usize,
+    kinds: &[PlannerKind],
+    schedules: &[(Schedule, bool)],
+) -> anyhow::Result<Vec<Call>> {
     let mut cfg = EvalConfig::load(None)?;
     cfg.compute = planner::ComputeConfig::FREE;
     let ids: Vec<usize> = sim::splits::SplitFile::embedded()
@@ -156,21 +165,11 @@ pub fn run(worlds: usize) -> anyhow::Result<Vec<Figure>> {
         .into_iter()
         .take(worlds.max(1))
         .collect();
-    let mut schedules = vec![(Schedule::vanilla(), false), (Schedule::ddp_default(), true)];
-    for (p, t, n, alpha) in [(1.0, 1.6, 15, 0.6), (1.3, 1.9, 18, 0.3), (1.7, 2.2, 22, 0.0)] {
-        schedules.push((Schedule::decremental(p, t, n, alpha, 20)?, false));
-    }
-    let kinds = [
-        PlannerKind::Dwa,
-        PlannerKind::Mppi,
-        PlannerKind::LogMppi,
-        PlannerKind::System,
-    ];
     let pool = rayon::ThreadPoolBuilder::new().num_threads(1).build()?;
     let mut calls = Vec::with_capacity(1 << 20);
     pool.install(|| -> anyhow::Result<()> {
-        for &kind in &kinds {
-            for (sched, ddp) in &schedules {
+        for &kind in kinds {
+            for (sched, ddp) in schedules {
                 for &w in &ids {
                     let world = sim::barn::world(w).with_context(|| format!("world {w}"))?;
                     let seed = crate::eval::run_seed(7, w, 0);
@@ -195,6 +194,18 @@ pub fn run(worlds: usize) -> anyhow::Result<Vec<Figure>> {
         }
         Ok(())
     })?;
+    Ok(calls)
+}
+
+/// Runs the measurement on the first `worlds` training worlds and prints the fit and the
+/// platform.
+pub fn run(worlds: usize) -> anyhow::Result<Vec<Figure>> {
+    let mut schedules = vec![(Schedule::vanilla(), false), (Schedule::ddp_default(), true)];
+    for (p, t, n, alpha) in [(1.0, 1.6, 15, 0.6), (1.3, 1.9, 18, 0.3), (1.7, 2.2, 22, 0.0)] {
+        schedules.push((Schedule::decremental(p, t, n, alpha, 20)?, false));
+    }
+    let kinds = PlannerKind::ALL;
+    let calls = measure_calls(worlds, &kinds, &schedules)?;
     let row = |w: &Work| {
         let [c, s, d, st, p] = w.as_array().map(|u| u as f64);
         [1.0, c, s, d, st, p]

@@ -9,12 +9,15 @@
 //!   inference, exploration; no learner), on one thread and on every core.
 //! - `train`: `adp train` end to end (learner + actor processes at one update per step),
 //!   agent steps per second once training has started.
+//! - `cycle` ([`cycle`], not in the default set): each planner's cycle, measured, next to
+//!   the roofline of its counted work on this CPU.
 //! - `compute` ([`compute`], not in the default set): the unit costs of planner work on this
 //!   machine and the `jackal-onboard` compute platform derived from them.
 //!
 //! Timing is wall clock in a release build; nothing here is a test.
 
 mod compute;
+mod cycle;
 mod transport;
 
 use std::path::{Path, PathBuf};
@@ -46,6 +49,8 @@ pub enum Part {
     Train,
     /// The compute model's unit costs (fit) and platform (not run by default).
     Compute,
+    /// Planner cycles against their roofline (not run by default).
+    Cycle,
 }
 
 /// What `adp bench` runs and how long.
@@ -73,7 +78,7 @@ pub struct BenchArgs {
     /// Actor processes of the end-to-end run (default: one per core).
     #[arg(long, default_value_t = 0)]
     pub train_actors: u32,
-    /// Training worlds each planner and schedule runs on (compute).
+    /// Training worlds each planner and schedule runs on (compute, cycle).
     #[arg(long, default_value_t = 8)]
     pub compute_worlds: usize,
     /// Also write the figures as JSON to this file.
@@ -137,6 +142,7 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
             Part::Collect => collect(args.collect_steps),
             Part::Train => train(args.train_steps, args.train_actors),
             Part::Compute => compute::run(args.compute_worlds),
+            Part::Cycle => cycle::run(args.compute_worlds),
         }
         .with_context(|| format!("bench {part:?}"))?;
         for f in &got {
