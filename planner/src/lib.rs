@@ -17,6 +17,7 @@ pub mod recovery;
 pub mod run;
 pub mod schedule;
 pub mod system;
+pub mod tracker;
 
 pub use action::{ActionMap, ActionSpace, NameError};
 pub use compute::{Budget, Compute, ComputeConfig, ComputeModel, ComputeTally, CycleWork, Work};
@@ -27,6 +28,7 @@ pub use prediction::{CheckMode, Integrator, Prediction};
 pub use recovery::{Recovery, RecoveryConfig};
 pub use schedule::Schedule;
 pub use system::{Mode, ModeMachine, NavSystem, SystemConfig};
+pub use tracker::{Track, Tracker, TrackerConfig};
 
 use sim::episode::Perception;
 use sim::geometry::Pose;
