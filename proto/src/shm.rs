@@ -1272,8 +1272,10 @@ mod tests {
         let mut sink = sink
             .take()
             .unwrap_or_else(|| ShmStepSink::open(&scratch.cfg, "actor").unwrap());
+        // `attempts` counts send calls begun, `sent` the ones that returned.
+        let attempts = Arc::new(AtomicUsize::new(0));
         let sent = Arc::new(AtomicUsize::new(0));
-        let counter = Arc::clone(&sent);
+        let (tried, counter) = (Arc::clone(&attempts), Arc::clone(&sent));
         let sender = thread::spawn(move || {
             let header = LeaseHeader {
                 incarnation: 1,
@@ -1293,25 +1295,27 @@ mod tests {
                     truncated: false,
                     final_obs: &[],
                 };
+                tried.fetch_add(1, Ordering::SeqCst);
                 if let Err(e) = sink.send(&header, &step) {
                     return e;
                 }
-                counter.fetch_add(1, Ordering::Relaxed);
+                counter.fetch_add(1, Ordering::SeqCst);
             }
         });
-        while sent.load(Ordering::Relaxed) < 4 {
+        // The child never reads: the fifth send is the one that waits on a full queue. Kill
+        // the learner once it has begun (no fixed sleep: the watchdog bounds the wait).
+        while attempts.load(Ordering::SeqCst) < 5 {
             thread::sleep(Duration::from_millis(1));
         }
-        thread::sleep(Duration::from_millis(200));
-        assert_eq!(
-            sent.load(Ordering::Relaxed),
-            4,
-            "the queue holds 4, then send blocks"
-        );
         child.kill().unwrap();
         child.wait().unwrap();
         let e = sender.join().unwrap();
         assert!(matches!(e, PlaneError::Disconnected { plane: "shm", .. }), "{e}");
+        assert_eq!(
+            sent.load(Ordering::SeqCst),
+            4,
+            "the queue held 4 and the fifth send never went through"
+        );
     }
 
     #[test]

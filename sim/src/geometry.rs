@@ -125,6 +125,7 @@ pub struct Circle {
 /// An axis-aligned rectangle centred on the robot's origin, in the robot frame
 /// (x forward, y left). The Jackal footprint is 0.508 x 0.430 m.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct Footprint {
     /// Half the length along the robot's x axis (m).
     pub half_length: f64,

@@ -6,6 +6,7 @@ use crate::geometry::{wrap_angle, Footprint, Pose};
 
 /// Physical limits of the robot (the simulator's controller values for the Jackal).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct RobotLimits {
     /// Largest forward speed (m/s).
     pub max_v: f64,
@@ -95,6 +96,16 @@ pub fn integrate_arc(p: Pose, vel: Twist, dt: f64) -> Pose {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_misspelt_limit_is_refused_by_name() {
+        let good = toml::to_string(&RobotLimits::JACKAL).unwrap();
+        let back: RobotLimits = toml::from_str(&good).unwrap();
+        assert_eq!(back, RobotLimits::JACKAL);
+        let typo = good.replace("max_w =", "max_yaw_rate =");
+        let err = toml::from_str::<RobotLimits>(&typo).unwrap_err().to_string();
+        assert!(err.contains("max_yaw_rate"), "{err}");
+    }
 
     #[test]
     fn acceleration_limits_are_respected() {
