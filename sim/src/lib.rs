@@ -13,6 +13,7 @@ mod error;
 pub mod geometry;
 pub mod lidar;
 pub mod navigation;
+pub mod predictive_cost;
 pub mod robot;
 pub mod score;
 pub mod splits;
