@@ -18,6 +18,7 @@ fn input<'a>(ep: &'a Episode<'_>, sched: &'a Schedule) -> PlanInput<'a> {
         max_speed: 1.5,
         prediction: planner::Prediction::PAPERS,
         budget: planner::Budget::UNLIMITED,
+        moving: &[],
     }
 }
 

@@ -16,6 +16,7 @@ use sim::robot::{approach, Twist};
 
 use crate::compute::{evaluation_order, Work};
 use crate::local_map::LocalMap;
+use crate::moving;
 use crate::recovery::{Recovery, RecoveryConfig};
 use crate::{Integrator, PlanInput, Planner, Trace};
 
@@ -300,6 +301,8 @@ impl Dwa {
                 let mut hit = false;
                 let mut admissible = true;
                 let mut clear_time = horizon;
+                // Time at the end of step k (the moving obstacles' forecast).
+                let mut t = 0.0;
                 if self.trace.recording {
                     self.trace.rollouts.begin();
                 }
@@ -325,13 +328,23 @@ impl Dwa {
                         self.trace.rollouts.push(Pose::new(x, y, step.yaw));
                     }
                     let m = sched.checks()[k] as usize;
-                    let clear = self.map.clearance_at(
+                    let mut clear = self.map.clearance_at(
                         Vec2::new(x, y),
                         || step.rot,
                         m,
                         cfg.detail_within,
                         &mut self.trace.evaluated,
                     );
+                    t += dt;
+                    if !input.moving.is_empty() {
+                        clear = clear.min(moving::clearance(
+                            self.map.footprint(),
+                            &Pose::new(x, y, step.yaw),
+                            t,
+                            input.moving,
+                            &mut self.trace.evaluated,
+                        ));
+                    }
                     if clear < self.margins[m.min(self.margins.len() - 1)] {
                         // Admissible (Fox et al. 1997) when the planner's model can still stop
                         // before the obstacle: the rollout then ends at its last clear point.
@@ -527,6 +540,7 @@ mod tests {
                 max_speed: 1.5,
                 prediction: crate::Prediction::PAPERS,
                 budget: crate::Budget::UNLIMITED,
+                moving: &[],
             });
             assert!(cmd.v > 0.3, "drives on: {cmd:?}");
             assert!(cmd.w <= 0.0, "not toward the wall: {cmd:?}");
@@ -565,6 +579,7 @@ mod tests {
                 max_speed: 1.0,
                 prediction: crate::Prediction::PAPERS,
                 budget,
+                moving: &[],
             });
             (
                 dwa.trace().cycle,
@@ -620,6 +635,7 @@ mod tests {
                 max_speed: 1.5,
                 prediction: crate::Prediction::PAPERS,
                 budget: crate::Budget::UNLIMITED,
+                moving: &[],
             });
             ep.step(cmd);
         }
@@ -633,6 +649,7 @@ mod tests {
                 max_speed: 1.5,
                 prediction: crate::Prediction::PAPERS,
                 budget: crate::Budget::UNLIMITED,
+                moving: &[],
             });
             dwa.evaluated_points()
         };

@@ -12,6 +12,7 @@ pub mod compute;
 pub mod dwa;
 pub mod local_map;
 pub mod log_mppi;
+pub mod moving;
 pub mod mppi;
 pub mod prediction;
 pub mod recovery;
@@ -24,6 +25,7 @@ pub use action::{ActionMap, ActionSpace, NameError};
 pub use compute::{Budget, Compute, ComputeConfig, ComputeModel, ComputeTally, CycleWork, Work};
 pub use dwa::{Dwa, DwaConfig};
 pub use log_mppi::{LogMppi, LogMppiConfig};
+pub use moving::{Predicted, Tracking, TrackingConfig};
 pub use mppi::{Mppi, MppiConfig};
 pub use prediction::{CheckMode, Integrator, Prediction};
 pub use recovery::{Recovery, RecoveryConfig};
@@ -48,6 +50,9 @@ pub struct PlanInput<'a> {
     pub prediction: Prediction,
     /// The cycle's compute budget ([`Budget::UNLIMITED`] under the free model).
     pub budget: Budget,
+    /// Moving obstacles to check each rollout point against where they will be (robot
+    /// frame; empty without obstacle tracking: see [`moving`]).
+    pub moving: &'a [Predicted],
 }
 
 /// A local planner. One instance per episode: `plan` takes `&mut self` so planners keep

@@ -26,7 +26,7 @@ use sim::robot::Twist;
 use crate::compute::{admit, evaluation_order, Work};
 use crate::local_map::LocalMap;
 use crate::mppi::{mppi_weights, roll_all, Nominal, Unicycle};
-use crate::{Integrator, PlanInput, Planner, Rollouts, Trace};
+use crate::{Integrator, PlanInput, Planner, Predicted, Rollouts, Trace};
 
 /// Log-MPPI parameters (defaults used by `adp eval`).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -198,6 +198,8 @@ struct Scene<'a> {
     start: Twist,
     goal: Vec2,
     integrator: Integrator,
+    /// Moving obstacles, checked where they will be ([`crate::moving`]).
+    moving: &'a [Predicted],
 }
 
 impl LogMppi {
@@ -306,11 +308,13 @@ fn rollout(scene: &Scene<'_>, controls: &[Twist], mut record: Option<&mut Rollou
     );
     let keep = 0.5 * (1.0 - 1.0 / cfg.exploration_variance.max(1e-9));
     let (mut cost, mut collisions, mut evaluated) = (0.0, 0u32, 0u64);
+    let mut t = 0.0;
     if let Some(r) = record.as_deref_mut() {
         r.begin();
     }
     for (k, ((&cmd, &dt), u)) in controls.iter().zip(scene.dts).zip(scene.nominal).enumerate() {
         robot.step(cmd, dt, cfg.accel_v, cfg.accel_w);
+        t += dt;
         let pose = robot.pose();
         if let Some(r) = record.as_deref_mut() {
             r.push(Pose::new(pose.x, pose.y, wrap_angle(pose.yaw)));
@@ -331,6 +335,12 @@ fn rollout(scene: &Scene<'_>, controls: &[Twist], mut record: Option<&mut Rollou
                 let p = Vec2::new(centre.x + c * b.x - s * b.y, centre.y + s * b.x + c * b.y);
                 scene.costmap.at(p) == LETHAL
             });
+        }
+        if !crash && !scene.moving.is_empty() {
+            // The costmap's lethal band is the inscribed radius: contact with a forecast
+            // obstacle is what counts here.
+            crash =
+                crate::moving::clearance(&Footprint::JACKAL, &pose, t, scene.moving, &mut evaluated) <= 0.0;
         }
         if crash {
             collisions += 1;
@@ -383,6 +393,7 @@ impl Planner for LogMppi {
             start: per.vel,
             goal: per.local_goal,
             integrator: input.prediction.integrator,
+            moving: input.moving,
         };
         let roll = |u: &[Twist], record: Option<&mut Rollouts>| rollout(&scene, u, record);
         let dts = sched.dts();

@@ -33,7 +33,7 @@ use sim::robot::{approach, Twist};
 use crate::compute::{admit, evaluation_order, Work};
 use crate::dwa::distance_to_path;
 use crate::local_map::LocalMap;
-use crate::{Integrator, PlanInput, Planner, Rollouts, Trace};
+use crate::{Integrator, PlanInput, Planner, Predicted, Rollouts, Trace};
 
 /// MPPI parameters (defaults used by `adp eval`).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -167,6 +167,8 @@ struct Scene<'a> {
     margins: &'a [f64],
     /// The rollout integrator.
     integrator: Integrator,
+    /// Moving obstacles, checked where they will be ([`crate::moving`]).
+    moving: &'a [Predicted],
 }
 
 impl Mppi {
@@ -512,10 +514,20 @@ fn rollout(scene: &Scene<'_>, controls: &[Twist], mut record: Option<&mut Rollou
         if let Some(r) = record.as_deref_mut() {
             r.push(Pose::new(pose.x, pose.y, wrap_angle(pose.yaw)));
         }
-        let clear =
+        let mut clear =
             scene
                 .map
                 .footprint_clearance(&pose, scene.checks[k] as usize, cfg.clearance_cap, &mut evaluated);
+        if !scene.moving.is_empty() {
+            let fp = scene.map.footprint();
+            clear = clear.min(crate::moving::clearance(
+                fp,
+                &pose,
+                t,
+                scene.moving,
+                &mut evaluated,
+            ));
+        }
         let m = (scene.checks[k] as usize).min(scene.margins.len() - 1);
         if clear < scene.margins[m] {
             hit = Some(t);
@@ -599,6 +611,7 @@ impl Planner for Mppi {
             path: per.local_path,
             margins: &self.margins,
             integrator: input.prediction.integrator,
+            moving: input.moving,
         };
         let roll = |u: &[Twist], record: Option<&mut Rollouts>| rollout(&scene, u, record);
         let dts = sched.dts();
@@ -747,6 +760,7 @@ pub(crate) mod tests {
                 max_speed: 1.5,
                 prediction: crate::Prediction::PAPERS,
                 budget: crate::Budget::UNLIMITED,
+                moving: &[],
             });
             out.push(cmd);
             ep.step(cmd);
@@ -795,6 +809,7 @@ pub(crate) mod tests {
             max_speed: 1.0,
             prediction: crate::Prediction::PAPERS,
             budget: crate::Budget::UNLIMITED,
+            moving: &[],
         });
         let c = mppi.trace().cycle;
         // Field: reach = 1.0 x 0.4 + 0.33278 + 0.5 = 1.23278 m: 46 x 51 cells at 0.05 m.
@@ -845,6 +860,7 @@ pub(crate) mod tests {
                 path: &[],
                 margins: &[cfg.margin],
                 integrator: Integrator::Euler,
+                moving: &[],
             };
             let controls: Vec<Twist> = (0..20).map(|k| Twist::new(v(k), 0.0)).collect();
             let out = rollout(&scene, &controls, None);
@@ -878,6 +894,7 @@ pub(crate) mod tests {
             max_speed: 1.5,
             prediction: crate::Prediction::PAPERS,
             budget: crate::Budget::UNLIMITED,
+            moving: &[],
         });
         let r = mppi.rollouts();
         assert_eq!(r.spans.len(), 50);

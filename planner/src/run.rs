@@ -5,6 +5,7 @@ use sim::robot::Twist;
 use sim::World;
 
 use crate::compute::{periods, Budget, Compute, ComputeTally};
+use crate::moving::{Tracking, TrackingConfig};
 use crate::{PlanInput, Planner, Prediction, Schedule};
 
 /// The planning loop of one episode: every control period either runs a planning cycle or,
@@ -14,7 +15,11 @@ use crate::{PlanInput, Planner, Prediction, Schedule};
 /// top of the profile's sensing and actuation latency, [`Episode::step_after`]); a cycle
 /// that needs `k` > 1 control periods ([`periods`]) makes the next `k - 1` periods hold. The
 /// free model (`None`) plans every period and applies the command after the profile's fixed
-/// latency, exactly as before the model. Plain data; one per episode.
+/// latency, exactly as before the model.
+///
+/// With [`CycleDriver::with_tracking`], every planning cycle first runs the obstacle tracker
+/// on the episode's scan and hands the planner the moving obstacles it predicts
+/// ([`crate::moving`]); without it the planner is told of none. One per episode.
 #[derive(Clone, Debug)]
 pub struct CycleDriver {
     compute: Option<Compute>,
@@ -22,6 +27,7 @@ pub struct CycleDriver {
     /// Periods still to hold before the next cycle.
     holding: u32,
     tally: ComputeTally,
+    tracking: Option<Tracking>,
 }
 
 impl CycleDriver {
@@ -32,7 +38,19 @@ impl CycleDriver {
             control_dt,
             holding: 0,
             tally: ComputeTally::default(),
+            tracking: None,
         }
+    }
+
+    /// The same driver, predicting moving obstacles with a tracker of `cfg`.
+    pub fn with_tracking(mut self, cfg: TrackingConfig) -> Self {
+        self.tracking = Some(Tracking::new(cfg));
+        self
+    }
+
+    /// The obstacle tracking, when on.
+    pub fn tracking(&self) -> Option<&Tracking> {
+        self.tracking.as_ref()
     }
 
     /// What the cycles so far did and cost.
@@ -57,12 +75,17 @@ impl CycleDriver {
             self.holding -= 1;
             return ep.hold();
         }
+        let moving = match &mut self.tracking {
+            Some(t) => t.update(ep),
+            None => &[],
+        };
         let cmd = planner.plan(&PlanInput {
             perception: ep.perception(),
             schedule,
             max_speed,
             prediction,
             budget: Budget::of(self.compute.as_ref()),
+            moving,
         });
         on_cycle(ep, &mut *planner, cmd);
         let cycle = planner.trace().cycle;

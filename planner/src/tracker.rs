@@ -170,6 +170,27 @@ pub struct Track {
 }
 
 impl Track {
+    /// A track as it is born from a cluster: at rest at `position`, seen once (tentative
+    /// unless `cfg` confirms on the first hit), with the measurement's position variance and
+    /// the birth velocity variance of `cfg`.
+    pub fn born(id: u64, position: Vec2, radius: f64, time: f64, cfg: &TrackerConfig) -> Track {
+        Track {
+            id,
+            position,
+            velocity: Vec2::default(),
+            radius,
+            time,
+            hits: 1,
+            misses: 0,
+            confirmed: cfg.confirm_hits <= 1,
+            cov: AxisCov {
+                pp: cfg.meas_sigma * cfg.meas_sigma,
+                pv: 0.0,
+                vv: cfg.birth_speed_sigma * cfg.birth_speed_sigma,
+            },
+        }
+    }
+
     /// The constant-velocity forecast of the centre `tau` seconds after [`Track::time`].
     pub fn predict(&self, tau: f64) -> Vec2 {
         self.position + self.velocity * tau
@@ -310,21 +331,8 @@ impl Tracker {
             if self.cluster_taken[j] {
                 continue;
             }
-            self.tracks.push(Track {
-                id: self.next_id,
-                position: c.centre,
-                velocity: Vec2::default(),
-                radius: c.radius,
-                time: t,
-                hits: 1,
-                misses: 0,
-                confirmed: cfg.confirm_hits <= 1,
-                cov: AxisCov {
-                    pp: r,
-                    pv: 0.0,
-                    vv: cfg.birth_speed_sigma * cfg.birth_speed_sigma,
-                },
-            });
+            self.tracks
+                .push(Track::born(self.next_id, c.centre, c.radius, t, &cfg));
             self.next_id += 1;
         }
     }
@@ -509,21 +517,9 @@ mod tests {
         assert!((p.pv - (dt * s2 + q * dt * dt / 2.0)).abs() < 1e-15);
         assert!((p.vv - (s2 + q * dt)).abs() < 1e-15);
         let mut tracker = Tracker::new(cfg);
-        tracker.tracks.push(Track {
-            id: 0,
-            position: Vec2::new(1.0, 0.0),
-            velocity: Vec2::default(),
-            radius: 0.0,
-            time: 0.0,
-            hits: 1,
-            misses: 0,
-            confirmed: false,
-            cov: AxisCov {
-                pp: r,
-                pv: 0.0,
-                vv: s2,
-            },
-        });
+        tracker
+            .tracks
+            .push(Track::born(0, Vec2::new(1.0, 0.0), 0.0, 0.0, &cfg));
         tracker.next_id = 1;
         // A single point 0.05 m further along x (a cluster of one point: centre = point).
         tracker.update(dt, &Pose::default(), &[Vec2::new(1.05, 0.0)]);

@@ -402,6 +402,7 @@ impl NavSystem {
             space_cap: cfg.space_cap,
             half_width: fp.half_width,
             record: self.trace.recording,
+            moving: input.moving,
         };
         let controls = &self.controls;
         self.evals[..n]
@@ -862,6 +863,7 @@ mod tests {
                 max_speed: 1.5,
                 prediction: crate::Prediction::PAPERS,
                 budget: crate::Budget::UNLIMITED,
+                moving: &[],
             });
             ep.step(cmd);
             cycle += 1;
@@ -885,6 +887,7 @@ mod tests {
                 max_speed: 1.5,
                 prediction: crate::Prediction::PAPERS,
                 budget: crate::Budget::UNLIMITED,
+                moving: &[],
             });
             spans = spans.max(sys.rollouts().spans.len());
             out.push(cmd);
@@ -919,6 +922,7 @@ mod tests {
             max_speed: 1.5,
             prediction: crate::Prediction::PAPERS,
             budget: crate::Budget::UNLIMITED,
+            moving: &[],
         };
         let first = sys.plan(&input);
         sys.plan(&input);

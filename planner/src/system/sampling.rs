@@ -5,7 +5,7 @@ use sim::geometry::{wrap_angle, Pose, Vec2};
 use sim::robot::{approach, Twist};
 
 use crate::local_map::{LocalMap, FAR};
-use crate::Integrator;
+use crate::{Integrator, Predicted};
 
 /// Normalized weights of the `costs` of the top samples, sorted ascending:
 /// `exp(-(J_k - J_min) / lambda) * ((top_k - k) / top_k)^2` for rank `k`, summing to one.
@@ -158,6 +158,8 @@ pub(super) struct RolloutCtx<'a> {
     pub(super) space_cap: f64,
     pub(super) half_width: f64,
     pub(super) record: bool,
+    /// Moving obstacles, checked where they will be ([`crate::moving`]).
+    pub(super) moving: &'a [Predicted],
 }
 
 /// Rolls `controls` out from the robot's pose and scores the rollout into `e`.
@@ -175,6 +177,8 @@ pub(super) fn evaluate(ctx: &RolloutCtx<'_>, controls: &[Twist], e: &mut SampleE
     let (mut travel, mut obstacle, mut time) = (0.0, 0.0, 0.0);
     let (mut goal, mut heading, mut space, mut n_q) = (0.0, 0.0, 0.0, 0usize);
     let mut last_clear = ctx.start_clear;
+    // Clearance to the moving obstacles' forecast at the last driven step (infinite: none).
+    let mut moving_clear = f64::INFINITY;
     for (k, (&dt, u)) in ctx.dts.iter().zip(controls).enumerate() {
         if k < e.driven {
             e.steps += 1;
@@ -190,7 +194,15 @@ pub(super) fn evaluate(ctx: &RolloutCtx<'_>, controls: &[Twist], e: &mut SampleE
                 ctx.clearance_cap,
                 &mut e.evaluated,
             );
-            if clear < ctx.margin {
+            // The chain above bounds the static clearance only; the forecast is checked on
+            // its own, at the end of this step.
+            let ahead = if ctx.moving.is_empty() {
+                f64::INFINITY
+            } else {
+                let fp = ctx.map.footprint();
+                crate::moving::clearance(fp, &pose, time + dt, ctx.moving, &mut e.evaluated)
+            };
+            if clear.min(ahead) < ctx.margin {
                 match ctx.min_safe_time {
                     Some(t) if time >= t => {
                         e.driven = k;
@@ -206,13 +218,14 @@ pub(super) fn evaluate(ctx: &RolloutCtx<'_>, controls: &[Twist], e: &mut SampleE
             } else {
                 travel += vel.v.abs() * dt;
                 last_clear = clear;
+                moving_clear = ahead;
             }
         }
         time += dt;
         if ctx.record {
             e.poses.push(pose);
         }
-        let x = (ctx.clearance_cap - last_clear).max(0.0) / ctx.clearance_cap;
+        let x = (ctx.clearance_cap - last_clear.min(moving_clear)).max(0.0) / ctx.clearance_cap;
         obstacle += dt * x * x;
         if k >= ctx.quarter {
             let p = pose.position();

@@ -1,0 +1,168 @@
+//! Planning among moving obstacles: what the planners are told about them
+//! ([`Predicted`], in [`crate::PlanInput::moving`]) and how a rollout point is checked
+//! against where they will be ([`clearance`]).
+//!
+//! A rollout point `t` seconds into the rollout is checked against each obstacle's
+//! constant-velocity forecast at `t` (its position plus velocity times `t`), exactly, as a
+//! circle against the footprint rectangle; each obstacle checked counts as one check point
+//! of the compute model. The scan's static distance field still holds the obstacles' current
+//! returns, so the check is conservative where an obstacle is now and adds where it is going.
+//!
+//! [`Tracking`] runs a [`Tracker`] on the robot's scans and turns its confirmed moving
+//! tracks into [`Predicted`] obstacles in each cycle's robot frame. Without tracking the
+//! list is empty and every planner behaves exactly as before.
+
+use serde::{Deserialize, Serialize};
+use sim::geometry::{Circle, Footprint, Pose, Vec2};
+use sim::Episode;
+
+use crate::tracker::{Track, Tracker, TrackerConfig};
+
+/// A moving obstacle as a planner sees it, in the robot frame of the planning cycle.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Predicted {
+    /// Centre now (m).
+    pub position: Vec2,
+    /// Velocity (m/s).
+    pub velocity: Vec2,
+    /// Radius (m).
+    pub radius: f64,
+}
+
+impl Predicted {
+    /// The track `tr` at time `now` (s), in the frame of the believed pose `believed`.
+    pub fn from_track(tr: &Track, believed: &Pose, now: f64) -> Self {
+        Self {
+            position: believed.to_local(tr.predict(now - tr.time)),
+            velocity: tr.velocity.rotated(-believed.yaw),
+            radius: tr.radius,
+        }
+    }
+}
+
+/// Smallest clearance (m) between `footprint` at `pose` (robot frame of the cycle) and every
+/// obstacle of `moving` where it will be `t` seconds from now; infinite when `moving` is
+/// empty. Adds one check point per obstacle to `evaluated`.
+#[inline]
+pub fn clearance(
+    footprint: &Footprint,
+    pose: &Pose,
+    t: f64,
+    moving: &[Predicted],
+    evaluated: &mut u64,
+) -> f64 {
+    let mut best = f64::INFINITY;
+    for o in moving {
+        let c = Circle {
+            c: o.position + o.velocity * t,
+            r: o.radius,
+        };
+        best = best.min(footprint.clearance_to_circle(pose, &c));
+    }
+    *evaluated += moving.len() as u64;
+    best
+}
+
+/// Obstacle prediction settings. Every field is optional in a TOML table; unknown keys are
+/// refused.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct TrackingConfig {
+    /// The tracker's tunables.
+    pub tracker: TrackerConfig,
+    /// Slowest track (m/s) treated as moving; slower ones are left to the static field.
+    pub min_speed: MinSpeed,
+}
+
+/// The slowest track speed (m/s) that is predicted (default 0.15: a tracked post's velocity
+/// estimate stays well below it, see the tracker's tests).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(transparent)]
+pub struct MinSpeed(pub f64);
+
+impl Default for MinSpeed {
+    fn default() -> Self {
+        MinSpeed(0.15)
+    }
+}
+
+/// A tracker on the robot's scans and the predicted obstacles of the current cycle. Owns its
+/// buffers; one per episode.
+#[derive(Clone, Debug)]
+pub struct Tracking {
+    tracker: Tracker,
+    min_speed: f64,
+    moving: Vec<Predicted>,
+}
+
+impl Tracking {
+    /// Tracking with `cfg` (validated by the caller: see [`TrackerConfig::validate`]).
+    pub fn new(cfg: TrackingConfig) -> Self {
+        Self {
+            tracker: Tracker::new(cfg.tracker),
+            min_speed: cfg.min_speed.0,
+            moving: Vec::new(),
+        }
+    }
+
+    /// Takes the episode's current scan (at its time, from its believed pose) and returns the
+    /// confirmed tracks moving at least the minimum speed, in the robot frame.
+    pub fn update(&mut self, ep: &Episode<'_>) -> &[Predicted] {
+        let now = ep.sim_time();
+        let believed = ep.believed_pose();
+        self.tracker.update(now, &believed, ep.perception().points);
+        self.moving.clear();
+        for tr in self.tracker.confirmed() {
+            if tr.velocity.norm() >= self.min_speed {
+                self.moving.push(Predicted::from_track(tr, &believed, now));
+            }
+        }
+        &self.moving
+    }
+
+    /// The tracker.
+    pub fn tracker(&self) -> &Tracker {
+        &self.tracker
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_crossing_obstacle_is_checked_where_it_will_be() {
+        let fp = Footprint::JACKAL;
+        // An obstacle of radius 0.2 m 2 m ahead and 1 m to the right, moving left at 1 m/s:
+        // at t = 1 s it is 2 m straight ahead.
+        let moving = [Predicted {
+            position: Vec2::new(2.0, -1.0),
+            velocity: Vec2::new(0.0, 1.0),
+            radius: 0.2,
+        }];
+        let at = |x: f64, t: f64, n: &mut u64| clearance(&fp, &Pose::new(x, 0.0, 0.0), t, &moving, n);
+        let mut n = 0;
+        // A pose 1.5 m ahead: at t = 1 s the gap is 2 - 0.2 - 1.5 - 0.254 (half length).
+        assert!((at(1.5, 1.0, &mut n) - (2.0 - 0.2 - 1.5 - 0.254)).abs() < 1e-12);
+        // The same pose now is clear by the distance to (2, -1).
+        let now = at(1.5, 0.0, &mut n);
+        assert!(now > 0.5, "{now}");
+        assert_eq!(n, 2, "one check point per obstacle and call");
+        assert_eq!(clearance(&fp, &Pose::default(), 0.0, &[], &mut n), f64::INFINITY);
+        assert_eq!(n, 2);
+    }
+
+    #[test]
+    fn a_track_is_seen_from_the_believed_pose() {
+        // A track at (3, 1) in the believed frame moving +x at 1 m/s, estimated 0.1 s ago;
+        // the robot believes it is at (1, 1) facing +y.
+        let mut tr = Track::born(0, Vec2::new(3.0, 1.0), 0.3, 1.0, &TrackerConfig::default());
+        tr.velocity = Vec2::new(1.0, 0.0);
+        let believed = Pose::new(1.0, 1.0, std::f64::consts::FRAC_PI_2);
+        let p = Predicted::from_track(&tr, &believed, 1.1);
+        // Now at (3.1, 1): 2.1 m to the robot's right (-y), and moving to its right.
+        assert!((p.position - Vec2::new(0.0, -2.1)).norm() < 1e-12, "{p:?}");
+        assert!((p.velocity - Vec2::new(0.0, -1.0)).norm() < 1e-12, "{p:?}");
+        assert_eq!(p.radius, 0.3);
+    }
+}
