@@ -204,7 +204,7 @@ pub fn run(args: &Args) -> anyhow::Result<Option<PathBuf>> {
         .context("cannot start worker threads")?;
     let all = stages(&ex.arms, ex.seeds, sweep_plan(&ex));
     let todo = pending(&all, &ctx.layout, &ex.arms, Path::exists);
-    eprintln!(
+    tracing::info!(
         "adp experiment {}: {} arm(s) x {} seed(s), {} stage(s), {} to run, in {}",
         ex.section.name,
         ex.arms.len(),
@@ -232,7 +232,7 @@ pub fn run(args: &Args) -> anyhow::Result<Option<PathBuf>> {
             if let Some(sh) = args.shard {
                 let file = sh.file(&out);
                 if file.exists() {
-                    eprintln!(
+                    tracing::info!(
                         "{step} shard {}/{} of `{}` exists",
                         sh.index,
                         sh.count,
@@ -240,14 +240,14 @@ pub fn run(args: &Args) -> anyhow::Result<Option<PathBuf>> {
                     );
                     continue;
                 }
-                eprintln!(
+                tracing::info!(
                     "{step} {} (shard {}/{})",
                     describe(stage, &ex.arms),
                     sh.index,
                     sh.count
                 );
                 pool.install(|| run_stage(&ctx, stage, &file))?;
-                eprintln!("{step} done in {:.0} s", t0.elapsed().as_secs_f64());
+                tracing::info!("{step} done in {:.0} s", t0.elapsed().as_secs_f64());
                 continue;
             }
             if let Some(files) = shard::complete_set(&out) {
@@ -258,7 +258,7 @@ pub fn run(args: &Args) -> anyhow::Result<Option<PathBuf>> {
                 shard::merge(records, &ex.test_worlds)
                     .with_context(|| format!("merging the shards of {}", out.display()))?
                     .save(&out)?;
-                eprintln!(
+                tracing::info!(
                     "{step} {}: merged {} shards",
                     describe(stage, &ex.arms),
                     files.len()
@@ -266,18 +266,18 @@ pub fn run(args: &Args) -> anyhow::Result<Option<PathBuf>> {
                 continue;
             }
         }
-        eprintln!("{step} {}", describe(stage, &ex.arms));
+        tracing::info!("{step} {}", describe(stage, &ex.arms));
         match stage {
             Stage::Train { arm, seed } => train(&ctx, *arm, *seed)?,
             _ => pool.install(|| run_stage(&ctx, stage, &out))?,
         }
-        eprintln!("{step} done in {:.0} s", t0.elapsed().as_secs_f64());
+        tracing::info!("{step} done in {:.0} s", t0.elapsed().as_secs_f64());
     }
     if args.no_eval || args.shard.is_some() {
         return Ok(None);
     }
     let report = pool.install(|| write_report(&ctx))?;
-    eprintln!("report: {}", report.display());
+    tracing::info!("report: {}", report.display());
     Ok(Some(report))
 }
 
@@ -501,7 +501,7 @@ fn run_stage(ctx: &Ctx<'_>, stage: &Stage, out: &Path) -> anyhow::Result<()> {
                     c.compute_ms_per_cycle = c.compute.ms_per_cycle();
                 }
                 let top = &found[keep_best(&found, &alive, 1)[0]];
-                eprintln!(
+                tracing::info!(
                     "  rung {k}: {} candidates x {upto} (world, run) pairs; best score {:.4}, success \
                      {:.1} %, {:.1} ms per cycle",
                     alive.len(),
