@@ -151,8 +151,7 @@ fn percentile(mut v: Vec<f64>, q: f64) -> f64 {
 pub fn run(worlds: usize) -> anyhow::Result<Vec<Figure>> {
     let mut cfg = EvalConfig::load(None)?;
     cfg.compute = planner::ComputeConfig::FREE;
-    let ids: Vec<usize> = sim::splits::SplitFile::embedded()
-        .select("train")?
+    let ids: Vec<usize> = sim::splits::select("train")?
         .into_iter()
         .take(worlds.max(1))
         .collect();
@@ -172,7 +171,7 @@ pub fn run(worlds: usize) -> anyhow::Result<Vec<Figure>> {
         for &kind in &kinds {
             for (sched, ddp) in &schedules {
                 for &w in &ids {
-                    let world = sim::barn::world(w).with_context(|| format!("world {w}"))?;
+                    let world = sim::catalog::world(w).with_context(|| format!("world {w}"))?;
                     let seed = crate::eval::run_seed(7, w, 0);
                     let mut timed = Timed {
                         inner: kind.build(&cfg, seed),
