@@ -195,7 +195,8 @@ pub enum Cmd {
     /// DWA-DDP, MPPI, MPPI-DDP, Log-MPPI, Log-MPPI-DDP, the DDP system) and print our table
     /// beside the paper's with the difference per cell and the calibration checks.
     Calibrate(CalibrateArgs),
-    /// Draw one episode: world, trajectory, footprints and fidelity-coloured rollouts.
+    /// Draw one episode: world, trajectory, footprints, fidelity-coloured rollouts and moving
+    /// obstacles (or, with --frames, a strip of moments of it).
     Render(RenderArgs),
     /// Export a checkpoint's policy: policy.onnx, policy.safetensors and policy.json.
     Export(ExportArgs),
@@ -312,6 +313,10 @@ pub struct RenderArgs {
     /// Draw the footprint every this many seconds.
     #[arg(long, default_value_t = 0.5)]
     pub footprint_every: f64,
+    /// Draw a frame strip instead of one picture: this many frames (2 to 24) side by side,
+    /// the world at evenly spaced moments from the start to the end of the episode.
+    #[arg(long)]
+    pub frames: Option<usize>,
     /// Output picture (.png or .svg).
     #[arg(long)]
     pub out: PathBuf,
