@@ -239,10 +239,7 @@ impl View {
                 .flat_map(|b| [b.min, b.max])
                 .chain(world.moving.iter().flat_map(|m| {
                     let r = Vec2::new(m.radius, m.radius);
-                    m.trajectory
-                        .keyframes()
-                        .iter()
-                        .flat_map(move |&k| [k - r, k + r])
+                    m.trajectory.keyframes().iter().flat_map(move |&k| [k - r, k + r])
                 }))
                 .chain([world.start.position(), world.goal]);
             let (mut lo, mut hi) = (
@@ -316,6 +313,7 @@ fn moving_paths(world: &World, phase: f64, from: f64, to: f64, dt: f64) -> Vec<V
     out
 }
 
+/// What every drawing step returns.
 type DrawResult = anyhow::Result<()>;
 
 /// The error of a plotters drawing call, as a one-line error.
@@ -337,7 +335,10 @@ where
         .map_err(e)?;
     for b in &world.walls {
         root.draw(&Rectangle::new(
-            [view.px(Vec2::new(b.min.x, b.max.y)), view.px(Vec2::new(b.max.x, b.min.y))],
+            [
+                view.px(Vec2::new(b.min.x, b.max.y)),
+                view.px(Vec2::new(b.max.x, b.min.y)),
+            ],
             STATIC.filled(),
         ))
         .map_err(e)?;
@@ -416,6 +417,8 @@ where
     }
 }
 
+/// The single picture: the world, the moving obstacles at the end over their swept paths, the
+/// rollouts at the chosen moments, the footprints, the driven path and the predicted rollouts.
 fn draw<DB: DrawingBackend>(
     root: &DrawingArea<DB, Shift>,
     job: &RenderJob<'_>,
@@ -509,7 +512,14 @@ where
     let (w, h) = view.size();
     for (area, t) in root.split_evenly((1, n)).iter().zip(frame_times(n, record.end_s)) {
         draw_static(area, job.world, view)?;
-        draw_moving(area, job.world, view, record, ((t - FRAME_TAIL_S).max(0.0), t), dt)?;
+        draw_moving(
+            area,
+            job.world,
+            view,
+            record,
+            ((t - FRAME_TAIL_S).max(0.0), t),
+            dt,
+        )?;
         // The trail up to `t`; the pose at `t` is its last point.
         let upto = record.trail.partition_point(|(s, _)| *s <= t).max(1);
         let trail = &record.trail[..upto];

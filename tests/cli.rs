@@ -187,7 +187,15 @@ fn render_writes_png_and_svg() {
     let w = u32::from_be_bytes(bytes[16..20].try_into().unwrap());
     let h = u32::from_be_bytes(bytes[20..24].try_into().unwrap());
     assert!(w % 3 == 0 && w / 3 <= 480 && h <= 480 && h > 400, "{w} x {h}");
-    let o = adp(&["render", "--world", "330", "--frames", "1", "--out", strip.to_str().unwrap()]);
+    let o = adp(&[
+        "render",
+        "--world",
+        "330",
+        "--frames",
+        "1",
+        "--out",
+        strip.to_str().unwrap(),
+    ]);
     one_line_error(&o, "--frames 1: a strip has 2 to 24 frames");
     std::fs::remove_dir_all(&dir).ok();
 }

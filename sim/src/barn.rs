@@ -262,7 +262,9 @@ mod tests {
         for world in &w {
             assert!(world.cylinders.iter().all(|c| (c.r - 0.075).abs() < 1e-9));
             // The start pose is free in every world.
-            assert!(!world.at(0.0).collides(&crate::geometry::Footprint::JACKAL, &world.start));
+            assert!(!world
+                .at(0.0)
+                .collides(&crate::geometry::Footprint::JACKAL, &world.start));
         }
     }
 

@@ -731,11 +731,12 @@ mod tests {
         // is exactly at x = 1 - (t - 2). It touches the standing robot's front (x = 0.254) when
         // its centre is at 0.754: t = 2.246 s on the obstacles' clock.
         let keys: Vec<[f64; 3]> = (0..5).map(|k| [k as f64, 3.0 - k as f64, 0.0]).collect();
-        let w = World::new(0, vec![], Pose::default(), Vec2::new(-9.0, 5.0), 9.0, vec![])
-            .with_moving(vec![MovingCylinder {
+        let w = World::new(0, vec![], Pose::default(), Vec2::new(-9.0, 5.0), 9.0, vec![]).with_moving(vec![
+            MovingCylinder {
                 radius: 0.5,
                 trajectory: Trajectory::new(&keys, 4.0).unwrap(),
-            }]);
+            },
+        ]);
         assert_eq!(w.at(2.5).moving()[0].c, Vec2::new(0.5, 0.0));
         // The run's phase decides when that is on the run's clock; take a seed whose phase
         // starts the obstacle before the contact.

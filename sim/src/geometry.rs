@@ -225,8 +225,8 @@ impl Footprint {
             return -depth;
         }
         let (l, w) = (self.half_length, self.half_width);
-        let own = [(l, w), (l, -w), (-l, -w), (-l, w)]
-            .map(|(x, y)| rect.distance(pose.to_world(Vec2::new(x, y))));
+        let own =
+            [(l, w), (l, -w), (-l, -w), (-l, w)].map(|(x, y)| rect.distance(pose.to_world(Vec2::new(x, y))));
         let theirs = rect
             .corners()
             .map(|k| self.signed_distance_local(pose.to_local(k)));
@@ -284,7 +284,10 @@ pub fn ray_circle(o: Vec2, d: Vec2, circle: &Circle) -> Option<f64> {
 /// is inside), if it does.
 pub fn ray_rect(o: Vec2, d: Vec2, rect: &Rect) -> Option<f64> {
     let (mut enter, mut exit) = (0.0f64, f64::INFINITY);
-    for (o_a, d_a, lo, hi) in [(o.x, d.x, rect.min.x, rect.max.x), (o.y, d.y, rect.min.y, rect.max.y)] {
+    for (o_a, d_a, lo, hi) in [
+        (o.x, d.x, rect.min.x, rect.max.x),
+        (o.y, d.y, rect.min.y, rect.max.y),
+    ] {
         if d_a == 0.0 {
             if o_a < lo || o_a > hi {
                 return None;
@@ -448,7 +451,10 @@ mod tests {
                         .into_iter()
                         .map(|p| b.distance(pose.to_world(p)))
                         .fold(f64::INFINITY, f64::min);
-                    assert!(sampled >= exact - 1e-12 && sampled - exact < 1e-3, "{exact} vs {sampled}");
+                    assert!(
+                        sampled >= exact - 1e-12 && sampled - exact < 1e-3,
+                        "{exact} vs {sampled}"
+                    );
                 }
             }
         }

@@ -8,8 +8,8 @@
 pub mod barn;
 pub mod catalog;
 pub mod costmap;
-pub mod dynamics;
 pub mod dynabarn;
+pub mod dynamics;
 pub mod episode;
 mod error;
 pub mod geometry;

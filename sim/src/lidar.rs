@@ -243,11 +243,12 @@ mod tests {
         // (0 s: (4, -3)), (2 s: (4, 0)), (4 s: (4, 3)). Catmull-Rom tangents (per segment):
         // m0 = (p1 - p0) / 2 = (0, 1.5), m1 = (p2 - p0) / 2 = (0, 3).
         let tr = Trajectory::new(&[[0.0, 4.0, -3.0], [2.0, 4.0, 0.0], [4.0, 4.0, 3.0]], 4.0).unwrap();
-        let w = World::new(0, vec![], Pose::default(), Vec2::new(9.0, 0.0), 9.0, vec![])
-            .with_moving(vec![MovingCylinder {
+        let w = World::new(0, vec![], Pose::default(), Vec2::new(9.0, 0.0), 9.0, vec![]).with_moving(vec![
+            MovingCylinder {
                 radius: 0.5,
                 trajectory: tr,
-            }]);
+            },
+        ]);
         let lidar = Lidar::new(LidarConfig {
             noise_sigma: 0.0,
             ..Default::default()
@@ -278,7 +279,11 @@ mod tests {
         assert!((ranges[mid] - 3.68).abs() < 0.01, "{}", ranges[mid]);
         // t = 2 s: the keyframe (4, 0), nearly face on: 3.5 m.
         lidar.scan(&w.at(2.0), &Pose::default(), &mut rng, &mut ranges);
-        assert!((ranges[mid] - hit(Vec2::new(4.0, 0.0))).abs() < 1e-9, "{}", ranges[mid]);
+        assert!(
+            (ranges[mid] - hit(Vec2::new(4.0, 0.0))).abs() < 1e-9,
+            "{}",
+            ranges[mid]
+        );
         assert!((ranges[mid] - 3.5).abs() < 1e-3);
     }
 }

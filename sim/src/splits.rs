@@ -253,8 +253,7 @@ impl SplitFile {
 
     /// The embedded file of `set`.
     pub fn embedded(set: SplitSet) -> Self {
-        Self::parse(set, set.embedded_text())
-            .expect("the embedded split files are checked by the test suite")
+        Self::parse(set, set.embedded_text()).expect("the embedded split files are checked by the test suite")
     }
 }
 
@@ -280,7 +279,10 @@ fn named() -> &'static BTreeMap<String, Vec<usize>> {
         for set in SplitSet::ALL {
             for (name, ids) in SplitFile::embedded(set).splits {
                 let clash = all.insert(name.clone(), ids);
-                assert!(clash.is_none(), "split `{name}` defined twice (checked by the test suite)");
+                assert!(
+                    clash.is_none(),
+                    "split `{name}` defined twice (checked by the test suite)"
+                );
             }
         }
         all
@@ -383,7 +385,10 @@ mod tests {
 
     #[test]
     fn dynabarn_splits_halve_every_level() {
-        let (train, test) = (select("dynabarn-train").unwrap(), select("dynabarn-test").unwrap());
+        let (train, test) = (
+            select("dynabarn-train").unwrap(),
+            select("dynabarn-test").unwrap(),
+        );
         assert_eq!((train.len(), test.len()), (30, 30));
         let mut union: Vec<usize> = train.iter().chain(&test).copied().collect();
         union.sort_unstable();
@@ -396,7 +401,10 @@ mod tests {
             assert!(tr.iter().chain(&te).all(|w| level.ids().contains(w)));
             assert!(tr.iter().all(|w| !te.contains(w) && train.contains(w)));
             assert!(te.iter().all(|w| test.contains(w)));
-            assert_eq!(select(&format!("dynabarn-{name}")).unwrap(), level.ids().collect::<Vec<_>>());
+            assert_eq!(
+                select(&format!("dynabarn-{name}")).unwrap(),
+                level.ids().collect::<Vec<_>>()
+            );
         }
         let (fit, val) = (select("dynabarn-fit").unwrap(), select("dynabarn-val").unwrap());
         assert_eq!((fit.len(), val.len()), (24, 6));
@@ -407,7 +415,10 @@ mod tests {
     #[test]
     fn split_files_refuse_overlap_and_foreign_ids() {
         let text = SplitSet::Dynabarn.render_toml(5);
-        assert_eq!(SplitFile::parse(SplitSet::Dynabarn, &text).unwrap().splits, SplitSet::Dynabarn.generate(5));
+        assert_eq!(
+            SplitFile::parse(SplitSet::Dynabarn, &text).unwrap().splits,
+            SplitSet::Dynabarn.generate(5)
+        );
         // Move the first easy test world into the easy training split too.
         let f = SplitFile::parse(SplitSet::Dynabarn, &text).unwrap();
         let w = f.splits["dynabarn-easy-test"][0];
@@ -416,11 +427,16 @@ mod tests {
         train.sort_unstable();
         let list = |v: &[usize]| v.iter().map(usize::to_string).collect::<Vec<_>>().join(", ");
         let overlapping = text.replace(
-            &format!("dynabarn-easy-train = [\n    {},\n]", list(&f.splits["dynabarn-easy-train"])),
+            &format!(
+                "dynabarn-easy-train = [\n    {},\n]",
+                list(&f.splits["dynabarn-easy-train"])
+            ),
             &format!("dynabarn-easy-train = [\n    {},\n]", list(&train)),
         );
         assert_ne!(overlapping, text);
-        let e = SplitFile::parse(SplitSet::Dynabarn, &overlapping).unwrap_err().to_string();
+        let e = SplitFile::parse(SplitSet::Dynabarn, &overlapping)
+            .unwrap_err()
+            .to_string();
         assert_eq!(
             e,
             format!(
@@ -432,12 +448,18 @@ mod tests {
         let barn = SplitSet::Barn.render_toml(2026);
         let leak = barn.replacen("val = [\n    ", "val = [\n    0, ", 1);
         let e = SplitFile::parse(SplitSet::Barn, &leak).unwrap_err().to_string();
-        assert!(e.contains("world 0 is in both `val` and the held-out `test`"), "{e}");
+        assert!(
+            e.contains("world 0 is in both `val` and the held-out `test`"),
+            "{e}"
+        );
         // Ids of the other set are refused.
         let e = SplitFile::parse(SplitSet::Dynabarn, "version = 1\nseed = 1\n[splits]\nx = [12]\n")
             .unwrap_err()
             .to_string();
-        assert_eq!(e, "split file dynabarn.toml: split `x` has world 12, outside 300..359");
+        assert_eq!(
+            e,
+            "split file dynabarn.toml: split `x` has world 12, outside 300..359"
+        );
     }
 
     #[test]
@@ -459,9 +481,15 @@ mod tests {
         assert_eq!(mixed.len(), 22);
         assert_eq!(&mixed[..3], &[0, 1, 340]);
         let e = select("tset").unwrap_err().to_string();
-        assert!(e.starts_with("unknown split `tset` (known: all, dynabarn,"), "{e}");
+        assert!(
+            e.starts_with("unknown split `tset` (known: all, dynabarn,"),
+            "{e}"
+        );
         let e = select("0..40,dynabarn-hrad").unwrap_err().to_string();
-        assert!(e.starts_with("unknown split `dynabarn-hrad` in `0..40,dynabarn-hrad` (known:"), "{e}");
+        assert!(
+            e.starts_with("unknown split `dynabarn-hrad` in `0..40,dynabarn-hrad` (known:"),
+            "{e}"
+        );
         assert_eq!(
             select("1,360").unwrap_err().to_string(),
             "bad world selection `360` in `1,360`: world 360 is beyond 359"

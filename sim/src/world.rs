@@ -163,9 +163,7 @@ impl<'w> Scene<'w> {
         }
         let walls = w.walls.iter().filter_map(|b| ray_rect(origin, dir, b));
         let moving = self.moving.iter().filter_map(|c| ray_circle(origin, dir, c));
-        let best = walls
-            .chain(moving)
-            .fold(hit.unwrap_or(f64::INFINITY), f64::min);
+        let best = walls.chain(moving).fold(hit.unwrap_or(f64::INFINITY), f64::min);
         (best <= max_range).then_some(best)
     }
 

@@ -444,8 +444,7 @@ impl Experiment {
             return Err(err("seeds", "must be at least 1".into()));
         }
         let select = |section: &str, key: &str, sel: &str| {
-            sim::splits::select(sel)
-                .map_err(|e| anyhow::anyhow!("{name}: [{section}] {key} = {sel:?}: {e}"))
+            sim::splits::select(sel).map_err(|e| anyhow::anyhow!("{name}: [{section}] {key} = {sel:?}: {e}"))
         };
         let test_worlds = select("experiment", "test_worlds", &ex.test_worlds)?;
         let disjoint = |section: &str, key: &str, sel: &str| -> anyhow::Result<Vec<usize>> {
