@@ -612,15 +612,16 @@ mod tests {
         let v = View::of(w, MAX_SIDE_PX);
         assert!(v.x0 <= -10.25 - 0.8 && v.x1 >= 11.0 + 0.8 && v.y0 <= -10.25 - 0.8 && v.y1 >= 10.25 + 0.8);
         assert!(v.scale < SCALE && v.size().0.max(v.size().1) <= 1600);
-        // Obstacle 1 of world 300 loops every 39.05 s: from 38.5 s to 39.6 s (phase 0) its path
-        // has two pieces, before and after the jump back to its first keyframe (10, 8).
-        let record_paths = moving_paths(w, 0.0, 38.5, 39.6, 0.05);
+        // Obstacle 1 of world 300 loops every 39.05 s: from 38.5 s to 39.5 s (phase 0, 21
+        // samples 0.05 s apart) its path has two pieces, before and after the jump back to its
+        // first keyframe (10, 8).
+        let record_paths = moving_paths(w, 0.0, 38.5, 39.5, 0.05);
         assert_eq!(record_paths.len(), w.moving.len());
         let pieces = &record_paths[1];
         assert_eq!(pieces.len(), 2);
         assert!(pieces[0].last().unwrap().dist(Vec2::new(-5.0, -10.0)) < 0.1);
         assert!(pieces[1][0].dist(Vec2::new(10.0, 8.0)) < 0.1);
-        assert_eq!(pieces.iter().map(Vec::len).sum::<usize>(), 23);
+        assert_eq!(pieces.iter().map(Vec::len).sum::<usize>(), 21);
         assert_eq!(frame_times(5, 4.0), vec![0.0, 1.0, 2.0, 3.0, 4.0]);
     }
 
