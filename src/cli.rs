@@ -8,7 +8,7 @@ use std::path::PathBuf;
 use anyhow::Context;
 use clap::{Parser, Subcommand};
 use planner::{ActionSpace, ComputeConfig, ComputeModel};
-use sim::splits::SplitFile;
+use sim::splits::SplitSet;
 use sim::{Profile, World};
 
 use crate::config::{EvalConfig, UnknownName};
@@ -29,10 +29,12 @@ pub struct Cli {
     pub cmd: Cmd,
 }
 
-/// Where the worlds come from: the embedded BARN data unless files are given.
+/// Where the worlds come from: the embedded BARN and DynaBARN worlds unless BARN files are
+/// given.
 #[derive(clap::Args, Clone, Debug)]
 pub struct WorldData {
-    /// Obstacles file in the BARN JSONL format (default: the embedded BARN worlds).
+    /// Obstacles file in the BARN JSONL format (default: the embedded BARN and DynaBARN
+    /// worlds; with files, only the worlds they hold).
     #[arg(long, requires = "paths")]
     pub obstacles: Option<PathBuf>,
     /// Paths file in the BARN JSONL format (default: the embedded BARN paths).
@@ -41,7 +43,8 @@ pub struct WorldData {
 }
 
 impl WorldData {
-    /// The worlds: parsed from the files, or the embedded ones.
+    /// The worlds by id: parsed from the files, or the embedded ones (BARN 0..299, DynaBARN
+    /// 300..359).
     pub fn load(&self) -> anyhow::Result<Cow<'static, [World]>> {
         match (&self.obstacles, &self.paths) {
             (Some(o), Some(p)) => {
@@ -51,7 +54,7 @@ impl WorldData {
                     std::fs::read_to_string(p).with_context(|| format!("cannot read {}", p.display()))?;
                 Ok(sim::barn::parse(&o.display().to_string(), &ot, &p.display().to_string(), &pt)?.into())
             }
-            _ => Ok(sim::barn::worlds().into()),
+            _ => Ok(sim::catalog::worlds().into()),
         }
     }
 
@@ -114,6 +117,15 @@ impl Setup {
         compute
             .validate()
             .map_err(|e| anyhow::anyhow!("--compute / --budget-scale: {e}"))
+    }
+}
+
+/// Parses a split-file set name.
+fn parse_split_set(s: &str) -> Result<SplitSet, String> {
+    match s {
+        "barn" => Ok(SplitSet::Barn),
+        "dynabarn" => Ok(SplitSet::Dynabarn),
+        _ => Err(format!("unknown world set {s:?} (barn, dynabarn)")),
     }
 }
 
@@ -183,7 +195,8 @@ pub enum Cmd {
     /// DWA-DDP, MPPI, MPPI-DDP, Log-MPPI, Log-MPPI-DDP, the DDP system) and print our table
     /// beside the paper's with the difference per cell and the calibration checks.
     Calibrate(CalibrateArgs),
-    /// Draw one episode: world, trajectory, footprints and fidelity-coloured rollouts.
+    /// Draw one episode: world, trajectory, footprints, fidelity-coloured rollouts and moving
+    /// obstacles (or, with --frames, a strip of moments of it).
     Render(RenderArgs),
     /// Export a checkpoint's policy: policy.onnx, policy.safetensors and policy.json.
     Export(ExportArgs),
@@ -236,7 +249,9 @@ pub struct EvalArgs {
     /// Speed cap(s) in m/s, comma-separated: one row per value.
     #[arg(long, value_delimiter = ',', default_value = "1.5")]
     pub max_speed: Vec<f64>,
-    /// Worlds: a split (train, test, hardest50, all), a range 0..50, or a list 3,7,9.
+    /// Worlds: comma-separated splits (BARN: train, test, hardest50, all; DynaBARN: dynabarn,
+    /// dynabarn-easy|medium|hard, dynabarn-train, dynabarn-test, ...), ranges (0..50, 300..320)
+    /// and ids (3,7,305).
     #[arg(long, default_value = "test")]
     pub worlds: String,
     /// Runs per world.
@@ -258,7 +273,7 @@ pub struct CalibrateArgs {
     /// Speed caps, comma-separated (default: the paper's 1.0, 1.5, 2.0).
     #[arg(long, value_delimiter = ',', default_value = "1.0,1.5,2.0")]
     pub max_speed: Vec<f64>,
-    /// Worlds: a split (train, test, hardest50, all), a range 0..50, or a list 3,7,9.
+    /// Worlds: comma-separated splits, ranges and ids, as for `adp eval`.
     #[arg(long, default_value = "all")]
     pub worlds: String,
     /// Runs per world.
@@ -298,6 +313,10 @@ pub struct RenderArgs {
     /// Draw the footprint every this many seconds.
     #[arg(long, default_value_t = 0.5)]
     pub footprint_every: f64,
+    /// Draw a frame strip instead of one picture: this many frames (2 to 24) side by side,
+    /// the world at evenly spaced moments from the start to the end of the episode.
+    #[arg(long)]
+    pub frames: Option<usize>,
     /// Output picture (.png or .svg).
     #[arg(long)]
     pub out: PathBuf,
@@ -387,7 +406,7 @@ pub struct SlurmArgs {
 pub enum WorldsCmd {
     /// Print the world ids of a selection, one per line.
     List {
-        /// A split (train, test, hardest50, all), a range 0..50, or a list 3,7,9.
+        /// Comma-separated splits, ranges and ids, as for `adp eval --worlds`.
         #[arg(long, default_value = "all")]
         split: String,
     },
@@ -398,11 +417,15 @@ pub enum WorldsCmd {
         #[command(flatten)]
         data: WorldData,
     },
-    /// Print a split file drawn with another seed (the format of configs/splits/barn.toml).
+    /// Print a split file drawn with another seed (the format of configs/splits/barn.toml, or
+    /// of configs/splits/dynabarn.toml with --set dynabarn).
     Splits {
         /// Seed for the training-world draw.
         #[arg(long)]
         seed: u64,
+        /// Which worlds: barn or dynabarn.
+        #[arg(long, default_value = "barn", value_parser = parse_split_set)]
+        set: SplitSet,
     },
 }
 
@@ -410,7 +433,7 @@ impl WorldsCmd {
     fn run(self) -> anyhow::Result<()> {
         match self {
             WorldsCmd::List { split } => {
-                for id in SplitFile::embedded().select(&split)? {
+                for id in sim::splits::select(&split)? {
                     println!("{id}");
                 }
             }
@@ -419,6 +442,14 @@ impl WorldsCmd {
                 let w = WorldData::get(&all, id)?;
                 println!("world {}", w.id);
                 println!("cylinders {}", w.cylinders.len());
+                if !w.walls.is_empty() || !w.moving.is_empty() {
+                    println!("walls {}", w.walls.len());
+                    println!(
+                        "moving {} (longest loop {:.2} s)",
+                        w.moving.len(),
+                        w.longest_period()
+                    );
+                }
                 println!("start {:.3} {:.3} {:.4}", w.start.x, w.start.y, w.start.yaw);
                 println!(
                     "goal {:.3} {:.3} (radius {} m)",
@@ -427,7 +458,7 @@ impl WorldsCmd {
                 println!("path_length_m {:.6}", w.path_length_m);
                 println!("optimal_time_s {:.6}", w.optimal_time_s);
             }
-            WorldsCmd::Splits { seed } => print!("{}", sim::splits::render_toml(seed)),
+            WorldsCmd::Splits { seed, set } => print!("{}", set.render_toml(seed)),
         }
         Ok(())
     }
@@ -489,7 +520,7 @@ pub fn run(cmd: Cmd) -> anyhow::Result<()> {
 /// `adp calibrate` (its tables and checks are in [`calibrate`]).
 fn calibrate(a: &CalibrateArgs) -> anyhow::Result<()> {
     let cfg = a.run.setup.eval_config()?;
-    let ids = SplitFile::embedded().select(&a.worlds)?;
+    let ids = sim::splits::select(&a.worlds)?;
     let chosen: Vec<&calibrate::PaperRow> = if a.rows.is_empty() {
         calibrate::TABLE_I.iter().collect()
     } else {

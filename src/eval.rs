@@ -602,7 +602,7 @@ pub fn table(rows: &[Row]) -> String {
 /// as JSON with `--out`).
 pub fn command(a: &crate::cli::EvalArgs) -> anyhow::Result<()> {
     let mut cfg = a.run.setup.eval_config()?;
-    let ids = sim::splits::SplitFile::embedded().select(&a.worlds)?;
+    let ids = sim::splits::select(&a.worlds)?;
     if a.runs == 0 {
         anyhow::bail!("--runs must be at least 1");
     }

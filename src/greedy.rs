@@ -184,7 +184,7 @@ impl Setup {
         let (mut wins, mut score, mut n) = (0usize, 0.0, 0usize);
         let mut records = Vec::new();
         for (w, seed) in self.seeds() {
-            let world = sim::barn::world(w).with_context(|| format!("world {w}"))?;
+            let world = sim::catalog::world(w).with_context(|| format!("world {w}"))?;
             let env = AdpEnv::new(
                 world,
                 self.eval.episode,
@@ -224,7 +224,7 @@ impl Setup {
         let schedule = Schedule::ddp_default();
         let (mut wins, mut score, mut n) = (0usize, 0.0, 0usize);
         for (w, seed) in self.seeds() {
-            let Ok(world) = sim::barn::world(w) else {
+            let Ok(world) = sim::catalog::world(w) else {
                 continue;
             };
             let mut planner = self.planner.build(&self.eval, seed);
@@ -279,8 +279,7 @@ impl GreedyMonitor {
             return Ok(None);
         }
         anyhow::ensure!(section.runs >= 1, "[greedy] runs must be at least 1");
-        let worlds = sim::splits::SplitFile::embedded()
-            .select(&section.worlds)
+        let worlds = sim::splits::select(&section.worlds)
             .map_err(|e| anyhow::anyhow!("[greedy] worlds = {:?}: {e}", section.worlds))?;
         let setup = Setup {
             worlds,

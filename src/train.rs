@@ -153,8 +153,7 @@ impl TrainConfig {
 
     /// The training worlds of `[run] worlds`.
     pub(crate) fn worlds(&self) -> anyhow::Result<Vec<usize>> {
-        sim::splits::SplitFile::embedded()
-            .select(&self.run.worlds)
+        sim::splits::select(&self.run.worlds)
             .map_err(|e| anyhow::anyhow!("[run] worlds = {:?}: {e}", self.run.worlds))
     }
 

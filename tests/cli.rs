@@ -19,6 +19,13 @@ fn splits_have_the_documented_sizes_and_are_disjoint() {
     union.sort_unstable();
     assert_eq!(union, all);
     assert_eq!(ids("hardest50").len(), 50);
+    // DynaBARN: 300..359, train and test halves of every level.
+    let (dtrain, dtest) = (ids("dynabarn-train"), ids("dynabarn-test"));
+    assert_eq!((dtrain.len(), dtest.len()), (30, 30));
+    assert!(dtrain.iter().all(|w| !dtest.contains(w)));
+    assert_eq!(ids("dynabarn"), (300..360).collect::<Vec<_>>());
+    assert_eq!(ids("dynabarn-medium"), (320..340).collect::<Vec<_>>());
+    assert_eq!(ids("298..301,dynabarn-hard").len(), 23);
 }
 
 #[test]
@@ -26,6 +33,14 @@ fn bad_input_gives_one_line_errors() {
     one_line_error(
         &adp(&["worlds", "list", "--split", "tset"]),
         "unknown split `tset`",
+    );
+    one_line_error(
+        &adp(&["eval", "--worlds", "0..2,dynabarn-hrad"]),
+        "unknown split `dynabarn-hrad` in `0..2,dynabarn-hrad`",
+    );
+    one_line_error(
+        &adp(&["eval", "--worlds", "dynabarn-easy,360"]),
+        "bad world selection `360` in `dynabarn-easy,360`: world 360 is beyond 359",
     );
     one_line_error(
         &adp(&["eval", "--worlds", "0..2", "--runs", "0"]),
@@ -155,6 +170,33 @@ fn render_writes_png_and_svg() {
         dir.join("ep.gif").to_str().unwrap(),
     ]);
     one_line_error(&o, "must end in .png or .svg");
+    // A DynaBARN world as a strip of 3 frames, each at most 480 px on its longest side.
+    let strip = dir.join("strip.png");
+    let o = adp(&[
+        "render",
+        "--world",
+        "330",
+        "--frames",
+        "3",
+        "--out",
+        strip.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stdout(&o).starts_with("world 330 "), "{}", stdout(&o));
+    let bytes = std::fs::read(&strip).unwrap();
+    let w = u32::from_be_bytes(bytes[16..20].try_into().unwrap());
+    let h = u32::from_be_bytes(bytes[20..24].try_into().unwrap());
+    assert!(w % 3 == 0 && w / 3 <= 480 && h <= 480 && h > 400, "{w} x {h}");
+    let o = adp(&[
+        "render",
+        "--world",
+        "330",
+        "--frames",
+        "1",
+        "--out",
+        strip.to_str().unwrap(),
+    ]);
+    one_line_error(&o, "--frames 1: a strip has 2 to 24 frames");
     std::fs::remove_dir_all(&dir).ok();
 }
 

@@ -129,7 +129,7 @@ pub enum SessionError {
     },
     /// The assigned world does not exist.
     #[error(transparent)]
-    World(#[from] sim::barn::DataError),
+    World(#[from] sim::catalog::UnknownWorld),
     /// The run's planner could not be built.
     #[error("{0}")]
     Planner(FactoryError),
@@ -677,7 +677,7 @@ impl EpisodeCtx<'_> {
         header: &LeaseHeader,
         sink: &mut dyn StepSink,
     ) -> Result<pb::EpisodeReport, EpisodeError> {
-        let world = sim::barn::world(a.world as usize).map_err(|e| EpisodeError::Fatal(e.into()))?;
+        let world = sim::catalog::world(a.world as usize).map_err(|e| EpisodeError::Fatal(e.into()))?;
         let planner = (self.setup.make_planner)(&self.spec.planner, seed)
             .map_err(|e| EpisodeError::Fatal(SessionError::Planner(e)))?;
         let mut env = AdpEnv::new(

@@ -6,8 +6,6 @@
 //! The same parser reads user-supplied files, so a malformed line is reported with the
 //! file, line, world and field at fault.
 
-use std::sync::OnceLock;
-
 use serde::Deserialize;
 
 use crate::geometry::{Circle, Pose, Vec2};
@@ -87,6 +85,7 @@ struct PathLine {
     path_length_m: f64,
 }
 
+/// ", world N" when a line's `world` field can be read, for error messages.
 fn world_hint(line: &str) -> String {
     serde_json::from_str::<serde_json::Value>(line)
         .ok()
@@ -95,11 +94,15 @@ fn world_hint(line: &str) -> String {
         .unwrap_or_default()
 }
 
-fn parse_lines<T: for<'de> Deserialize<'de>>(
+/// Parses a JSON-lines file of one record per world into a vector indexed by world id
+/// (`world_of`, called once `check` has accepted the record; `check` refuses records whose
+/// values cannot be right). Errors name the file, the line, the world when it can be read,
+/// and the field.
+pub(crate) fn parse_lines<T: for<'de> Deserialize<'de>, E: std::fmt::Display>(
     file: &str,
     text: &str,
     world_of: impl Fn(&T) -> usize,
-    check: impl Fn(&T) -> Result<(), RecordError>,
+    check: impl Fn(&T) -> Result<(), E>,
 ) -> Result<Vec<Option<T>>, DataError> {
     let mut out: Vec<Option<T>> = Vec::new();
     for (i, line) in text.lines().enumerate() {
@@ -142,7 +145,7 @@ pub fn parse(
     paths_name: &str,
     paths: &str,
 ) -> Result<Vec<World>, DataError> {
-    let obs = parse_lines::<ObstacleLine>(
+    let obs = parse_lines::<ObstacleLine, _>(
         obstacles_name,
         obstacles,
         |o| o.world,
@@ -164,7 +167,7 @@ pub fn parse(
             Ok(())
         },
     )?;
-    let pth = parse_lines::<PathLine>(
+    let pth = parse_lines::<PathLine, _>(
         paths_name,
         paths,
         |p| p.world,
@@ -234,13 +237,9 @@ pub fn parse(
     Ok(worlds)
 }
 
-/// All embedded BARN worlds (parsed once, on first use).
+/// All embedded BARN worlds (their part of [`crate::catalog::worlds`]).
 pub fn worlds() -> &'static [World] {
-    static WORLDS: OnceLock<Vec<World>> = OnceLock::new();
-    WORLDS.get_or_init(|| {
-        parse("obstacles.jsonl", OBSTACLES_JSONL, "paths.jsonl", PATHS_JSONL)
-            .expect("the embedded BARN data is checked by the test suite")
-    })
+    &crate::catalog::worlds()[..NUM_WORLDS]
 }
 
 /// One embedded world by id.
@@ -263,7 +262,9 @@ mod tests {
         for world in &w {
             assert!(world.cylinders.iter().all(|c| (c.r - 0.075).abs() < 1e-9));
             // The start pose is free in every world.
-            assert!(!world.collides(&crate::geometry::Footprint::JACKAL, &world.start));
+            assert!(!world
+                .at(0.0)
+                .collides(&crate::geometry::Footprint::JACKAL, &world.start));
         }
     }
 

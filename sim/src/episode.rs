@@ -16,7 +16,7 @@ use crate::lidar::{Lidar, LidarConfig};
 use crate::navigation::{point_at_arc_length, smooth, GlobalPlanner};
 use crate::robot::{RobotLimits, RobotState, Twist};
 use crate::score::barn_score;
-use crate::world::World;
+use crate::world::{Scene, World};
 
 /// Seed offset of the localization-drift stream (kept apart from the sensor noise, so the
 /// `ideal` profile draws exactly the noise it always did).
@@ -24,6 +24,9 @@ const DRIFT_STREAM: u64 = 0x5eed_d41f_7000_0001;
 /// Seed offset of the start-jitter stream (apart from noise and drift, so a zero jitter draws
 /// nothing and changes nothing).
 const JITTER_STREAM: u64 = 0x5eed_517a_7000_0002;
+/// Seed offset of the obstacle-phase stream (apart from the others; a static world draws
+/// nothing from it).
+const PHASE_STREAM: u64 = 0x5eed_0b57_7000_0003;
 /// Largest accepted start-position jitter (m): the BARN start corridor leaves the Jackal's
 /// footprint about this much room on each side.
 pub const MAX_START_JITTER_M: f64 = 0.2;
@@ -41,6 +44,23 @@ fn jittered_start(start: Pose, cfg: &EpisodeConfig, seed: u64) -> Pose {
     let (dx, dy) = (draw(cfg.start_jitter_m), draw(cfg.start_jitter_m));
     let dyaw = draw(cfg.start_jitter_yaw_rad);
     Pose::new(start.x + dx, start.y + dy, start.yaw + dyaw)
+}
+
+/// The obstacles' clock when the robot starts (s), drawn for the run with seed `seed`: uniform
+/// in [0, longest loop of the world's moving obstacles), one value for all of them (they share
+/// one clock, as Gazebo's animations share the simulation time). 0 for a world without moving
+/// obstacles, which draws nothing.
+///
+/// The original DynaBARN challenge does not control this: its obstacles start moving when
+/// Gazebo starts, not when the robot does, so where they are at the robot's departure depends
+/// on how long the launch took. Here it is seeded, so a run repeats exactly and the runs of a
+/// world see different phases.
+pub fn obstacle_phase(world: &World, seed: u64) -> f64 {
+    if world.moving.is_empty() {
+        return 0.0;
+    }
+    let mut rng = Pcg64Mcg::seed_from_u64(seed ^ PHASE_STREAM);
+    rng.random_range(0.0..world.longest_period())
 }
 
 /// Episode parameters. Defaults follow the BARN protocol (DESIGN §3).
@@ -207,6 +227,10 @@ pub struct Perception<'a> {
 /// A running BARN episode. Owns all its buffers; stepping does not allocate once warm.
 pub struct Episode<'w> {
     world: &'w World,
+    /// The world at the current time (the obstacles' clock is `phase + sim_time`).
+    scene: Scene<'w>,
+    /// The obstacles' clock at the start ([`obstacle_phase`]).
+    phase: f64,
     cfg: EpisodeConfig,
     lidar: Lidar,
     rng: Pcg64Mcg,
@@ -235,8 +259,9 @@ pub struct Episode<'w> {
 }
 
 impl<'w> Episode<'w> {
-    /// Resets the robot to the world's start; the seed drives the sensor noise and (on a
-    /// separate stream) the localization drift.
+    /// Resets the robot to the world's start; the seed drives the sensor noise and (on
+    /// separate streams) the localization drift, the start jitter and the moving obstacles'
+    /// phase ([`obstacle_phase`]).
     ///
     /// # Panics
     /// If the profile does not resolve ([`EpisodeConfig::validate`] reports that first).
@@ -247,8 +272,11 @@ impl<'w> Episode<'w> {
         let lidar = Lidar::new(cfg.lidar);
         let start = jittered_start(world.start, &cfg, seed);
         let costmap = Costmap::around(cfg.costmap, start.position(), world.goal);
+        let phase = obstacle_phase(world, seed);
         let mut ep = Self {
             world,
+            scene: world.at(phase),
+            phase,
             cfg,
             lidar,
             rng: Pcg64Mcg::seed_from_u64(seed),
@@ -283,6 +311,17 @@ impl<'w> Episode<'w> {
     /// The world being driven.
     pub fn world(&self) -> &'w World {
         self.world
+    }
+
+    /// The world as it is now (the moving obstacles where they are at this moment). Ground
+    /// truth, like [`Episode::state`]: for the harness and drawing, not for planners.
+    pub fn scene(&self) -> &Scene<'w> {
+        &self.scene
+    }
+
+    /// The obstacles' clock when the run started (s): [`obstacle_phase`] of its seed.
+    pub fn obstacle_phase(&self) -> f64 {
+        self.phase
     }
 
     /// Where this run started: the world's start, moved by the configured start jitter.
@@ -398,7 +437,8 @@ impl<'w> Episode<'w> {
             {
                 self.clock_start = Some(self.sim_time);
             }
-            if self.world.collides(&fp, &self.state.pose) {
+            self.scene.set_time(self.phase + self.sim_time);
+            if self.scene.collides(&fp, &self.state.pose) {
                 return self.finish(Status::Collided);
             }
             if pos.dist(self.world.goal) <= self.world.goal_radius {
@@ -457,7 +497,7 @@ impl<'w> Episode<'w> {
     /// and recompute the local goal.
     fn sense(&mut self) {
         self.lidar
-            .scan(self.world, &self.state.pose, &mut self.rng, &mut self.ranges);
+            .scan(&self.scene, &self.state.pose, &mut self.rng, &mut self.ranges);
         let dynamics = *self.drive.dynamics();
         self.localization
             .drift(&dynamics, self.undrifted, &mut self.drift_rng);
@@ -674,11 +714,51 @@ mod tests {
                 let s = world.start;
                 let p = Pose::new(s.x + sx * j, s.y + sy * j, s.yaw + sa * jy);
                 assert!(
-                    !world.collides(&crate::geometry::Footprint::JACKAL, &p),
+                    !world.at(0.0).collides(&crate::geometry::Footprint::JACKAL, &p),
                     "world {}",
                     world.id
                 );
             }
         }
+    }
+
+    #[test]
+    fn a_moving_obstacle_collides_when_it_reaches_the_robot() {
+        use crate::motion::{MovingCylinder, Trajectory};
+        // A cylinder of radius 0.5 driving along -x through the robot's position, one key
+        // per second from (3, 0) to (-1, 0), looping every 4 s. Evenly spaced collinear keys
+        // have Catmull-Rom tangents equal to the step inside, so from t = 2 s to 3 s the centre
+        // is exactly at x = 1 - (t - 2). It touches the standing robot's front (x = 0.254) when
+        // its centre is at 0.754: t = 2.246 s on the obstacles' clock.
+        let keys: Vec<[f64; 3]> = (0..5).map(|k| [k as f64, 3.0 - k as f64, 0.0]).collect();
+        let w = World::new(0, vec![], Pose::default(), Vec2::new(-9.0, 5.0), 9.0, vec![]).with_moving(vec![
+            MovingCylinder {
+                radius: 0.5,
+                trajectory: Trajectory::new(&keys, 4.0).unwrap(),
+            },
+        ]);
+        assert_eq!(w.at(2.5).moving()[0].c, Vec2::new(0.5, 0.0));
+        // The run's phase decides when that is on the run's clock; take a seed whose phase
+        // starts the obstacle before the contact.
+        let seed = (0..).find(|&s| obstacle_phase(&w, s) < 2.0).unwrap();
+        let phase = obstacle_phase(&w, seed);
+        let mut ep = Episode::new(&w, ideal(), seed);
+        assert_eq!(ep.obstacle_phase(), phase);
+        while ep.step(Twist::new(0.0, 0.0)) == Status::Running {}
+        assert_eq!(ep.status(), Status::Collided);
+        // Collision is checked every 0.01 s physics step.
+        let expected = 2.246 - phase;
+        assert!(
+            ep.sim_time() >= expected - 1e-9 && ep.sim_time() < expected + 0.01 + 1e-9,
+            "collided at {} s, expected {expected} s",
+            ep.sim_time()
+        );
+        assert!((ep.scene().time() - (phase + ep.sim_time())).abs() < 1e-12);
+        // The phase is the seed's: repeatable, different across seeds, in [0, 4).
+        assert_eq!(obstacle_phase(&w, 7), obstacle_phase(&w, 7));
+        assert_ne!(obstacle_phase(&w, 7), obstacle_phase(&w, 8));
+        assert!((0..50).all(|s| (0.0..4.0).contains(&obstacle_phase(&w, s))));
+        // A static world has no phase.
+        assert_eq!(obstacle_phase(&corridor(false), 7), 0.0);
     }
 }

@@ -1,4 +1,4 @@
-//! The simulator: BARN worlds, Jackal kinematics and its true response to commands (lag,
+//! The simulator: BARN and DynaBARN worlds (static and moving obstacles), Jackal kinematics and its true response to commands (lag,
 //! acceleration limits, skid-steer slip, latency, localization drift: [`dynamics`]), a 2-D
 //! lidar, exact footprint collision, the robot's own costmap and global path, episodes with
 //! the BARN protocol, and the score.
@@ -6,12 +6,15 @@
 //! Pure and deterministic: every random draw comes from a seed the caller passes in.
 
 pub mod barn;
+pub mod catalog;
 pub mod costmap;
+pub mod dynabarn;
 pub mod dynamics;
 pub mod episode;
 mod error;
 pub mod geometry;
 pub mod lidar;
+pub mod motion;
 pub mod navigation;
 pub mod predictive_cost;
 pub mod robot;
@@ -24,4 +27,4 @@ pub use episode::{Episode, EpisodeConfig, EpisodeResult, Perception, Status};
 pub use error::ConfigError;
 pub use geometry::{Circle, Footprint, Pose, Vec2};
 pub use robot::{RobotLimits, RobotState, Twist};
-pub use world::World;
+pub use world::{Scene, World};

@@ -6,7 +6,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::ConfigError;
 use crate::geometry::{Pose, Vec2};
-use crate::world::World;
+use crate::world::Scene;
 
 /// Lidar parameters. Defaults are the UST-10 of the BARN Jackal.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -108,15 +108,15 @@ impl Lidar {
         &self.angles
     }
 
-    /// Scans `world` from `pose`, writing one range per beam into `ranges` (resized to the
-    /// number of beams; no allocation once it has that size).
-    pub fn scan(&self, world: &World, pose: &Pose, rng: &mut impl Rng, ranges: &mut Vec<f64>) {
+    /// Scans `scene` (a world at one moment) from `pose`, writing one range per beam into
+    /// `ranges` (resized to the number of beams; no allocation once it has that size).
+    pub fn scan(&self, scene: &Scene<'_>, pose: &Pose, rng: &mut impl Rng, ranges: &mut Vec<f64>) {
         ranges.resize(self.dirs.len(), 0.0);
         let o = pose.position();
         let (s, c) = pose.yaw.sin_cos();
         for (r, d) in ranges.iter_mut().zip(&self.dirs) {
             let dw = Vec2::new(c * d.x - s * d.y, s * d.x + c * d.y);
-            let mut range = world
+            let mut range = scene
                 .raycast(o, dw, self.cfg.max_range)
                 .unwrap_or(self.cfg.max_range);
             if let Some(n) = &self.noise {
@@ -141,6 +141,8 @@ impl Lidar {
 mod tests {
     use super::*;
     use crate::geometry::Circle;
+    use crate::motion::{MovingCylinder, Trajectory};
+    use crate::world::World;
     use rand::SeedableRng;
 
     fn one_cylinder(x: f64, y: f64, r: f64) -> World {
@@ -168,7 +170,7 @@ mod tests {
         let mut ranges = Vec::new();
         // Cylinder of radius 0.5 at (3, 0); robot at the origin facing +x.
         let w = one_cylinder(3.0, 0.0, 0.5);
-        lidar.scan(&w, &Pose::new(0.0, 0.0, 0.0), &mut rng, &mut ranges);
+        lidar.scan(&w.at(0.0), &Pose::new(0.0, 0.0, 0.0), &mut rng, &mut ranges);
         assert_eq!(ranges.len(), 720);
         // 720 beams over 270 deg inclusive: beam k is at -135 + k * 270/719 deg; the beams at
         // +-0.1878 deg bracket the heading.
@@ -186,7 +188,7 @@ mod tests {
         assert_eq!(ranges[719], 30.0);
         // The same cylinder seen from a robot facing +y is on its right (negative angles).
         lidar.scan(
-            &w,
+            &w.at(0.0),
             &Pose::new(0.0, 0.0, std::f64::consts::FRAC_PI_2),
             &mut rng,
             &mut ranges,
@@ -214,7 +216,7 @@ mod tests {
         });
         let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(2);
         let mut ranges = Vec::new();
-        lidar.scan(&w, &Pose::default(), &mut rng, &mut ranges);
+        lidar.scan(&w.at(0.0), &Pose::default(), &mut rng, &mut ranges);
         assert_eq!(ranges[359], 0.1, "returns closer than min_range are clamped");
 
         let far = one_cylinder(5.0, 0.0, 1.0);
@@ -224,7 +226,7 @@ mod tests {
         });
         let mut errs = Vec::new();
         for _ in 0..200 {
-            noisy.scan(&far, &Pose::default(), &mut rng, &mut ranges);
+            noisy.scan(&far.at(0.0), &Pose::default(), &mut rng, &mut ranges);
             errs.push(ranges[359] - 4.0);
         }
         let mean = errs.iter().sum::<f64>() / errs.len() as f64;
@@ -233,5 +235,55 @@ mod tests {
             mean.abs() < 0.003 && (sd - 0.01).abs() < 0.003,
             "mean {mean} sd {sd}"
         );
+    }
+
+    #[test]
+    fn a_moving_cylinder_is_seen_where_it_is_at_the_scan_time() {
+        // A cylinder of radius 0.5 crossing the robot's heading along x = 4: keyframes
+        // (0 s: (4, -3)), (2 s: (4, 0)), (4 s: (4, 3)). Catmull-Rom tangents (per segment):
+        // m0 = (p1 - p0) / 2 = (0, 1.5), m1 = (p2 - p0) / 2 = (0, 3).
+        let tr = Trajectory::new(&[[0.0, 4.0, -3.0], [2.0, 4.0, 0.0], [4.0, 4.0, 3.0]], 4.0).unwrap();
+        let w = World::new(0, vec![], Pose::default(), Vec2::new(9.0, 0.0), 9.0, vec![]).with_moving(vec![
+            MovingCylinder {
+                radius: 0.5,
+                trajectory: tr,
+            },
+        ]);
+        let lidar = Lidar::new(LidarConfig {
+            noise_sigma: 0.0,
+            ..Default::default()
+        });
+        let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(3);
+        let mut ranges = Vec::new();
+        // Beam 359, 0.1878 deg right of the heading.
+        let mid = 359;
+        let a = lidar.angles()[mid];
+        let d = Vec2::new(a.cos(), a.sin());
+        // The near root of |t d - c|^2 = r^2 for a centre c.
+        let hit = |c: Vec2| {
+            let b = d.dot(c);
+            b - (b * b - c.dot(c) + 0.25).sqrt()
+        };
+        // t = 1 s (s = 0.5 in segment 0; h00 = h01 = 0.5, h10 = 0.125, h11 = -0.125):
+        // y = 0.5 (-3) + 0.125 (1.5) - 0.125 (3) = -1.6875, 1.19 m off the beam: no return.
+        assert!(w.at(1.0).moving()[0].c.dist(Vec2::new(4.0, -1.6875)) < 1e-12);
+        lidar.scan(&w.at(1.0), &Pose::default(), &mut rng, &mut ranges);
+        assert_eq!(ranges[mid], 30.0);
+        // t = 1.75 s (s = 0.875: h00 = 0.04296875, h10 = 0.013671875, h11 = -0.095703125):
+        // y = -3 (0.04296875) + 1.5 (0.013671875) + 3 (-0.095703125) = -0.3955078125; the beam
+        // cuts the cylinder off-centre.
+        let c = Vec2::new(4.0, -0.3955078125);
+        assert!(w.at(1.75).moving()[0].c.dist(c) < 1e-12);
+        lidar.scan(&w.at(1.75), &Pose::default(), &mut rng, &mut ranges);
+        assert!((ranges[mid] - hit(c)).abs() < 1e-9, "{}", ranges[mid]);
+        assert!((ranges[mid] - 3.68).abs() < 0.01, "{}", ranges[mid]);
+        // t = 2 s: the keyframe (4, 0), nearly face on: 3.5 m.
+        lidar.scan(&w.at(2.0), &Pose::default(), &mut rng, &mut ranges);
+        assert!(
+            (ranges[mid] - hit(Vec2::new(4.0, 0.0))).abs() < 1e-9,
+            "{}",
+            ranges[mid]
+        );
+        assert!((ranges[mid] - 3.5).abs() < 1e-3);
     }
 }

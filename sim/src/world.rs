@@ -1,23 +1,30 @@
 //! The world model: obstacles plus the task (start, goal, optimal time), and a uniform-grid
-//! spatial index so lidar rays and footprint checks touch only nearby obstacles.
+//! spatial index so lidar rays and footprint checks touch only nearby static cylinders.
 //!
-//! Static cylinders are all BARN needs. Moving obstacles (DynaBARN) would be added as a
-//! second, time-dependent obstacle set queried by the same two methods
-//! ([`World::raycast`] and [`World::footprint_clearance`]); callers never iterate the
-//! obstacles themselves, so that extension stays local to this file.
+//! Obstacles come in three kinds: static cylinders (all BARN needs; spatial index), static
+//! axis-aligned boxes (DynaBARN's walls; few, checked one by one) and moving cylinders
+//! (DynaBARN; their positions depend on time, so they are placed for one moment at a time by a
+//! [`Scene`] and checked one by one). Sensing and collision always go through a [`Scene`],
+//! the world at one time; a world without moving obstacles gives the same answers at every
+//! time, bit for bit the static computation.
 
-use crate::geometry::{ray_circle, Circle, Footprint, Pose, Vec2};
+use crate::geometry::{ray_circle, ray_rect, Circle, Footprint, Pose, Rect, Vec2};
+use crate::motion::MovingCylinder;
 
-/// A navigation task in a field of cylinders.
+/// A navigation task among obstacles.
 ///
 /// Immutable after construction and `Sync`: one `World` is shared by all episodes that run
 /// in parallel on it.
 #[derive(Clone, Debug)]
 pub struct World {
-    /// World index (BARN: 0..299, the difficulty rank).
+    /// World id (BARN: 0..299, the difficulty rank; DynaBARN: 300..359).
     pub id: usize,
-    /// Every obstacle, world frame.
+    /// Every static cylinder, world frame.
     pub cylinders: Vec<Circle>,
+    /// Static boxes (walls), world frame.
+    pub walls: Vec<Rect>,
+    /// Cylinders that move (their clock is the world's time, see [`World::at`]).
+    pub moving: Vec<MovingCylinder>,
     /// Where the robot starts.
     pub start: Pose,
     /// Goal position.
@@ -34,7 +41,7 @@ pub struct World {
 }
 
 impl World {
-    /// Builds a world and its spatial index.
+    /// Builds a world of static cylinders and its spatial index.
     pub fn new(
         id: usize,
         cylinders: Vec<Circle>,
@@ -47,6 +54,8 @@ impl World {
         Self {
             id,
             cylinders,
+            walls: Vec::new(),
+            moving: Vec::new(),
             start,
             goal,
             goal_radius: 1.0,
@@ -55,6 +64,18 @@ impl World {
             reference_path,
             index,
         }
+    }
+
+    /// This world with static boxes added.
+    pub fn with_walls(mut self, walls: Vec<Rect>) -> Self {
+        self.walls.extend(walls);
+        self
+    }
+
+    /// This world with moving cylinders added.
+    pub fn with_moving(mut self, moving: Vec<MovingCylinder>) -> Self {
+        self.moving.extend(moving);
+        self
     }
 
     /// A synthetic world for tests and examples: a straight corridor along +y between two walls
@@ -77,29 +98,100 @@ impl World {
         Self::new(0, c, start, Vec2::new(0.0, 10.0), 10.0, vec![])
     }
 
+    /// The world at time `t` (s) of its obstacles' clock: every moving cylinder placed where
+    /// it is then.
+    pub fn at(&self, t: f64) -> Scene<'_> {
+        let mut scene = Scene {
+            world: self,
+            time: t,
+            moving: Vec::with_capacity(self.moving.len()),
+        };
+        scene.set_time(t);
+        scene
+    }
+
+    /// The longest loop among the moving obstacles (s); 0 for a static world.
+    pub fn longest_period(&self) -> f64 {
+        self.moving
+            .iter()
+            .map(|m| m.trajectory.period())
+            .fold(0.0, f64::max)
+    }
+}
+
+/// A world at one moment: what the lidar sees and what the footprint can touch then.
+///
+/// Re-timed in place by [`Scene::set_time`] (no allocation once built), so an episode keeps
+/// one for its whole run.
+#[derive(Clone, Debug)]
+pub struct Scene<'w> {
+    world: &'w World,
+    time: f64,
+    moving: Vec<Circle>,
+}
+
+impl<'w> Scene<'w> {
+    /// The world.
+    pub fn world(&self) -> &'w World {
+        self.world
+    }
+
+    /// The time of the obstacles' clock (s).
+    pub fn time(&self) -> f64 {
+        self.time
+    }
+
+    /// Moves every moving cylinder to where it is at time `t` (s).
+    pub fn set_time(&mut self, t: f64) {
+        self.time = t;
+        self.moving.clear();
+        self.moving.extend(self.world.moving.iter().map(|m| m.at(t)));
+    }
+
+    /// The moving cylinders where they are now, in the world's order.
+    pub fn moving(&self) -> &[Circle] {
+        &self.moving
+    }
+
     /// Distance from `origin` along unit direction `dir` to the first obstacle surface, or
     /// `None` if nothing is hit within `max_range`.
     pub fn raycast(&self, origin: Vec2, dir: Vec2, max_range: f64) -> Option<f64> {
-        self.index.raycast(&self.cylinders, origin, dir, max_range)
+        let w = self.world;
+        let hit = w.index.raycast(&w.cylinders, origin, dir, max_range);
+        if w.walls.is_empty() && self.moving.is_empty() {
+            return hit;
+        }
+        let walls = w.walls.iter().filter_map(|b| ray_rect(origin, dir, b));
+        let moving = self.moving.iter().filter_map(|c| ray_circle(origin, dir, c));
+        let best = walls.chain(moving).fold(hit.unwrap_or(f64::INFINITY), f64::min);
+        (best <= max_range).then_some(best)
     }
 
     /// Smallest signed clearance between the footprint at `pose` and any obstacle, capped at
-    /// `horizon` (obstacles farther than that are not examined). Zero or negative = contact.
+    /// `horizon` (static cylinders farther than that are not examined). Zero or negative =
+    /// contact.
     pub fn footprint_clearance(&self, footprint: &Footprint, pose: &Pose, horizon: f64) -> f64 {
+        let w = self.world;
         let reach = footprint.circumscribed_radius() + horizon;
         let mut best = horizon;
-        self.index.for_each_in_box(
+        w.index.for_each_in_box(
             pose.x - reach,
             pose.y - reach,
             pose.x + reach,
             pose.y + reach,
             |i| {
-                let d = footprint.clearance_to_circle(pose, &self.cylinders[i]);
+                let d = footprint.clearance_to_circle(pose, &w.cylinders[i]);
                 if d < best {
                     best = d;
                 }
             },
         );
+        for b in &w.walls {
+            best = best.min(footprint.clearance_to_rect(pose, b));
+        }
+        for c in &self.moving {
+            best = best.min(footprint.clearance_to_circle(pose, c));
+        }
         best
     }
 
@@ -332,7 +424,7 @@ mod tests {
                 .filter_map(|c| ray_circle(o, d, c))
                 .fold(f64::INFINITY, f64::min);
             let brute = (brute <= 6.0).then_some(brute);
-            let fast = w.raycast(o, d, 6.0);
+            let fast = w.at(0.0).raycast(o, d, 6.0);
             match (brute, fast) {
                 (None, None) => {}
                 (Some(a), Some(b)) => assert!((a - b).abs() < 1e-9, "{a} vs {b} from {o:?} dir {d:?}"),
@@ -357,7 +449,7 @@ mod tests {
                 .iter()
                 .map(|c| f.clearance_to_circle(&pose, c))
                 .fold(0.5f64, f64::min);
-            assert!((w.footprint_clearance(&f, &pose, 0.5) - brute).abs() < 1e-12);
+            assert!((w.at(0.0).footprint_clearance(&f, &pose, 0.5) - brute).abs() < 1e-12);
         }
     }
 }

@@ -160,8 +160,7 @@ pub(super) fn measure_calls(
 ) -> anyhow::Result<Vec<Call>> {
     let mut cfg = EvalConfig::load(None)?;
     cfg.compute = planner::ComputeConfig::FREE;
-    let ids: Vec<usize> = sim::splits::SplitFile::embedded()
-        .select("train")?
+    let ids: Vec<usize> = sim::splits::select("train")?
         .into_iter()
         .take(worlds.max(1))
         .collect();
@@ -171,7 +170,7 @@ pub(super) fn measure_calls(
         for &kind in kinds {
             for (sched, ddp) in schedules {
                 for &w in &ids {
-                    let world = sim::barn::world(w).with_context(|| format!("world {w}"))?;
+                    let world = sim::catalog::world(w).with_context(|| format!("world {w}"))?;
                     let seed = crate::eval::run_seed(7, w, 0);
                     let mut timed = Timed {
                         inner: kind.build(&cfg, seed),

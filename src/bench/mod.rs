@@ -326,7 +326,7 @@ fn collect_steps(
     let mut episode = 0usize;
     while done < steps {
         let seed = (thread as u64) << 32 | episode as u64;
-        let world = sim::barn::world(worlds[(thread + episode * 7) % worlds.len()])?;
+        let world = sim::catalog::world(worlds[(thread + episode * 7) % worlds.len()])?;
         let mut env = AdpEnv::new(
             world,
             eval.episode,

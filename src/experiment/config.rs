@@ -15,7 +15,6 @@ use anyhow::{bail, Context};
 use serde::{Deserialize, Serialize};
 
 use planner::ActionSpace;
-use sim::splits::SplitFile;
 
 use crate::config::one_line;
 use crate::eval::PlannerKind;
@@ -444,11 +443,8 @@ impl Experiment {
         if ex.seeds == 0 {
             return Err(err("seeds", "must be at least 1".into()));
         }
-        let splits = SplitFile::embedded();
         let select = |section: &str, key: &str, sel: &str| {
-            splits
-                .select(sel)
-                .map_err(|e| anyhow::anyhow!("{name}: [{section}] {key} = {sel:?}: {e}"))
+            sim::splits::select(sel).map_err(|e| anyhow::anyhow!("{name}: [{section}] {key} = {sel:?}: {e}"))
         };
         let test_worlds = select("experiment", "test_worlds", &ex.test_worlds)?;
         let disjoint = |section: &str, key: &str, sel: &str| -> anyhow::Result<Vec<usize>> {

@@ -193,7 +193,7 @@ pub fn run(args: &Args) -> anyhow::Result<Option<PathBuf>> {
         ex: &ex,
         layout: Layout { dir: dir.clone() },
         cfg,
-        worlds: sim::barn::worlds(),
+        worlds: sim::catalog::worlds(),
         test_worlds: args
             .shard
             .map_or_else(|| ex.test_worlds.clone(), |s| s.worlds(&ex.test_worlds)),

@@ -328,7 +328,7 @@ mod tests {
         let net = MlpPolicy::from_flat(&[730, 4], flat).unwrap();
         let spec = RunSpec {
             cfg: &cfg,
-            worlds: sim::barn::worlds(),
+            worlds: sim::catalog::worlds(),
             planner: PlannerKind::Dwa,
             speed: 1.5,
             world_ids: &[3],
