@@ -397,7 +397,7 @@ mod tests {
     fn scan(lidar: &Lidar, world: &World, pose: &Pose, rng: &mut rand_pcg::Pcg64Mcg) -> Vec<Vec2> {
         let mut ranges = Vec::new();
         let mut points = Vec::new();
-        lidar.scan(world, pose, rng, &mut ranges);
+        lidar.scan(&world.at(0.0), pose, rng, &mut ranges);
         lidar.points(&ranges, &mut points);
         points
     }
