@@ -13,7 +13,7 @@ use sim::{Profile, World};
 
 use crate::config::{EvalConfig, UnknownName};
 use crate::eval::{AdpSetting, EvalPlan};
-use crate::eval::{Fidelity, PlannerKind};
+use crate::eval::{Fidelity, ObstaclePrediction, PlannerKind};
 use crate::{bench, calibrate, experiment, export, slurm, train};
 
 /// `adp`.
@@ -249,6 +249,10 @@ pub struct EvalArgs {
     /// Speed cap(s) in m/s, comma-separated: one row per value.
     #[arg(long, value_delimiter = ',', default_value = "1.5")]
     pub max_speed: Vec<f64>,
+    /// Moving-obstacle prediction(s), comma-separated: one row per value (`off`: none; `kf`:
+    /// the tracker's constant-velocity forecast; not with --fidelity adp yet).
+    #[arg(long, value_enum, value_delimiter = ',', default_value = "off")]
+    pub prediction: Vec<ObstaclePrediction>,
     /// Worlds: comma-separated splits (BARN: train, test, hardest50, all; DynaBARN: dynabarn,
     /// dynabarn-easy|medium|hard, dynabarn-train, dynabarn-test, ...), ranges (0..50, 300..320)
     /// and ids (3,7,305).
@@ -555,6 +559,7 @@ fn calibrate(a: &CalibrateArgs) -> anyhow::Result<()> {
             runs: a.runs,
             trim: 0,
             seed: a.run.seed,
+            predictions: vec![crate::eval::ObstaclePrediction::Off],
         };
         eprintln!("{}:", row.label);
         eval_rows.extend(pool.install(|| crate::eval::run(&plan, &cfg, &all))?);

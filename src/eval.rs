@@ -19,8 +19,9 @@ use serde::{Deserialize, Serialize};
 
 use actor::{AdpEnv, End, EnvConfig, MlpPolicy, Scratch, LASER_BEAMS};
 use planner::{
-    run::run_episode, ActionSpace, ComputeConfig, ComputeModel, ComputeTally, Dwa, LogMppi, Mppi, NavSystem,
-    PlanInput, Planner, Schedule, Trace,
+    run::{drive_episode, CycleDriver},
+    ActionSpace, ComputeConfig, ComputeModel, ComputeTally, Dwa, LogMppi, Mppi, NavSystem, PlanInput,
+    Planner, Schedule, Trace, TrackingConfig,
 };
 use sim::robot::Twist;
 use sim::{EpisodeResult, Status, World};
@@ -29,6 +30,19 @@ use crate::config::{EvalConfig, UnknownName};
 
 /// Time charged to a failed run when averaging times (s), as in the ADP paper.
 pub const FAILED_RUN_TIME: f64 = 50.0;
+
+/// How a row's planner learns of moving obstacles.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, clap::ValueEnum)]
+#[serde(rename_all = "kebab-case")]
+pub enum ObstaclePrediction {
+    /// None: moving obstacles are scan points like any other.
+    #[default]
+    Off,
+    /// The tracker on the robot's scans (clusters, a constant-velocity Kalman filter per
+    /// track) forecasts each moving obstacle; every rollout point is checked against the
+    /// forecast at its time (`planner::moving`).
+    Kf,
+}
 
 /// A fidelity strategy selectable on the command line.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, clap::ValueEnum)]
@@ -147,6 +161,8 @@ pub struct EvalPlan {
     /// The environment settings `policy` was trained with (agent period, laser clip); its
     /// agent-step cap is lifted in evaluation.
     pub policy_env: EnvConfig,
+    /// Obstacle predictions: one row per value.
+    pub predictions: Vec<ObstaclePrediction>,
 }
 
 /// One table row.
@@ -156,8 +172,11 @@ pub struct Row {
     pub planner: PlannerKind,
     /// Fidelity strategy.
     pub fidelity: Fidelity,
-    /// Fidelity as shown in the table (`adp` names its action space).
+    /// Fidelity as shown in the table (`adp` names its action space; `+kf` marks obstacle
+    /// prediction).
     pub fidelity_label: String,
+    /// How the planner learned of moving obstacles.
+    pub prediction: ObstaclePrediction,
     /// Speed cap (m/s).
     pub max_speed: f64,
     /// Successful runs (%).
@@ -379,6 +398,12 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
             bail!("--max-speed {s} must be in (0, {}] m/s", cfg.episode.robot.max_v);
         }
     }
+    if plan.fidelities.contains(&Fidelity::Adp) && plan.predictions.contains(&ObstaclePrediction::Kf) {
+        bail!("--prediction kf does not apply to --fidelity adp yet: the ADP environment has no tracker");
+    }
+    if plan.predictions.is_empty() {
+        bail!("--prediction needs at least one value (off, kf)");
+    }
     for &w in &plan.worlds {
         worlds
             .get(w)
@@ -419,19 +444,10 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
         }
     }
     let mut jobs = Vec::new();
-    for (ri, (&p, &f, &s)) in plan
-        .planners
-        .iter()
-        .flat_map(|p| {
-            plan.fidelities
-                .iter()
-                .flat_map(move |f| plan.speeds.iter().map(move |s| (p, f, s)))
-        })
-        .enumerate()
-    {
+    for (ri, (p, f, s, pr)) in combos(plan).enumerate() {
         for &w in &plan.worlds {
             for r in 0..plan.runs {
-                jobs.push((ri, p, f, s, w, r));
+                jobs.push((ri, p, f, s, pr, w, r));
             }
         }
     }
@@ -444,7 +460,7 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
     let t0 = Instant::now();
     let results: Vec<(usize, usize, usize, EpisodeResult, ComputeTally, Arc<PlanCost>)> = jobs
         .par_iter()
-        .map_init(PolicyBuffers::default, |buf, &(ri, p, f, s, w, r)| {
+        .map_init(PolicyBuffers::default, |buf, &(ri, p, f, s, pr, w, r)| {
             let seed = run_seed(plan.seed, w, r);
             let cost = Arc::new(PlanCost::default());
             let mut planner: Box<dyn Planner> = Box::new(Metered {
@@ -465,16 +481,23 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
                     run_policy(env, net, buf, |_, _, _| Ok(()))
                         .with_context(|| format!("world {w}, run {r}"))?
                 }
-                None => run_episode(
-                    &worlds[w],
-                    cfg.episode,
-                    planner.as_mut(),
-                    &f.schedule(&plan.adp)?,
-                    s,
-                    seed,
-                    cfg.compute.resolve(p.name())?,
-                    |_, _, _| {},
-                ),
+                None => {
+                    let driver = CycleDriver::new(cfg.compute.resolve(p.name())?, cfg.episode.control_dt);
+                    let driver = match pr {
+                        ObstaclePrediction::Off => driver,
+                        ObstaclePrediction::Kf => driver.with_tracking(TrackingConfig::default()),
+                    };
+                    drive_episode(
+                        &worlds[w],
+                        cfg.episode,
+                        planner.as_mut(),
+                        &f.schedule(&plan.adp)?,
+                        s,
+                        seed,
+                        driver,
+                        |_, _, _| {},
+                    )
+                }
             };
             bar.inc(1);
             Ok((ri, w, r, res, tally, cost))
@@ -496,12 +519,7 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
     );
 
     let mut rows = Vec::new();
-    let combos = plan.planners.iter().flat_map(|p| {
-        plan.fidelities
-            .iter()
-            .flat_map(move |f| plan.speeds.iter().map(move |s| (*p, *f, *s)))
-    });
-    for (ri, (p, f, s)) in combos.enumerate() {
+    for (ri, (p, f, s, pr)) in combos(plan).enumerate() {
         let per_world: Vec<WorldRuns> = plan
             .worlds
             .iter()
@@ -530,10 +548,12 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
         rows.push(Row {
             planner: p,
             fidelity: f,
-            fidelity_label: match f {
-                Fidelity::Adp => format!("adp-{}", kebab(&plan.adp.space)),
-                _ => kebab(&f),
+            fidelity_label: match (f, pr) {
+                (Fidelity::Adp, _) => format!("adp-{}", kebab(&plan.adp.space)),
+                (_, ObstaclePrediction::Off) => kebab(&f),
+                (_, ObstaclePrediction::Kf) => format!("{}+kf", kebab(&f)),
             },
+            prediction: pr,
             max_speed: s,
             success_pct,
             avg_time_s,
@@ -553,6 +573,17 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
         });
     }
     Ok(rows)
+}
+
+/// The rows of `plan` in table order: planner, then fidelity, then speed, then prediction.
+fn combos(plan: &EvalPlan) -> impl Iterator<Item = (PlannerKind, Fidelity, f64, ObstaclePrediction)> + '_ {
+    plan.planners.iter().flat_map(move |&p| {
+        plan.fidelities.iter().flat_map(move |&f| {
+            plan.speeds
+                .iter()
+                .flat_map(move |&s| plan.predictions.iter().map(move |&pr| (p, f, s, pr)))
+        })
+    })
 }
 
 /// The kebab-case name of a serializable unit enum value.
@@ -576,10 +607,10 @@ pub fn table(rows: &[Row]) -> String {
                 .expect("enum")
                 .as_str()
                 .unwrap_or("?"),
-            serde_json::to_value(r.fidelity)
-                .expect("enum")
-                .as_str()
-                .unwrap_or("?"),
+            match r.prediction {
+                ObstaclePrediction::Off => kebab(&r.fidelity),
+                ObstaclePrediction::Kf => format!("{}+kf", kebab(&r.fidelity)),
+            },
             r.max_speed,
             r.success_pct,
             r.avg_time_s,
@@ -654,6 +685,7 @@ pub fn command(a: &crate::cli::EvalArgs) -> anyhow::Result<()> {
         runs: a.runs,
         trim: a.trim,
         seed: a.run.seed,
+        predictions: a.prediction.clone(),
     };
     let rows = a.run.pool()?.install(|| run(&plan, &cfg, &all))?;
     if let Some(source) = source {
@@ -727,6 +759,7 @@ mod tests {
                 profile,
                 ..EnvConfig::default()
             },
+            predictions: vec![ObstaclePrediction::Off],
         };
         let worlds = sim::barn::worlds();
         let err = run(&plan(sim::Profile::Ideal), &cfg, worlds)
@@ -781,7 +814,7 @@ mod tests {
             .unwrap();
             let closed = run_policy(env, &net, &mut buf, |_, _, _| Ok(())).unwrap();
             let mut planner = PlannerKind::Dwa.build(&cfg, seed);
-            let plain = run_episode(
+            let plain = planner::run::run_episode(
                 world,
                 episode,
                 planner.as_mut(),

@@ -13,7 +13,7 @@
 //! list is empty and every planner behaves exactly as before.
 
 use serde::{Deserialize, Serialize};
-use sim::geometry::{Circle, Footprint, Pose, Vec2};
+use sim::geometry::{Footprint, Pose, Vec2};
 use sim::Episode;
 
 use crate::tracker::{Track, Tracker, TrackerConfig};
@@ -51,15 +51,20 @@ pub fn clearance(
     moving: &[Predicted],
     evaluated: &mut u64,
 ) -> f64 {
+    *evaluated += moving.len() as u64;
+    if moving.is_empty() {
+        return f64::INFINITY;
+    }
+    // The pose's rotation once, then each forecast centre into the footprint's frame
+    // (what `Footprint::clearance_to_circle` does per circle).
+    let (s, c) = pose.yaw.sin_cos();
+    let at = pose.position();
     let mut best = f64::INFINITY;
     for o in moving {
-        let c = Circle {
-            c: o.position + o.velocity * t,
-            r: o.radius,
-        };
-        best = best.min(footprint.clearance_to_circle(pose, &c));
+        let d = o.position + o.velocity * t - at;
+        let local = Vec2::new(c * d.x + s * d.y, -s * d.x + c * d.y);
+        best = best.min(footprint.signed_distance_local(local) - o.radius);
     }
-    *evaluated += moving.len() as u64;
     best
 }
 

@@ -118,11 +118,27 @@ pub fn run_episode(
     max_speed: f64,
     seed: u64,
     compute: Option<Compute>,
+    on_cycle: impl FnMut(&Episode<'_>, &mut dyn Planner, Twist),
+) -> (EpisodeResult, ComputeTally) {
+    let driver = CycleDriver::new(compute, cfg.control_dt);
+    drive_episode(world, cfg, planner, schedule, max_speed, seed, driver, on_cycle)
+}
+
+/// [`run_episode`] with a driver of the caller's (for example one that tracks moving
+/// obstacles: [`CycleDriver::with_tracking`]).
+#[allow(clippy::too_many_arguments)]
+pub fn drive_episode(
+    world: &World,
+    cfg: EpisodeConfig,
+    planner: &mut dyn Planner,
+    schedule: &Schedule,
+    max_speed: f64,
+    seed: u64,
+    mut driver: CycleDriver,
     mut on_cycle: impl FnMut(&Episode<'_>, &mut dyn Planner, Twist),
 ) -> (EpisodeResult, ComputeTally) {
     let mut ep = Episode::new(world, cfg, seed);
     let prediction = Prediction::for_profile(cfg.profile);
-    let mut driver = CycleDriver::new(compute, cfg.control_dt);
     while ep.status() == Status::Running {
         driver.period(&mut ep, planner, schedule, max_speed, prediction, &mut on_cycle);
     }
