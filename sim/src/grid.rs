@@ -237,6 +237,16 @@ impl Grid {
         self.cells[..self.rows * self.cols].iter().filter(|&&f| f).count()
     }
 
+    /// Share of filled cells outside the first and last rows (the wall rows in BARN; the
+    /// dataset's `grid_fill_frac`).
+    pub fn field_fill_fraction(&self) -> f64 {
+        let inner = (1..self.rows.saturating_sub(1))
+            .flat_map(|r| (0..self.cols).map(move |c| Cell::new(r, c)))
+            .filter(|&c| self.get(c))
+            .count();
+        inner as f64 / (self.rows.saturating_sub(2) * self.cols).max(1) as f64
+    }
+
     /// The C-space of a robot covering (2 `radius` + 1)^2 cells: a cell is blocked when a
     /// filled cell of this grid lies within `radius` cells in both row and column (the grid
     /// dilated by a square; nothing is assumed filled outside the grid). BARN uses
@@ -372,6 +382,11 @@ mod tests {
             "a 3x3 square around (3, 5), cut by the right edge"
         );
         assert_eq!(g.cspace(0), g);
+        assert_eq!(
+            g.field_fill_fraction(),
+            1.0 / 18.0,
+            "one of the 3 x 6 inner cells"
+        );
     }
 
     #[test]
