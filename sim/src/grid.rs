@@ -112,11 +112,11 @@ impl Grid {
     /// An empty grid of `rows` x `cols` cells.
     ///
     /// # Panics
-    /// If a side is 0 or the grid would exceed 900 cells.
+    /// If a side is 0 or above 30.
     pub fn new(rows: usize, cols: usize) -> Self {
         assert!(
-            rows > 0 && cols > 0 && rows * cols <= MAX_CELLS,
-            "a grid has 1..={MAX_CELLS} cells, not {rows}x{cols}"
+            (1..=SIDE).contains(&rows) && (1..=SIDE).contains(&cols),
+            "a grid has 1..={SIDE} rows and columns, not {rows}x{cols}"
         );
         Self {
             rows,
@@ -140,10 +140,10 @@ impl Grid {
             .filter(|(_, l)| !l.is_empty())
             .collect();
         let cols = lines.first().map_or(0, |(_, l)| l.chars().count());
-        if lines.is_empty() || cols == 0 || lines.len() * cols > MAX_CELLS {
+        if !(1..=SIDE).contains(&lines.len()) || !(1..=SIDE).contains(&cols) {
             return Err(GridTextError {
                 line: 1,
-                msg: format!("needs 1..={MAX_CELLS} cells in rows of equal length"),
+                msg: format!("needs 1..={SIDE} rows of 1..={SIDE} cells"),
             });
         }
         let mut g = Self::new(lines.len(), cols);
@@ -342,8 +342,8 @@ impl Grid {
                 }
             }
         }
-        for k in 0..MAX_CELLS {
-            g.cells[k] = !open[k];
+        for (filled, open) in g.cells.iter_mut().zip(open) {
+            *filled = !open;
         }
         g
     }

@@ -198,11 +198,11 @@ impl ClosestObstacle {
         let mut near = [[None::<usize>; crate::grid::SIDE]; crate::grid::SIDE];
         for (r, near_r) in near.iter_mut().enumerate().take(rows) {
             let mut last = None;
-            for c in 0..cols {
+            for (c, slot) in near_r.iter_mut().enumerate().take(cols) {
                 if grid.get(Cell::new(r, c)) {
                     last = Some(c);
                 }
-                near_r[c] = last.map(|l| c - l);
+                *slot = last.map(|l| c - l);
             }
             let mut next = None;
             for c in (0..cols).rev() {

@@ -261,10 +261,11 @@ fn difficulty_is_the_least_squares_fit_of_the_measured_times() {
     for col in 0..6 {
         let pivot = a[col][col];
         a[col].iter_mut().for_each(|v| *v /= pivot);
-        for r in (0..6).filter(|&r| r != col) {
-            let f = a[r][col];
-            for c in 0..7 {
-                a[r][c] -= f * a[col][c];
+        let pivot_row = a[col];
+        for (_, row) in a.iter_mut().enumerate().filter(|(r, _)| *r != col) {
+            let f = row[col];
+            for (x, p) in row.iter_mut().zip(pivot_row) {
+                *x -= f * p;
             }
         }
     }
