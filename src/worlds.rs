@@ -101,6 +101,7 @@ fn parse_range(s: &str) -> anyhow::Result<(f64, f64)> {
 /// `adp worlds generate`.
 #[derive(clap::Args, Debug)]
 pub struct GenerateArgs {
+    /// What to generate.
     #[command(flatten)]
     pub generator: GeneratorArgs,
     /// Output directory (created if needed): obstacles.jsonl and paths.jsonl, the format
@@ -158,6 +159,7 @@ fn write_lines(dir: &Path, name: &str, lines: &[String]) -> anyhow::Result<()> {
 /// `adp worlds compare`.
 #[derive(clap::Args, Debug)]
 pub struct CompareArgs {
+    /// What to generate.
     #[command(flatten)]
     pub generator: GeneratorArgs,
     /// Histogram bins per metric.

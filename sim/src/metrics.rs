@@ -7,7 +7,7 @@
 //! BARN path repeats its first cell). Distances are in cells; a diagonal step is sqrt 2.
 //!
 //! - **Distance to the closest obstacle**: Euclidean distance from the cell's centre to the
-//!   nearest blocked cell's centre (14, half the rows rounded down, if there is none).
+//!   nearest blocked cell's centre ((rows - 1) / 2 rounded down, 14 on BARN, if there is none).
 //! - **Average visibility**: along each of the 8 grid directions, the number of free cells
 //!   from the cell itself (counted) up to the first blocked cell, times the step length; the
 //!   mean over the directions that meet a blocked cell (one that reaches the grid's edge
@@ -116,17 +116,6 @@ impl Metrics {
             self.characteristic_dimension,
             self.tortuosity,
         ]
-    }
-
-    /// The metrics from an array in the benchmark's order.
-    pub fn from_array(a: [f64; 5]) -> Self {
-        Self {
-            dist_closest_obstacle: a[0],
-            avg_visibility: a[1],
-            dispersion: a[2],
-            characteristic_dimension: a[3],
-            tortuosity: a[4],
-        }
     }
 }
 
@@ -376,7 +365,7 @@ mod tests {
         // (3, 4): (2, 3) is diagonal.
         assert_eq!(d.get(Cell::new(3, 4)), 2f64.sqrt());
         assert_eq!(d.get(Cell::new(0, 0)), 0.0);
-        // No obstacle at all: half the rows, rounded down.
+        // No obstacle at all: (rows - 1) / 2 rounded down.
         let empty = Grid::new(7, 4);
         assert_eq!(ClosestObstacle::new(&empty).get(Cell::new(2, 2)), 3.0);
     }
