@@ -218,7 +218,7 @@ pub enum Cmd {
     /// untrained policy and the state-shuffled policy, and write report.md with tables,
     /// paired statistics and figures. Resumable.
     Experiment(experiment::Args),
-    /// List or inspect worlds and splits.
+    /// List, inspect, generate or compare worlds and splits.
     Worlds {
         #[command(subcommand)]
         cmd: WorldsCmd,
@@ -431,6 +431,13 @@ pub enum WorldsCmd {
         #[arg(long, default_value = "barn", value_parser = parse_split_set)]
         set: SplitSet,
     },
+    /// Generate procedural BARN worlds (the BARN paper's cellular automaton, solvable worlds
+    /// only, each with its A* path and five difficulty metrics) into DIR/obstacles.jsonl and
+    /// DIR/paths.jsonl, for `adp eval --obstacles DIR/obstacles.jsonl --paths DIR/paths.jsonl`.
+    Generate(crate::worlds::GenerateArgs),
+    /// Print the difficulty metrics of generated worlds beside the 300 BARN worlds' (text
+    /// histograms, quantiles, Kolmogorov-Smirnov distance); nothing is written.
+    Compare(crate::worlds::CompareArgs),
 }
 
 impl WorldsCmd {
@@ -463,6 +470,8 @@ impl WorldsCmd {
                 println!("optimal_time_s {:.6}", w.optimal_time_s);
             }
             WorldsCmd::Splits { seed, set } => print!("{}", set.render_toml(seed)),
+            WorldsCmd::Generate(args) => crate::worlds::generate(&args)?,
+            WorldsCmd::Compare(args) => crate::worlds::compare(&args)?,
         }
         Ok(())
     }

@@ -14,6 +14,7 @@ mod render;
 mod slurm;
 mod stop;
 mod train;
+mod worlds;
 
 use std::process::ExitCode;
 
