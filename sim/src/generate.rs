@@ -854,7 +854,7 @@ mod tests {
                 w.metrics
             );
             // The start pose is free, as in every BARN world.
-            assert!(!l.collides(&crate::geometry::Footprint::JACKAL, &l.start));
+            assert!(!l.at(0.0).collides(&crate::geometry::Footprint::JACKAL, &l.start));
         }
         // The optional fields are there too.
         let v: serde_json::Value = serde_json::from_str(&paths[0]).unwrap();
