@@ -487,13 +487,19 @@ fn a_sandboxed_actor_runs_under_the_configs_limits_and_stops_with_its_task() {
         std::thread::sleep(std::time::Duration::from_millis(20));
     };
     // Wait until the child has exec'd `adp actor` (its limits are set before the exec).
-    let cmdline = loop {
-        let c = std::fs::read(format!("/proc/{actor}/cmdline")).unwrap_or_default();
-        let args: Vec<String> = c
+    // Until then the forked child shows its parent's command line, which has `actor` and
+    // `--sandbox` too: the exec is seen when the two differ.
+    let args_of = |pid: u32| -> Vec<String> {
+        std::fs::read(format!("/proc/{pid}/cmdline"))
+            .unwrap_or_default()
             .split(|&b| b == 0)
             .map(|a| String::from_utf8_lossy(a).into_owned())
-            .collect();
-        if args.iter().any(|a| a == "actor") {
+            .collect()
+    };
+    let parent = args_of(task.id());
+    let cmdline = loop {
+        let args = args_of(actor);
+        if args.iter().any(|a| a == "actor") && args != parent {
             break args;
         }
         std::thread::sleep(std::time::Duration::from_millis(20));
