@@ -2,11 +2,13 @@
 //! checksum that must not change. A speed-up that changes floating-point results, or any
 //! behaviour change, fails here; a deliberate change updates the pins and says why.
 
+mod common;
+
 use planner::run::run_episode;
 use planner::{
     Dwa, DwaConfig, LogMppi, LogMppiConfig, Mppi, MppiConfig, NavSystem, Planner, Schedule, SystemConfig,
 };
-use sim::{Circle, EpisodeConfig, Vec2, World};
+use sim::{EpisodeConfig, World};
 
 /// FNV-1a over the exact bits of every pose the robot passes at each planning cycle, and of
 /// the result.
@@ -43,18 +45,7 @@ fn checksum(planner: &mut dyn Planner, schedule: &Schedule, world: &World) -> u6
 
 #[test]
 fn every_planner_reproduces_its_trajectory() {
-    // A corridor 1.2 m wide with two posts to weave around.
-    let posts = [
-        Circle {
-            c: Vec2::new(0.25, 3.0),
-            r: 0.15,
-        },
-        Circle {
-            c: Vec2::new(-0.3, 6.0),
-            r: 0.15,
-        },
-    ];
-    let world = World::corridor(1.2, &posts);
+    let world = common::weaving_corridor();
     let mut got = Vec::new();
     for (fidelity, schedule) in [("vanilla", Schedule::vanilla()), ("ddp", Schedule::ddp_default())] {
         let planners: [(&str, Box<dyn Planner>); 4] = [

@@ -6,6 +6,8 @@
 //!
 //! This file holds one test, so no other test's thread allocates while the counter is armed.
 
+mod common;
+
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 
@@ -16,7 +18,7 @@ use planner::{
     SystemConfig, Trace,
 };
 use sim::robot::Twist;
-use sim::{Circle, EpisodeConfig, Vec2, World};
+use sim::EpisodeConfig;
 
 /// The system allocator, counting `alloc` and `realloc` calls while [`ARMED`] is set.
 struct Counting;
@@ -95,19 +97,8 @@ impl Planner for Counted<'_> {
 
 #[test]
 fn planning_cycles_do_not_allocate() {
-    // A corridor with posts to weave around: free stretches, close passes and (for some
-    // planners) recovery manoeuvres, so the buffers see more than one kind of cycle.
-    let posts = [
-        Circle {
-            c: Vec2::new(0.25, 3.0),
-            r: 0.15,
-        },
-        Circle {
-            c: Vec2::new(-0.3, 6.0),
-            r: 0.15,
-        },
-    ];
-    let world = World::corridor(1.2, &posts);
+    // The buffers see more than one kind of cycle there.
+    let world = common::weaving_corridor();
     // Rayon's workers run the samples; planning calls are made from inside the pool so that
     // no call has to queue a job from outside it (which allocates the queue's blocks).
     let pool = rayon::ThreadPoolBuilder::new().num_threads(2).build().unwrap();
