@@ -70,24 +70,23 @@ pub fn clearance(
 
 /// Obstacle prediction settings. Every field is optional in a TOML table; unknown keys are
 /// refused.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct TrackingConfig {
     /// The tracker's tunables.
     pub tracker: TrackerConfig,
-    /// Slowest track (m/s) treated as moving; slower ones are left to the static field.
-    pub min_speed: MinSpeed,
+    /// Slowest track (m/s) treated as moving; slower ones are left to the static field
+    /// (default 0.15: a tracked post's velocity estimate stays well below it, see the
+    /// tracker's tests).
+    pub min_speed: f64,
 }
 
-/// The slowest track speed (m/s) that is predicted (default 0.15: a tracked post's velocity
-/// estimate stays well below it, see the tracker's tests).
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(transparent)]
-pub struct MinSpeed(pub f64);
-
-impl Default for MinSpeed {
+impl Default for TrackingConfig {
     fn default() -> Self {
-        MinSpeed(0.15)
+        Self {
+            tracker: TrackerConfig::default(),
+            min_speed: 0.15,
+        }
     }
 }
 
@@ -105,7 +104,7 @@ impl Tracking {
     pub fn new(cfg: TrackingConfig) -> Self {
         Self {
             tracker: Tracker::new(cfg.tracker),
-            min_speed: cfg.min_speed.0,
+            min_speed: cfg.min_speed,
             moving: Vec::new(),
         }
     }
