@@ -63,6 +63,125 @@ pub struct Comparison {
     pub per_seed: Vec<McNemar>,
 }
 
+/// Per world (in record order), the mean over `recs` of one trimmed per-world value (`pick`
+/// of [`EvalRecord::per_world_values`]). The records must cover the same worlds in order.
+fn per_world_mean(recs: &[EvalRecord], pick: fn(&(usize, f64, f64)) -> f64) -> Vec<f64> {
+    let vals: Vec<Vec<f64>> = recs
+        .iter()
+        .map(|r| r.per_world_values().iter().map(pick).collect())
+        .collect();
+    let worlds = vals.first().map_or(0, Vec::len);
+    (0..worlds)
+        .map(|i| mean(&vals.iter().map(|v| v[i]).collect::<Vec<_>>()))
+        .collect()
+}
+
+/// The success rate of a [`EvalRecord::per_world_values`] entry.
+fn success(x: &(usize, f64, f64)) -> f64 {
+    x.1
+}
+
+/// The mean score of a [`EvalRecord::per_world_values`] entry.
+fn score(x: &(usize, f64, f64)) -> f64 {
+    x.2
+}
+
+/// ADP against one control on the test worlds of one difficulty band (BARN's world index is
+/// its difficulty rank: 0 easiest, 299 hardest).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Band {
+    /// World indices `lo..hi`.
+    pub worlds: (usize, usize),
+    /// Test worlds in the band.
+    pub count: usize,
+    /// Mean over the band's worlds of ADP's success rate minus the control's (in [-1, 1]).
+    pub d_success: f64,
+    /// The same for the score.
+    pub d_score: f64,
+    /// Worlds where ADP's mean score is higher / lower than the control's (equal: neither).
+    pub won: usize,
+    /// See `won`.
+    pub lost: usize,
+}
+
+/// Where ADP wins and loses against one control: per difficulty band, and the worlds of the
+/// largest score differences.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct WinsAndLosses {
+    /// The control's name.
+    pub control: String,
+    /// One entry per band with at least one test world, in band order.
+    pub bands: Vec<Band>,
+    /// (world, Δ score) of the `extremes` largest gains, largest first.
+    pub best: Vec<(usize, f64)>,
+    /// (world, Δ score) of the `extremes` largest losses, largest loss first.
+    pub worst: Vec<(usize, f64)>,
+}
+
+/// Per-world differences of ADP (mean over its seeds) against `control`, grouped into the
+/// bands `edges[i]..edges[i + 1]` of world index, with the `extremes` largest gains and
+/// losses. `None` when either side is missing or they ran other worlds.
+pub fn wins_and_losses(
+    name: &str,
+    adp: &[EvalRecord],
+    control: &EvalRecord,
+    edges: &[usize],
+    extremes: usize,
+) -> Option<WinsAndLosses> {
+    let worlds: Vec<usize> = control.per_world.iter().map(|w| w.world).collect();
+    if adp.is_empty()
+        || adp
+            .iter()
+            .any(|r| !r.per_world.iter().map(|w| w.world).eq(worlds.iter().copied()))
+    {
+        return None;
+    }
+    let one = std::slice::from_ref(control);
+    let ds = paired_differences(&per_world_mean(adp, success), &per_world_mean(one, success));
+    let dc = paired_differences(&per_world_mean(adp, score), &per_world_mean(one, score));
+    let bands = edges
+        .windows(2)
+        .filter_map(|e| {
+            let inside: Vec<usize> = (0..worlds.len())
+                .filter(|&i| (e[0]..e[1]).contains(&worlds[i]))
+                .collect();
+            let pick = |d: &[f64]| mean(&inside.iter().map(|&i| d[i]).collect::<Vec<_>>());
+            (!inside.is_empty()).then(|| Band {
+                worlds: (e[0], e[1]),
+                count: inside.len(),
+                d_success: pick(&ds),
+                d_score: pick(&dc),
+                won: inside.iter().filter(|&&i| dc[i] > 0.0).count(),
+                lost: inside.iter().filter(|&&i| dc[i] < 0.0).count(),
+            })
+        })
+        .collect();
+    let mut ranked: Vec<(usize, f64)> = worlds.iter().copied().zip(dc).collect();
+    ranked.sort_by(|a, b| b.1.total_cmp(&a.1).then(a.0.cmp(&b.0)));
+    let best = ranked
+        .iter()
+        .take(extremes)
+        .filter(|x| x.1 > 0.0)
+        .copied()
+        .collect();
+    let worst = ranked
+        .iter()
+        .rev()
+        .take(extremes)
+        .filter(|x| x.1 < 0.0)
+        .copied()
+        .collect();
+    Some(WinsAndLosses {
+        control: name.into(),
+        bands,
+        best,
+        worst,
+    })
+}
+
+/// Difficulty bands of the report's wins-and-losses table: thirds of BARN's 300 worlds.
+const DIFFICULTY_BANDS: [usize; 4] = [0, 100, 200, 300];
+
 /// Compares the seeds `adp` with `control` (one record shared by every seed, or one per
 /// seed, paired in order). `None` when either side is missing or they ran other worlds or
 /// run counts.
@@ -87,17 +206,6 @@ pub fn compare(
     if adp.iter().chain(control).any(|r| worlds(r) != shape) {
         return None;
     }
-    let per_world_mean = |recs: &[EvalRecord], pick: fn(&(usize, f64, f64)) -> f64| -> Vec<f64> {
-        let vals: Vec<Vec<f64>> = recs
-            .iter()
-            .map(|r| r.per_world_values().iter().map(pick).collect())
-            .collect();
-        (0..shape.len())
-            .map(|i| mean(&vals.iter().map(|v| v[i]).collect::<Vec<_>>()))
-            .collect()
-    };
-    let success = |x: &(usize, f64, f64)| x.1;
-    let score = |x: &(usize, f64, f64)| x.2;
     let ds = paired_differences(&per_world_mean(adp, success), &per_world_mean(control, success));
     let dc = paired_differences(&per_world_mean(adp, score), &per_world_mean(control, score));
     let seed_pairs: Vec<Vec<(bool, bool)>> = adp
@@ -441,6 +549,7 @@ DDP, the best constant and ADP \
         }
         out.push('\n');
     }
+    wins_section(&mut out, data);
     if !figures.is_empty() {
         let _ = writeln!(out, "## Figures\n");
         for (caption, file) in figures {
@@ -454,6 +563,79 @@ DDP, the best constant and ADP \
         }
     }
     out
+}
+
+/// The report's "Where ADP wins and loses" section: per arm, ADP against DDP and the best
+/// constant by difficulty band, and the worlds of the largest gains and losses.
+fn wins_section(out: &mut String, data: &[ArmData]) {
+    let rows: Vec<(&ArmData, WinsAndLosses)> = data
+        .iter()
+        .flat_map(|d| {
+            [("DDP", &d.ddp), ("best constant", &d.constant)]
+                .into_iter()
+                .filter_map(move |(name, c)| {
+                    let c = c.as_ref()?;
+                    Some((d, wins_and_losses(name, &d.adp, c, &DIFFICULTY_BANDS, 5)?))
+                })
+        })
+        .collect();
+    if rows.is_empty() {
+        return;
+    }
+    let _ = writeln!(
+        out,
+        "## Where ADP wins and loses\n\nPer band of world index (BARN's difficulty rank), the \
+         test worlds' mean Δ success and Δ score (ADP's mean over seeds − the control, after \
+         trimming) and how many worlds ADP's score beats or trails the control's; then the \
+         worlds of the five largest gains and losses (world: Δ score).\n"
+    );
+    let _ = writeln!(
+        out,
+        "| arm | control | worlds | n | Δ success (pp) | Δ score | won / lost |\n|---|---|---|---|---|---|---|"
+    );
+    for (d, w) in &rows {
+        for b in &w.bands {
+            let _ = writeln!(
+                out,
+                "| {} | {} | {}..{} | {} | {:+.2} | {:+.4} | {} / {} |",
+                d.arm.id(),
+                w.control,
+                b.worlds.0,
+                b.worlds.1,
+                b.count,
+                100.0 * b.d_success,
+                b.d_score,
+                b.won,
+                b.lost
+            );
+        }
+    }
+    out.push('\n');
+    let list = |xs: &[(usize, f64)]| {
+        xs.iter()
+            .map(|(w, d)| format!("{w}: {d:+.3}"))
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    for (d, w) in &rows {
+        let _ = writeln!(
+            out,
+            "- {} against {}: gains {}; losses {}.",
+            d.arm.id(),
+            w.control,
+            if w.best.is_empty() {
+                "none".into()
+            } else {
+                list(&w.best)
+            },
+            if w.worst.is_empty() {
+                "none".into()
+            } else {
+                list(&w.worst)
+            }
+        );
+    }
+    out.push('\n');
 }
 
 #[cfg(test)]
@@ -519,5 +701,33 @@ mod tests {
         let other = [rec("ddp", &[(4, true, 0.3), (7, false, 0.0)])];
         assert!(compare("DDP", &adp, &other, 10, 0.95, 1).is_none());
         assert!(compare("DDP", &adp, &[], 10, 0.95, 1).is_none());
+    }
+
+    /// Three worlds in two bands, two seeds, by hand (binary-exact scores). Per-world ADP
+    /// scores (mean of seeds): world 3: 0.375, world 7: 0.5, world 150: 0.125; control: 0.375,
+    /// 0 (failed), 0.5. Δ score 0, +0.5, -0.375; Δ success 0, +1, 0.
+    #[test]
+    fn wins_and_losses_by_hand() {
+        let adp = [
+            rec("adp", &[(3, true, 0.5), (7, true, 0.5), (150, true, 0.25)]),
+            rec("adp", &[(3, true, 0.25), (7, true, 0.5), (150, true, 0.0)]),
+        ];
+        let control = rec("ddp", &[(3, true, 0.375), (7, false, 0.0), (150, true, 0.5)]);
+        let w = wins_and_losses("DDP", &adp, &control, &[0, 100, 200, 300], 5).unwrap();
+        assert_eq!(w.bands.len(), 2, "no test world in 200..300: no band");
+        let (easy, mid) = (&w.bands[0], &w.bands[1]);
+        assert_eq!(
+            (easy.worlds, easy.count, easy.won, easy.lost),
+            ((0, 100), 2, 1, 0)
+        );
+        assert_eq!((easy.d_success, easy.d_score), (0.5, 0.25));
+        assert_eq!((mid.worlds, mid.count, mid.won, mid.lost), ((100, 200), 1, 0, 1));
+        assert_eq!((mid.d_success, mid.d_score), (0.0, -0.375));
+        // World 3 ties: neither a gain nor a loss.
+        assert_eq!(w.best.iter().map(|x| x.0).collect::<Vec<_>>(), [7]);
+        assert_eq!(w.worst.iter().map(|x| x.0).collect::<Vec<_>>(), [150]);
+        // Other worlds cannot be paired.
+        let other = rec("ddp", &[(4, true, 0.3), (7, false, 0.0), (150, true, 0.4)]);
+        assert!(wins_and_losses("DDP", &adp, &other, &[0, 300], 5).is_none());
     }
 }
