@@ -417,15 +417,15 @@ pub fn episode(
             )))
             .map_err(err)?;
     }
-    root.draw(&Text::new(
-        format!(
-            "{}; horizon {hmin:.2}..{hmax:.2} s; colour {lo:.1} s (blue) .. {hi:.1} s (yellow)",
-            drive.outcome
-        ),
-        (60, 40),
-        (FAMILY, 14),
-    ))
-    .map_err(err)?;
+    // Two short lines: one line of both overran the picture's right edge.
+    let lines = [
+        format!("{}; horizon {hmin:.2}..{hmax:.2} s", drive.outcome),
+        format!("colour: horizon {lo:.1} s (blue) .. {hi:.1} s (yellow)"),
+    ];
+    for (k, line) in lines.into_iter().enumerate() {
+        root.draw(&Text::new(line, (60, 38 + 18 * k as i32), (FAMILY, 14)))
+            .map_err(err)?;
+    }
     root.present()
         .with_context(|| format!("cannot write {}", out.display()))
 }
