@@ -66,14 +66,25 @@ pub struct AdpSetting {
 }
 
 impl Fidelity {
-    /// The schedule of this strategy (`adp` uses the given setting).
+    /// The schedule of this strategy (`adp` uses the given setting). Without a policy the
+    /// planner runs with its configured gains, so a constant action of an objective-weight
+    /// space must keep them (factors of 1); the velocity space has no schedule.
     pub fn schedule(self, adp: &AdpSetting) -> anyhow::Result<Schedule> {
         Ok(match self {
             Fidelity::Vanilla => Schedule::vanilla(),
             Fidelity::Ddp => Schedule::ddp_default(),
-            Fidelity::Adp => adp
-                .space
-                .schedule(&adp.action, planner::schedule::DEFAULT_BOUNDARY_POINTS)?,
+            Fidelity::Adp => {
+                let params = adp.space.to_params(&adp.action)?;
+                if let Some(f) = adp.space.gain_factors(&params).filter(|f| f.iter().any(|&x| x != 1.0)) {
+                    bail!(
+                        "a constant {} action sets gain factors {f:?}; only a policy (--policy) sets \
+                         gains, a constant action runs the configured ones (factors 1)",
+                        adp.space
+                    );
+                }
+                adp.space
+                    .schedule(&adp.action, planner::schedule::DEFAULT_BOUNDARY_POINTS)?
+            }
         })
     }
 }

@@ -117,7 +117,7 @@ fn load_constant(path: &Path, requested: Option<ActionSpace>) -> anyhow::Result<
     })?;
     let space = match (f.space, requested) {
         (Some(s), Some(r)) if s != r => {
-            bail!("policy {}: space = {s:?} but --action is {r:?}", path.display())
+            bail!("policy {}: space = {s} but --action is {r}", path.display())
         }
         (Some(s), _) => s,
         (None, r) => r.unwrap_or(ActionSpace::Decremental),

@@ -1,9 +1,12 @@
 //! The RL environment: a BARN episode driven by a planner whose time-grid schedule is the
 //! agent's action. Pure (no I/O) and deterministic given the seed and the actions.
 //!
-//! One agent step maps the policy's output through the [`ActionMap`] to a schedule, applies it
-//! for `agent_period_cycles` planner cycles (0.25 s at the 0.05 s control period), stopping
-//! early if the episode ends, then scores the step. Every reward below is multiplied by
+//! One agent step maps the policy's output through the [`ActionMap`] to a schedule (and, in
+//! the objective-weight spaces, the planner's gain factors, set before the step's first
+//! cycle), applies it for `agent_period_cycles` planner cycles (0.25 s at the 0.05 s control
+//! period), stopping early if the episode ends, then scores the step. In the velocity space
+//! (pure RL) no planner runs: the step's command is issued every control period of the step,
+//! as a planner's would be, with no modelled compute. Every reward below is multiplied by
 //! `reward_scale`:
 //!
 //! * collision: `collision_reward` (replaces the shaping terms), [`End::Terminal`];
@@ -20,7 +23,7 @@
 use planner::action::ActionError;
 use planner::run::CycleDriver;
 use planner::schedule::DEFAULT_BOUNDARY_POINTS;
-use planner::{ActionMap, ActionSpace, ComputeConfig, ComputeTally, Planner, Prediction};
+use planner::{ActionMap, ActionSpace, ComputeConfig, ComputeTally, GainsError, Planner, Prediction};
 use serde::{Deserialize, Serialize};
 use sim::episode::{Episode, EpisodeConfig, EpisodeResult, Status};
 use sim::{Dynamics, Profile, World};
@@ -156,6 +159,9 @@ pub enum EnvError {
     /// The action was refused (wrong length or a non-finite value); nothing was simulated.
     #[error("action refused: {0}")]
     Action(#[from] ActionError),
+    /// The planner refused the action's gain factors; nothing was simulated.
+    #[error("action refused: {0}")]
+    Gains(#[from] GainsError),
     /// The episode has already ended; build a new environment for the next one.
     #[error("the episode has ended ({status:?} after {agent_steps} agent steps); build a new environment to continue")]
     Finished {
@@ -229,8 +235,11 @@ pub struct AdpEnv<'w> {
 impl<'w> AdpEnv<'w> {
     /// Starts an episode on `world` with `episode_cfg` under the profile of `cfg` (which
     /// replaces the episode settings' own); `seed` drives the sensor noise and drift. The
-    /// previous action starts as the policy output that selects DDP under the action map. Refuses invalid configurations, a lidar without
-    /// [`LASER_BEAMS`] beams (the observation layout needs them) and a non-positive speed cap.
+    /// previous action starts as the policy output that selects DDP under the action map. Refuses
+    /// invalid configurations, a lidar without [`LASER_BEAMS`] beams (the observation layout
+    /// needs them), a non-positive speed cap, and an objective-weight space whose gains are not
+    /// the planner's. In the velocity space `planner` never plans (it only names the compute
+    /// model's planner).
     pub fn new(
         world: &'w World,
         episode_cfg: EpisodeConfig,
@@ -255,6 +264,15 @@ impl<'w> AdpEnv<'w> {
             return Err(EnvError::Config(format!(
                 "max_speed = {max_speed} must be finite and > 0"
             )));
+        }
+        if let Some(g) = space.gains() {
+            if planner.gains() != Some(g) {
+                return Err(EnvError::Config(format!(
+                    "the {space} action space sets the gains of {}; the planner is {}",
+                    g.planner(),
+                    planner.name()
+                )));
+            }
         }
         let compute = cfg
             .compute
@@ -360,18 +378,33 @@ impl<'w> AdpEnv<'w> {
         self.cfg
             .action_map
             .map_into(&self.policy_f64, &self.ddp_box, &mut self.action_f64);
-        let schedule = self.space.schedule(&self.action_f64, DEFAULT_BOUNDARY_POINTS)?;
-        for _ in 0..self.cfg.agent_period_cycles {
-            let status = self.driver.period(
-                &mut self.episode,
-                self.planner.as_mut(),
-                &schedule,
-                self.max_speed,
-                self.prediction,
-                &mut |_, _, _| {},
-            );
-            if status != Status::Running {
-                break;
+        if self.space == ActionSpace::Velocity {
+            let cmd = self.space.velocity_command(&self.action_f64, self.max_speed)?;
+            for _ in 0..self.cfg.agent_period_cycles {
+                if self.driver.command(&mut self.episode, cmd) != Status::Running {
+                    break;
+                }
+            }
+        } else {
+            let schedule = self.space.schedule(&self.action_f64, DEFAULT_BOUNDARY_POINTS)?;
+            if self.space.gains().is_some() {
+                let params = self.space.to_params(&self.action_f64)?;
+                if let Some(factors) = self.space.gain_factors(&params) {
+                    self.planner.set_gain_factors(factors)?;
+                }
+            }
+            for _ in 0..self.cfg.agent_period_cycles {
+                let status = self.driver.period(
+                    &mut self.episode,
+                    self.planner.as_mut(),
+                    &schedule,
+                    self.max_speed,
+                    self.prediction,
+                    &mut |_, _, _| {},
+                );
+                if status != Status::Running {
+                    break;
+                }
             }
         }
         self.agent_steps += 1;
