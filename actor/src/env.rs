@@ -895,4 +895,156 @@ mod tests {
         assert_eq!(&cycles, e.compute());
         assert_eq!(u64::from(r.agent_steps), cycles.cycles.div_ceil(5));
     }
+
+    /// Pose and velocity bits after each of `steps` agent steps of `output` (or until the
+    /// episode ends) in `space` on BARN world 120 under the default settings (compute model on).
+    fn run_space(space: ActionSpace, planner: Box<dyn Planner>, output: &[f32], steps: usize) -> Vec<[u64; 5]> {
+        let world = sim::barn::world(120).unwrap();
+        let mut e = AdpEnv::new(world, EpisodeConfig::default(), planner, space, 1.5, EnvConfig::default(), 7).unwrap();
+        let mut out = Vec::new();
+        for _ in 0..steps {
+            let end = e.step(output).unwrap().end;
+            let s = e.episode().state();
+            out.push([s.pose.x, s.pose.y, s.pose.yaw, s.vel.v, s.vel.w].map(f64::to_bits));
+            if end != End::Continue {
+                break;
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn the_weight_spaces_start_at_todays_ddp_bit_for_bit() {
+        use planner::{Gains, Mppi, MppiConfig, NavSystem, Schedule, SystemConfig};
+        let build = |g: Gains| -> Box<dyn Planner> {
+            match g {
+                Gains::Dwa => dwa(),
+                Gains::Mppi => Box::new(Mppi::new(MppiConfig::default(), 3)),
+                Gains::System => Box::new(NavSystem::new(SystemConfig::default(), 3)),
+            }
+        };
+        let world = sim::barn::world(120).unwrap();
+        for g in Gains::ALL {
+            // Today's DDP row: the plain driver on the DDP schedule, 5 periods an agent step.
+            let cfg = EnvConfig::default();
+            let ep_cfg = EpisodeConfig::default().with_profile(cfg.profile, cfg.dynamics);
+            let mut ep = Episode::new(world, ep_cfg, 7);
+            let mut driver = CycleDriver::new(cfg.compute.resolve(g.planner()).unwrap(), ep_cfg.control_dt);
+            let mut planner = build(g);
+            let mut ddp_row = Vec::new();
+            for _ in 0..40 {
+                for _ in 0..5 {
+                    driver.period(
+                        &mut ep,
+                        planner.as_mut(),
+                        &Schedule::ddp_default(),
+                        1.5,
+                        Prediction::for_profile(cfg.profile),
+                        &mut |_, _, _| {},
+                    );
+                }
+                let s = ep.state();
+                ddp_row.push([s.pose.x, s.pose.y, s.pose.yaw, s.vel.v, s.vel.w].map(f64::to_bits));
+                if ep.status() != Status::Running {
+                    break;
+                }
+            }
+            for map in [ActionMap::DdpCentred, ActionMap::Affine] {
+                let first = |space: ActionSpace| -> Vec<f32> {
+                    map.ddp_policy_action(space).iter().map(|&a| a as f32).collect()
+                };
+                let weights = ActionSpace::Weights(g);
+                let got = run_space(weights, build(g), &first(weights), 40);
+                assert_eq!(got, ddp_row, "{weights} {map:?}");
+                // With the schedule too: today's decremental space at its DDP start.
+                let both = ActionSpace::DecrementalWeights(g);
+                let dec = run_space(ActionSpace::Decremental, build(g), &first(ActionSpace::Decremental), 40);
+                assert_eq!(run_space(both, build(g), &first(both), 40), dec, "{both} {map:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn the_weight_spaces_set_the_gains_and_refuse_another_planner() {
+        use planner::{Gains, LogMppi, LogMppiConfig, Mppi, MppiConfig};
+        let space = ActionSpace::Weights(Gains::Dwa);
+        // Gains away from the hand-tuned ones change what DWA does.
+        let tuned = run_space(space, dwa(), &[0.0; 4], 10);
+        let changed = run_space(space, dwa(), &[0.0, 0.0, 1.0, -1.0], 10);
+        assert_ne!(tuned, changed);
+        let world = open_field(false);
+        let make = |space, planner| {
+            AdpEnv::new(&world, EpisodeConfig::default(), planner, space, 1.5, EnvConfig::default(), 1)
+        };
+        let e = make(space, Box::new(Mppi::new(MppiConfig::default(), 1))).err().unwrap();
+        assert_eq!(
+            e.to_string(),
+            "invalid environment configuration: the weights:dwa action space sets the gains of dwa; \
+             the planner is mppi"
+        );
+        let e = make(
+            ActionSpace::DecrementalWeights(Gains::Mppi),
+            Box::new(LogMppi::new(LogMppiConfig::default(), 1)),
+        )
+        .err()
+        .unwrap();
+        assert!(e.to_string().contains("the planner is log-mppi"), "{e}");
+        let mut e = make(space, dwa()).unwrap();
+        assert_eq!(e.obs_dim(), 730);
+        let err = e.step(&[0.0, f32::INFINITY, 0.0, 0.0]).unwrap_err();
+        assert_eq!(err.to_string(), "action refused: action value 1 (w_path) is inf: must be finite");
+        assert_eq!(e.agent_steps(), 0);
+    }
+
+    #[test]
+    fn the_velocity_space_runs_exactly_the_clamped_command_without_a_planner() {
+        // Output (0.5, 7): v = 0.75 of the 1 m/s cap, w clamped to 2 rad/s. The planner panics
+        // if asked to plan.
+        struct Never(Trace);
+        impl Planner for Never {
+            fn name(&self) -> &'static str {
+                "dwa"
+            }
+            fn plan(&mut self, _: &PlanInput<'_>) -> Twist {
+                panic!("the velocity space must not plan")
+            }
+            fn trace(&self) -> &Trace {
+                &self.0
+            }
+            fn trace_mut(&mut self) -> &mut Trace {
+                &mut self.0
+            }
+        }
+        let world = open_field(false);
+        let cfg = EnvConfig::default();
+        let mut e = AdpEnv::new(
+            &world,
+            EpisodeConfig::default(),
+            Box::new(Never(Trace::default())),
+            ActionSpace::Velocity,
+            1.0,
+            cfg,
+            3,
+        )
+        .unwrap();
+        assert_eq!(e.obs_dim(), 728);
+        // The reference: the command issued every control period, with no modelled compute.
+        let ep_cfg = EpisodeConfig::default().with_profile(cfg.profile, cfg.dynamics);
+        let mut reference = Episode::new(&world, ep_cfg, 3);
+        for _ in 0..3 {
+            e.step(&[0.5, 7.0]).unwrap();
+            for _ in 0..5 {
+                reference.step_after(Twist::new(0.75, 2.0), 0.0);
+            }
+            assert_eq!(e.episode().state(), reference.state());
+        }
+        let t = e.compute();
+        assert_eq!((t.cycles, t.modelled_ms, t.samples), (15, 0.0, 0));
+        assert_eq!(t.work, planner::Work::default());
+        let mut obs = vec![0.0; 728];
+        e.observation(&mut obs);
+        assert_eq!(&obs[720..722], &[0.5, 1.0], "the previous action, clamped");
+        let err = e.step(&[0.0, 0.0, 0.0, 0.0]).unwrap_err();
+        assert_eq!(err.to_string(), "action refused: velocity action needs 2 values, got 4");
+    }
 }
