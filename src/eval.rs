@@ -75,7 +75,11 @@ impl Fidelity {
             Fidelity::Ddp => Schedule::ddp_default(),
             Fidelity::Adp => {
                 let params = adp.space.to_params(&adp.action)?;
-                if let Some(f) = adp.space.gain_factors(&params).filter(|f| f.iter().any(|&x| x != 1.0)) {
+                if let Some(f) = adp
+                    .space
+                    .gain_factors(&params)
+                    .filter(|f| f.iter().any(|&x| x != 1.0))
+                {
                     bail!(
                         "a constant {} action sets gain factors {f:?}; only a policy (--policy) sets \
                          gains, a constant action runs the configured ones (factors 1)",

@@ -898,9 +898,23 @@ mod tests {
 
     /// Pose and velocity bits after each of `steps` agent steps of `output` (or until the
     /// episode ends) in `space` on BARN world 120 under the default settings (compute model on).
-    fn run_space(space: ActionSpace, planner: Box<dyn Planner>, output: &[f32], steps: usize) -> Vec<[u64; 5]> {
+    fn run_space(
+        space: ActionSpace,
+        planner: Box<dyn Planner>,
+        output: &[f32],
+        steps: usize,
+    ) -> Vec<[u64; 5]> {
         let world = sim::barn::world(120).unwrap();
-        let mut e = AdpEnv::new(world, EpisodeConfig::default(), planner, space, 1.5, EnvConfig::default(), 7).unwrap();
+        let mut e = AdpEnv::new(
+            world,
+            EpisodeConfig::default(),
+            planner,
+            space,
+            1.5,
+            EnvConfig::default(),
+            7,
+        )
+        .unwrap();
         let mut out = Vec::new();
         for _ in 0..steps {
             let end = e.step(output).unwrap().end;
@@ -958,7 +972,12 @@ mod tests {
                 assert_eq!(got, ddp_row, "{weights} {map:?}");
                 // With the schedule too: today's decremental space at its DDP start.
                 let both = ActionSpace::DecrementalWeights(g);
-                let dec = run_space(ActionSpace::Decremental, build(g), &first(ActionSpace::Decremental), 40);
+                let dec = run_space(
+                    ActionSpace::Decremental,
+                    build(g),
+                    &first(ActionSpace::Decremental),
+                    40,
+                );
                 assert_eq!(run_space(both, build(g), &first(both), 40), dec, "{both} {map:?}");
             }
         }
@@ -974,9 +993,19 @@ mod tests {
         assert_ne!(tuned, changed);
         let world = open_field(false);
         let make = |space, planner| {
-            AdpEnv::new(&world, EpisodeConfig::default(), planner, space, 1.5, EnvConfig::default(), 1)
+            AdpEnv::new(
+                &world,
+                EpisodeConfig::default(),
+                planner,
+                space,
+                1.5,
+                EnvConfig::default(),
+                1,
+            )
         };
-        let e = make(space, Box::new(Mppi::new(MppiConfig::default(), 1))).err().unwrap();
+        let e = make(space, Box::new(Mppi::new(MppiConfig::default(), 1)))
+            .err()
+            .unwrap();
         assert_eq!(
             e.to_string(),
             "invalid environment configuration: the weights:dwa action space sets the gains of dwa; \
@@ -992,7 +1021,10 @@ mod tests {
         let mut e = make(space, dwa()).unwrap();
         assert_eq!(e.obs_dim(), 730);
         let err = e.step(&[0.0, f32::INFINITY, 0.0, 0.0]).unwrap_err();
-        assert_eq!(err.to_string(), "action refused: action value 1 (w_path) is inf: must be finite");
+        assert_eq!(
+            err.to_string(),
+            "action refused: action value 1 (w_path) is inf: must be finite"
+        );
         assert_eq!(e.agent_steps(), 0);
     }
 
@@ -1045,6 +1077,9 @@ mod tests {
         e.observation(&mut obs);
         assert_eq!(&obs[720..722], &[0.5, 1.0], "the previous action, clamped");
         let err = e.step(&[0.0, 0.0, 0.0, 0.0]).unwrap_err();
-        assert_eq!(err.to_string(), "action refused: velocity action needs 2 values, got 4");
+        assert_eq!(
+            err.to_string(),
+            "action refused: velocity action needs 2 values, got 4"
+        );
     }
 }

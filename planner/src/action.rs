@@ -633,7 +633,19 @@ mod tests {
             .iter()
             .map(|r| r.0)
             .collect();
-        assert_eq!(names, ["p", "T", "N", "alpha", "w_goal", "w_path", "w_obstacle", "w_speed"]);
+        assert_eq!(
+            names,
+            [
+                "p",
+                "T",
+                "N",
+                "alpha",
+                "w_goal",
+                "w_path",
+                "w_obstacle",
+                "w_speed"
+            ]
+        );
         assert_eq!(ActionSpace::Decremental.gain_factors(&[1.0; 4]), None);
     }
 
@@ -651,10 +663,16 @@ mod tests {
             assert_eq!(json, format!("\"{space}\""));
             assert_eq!(serde_json::from_str::<ActionSpace>(&json).unwrap(), space);
         }
-        assert_eq!(ActionSpace::DecrementalWeights(Gains::Dwa).name(), "decremental+weights:dwa");
+        assert_eq!(
+            ActionSpace::DecrementalWeights(Gains::Dwa).name(),
+            "decremental+weights:dwa"
+        );
         let e = "weights".parse::<ActionSpace>().unwrap_err().to_string();
         assert!(e.contains("needs the planner: write `weights:dwa`"), "{e}");
-        let e = "decremental+weights:log-mppi".parse::<ActionSpace>().unwrap_err().to_string();
+        let e = "decremental+weights:log-mppi"
+            .parse::<ActionSpace>()
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("`log-mppi` has no objective gains"), "{e}");
         let e = "speed:dwa".parse::<ActionSpace>().unwrap_err().to_string();
         assert!(e.starts_with("unknown action space `speed:dwa`"), "{e}");
@@ -662,7 +680,9 @@ mod tests {
             .schedule(&[0.0, f64::INFINITY, 0.0, 0.0], 20)
             .unwrap_err();
         assert_eq!(e.to_string(), "action value 1 (w_path) is inf: must be finite");
-        let e = ActionSpace::Weights(Gains::Mppi).to_params(&[0.0; 4]).unwrap_err();
+        let e = ActionSpace::Weights(Gains::Mppi)
+            .to_params(&[0.0; 4])
+            .unwrap_err();
         assert_eq!(e.to_string(), "weights:mppi action needs 5 values, got 4");
     }
 
@@ -695,7 +715,11 @@ mod tests {
             let space: ActionSpace = v["space"].as_str().unwrap().parse().unwrap();
             let map: ActionMap = v["map"].as_str().unwrap().parse().unwrap();
             let f = |k: &str| -> Vec<f64> {
-                v[k].as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect()
+                v[k].as_array()
+                    .unwrap()
+                    .iter()
+                    .map(|x| x.as_f64().unwrap())
+                    .collect()
             };
             let (u, want) = (f("output"), f("params"));
             let mut a = vec![0.0; space.dim()];

@@ -144,7 +144,10 @@ mod tests {
         assert!(e.to_string().contains("`log-mppi` has no objective gains"), "{e}");
         assert!(Gains::Dwa.check(&[1.0, 0.0, 2.0, 5.0]).is_ok());
         let e = Gains::Dwa.check(&[1.0, -0.1, 1.0, 1.0]).unwrap_err();
-        assert_eq!(e.to_string(), "dwa gain factor w_path = -0.1: must be finite and >= 0");
+        assert_eq!(
+            e.to_string(),
+            "dwa gain factor w_path = -0.1: must be finite and >= 0"
+        );
         let e = Gains::Dwa.check(&[1.0; 5]).unwrap_err();
         assert_eq!(e.to_string(), "dwa takes 4 gain factors, got 5");
     }

@@ -179,7 +179,13 @@ impl Mppi {
     pub fn new(cfg: MppiConfig, seed: u64) -> Self {
         Self {
             cfg,
-            tuned: [cfg.w_goal, cfg.w_path, cfg.w_obstacle, cfg.w_heading, cfg.w_smooth],
+            tuned: [
+                cfg.w_goal,
+                cfg.w_path,
+                cfg.w_obstacle,
+                cfg.w_heading,
+                cfg.w_smooth,
+            ],
             rng: Pcg64Mcg::seed_from_u64(seed),
             map: LocalMap::jackal(cfg.map_resolution),
             nominal: Nominal::default(),

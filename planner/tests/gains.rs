@@ -77,10 +77,7 @@ fn a_heavier_obstacle_term_keeps_a_larger_clearance() {
     for gains in Gains::ALL {
         let k = gains.names().iter().position(|n| n.contains("obstacle")).unwrap();
         let clearance = |factor: f64| {
-            let mut p = planners()
-                .into_iter()
-                .find(|p| p.gains() == Some(gains))
-                .unwrap();
+            let mut p = planners().into_iter().find(|p| p.gains() == Some(gains)).unwrap();
             let mut f = vec![1.0; gains.len()];
             f[k] = factor;
             drive(p.as_mut(), &world, Some(&f)).1
@@ -100,9 +97,16 @@ fn planners_without_gains_and_bad_factors_are_refused() {
     let mut log = LogMppi::new(LogMppiConfig::default(), 3);
     assert_eq!(log.gains(), None);
     let e = log.set_gain_factors(&[1.0]).unwrap_err();
-    assert!(e.to_string().starts_with("planner `log-mppi` has no objective gains"), "{e}");
+    assert!(
+        e.to_string()
+            .starts_with("planner `log-mppi` has no objective gains"),
+        "{e}"
+    );
     let mut dwa = Dwa::new(DwaConfig::default());
     let e = dwa.set_gain_factors(&[1.0, f64::NAN, 1.0, 1.0]).unwrap_err();
-    assert_eq!(e.to_string(), "dwa gain factor w_path = NaN: must be finite and >= 0");
+    assert_eq!(
+        e.to_string(),
+        "dwa gain factor w_path = NaN: must be finite and >= 0"
+    );
     assert!(dwa.set_gain_factors(&[1.0; 3]).is_err());
 }

@@ -315,8 +315,7 @@ impl RunDir {
     /// What training starts from: the newest usable checkpoint with `--resume` (and the
     /// warnings about the newer ones skipped), or a fresh state (the actor fitted to the DDP
     /// schedule with `ddp_init`, except in the velocity space). Refuses `--resume` without a
-    /// checkpoint and a fresh run in a
-    /// directory that holds one.
+    /// checkpoint and a fresh run in a directory that holds one.
     fn training_state(
         &self,
         opts: &LearnerOptions,
