@@ -73,22 +73,9 @@ impl Fidelity {
         Ok(match self {
             Fidelity::Vanilla => Schedule::vanilla(),
             Fidelity::Ddp => Schedule::ddp_default(),
-            Fidelity::Adp => {
-                let params = adp.space.to_params(&adp.action)?;
-                if let Some(f) = adp
-                    .space
-                    .gain_factors(&params)
-                    .filter(|f| f.iter().any(|&x| x != 1.0))
-                {
-                    bail!(
-                        "a constant {} action sets gain factors {f:?}; only a policy (--policy) sets \
-                         gains, a constant action runs the configured ones (factors 1)",
-                        adp.space
-                    );
-                }
-                adp.space
-                    .schedule(&adp.action, planner::schedule::DEFAULT_BOUNDARY_POINTS)?
-            }
+            Fidelity::Adp => adp
+                .space
+                .schedule_only(&adp.action, planner::schedule::DEFAULT_BOUNDARY_POINTS)?,
         })
     }
 }
@@ -322,6 +309,14 @@ impl Planner for Metered {
 
     fn trace_mut(&mut self) -> &mut Trace {
         self.inner.trace_mut()
+    }
+
+    fn gains(&self) -> Option<planner::Gains> {
+        self.inner.gains()
+    }
+
+    fn set_gain_factors(&mut self, factors: &[f64]) -> Result<(), planner::GainsError> {
+        self.inner.set_gain_factors(factors)
     }
 }
 

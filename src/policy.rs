@@ -123,7 +123,7 @@ fn load_constant(path: &Path, requested: Option<ActionSpace>) -> anyhow::Result<
         (None, r) => r.unwrap_or(ActionSpace::Decremental),
     };
     space
-        .schedule(&f.action, planner::schedule::DEFAULT_BOUNDARY_POINTS)
+        .schedule_only(&f.action, planner::schedule::DEFAULT_BOUNDARY_POINTS)
         .with_context(|| format!("policy {}: field `action`", path.display()))?;
     Ok((space, f.action))
 }

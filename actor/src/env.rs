@@ -268,9 +268,13 @@ impl<'w> AdpEnv<'w> {
         if let Some(g) = space.gains() {
             if planner.gains() != Some(g) {
                 return Err(EnvError::Config(format!(
-                    "the {space} action space sets the gains of {}; the planner is {}",
+                    "the {space} action space sets the gains of {}; the planner is {} ({})",
                     g.planner(),
-                    planner.name()
+                    planner.name(),
+                    planner.gains().map_or("no gains".to_string(), |h| format!(
+                        "the gains of {}",
+                        h.planner()
+                    ))
                 )));
             }
         }
@@ -1009,7 +1013,7 @@ mod tests {
         assert_eq!(
             e.to_string(),
             "invalid environment configuration: the weights:dwa action space sets the gains of dwa; \
-             the planner is mppi"
+             the planner is mppi (the gains of mppi)"
         );
         let e = make(
             ActionSpace::DecrementalWeights(Gains::Mppi),

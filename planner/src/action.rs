@@ -94,6 +94,17 @@ pub enum ActionError {
     /// The velocity space drives the robot directly: it has no schedule.
     #[error("the velocity action space outputs the command itself and has no rollout schedule")]
     NoSchedule,
+    /// A schedule-only path was given gain factors other than the configured gains'.
+    #[error(
+        "the {space} action sets gain factors {factors:?}; only the ADP environment (a policy) \
+         sets a planner's gains, a constant action runs the configured gains (factors 1)"
+    )]
+    GainsIgnored {
+        /// The space.
+        space: ActionSpace,
+        /// The factors the action sets.
+        factors: Vec<f64>,
+    },
 }
 
 /// A name that is no action space or action map.
@@ -302,6 +313,22 @@ impl ActionSpace {
             ActionSpace::DecrementalWeights(_) => Schedule::decremental(q[0], q[1], q[2] as usize, q[3], n)?,
             ActionSpace::Velocity => return Err(ActionError::NoSchedule),
         })
+    }
+
+    /// The schedule of an action run by a path that sets only the schedule (a constant action
+    /// on the plain episode driver, whose planner keeps its configured gains): as
+    /// [`ActionSpace::schedule`], and refuses an action whose gain factors are not all 1 instead
+    /// of silently running other gains than it names.
+    pub fn schedule_only(self, action: &[f64], n: usize) -> Result<Schedule, ActionError> {
+        let schedule = self.schedule(action, n)?;
+        let params = self.to_params(action)?;
+        match self.gain_factors(&params) {
+            Some(f) if f.iter().any(|&x| x != 1.0) => Err(ActionError::GainsIgnored {
+                space: self,
+                factors: f.to_vec(),
+            }),
+            _ => Ok(schedule),
+        }
     }
 
     /// The command of a velocity-space action: `v = v_frac * max_speed` (v_frac in [0, 1]),
@@ -647,6 +674,16 @@ mod tests {
             ]
         );
         assert_eq!(ActionSpace::Decremental.gain_factors(&[1.0; 4]), None);
+        // A path that sets only the schedule refuses gains it would not apply.
+        let w = ActionSpace::Weights(Gains::Dwa);
+        assert_eq!(w.schedule_only(&[0.0; 4], 20), Ok(Schedule::ddp_default()));
+        assert_eq!(
+            w.schedule_only(&[0.0, 0.0, 1.0, 0.0], 20)
+                .unwrap_err()
+                .to_string(),
+            "the weights:dwa action sets gain factors [1.0, 1.0, 2.0, 1.0]; only the ADP environment \
+             (a policy) sets a planner's gains, a constant action runs the configured gains (factors 1)"
+        );
     }
 
     #[test]

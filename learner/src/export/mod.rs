@@ -538,7 +538,7 @@ mod tests {
     fn card_names_gains_and_the_velocity_command() {
         let card_of = |space: ActionSpace| {
             let config = Td3Config {
-                obs_dim: observation::obs_dim(space),
+                obs_dim: actor::observation::obs_dim(space),
                 act_dim: space.dim(),
                 ..Td3Config::default()
             };
