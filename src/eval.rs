@@ -66,14 +66,16 @@ pub struct AdpSetting {
 }
 
 impl Fidelity {
-    /// The schedule of this strategy (`adp` uses the given setting).
+    /// The schedule of this strategy (`adp` uses the given setting). Without a policy the
+    /// planner runs with its configured gains, so a constant action of an objective-weight
+    /// space must keep them (factors of 1); the velocity space has no schedule.
     pub fn schedule(self, adp: &AdpSetting) -> anyhow::Result<Schedule> {
         Ok(match self {
             Fidelity::Vanilla => Schedule::vanilla(),
             Fidelity::Ddp => Schedule::ddp_default(),
             Fidelity::Adp => adp
                 .space
-                .schedule(&adp.action, planner::schedule::DEFAULT_BOUNDARY_POINTS)?,
+                .schedule_only(&adp.action, planner::schedule::DEFAULT_BOUNDARY_POINTS)?,
         })
     }
 }
@@ -307,6 +309,14 @@ impl Planner for Metered {
 
     fn trace_mut(&mut self) -> &mut Trace {
         self.inner.trace_mut()
+    }
+
+    fn gains(&self) -> Option<planner::Gains> {
+        self.inner.gains()
+    }
+
+    fn set_gain_factors(&mut self, factors: &[f64]) -> Result<(), planner::GainsError> {
+        self.inner.set_gain_factors(factors)
     }
 }
 

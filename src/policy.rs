@@ -117,13 +117,13 @@ fn load_constant(path: &Path, requested: Option<ActionSpace>) -> anyhow::Result<
     })?;
     let space = match (f.space, requested) {
         (Some(s), Some(r)) if s != r => {
-            bail!("policy {}: space = {s:?} but --action is {r:?}", path.display())
+            bail!("policy {}: space = {s} but --action is {r}", path.display())
         }
         (Some(s), _) => s,
         (None, r) => r.unwrap_or(ActionSpace::Decremental),
     };
     space
-        .schedule(&f.action, planner::schedule::DEFAULT_BOUNDARY_POINTS)
+        .schedule_only(&f.action, planner::schedule::DEFAULT_BOUNDARY_POINTS)
         .with_context(|| format!("policy {}: field `action`", path.display()))?;
     Ok((space, f.action))
 }

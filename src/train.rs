@@ -148,6 +148,17 @@ impl TrainConfig {
         if !(cfg.run.max_speed.is_finite() && cfg.run.max_speed > 0.0) {
             bail!("{name}: [run] max_speed = {} must be positive", cfg.run.max_speed);
         }
+        if let Some(g) = cfg.run.action_space.gains() {
+            if g.planner() != cfg.run.planner.name() {
+                bail!(
+                    "{name}: [run] action_space = \"{}\" sets the gains of {}, but planner = \"{}\": \
+                     the space must name the planner it drives",
+                    cfg.run.action_space,
+                    g.planner(),
+                    cfg.run.planner.name()
+                );
+            }
+        }
         Ok(cfg)
     }
 
@@ -499,4 +510,38 @@ pub fn actor(a: ActorArgs) -> anyhow::Result<()> {
         give_up_after: Duration::from_secs(a.give_up_after_s),
     };
     Ok(actor::run::run(&setup)?)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn objective_weight_spaces_name_the_run_planner() {
+        let parse = |planner: &str, space: &str| {
+            TrainConfig::parse(
+                "t.toml",
+                &format!("[run]\nplanner = \"{planner}\"\naction_space = \"{space}\"\n"),
+            )
+        };
+        let cfg = parse("dwa", "decremental+weights:dwa").unwrap();
+        assert_eq!(
+            cfg.run.action_space,
+            ActionSpace::DecrementalWeights(planner::Gains::Dwa)
+        );
+        assert_eq!(
+            parse("dwa", "velocity").unwrap().run.action_space,
+            ActionSpace::Velocity
+        );
+        let e = parse("mppi", "weights:dwa").unwrap_err().to_string();
+        assert_eq!(
+            e,
+            "t.toml: [run] action_space = \"weights:dwa\" sets the gains of dwa, but planner = \"mppi\": \
+             the space must name the planner it drives"
+        );
+        let e = parse("dwa", "weights").unwrap_err().to_string();
+        assert!(e.contains("needs the planner: write `weights:dwa`"), "{e}");
+        let e = parse("log-mppi", "weights:log-mppi").unwrap_err().to_string();
+        assert!(e.contains("`log-mppi` has no objective gains"), "{e}");
+    }
 }

@@ -1,9 +1,12 @@
 //! The RL environment: a BARN episode driven by a planner whose time-grid schedule is the
 //! agent's action. Pure (no I/O) and deterministic given the seed and the actions.
 //!
-//! One agent step maps the policy's output through the [`ActionMap`] to a schedule, applies it
-//! for `agent_period_cycles` planner cycles (0.25 s at the 0.05 s control period), stopping
-//! early if the episode ends, then scores the step. Every reward below is multiplied by
+//! One agent step maps the policy's output through the [`ActionMap`] to a schedule (and, in
+//! the objective-weight spaces, the planner's gain factors, set before the step's first
+//! cycle), applies it for `agent_period_cycles` planner cycles (0.25 s at the 0.05 s control
+//! period), stopping early if the episode ends, then scores the step. In the velocity space
+//! (pure RL) no planner runs: the step's command is issued every control period of the step,
+//! as a planner's would be, with no modelled compute. Every reward below is multiplied by
 //! `reward_scale`:
 //!
 //! * collision: `collision_reward` (replaces the shaping terms), [`End::Terminal`];
@@ -20,7 +23,7 @@
 use planner::action::ActionError;
 use planner::run::CycleDriver;
 use planner::schedule::DEFAULT_BOUNDARY_POINTS;
-use planner::{ActionMap, ActionSpace, ComputeConfig, ComputeTally, Planner, Prediction};
+use planner::{ActionMap, ActionSpace, ComputeConfig, ComputeTally, GainsError, Planner, Prediction};
 use serde::{Deserialize, Serialize};
 use sim::episode::{Episode, EpisodeConfig, EpisodeResult, Status};
 use sim::{Dynamics, Profile, World};
@@ -156,6 +159,9 @@ pub enum EnvError {
     /// The action was refused (wrong length or a non-finite value); nothing was simulated.
     #[error("action refused: {0}")]
     Action(#[from] ActionError),
+    /// The planner refused the action's gain factors; nothing was simulated.
+    #[error("action refused: {0}")]
+    Gains(#[from] GainsError),
     /// The episode has already ended; build a new environment for the next one.
     #[error("the episode has ended ({status:?} after {agent_steps} agent steps); build a new environment to continue")]
     Finished {
@@ -229,8 +235,11 @@ pub struct AdpEnv<'w> {
 impl<'w> AdpEnv<'w> {
     /// Starts an episode on `world` with `episode_cfg` under the profile of `cfg` (which
     /// replaces the episode settings' own); `seed` drives the sensor noise and drift. The
-    /// previous action starts as the policy output that selects DDP under the action map. Refuses invalid configurations, a lidar without
-    /// [`LASER_BEAMS`] beams (the observation layout needs them) and a non-positive speed cap.
+    /// previous action starts as the policy output that selects DDP under the action map. Refuses
+    /// invalid configurations, a lidar without [`LASER_BEAMS`] beams (the observation layout
+    /// needs them), a non-positive speed cap, and an objective-weight space whose gains are not
+    /// the planner's. In the velocity space `planner` never plans (it only names the compute
+    /// model's planner).
     pub fn new(
         world: &'w World,
         episode_cfg: EpisodeConfig,
@@ -255,6 +264,19 @@ impl<'w> AdpEnv<'w> {
             return Err(EnvError::Config(format!(
                 "max_speed = {max_speed} must be finite and > 0"
             )));
+        }
+        if let Some(g) = space.gains() {
+            if planner.gains() != Some(g) {
+                return Err(EnvError::Config(format!(
+                    "the {space} action space sets the gains of {}; the planner is {} ({})",
+                    g.planner(),
+                    planner.name(),
+                    planner.gains().map_or("no gains".to_string(), |h| format!(
+                        "the gains of {}",
+                        h.planner()
+                    ))
+                )));
+            }
         }
         let compute = cfg
             .compute
@@ -360,18 +382,33 @@ impl<'w> AdpEnv<'w> {
         self.cfg
             .action_map
             .map_into(&self.policy_f64, &self.ddp_box, &mut self.action_f64);
-        let schedule = self.space.schedule(&self.action_f64, DEFAULT_BOUNDARY_POINTS)?;
-        for _ in 0..self.cfg.agent_period_cycles {
-            let status = self.driver.period(
-                &mut self.episode,
-                self.planner.as_mut(),
-                &schedule,
-                self.max_speed,
-                self.prediction,
-                &mut |_, _, _| {},
-            );
-            if status != Status::Running {
-                break;
+        if self.space == ActionSpace::Velocity {
+            let cmd = self.space.velocity_command(&self.action_f64, self.max_speed)?;
+            for _ in 0..self.cfg.agent_period_cycles {
+                if self.driver.command(&mut self.episode, cmd) != Status::Running {
+                    break;
+                }
+            }
+        } else {
+            let schedule = self.space.schedule(&self.action_f64, DEFAULT_BOUNDARY_POINTS)?;
+            if self.space.gains().is_some() {
+                let params = self.space.to_params(&self.action_f64)?;
+                if let Some(factors) = self.space.gain_factors(&params) {
+                    self.planner.set_gain_factors(factors)?;
+                }
+            }
+            for _ in 0..self.cfg.agent_period_cycles {
+                let status = self.driver.period(
+                    &mut self.episode,
+                    self.planner.as_mut(),
+                    &schedule,
+                    self.max_speed,
+                    self.prediction,
+                    &mut |_, _, _| {},
+                );
+                if status != Status::Running {
+                    break;
+                }
             }
         }
         self.agent_steps += 1;
@@ -861,5 +898,192 @@ mod tests {
         assert_eq!(r.episode, plain);
         assert_eq!(&cycles, e.compute());
         assert_eq!(u64::from(r.agent_steps), cycles.cycles.div_ceil(5));
+    }
+
+    /// Pose and velocity bits after each of `steps` agent steps of `output` (or until the
+    /// episode ends) in `space` on BARN world 120 under the default settings (compute model on).
+    fn run_space(
+        space: ActionSpace,
+        planner: Box<dyn Planner>,
+        output: &[f32],
+        steps: usize,
+    ) -> Vec<[u64; 5]> {
+        let world = sim::barn::world(120).unwrap();
+        let mut e = AdpEnv::new(
+            world,
+            EpisodeConfig::default(),
+            planner,
+            space,
+            1.5,
+            EnvConfig::default(),
+            7,
+        )
+        .unwrap();
+        let mut out = Vec::new();
+        for _ in 0..steps {
+            let end = e.step(output).unwrap().end;
+            let s = e.episode().state();
+            out.push([s.pose.x, s.pose.y, s.pose.yaw, s.vel.v, s.vel.w].map(f64::to_bits));
+            if end != End::Continue {
+                break;
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn the_weight_spaces_start_at_todays_ddp_bit_for_bit() {
+        use planner::{Gains, Mppi, MppiConfig, NavSystem, Schedule, SystemConfig};
+        let build = |g: Gains| -> Box<dyn Planner> {
+            match g {
+                Gains::Dwa => dwa(),
+                Gains::Mppi => Box::new(Mppi::new(MppiConfig::default(), 3)),
+                Gains::System => Box::new(NavSystem::new(SystemConfig::default(), 3)),
+            }
+        };
+        let world = sim::barn::world(120).unwrap();
+        for g in Gains::ALL {
+            // Today's DDP row: the plain driver on the DDP schedule, 5 periods an agent step.
+            let cfg = EnvConfig::default();
+            let ep_cfg = EpisodeConfig::default().with_profile(cfg.profile, cfg.dynamics);
+            let mut ep = Episode::new(world, ep_cfg, 7);
+            let mut driver = CycleDriver::new(cfg.compute.resolve(g.planner()).unwrap(), ep_cfg.control_dt);
+            let mut planner = build(g);
+            let mut ddp_row = Vec::new();
+            for _ in 0..40 {
+                for _ in 0..5 {
+                    driver.period(
+                        &mut ep,
+                        planner.as_mut(),
+                        &Schedule::ddp_default(),
+                        1.5,
+                        Prediction::for_profile(cfg.profile),
+                        &mut |_, _, _| {},
+                    );
+                }
+                let s = ep.state();
+                ddp_row.push([s.pose.x, s.pose.y, s.pose.yaw, s.vel.v, s.vel.w].map(f64::to_bits));
+                if ep.status() != Status::Running {
+                    break;
+                }
+            }
+            for map in [ActionMap::DdpCentred, ActionMap::Affine] {
+                let first = |space: ActionSpace| -> Vec<f32> {
+                    map.ddp_policy_action(space).iter().map(|&a| a as f32).collect()
+                };
+                let weights = ActionSpace::Weights(g);
+                let got = run_space(weights, build(g), &first(weights), 40);
+                assert_eq!(got, ddp_row, "{weights} {map:?}");
+                // With the schedule too: today's decremental space at its DDP start.
+                let both = ActionSpace::DecrementalWeights(g);
+                let dec = run_space(
+                    ActionSpace::Decremental,
+                    build(g),
+                    &first(ActionSpace::Decremental),
+                    40,
+                );
+                assert_eq!(run_space(both, build(g), &first(both), 40), dec, "{both} {map:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn the_weight_spaces_set_the_gains_and_refuse_another_planner() {
+        use planner::{Gains, LogMppi, LogMppiConfig, Mppi, MppiConfig};
+        let space = ActionSpace::Weights(Gains::Dwa);
+        // Gains away from the hand-tuned ones change what DWA does.
+        let tuned = run_space(space, dwa(), &[0.0; 4], 10);
+        let changed = run_space(space, dwa(), &[0.0, 0.0, 1.0, -1.0], 10);
+        assert_ne!(tuned, changed);
+        let world = open_field(false);
+        let make = |space, planner| {
+            AdpEnv::new(
+                &world,
+                EpisodeConfig::default(),
+                planner,
+                space,
+                1.5,
+                EnvConfig::default(),
+                1,
+            )
+        };
+        let e = make(space, Box::new(Mppi::new(MppiConfig::default(), 1)))
+            .err()
+            .unwrap();
+        assert_eq!(
+            e.to_string(),
+            "invalid environment configuration: the weights:dwa action space sets the gains of dwa; \
+             the planner is mppi (the gains of mppi)"
+        );
+        let e = make(
+            ActionSpace::DecrementalWeights(Gains::Mppi),
+            Box::new(LogMppi::new(LogMppiConfig::default(), 1)),
+        )
+        .err()
+        .unwrap();
+        assert!(e.to_string().contains("the planner is log-mppi"), "{e}");
+        let mut e = make(space, dwa()).unwrap();
+        assert_eq!(e.obs_dim(), 730);
+        let err = e.step(&[0.0, f32::INFINITY, 0.0, 0.0]).unwrap_err();
+        assert_eq!(
+            err.to_string(),
+            "action refused: action value 1 (w_path) is inf: must be finite"
+        );
+        assert_eq!(e.agent_steps(), 0);
+    }
+
+    #[test]
+    fn the_velocity_space_runs_exactly_the_clamped_command_without_a_planner() {
+        // Output (0.5, 7): v = 0.75 of the 1 m/s cap, w clamped to 2 rad/s. The planner panics
+        // if asked to plan.
+        struct Never(Trace);
+        impl Planner for Never {
+            fn name(&self) -> &'static str {
+                "dwa"
+            }
+            fn plan(&mut self, _: &PlanInput<'_>) -> Twist {
+                panic!("the velocity space must not plan")
+            }
+            fn trace(&self) -> &Trace {
+                &self.0
+            }
+            fn trace_mut(&mut self) -> &mut Trace {
+                &mut self.0
+            }
+        }
+        let world = open_field(false);
+        let cfg = EnvConfig::default();
+        let mut e = AdpEnv::new(
+            &world,
+            EpisodeConfig::default(),
+            Box::new(Never(Trace::default())),
+            ActionSpace::Velocity,
+            1.0,
+            cfg,
+            3,
+        )
+        .unwrap();
+        assert_eq!(e.obs_dim(), 728);
+        // The reference: the command issued every control period, with no modelled compute.
+        let ep_cfg = EpisodeConfig::default().with_profile(cfg.profile, cfg.dynamics);
+        let mut reference = Episode::new(&world, ep_cfg, 3);
+        for _ in 0..3 {
+            e.step(&[0.5, 7.0]).unwrap();
+            for _ in 0..5 {
+                reference.step_after(Twist::new(0.75, 2.0), 0.0);
+            }
+            assert_eq!(e.episode().state(), reference.state());
+        }
+        let t = e.compute();
+        assert_eq!((t.cycles, t.modelled_ms, t.samples), (15, 0.0, 0));
+        assert_eq!(t.work, planner::Work::default());
+        let mut obs = vec![0.0; 728];
+        e.observation(&mut obs);
+        assert_eq!(&obs[720..722], &[0.5, 1.0], "the previous action, clamped");
+        let err = e.step(&[0.0, 0.0, 0.0, 0.0]).unwrap_err();
+        assert_eq!(
+            err.to_string(),
+            "action refused: velocity action needs 2 values, got 4"
+        );
     }
 }

@@ -1,12 +1,25 @@
-//! ADP action spaces: how a policy's normalized action in [-1, 1]^k becomes a fidelity
-//! [`Schedule`], and back.
+//! ADP action spaces: how a policy's normalized action in [-1, 1]^k becomes what the robot
+//! runs (a fidelity [`Schedule`], the planner's objective gains, or a velocity command), and back.
 //!
 //! The policy always works in [-1, 1]; each dimension maps affinely onto a physical range.
 //! Out-of-range values are clamped, NaN/inf are refused. The decremental space contains the
 //! DDP schedule exactly (p = 1.7, T = 2 s, N = 20, alpha = 0), which is how ADP starts.
+//!
+//! The objective-weight spaces ([`ActionSpace::Weights`], [`ActionSpace::DecrementalWeights`])
+//! add one factor per objective gain of the planner ([`crate::gains`]) in
+//! [`FACTOR_RANGE`] = [0, 2], whose centre 1 is the hand-tuned weight: normalized 0 is the
+//! hand-tuned gain exactly (`0 + (0 + 1) * 0.5 * 2 = 1` and `2 (1 - 0) / 2 - 1 = 0` are exact in
+//! floating point), under either [`ActionMap`]. Their dimension depends on the planner, which
+//! the space carries ([`Gains`]) and names: `weights:dwa`, `decremental+weights:mppi`.
+//!
+//! The [`ActionSpace::Velocity`] space is pure RL: the policy outputs the command itself, the
+//! share `v_frac` in [0, 1] of the run's speed cap and the yaw rate `w` in
+//! [-[`VELOCITY_MAX_W`], [`VELOCITY_MAX_W`]] rad/s, and no planner runs.
 
 use serde::{Deserialize, Serialize};
+use sim::robot::Twist;
 
+use crate::gains::{Gains, GainsError, FACTOR_RANGE};
 use crate::schedule::{Schedule, ScheduleError};
 
 /// Horizon of the unconstrained and fixed-parameter spaces (s).
@@ -15,10 +28,24 @@ pub const FIXED_HORIZON: f64 = 2.0;
 pub const UNCONSTRAINED_STEPS: usize = 20;
 /// The DDP paper's exponent, used for the check-density decay of spaces without their own p.
 const DDP_P: f64 = 1.7;
+/// The DDP schedule's steps.
+const DDP_STEPS: usize = 20;
+/// Yaw-rate bound of the velocity space (rad/s): the `max_w` every planner is configured with.
+pub const VELOCITY_MAX_W: f64 = 2.0;
+/// The decremental space's parameters (p, T, N, alpha) and ranges.
+const DECREMENTAL: [(&str, f64, f64); 4] = [
+    ("p", 1.0, 1.7),
+    ("T", 1.6, 2.2),
+    ("N", 15.0, 22.0),
+    ("alpha", 0.0, 0.6),
+];
+/// DDP's decremental parameters.
+const DDP_PARAMS: [f64; 4] = [DDP_P, FIXED_HORIZON, DDP_STEPS as f64, 0.0];
 
-/// The ways a policy may choose the rollout grid (ADP paper, action-space strategies).
+/// The ways a policy may act (ADP paper, action-space strategies; 3D RL-DWA paper, weights
+/// and pure RL). Serialized by its name ([`ActionSpace::name`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "kebab-case")]
+#[serde(into = "String", try_from = "String")]
 pub enum ActionSpace {
     /// (p, T, N, alpha): t_i = alpha (i/N) T + (1 - alpha) (i/N)^p T; steps lengthen.
     Decremental,
@@ -28,13 +55,21 @@ pub enum ActionSpace {
     Unconstrained,
     /// One interval length (uniform grid over 2 s) and one collision-check density.
     Fixed,
+    /// The planner's objective gain factors (in [`FACTOR_RANGE`]); the schedule stays DDP.
+    /// Named `weights:<planner>`.
+    Weights(Gains),
+    /// The 4 decremental parameters, then the gain factors. Named
+    /// `decremental+weights:<planner>`.
+    DecrementalWeights(Gains),
+    /// Pure RL: `(v_frac, w)`, the command the robot runs for the agent step; no planner.
+    Velocity,
 }
 
 /// An action that cannot be turned into a schedule.
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum ActionError {
     /// Wrong number of values.
-    #[error("{space:?} action needs {expected} values, got {got}")]
+    #[error("{space} action needs {expected} values, got {got}")]
     Dim {
         /// The space.
         space: ActionSpace,
@@ -56,14 +91,45 @@ pub enum ActionError {
     /// The parameters do not make a schedule.
     #[error(transparent)]
     Schedule(#[from] ScheduleError),
+    /// The velocity space drives the robot directly: it has no schedule.
+    #[error("the velocity action space outputs the command itself and has no rollout schedule")]
+    NoSchedule,
+    /// A schedule-only path was given gain factors other than the configured gains'.
+    #[error(
+        "the {space} action sets gain factors {factors:?}; only the ADP environment (a policy) \
+         sets a planner's gains, a constant action runs the configured gains (factors 1)"
+    )]
+    GainsIgnored {
+        /// The space.
+        space: ActionSpace,
+        /// The factors the action sets.
+        factors: Vec<f64>,
+    },
 }
 
 /// A name that is no action space or action map.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum NameError {
     /// Not an action space.
-    #[error("unknown action space `{0}` (expected decremental, incremental, unconstrained or fixed)")]
+    #[error(
+        "unknown action space `{0}` (expected decremental, incremental, unconstrained, fixed, \
+         weights:<planner>, decremental+weights:<planner> or velocity)"
+    )]
     Space(String),
+    /// An objective-weight space without its planner.
+    #[error(
+        "action space `{0}` sets a planner's objective gains and needs the planner: write \
+         `{0}:dwa`, `{0}:mppi` or `{0}:system`"
+    )]
+    NeedsPlanner(String),
+    /// An objective-weight space for a planner without gains.
+    #[error("action space `{space}`: {source}")]
+    Gains {
+        /// The name given.
+        space: String,
+        /// Why the planner does not fit.
+        source: GainsError,
+    },
     /// Not an action map.
     #[error("unknown action map `{0}` (expected ddp-centred or affine)")]
     Map(String),
@@ -72,37 +138,107 @@ pub enum NameError {
 impl std::str::FromStr for ActionSpace {
     type Err = NameError;
     fn from_str(s: &str) -> Result<Self, NameError> {
-        match s {
-            "decremental" => Ok(ActionSpace::Decremental),
-            "incremental" => Ok(ActionSpace::Incremental),
-            "unconstrained" => Ok(ActionSpace::Unconstrained),
-            "fixed" => Ok(ActionSpace::Fixed),
-            _ => Err(NameError::Space(s.to_string())),
+        let gains = |planner: &str| {
+            Gains::for_planner(planner).map_err(|source| NameError::Gains {
+                space: s.to_string(),
+                source,
+            })
+        };
+        match s.split_once(':') {
+            Some(("weights", planner)) => Ok(ActionSpace::Weights(gains(planner)?)),
+            Some(("decremental+weights", planner)) => Ok(ActionSpace::DecrementalWeights(gains(planner)?)),
+            Some(_) => Err(NameError::Space(s.to_string())),
+            None => match s {
+                "decremental" => Ok(ActionSpace::Decremental),
+                "incremental" => Ok(ActionSpace::Incremental),
+                "unconstrained" => Ok(ActionSpace::Unconstrained),
+                "fixed" => Ok(ActionSpace::Fixed),
+                "velocity" => Ok(ActionSpace::Velocity),
+                "weights" | "decremental+weights" => Err(NameError::NeedsPlanner(s.to_string())),
+                _ => Err(NameError::Space(s.to_string())),
+            },
         }
     }
 }
 
+impl TryFrom<String> for ActionSpace {
+    type Error = NameError;
+    fn try_from(s: String) -> Result<Self, NameError> {
+        s.parse()
+    }
+}
+
+impl From<ActionSpace> for String {
+    fn from(space: ActionSpace) -> String {
+        space.name()
+    }
+}
+
+impl std::fmt::Display for ActionSpace {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.name())
+    }
+}
+
 impl ActionSpace {
-    /// Dimension of the action vector.
+    /// The name in configs, cards and on the command line (`decremental`, `weights:dwa`,
+    /// `decremental+weights:system`, `velocity`, ...); [`str::parse`] reads it back.
+    pub fn name(self) -> String {
+        match self {
+            ActionSpace::Decremental => "decremental".into(),
+            ActionSpace::Incremental => "incremental".into(),
+            ActionSpace::Unconstrained => "unconstrained".into(),
+            ActionSpace::Fixed => "fixed".into(),
+            ActionSpace::Weights(g) => format!("weights:{}", g.planner()),
+            ActionSpace::DecrementalWeights(g) => format!("decremental+weights:{}", g.planner()),
+            ActionSpace::Velocity => "velocity".into(),
+        }
+    }
+
+    /// Dimension of the action vector (for the weight spaces, it depends on the planner).
     pub fn dim(self) -> usize {
         match self {
             ActionSpace::Decremental | ActionSpace::Incremental => 4,
             ActionSpace::Unconstrained => UNCONSTRAINED_STEPS,
-            ActionSpace::Fixed => 2,
+            ActionSpace::Fixed | ActionSpace::Velocity => 2,
+            ActionSpace::Weights(g) => g.len(),
+            ActionSpace::DecrementalWeights(g) => 4 + g.len(),
         }
     }
 
-    /// Name and physical range `(low, high)` of each action dimension.
-    pub fn ranges(self) -> Vec<(&'static str, f64, f64)> {
+    /// The planner gains the space sets, if any.
+    pub fn gains(self) -> Option<Gains> {
         match self {
-            ActionSpace::Decremental | ActionSpace::Incremental => vec![
-                ("p", 1.0, 1.7),
-                ("T", 1.6, 2.2),
-                ("N", 15.0, 22.0),
-                ("alpha", 0.0, 0.6),
-            ],
+            ActionSpace::Weights(g) | ActionSpace::DecrementalWeights(g) => Some(g),
+            _ => None,
+        }
+    }
+
+    /// The gain factors among the physical parameters `params` of an action of this space
+    /// (what follows the schedule's parameters); `None` for a space without gains.
+    pub fn gain_factors(self, params: &[f64]) -> Option<&[f64]> {
+        match self {
+            ActionSpace::Weights(_) => Some(params),
+            ActionSpace::DecrementalWeights(_) => params.get(DECREMENTAL.len()..),
+            _ => None,
+        }
+    }
+
+    /// Name and physical range `(low, high)` of each action dimension. Gain factors multiply
+    /// the planner's configured weight; `v_frac` is the share of the run's speed cap.
+    pub fn ranges(self) -> Vec<(&'static str, f64, f64)> {
+        let gains = |g: Gains| {
+            g.names()
+                .iter()
+                .map(|&name| (name, FACTOR_RANGE.0, FACTOR_RANGE.1))
+        };
+        match self {
+            ActionSpace::Decremental | ActionSpace::Incremental => DECREMENTAL.to_vec(),
             ActionSpace::Unconstrained => vec![("dt", 0.02, 0.18); UNCONSTRAINED_STEPS],
             ActionSpace::Fixed => vec![("dt", 0.05, 0.2), ("check_density", 0.0, 1.0)],
+            ActionSpace::Weights(g) => gains(g).collect(),
+            ActionSpace::DecrementalWeights(g) => DECREMENTAL.into_iter().chain(gains(g)).collect(),
+            ActionSpace::Velocity => vec![("v_frac", 0.0, 1.0), ("w", -VELOCITY_MAX_W, VELOCITY_MAX_W)],
         }
     }
 
@@ -173,16 +309,58 @@ impl ActionSpace {
                 let checks = (q[1] * n as f64).round() as usize;
                 Schedule::from_parts(vec![q[0]; steps], vec![checks as u16; steps], n)?
             }
+            ActionSpace::Weights(_) => Schedule::ddp(DDP_P, FIXED_HORIZON, DDP_STEPS, n)?,
+            ActionSpace::DecrementalWeights(_) => Schedule::decremental(q[0], q[1], q[2] as usize, q[3], n)?,
+            ActionSpace::Velocity => return Err(ActionError::NoSchedule),
         })
     }
 
-    /// The action closest to the DDP schedule (p = 1.7, T = 2 s, N = 20, alpha = 0). Exact for
-    /// the decremental space; the other spaces get their nearest representable grid.
+    /// The schedule of an action run by a path that sets only the schedule (a constant action
+    /// on the plain episode driver, whose planner keeps its configured gains): as
+    /// [`ActionSpace::schedule`], and refuses an action whose gain factors are not all 1 instead
+    /// of silently running other gains than it names.
+    pub fn schedule_only(self, action: &[f64], n: usize) -> Result<Schedule, ActionError> {
+        let schedule = self.schedule(action, n)?;
+        let params = self.to_params(action)?;
+        match self.gain_factors(&params) {
+            Some(f) if f.iter().any(|&x| x != 1.0) => Err(ActionError::GainsIgnored {
+                space: self,
+                factors: f.to_vec(),
+            }),
+            _ => Ok(schedule),
+        }
+    }
+
+    /// The command of a velocity-space action: `v = v_frac * max_speed` (v_frac in [0, 1]),
+    /// `w` in [-[`VELOCITY_MAX_W`], [`VELOCITY_MAX_W`]] (clamped first, like every action).
+    /// Refuses another space's action (the error says the velocity space needs 2 values when
+    /// the length differs) and non-finite values.
+    pub fn velocity_command(self, action: &[f64], max_speed: f64) -> Result<Twist, ActionError> {
+        if self != ActionSpace::Velocity {
+            return Err(ActionError::Dim {
+                space: ActionSpace::Velocity,
+                expected: 2,
+                got: action.len(),
+            });
+        }
+        let q = self.to_params(action)?;
+        Ok(Twist::new(q[0] * max_speed, q[1]))
+    }
+
+    /// The action closest to the DDP schedule (p = 1.7, T = 2 s, N = 20, alpha = 0) with the
+    /// hand-tuned gains (factor 1, normalized 0). Exact for the decremental and the weight
+    /// spaces; the other schedule spaces get their nearest representable grid. The velocity
+    /// space has no DDP: its reference action is the box centre (zeros: half the speed cap,
+    /// straight ahead).
     pub fn ddp_action(self) -> Vec<f64> {
+        let ones = |g: Gains| vec![1.0; g.len()];
         match self {
-            ActionSpace::Decremental | ActionSpace::Incremental => self.to_action(&[1.7, 2.0, 20.0, 0.0]),
+            ActionSpace::Decremental | ActionSpace::Incremental => self.to_action(&DDP_PARAMS),
             ActionSpace::Unconstrained => self.to_action(Schedule::ddp_default().dts()),
             ActionSpace::Fixed => self.to_action(&[0.1, 1.0]),
+            ActionSpace::Weights(g) => self.to_action(&ones(g)),
+            ActionSpace::DecrementalWeights(g) => self.to_action(&[DDP_PARAMS.to_vec(), ones(g)].concat()),
+            ActionSpace::Velocity => vec![0.0; 2],
         }
     }
 }
@@ -444,5 +622,150 @@ mod tests {
             .unwrap_err()
             .to_string()
             .contains("ddp-centred or affine"));
+    }
+
+    #[test]
+    fn weight_spaces_start_exactly_at_the_hand_tuned_gains_and_ddp() {
+        for g in Gains::ALL {
+            for space in [ActionSpace::Weights(g), ActionSpace::DecrementalWeights(g)] {
+                assert_eq!(space.dim(), space.ranges().len());
+                assert_eq!(space.gains(), Some(g));
+                for map in [ActionMap::DdpCentred, ActionMap::Affine] {
+                    let u = map.ddp_policy_action(space);
+                    let mut a = vec![0.0; space.dim()];
+                    map.map_into(&u, &space.ddp_action(), &mut a);
+                    let q = space.to_params(&a).unwrap();
+                    // Factor 1 exactly (bit for bit), so the planner's weights are unchanged.
+                    let factors = space.gain_factors(&q).unwrap();
+                    assert_eq!(factors, vec![1.0; g.len()].as_slice(), "{space} {map:?}");
+                    assert!(factors.iter().all(|f| f.to_bits() == 1.0f64.to_bits()));
+                    let s = space.schedule(&a, 20).unwrap();
+                    let want = if matches!(space, ActionSpace::Weights(_)) {
+                        Schedule::ddp_default()
+                    } else {
+                        let dec = ActionSpace::Decremental;
+                        let mut d = vec![0.0; 4];
+                        map.map_into(&map.ddp_policy_action(dec), &dec.ddp_action(), &mut d);
+                        dec.schedule(&d, 20).unwrap()
+                    };
+                    assert_eq!(s, want, "{space} {map:?}: the schedule is today's DDP start");
+                }
+            }
+        }
+        assert_eq!(ActionSpace::Weights(Gains::Dwa).dim(), 4);
+        assert_eq!(ActionSpace::DecrementalWeights(Gains::Mppi).dim(), 9);
+        assert_eq!(ActionSpace::DecrementalWeights(Gains::System).dim(), 8);
+        let names: Vec<&str> = ActionSpace::DecrementalWeights(Gains::Dwa)
+            .ranges()
+            .iter()
+            .map(|r| r.0)
+            .collect();
+        assert_eq!(
+            names,
+            [
+                "p",
+                "T",
+                "N",
+                "alpha",
+                "w_goal",
+                "w_path",
+                "w_obstacle",
+                "w_speed"
+            ]
+        );
+        assert_eq!(ActionSpace::Decremental.gain_factors(&[1.0; 4]), None);
+        // A path that sets only the schedule refuses gains it would not apply.
+        let w = ActionSpace::Weights(Gains::Dwa);
+        assert_eq!(w.schedule_only(&[0.0; 4], 20), Ok(Schedule::ddp_default()));
+        assert_eq!(
+            w.schedule_only(&[0.0, 0.0, 1.0, 0.0], 20)
+                .unwrap_err()
+                .to_string(),
+            "the weights:dwa action sets gain factors [1.0, 1.0, 2.0, 1.0]; only the ADP environment \
+             (a policy) sets a planner's gains, a constant action runs the configured gains (factors 1)"
+        );
+    }
+
+    #[test]
+    fn names_round_trip_and_bad_names_say_what_is_wrong() {
+        for space in [
+            ActionSpace::Decremental,
+            ActionSpace::Fixed,
+            ActionSpace::Weights(Gains::System),
+            ActionSpace::DecrementalWeights(Gains::Mppi),
+            ActionSpace::Velocity,
+        ] {
+            assert_eq!(space.name().parse::<ActionSpace>(), Ok(space));
+            let json = serde_json::to_string(&space).unwrap();
+            assert_eq!(json, format!("\"{space}\""));
+            assert_eq!(serde_json::from_str::<ActionSpace>(&json).unwrap(), space);
+        }
+        assert_eq!(
+            ActionSpace::DecrementalWeights(Gains::Dwa).name(),
+            "decremental+weights:dwa"
+        );
+        let e = "weights".parse::<ActionSpace>().unwrap_err().to_string();
+        assert!(e.contains("needs the planner: write `weights:dwa`"), "{e}");
+        let e = "decremental+weights:log-mppi"
+            .parse::<ActionSpace>()
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("`log-mppi` has no objective gains"), "{e}");
+        let e = "speed:dwa".parse::<ActionSpace>().unwrap_err().to_string();
+        assert!(e.starts_with("unknown action space `speed:dwa`"), "{e}");
+        let e = ActionSpace::Weights(Gains::Dwa)
+            .schedule(&[0.0, f64::INFINITY, 0.0, 0.0], 20)
+            .unwrap_err();
+        assert_eq!(e.to_string(), "action value 1 (w_path) is inf: must be finite");
+        let e = ActionSpace::Weights(Gains::Mppi)
+            .to_params(&[0.0; 4])
+            .unwrap_err();
+        assert_eq!(e.to_string(), "weights:mppi action needs 5 values, got 4");
+    }
+
+    #[test]
+    fn velocity_maps_onto_the_speed_cap_and_the_yaw_rate_bound() {
+        let v = ActionSpace::Velocity;
+        assert_eq!(v.dim(), 2);
+        assert_eq!(v.ranges(), vec![("v_frac", 0.0, 1.0), ("w", -2.0, 2.0)]);
+        assert_eq!(v.velocity_command(&[0.0, 0.0], 1.5), Ok(Twist::new(0.75, 0.0)));
+        assert_eq!(v.velocity_command(&[1.0, -1.0], 1.5), Ok(Twist::new(1.5, -2.0)));
+        // Clamped: never backwards, never beyond the bounds.
+        assert_eq!(v.velocity_command(&[-3.0, 9.0], 0.5), Ok(Twist::new(0.0, 2.0)));
+        assert!(matches!(
+            v.velocity_command(&[f64::NAN, 0.0], 1.0),
+            Err(ActionError::NotFinite { name: "v_frac", .. })
+        ));
+        assert!(ActionSpace::Decremental.velocity_command(&[0.0; 4], 1.0).is_err());
+        assert_eq!(v.schedule(&[0.0, 0.0], 20), Err(ActionError::NoSchedule));
+        assert_eq!(v.ddp_action(), vec![0.0, 0.0]);
+        assert_eq!(ActionMap::DdpCentred.to_box(0.3, v.ddp_action()[0]), 0.3);
+    }
+
+    #[test]
+    fn shared_vectors_with_the_python_client() {
+        let text = include_str!("../tests/data/action_vectors.json");
+        let doc: serde_json::Value = serde_json::from_str(text).unwrap();
+        let vectors = doc["vectors"].as_array().unwrap();
+        assert!(vectors.len() >= 10);
+        for v in vectors {
+            let space: ActionSpace = v["space"].as_str().unwrap().parse().unwrap();
+            let map: ActionMap = v["map"].as_str().unwrap().parse().unwrap();
+            let f = |k: &str| -> Vec<f64> {
+                v[k].as_array()
+                    .unwrap()
+                    .iter()
+                    .map(|x| x.as_f64().unwrap())
+                    .collect()
+            };
+            let (u, want) = (f("output"), f("params"));
+            let mut a = vec![0.0; space.dim()];
+            map.map_into(&u, &space.ddp_action(), &mut a);
+            let got = space.to_params(&a).unwrap();
+            assert_eq!(got.len(), want.len(), "{v}");
+            for (g, w) in got.iter().zip(&want) {
+                assert!((g - w).abs() < 1e-12, "{v}: got {got:?}");
+            }
+        }
     }
 }

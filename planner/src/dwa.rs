@@ -18,7 +18,7 @@ use crate::compute::{evaluation_order, Work};
 use crate::local_map::LocalMap;
 use crate::moving;
 use crate::recovery::{Recovery, RecoveryConfig};
-use crate::{Integrator, PlanInput, Planner, Trace};
+use crate::{Gains, GainsError, Integrator, PlanInput, Planner, Trace};
 
 /// DWA parameters (defaults used by `adp eval`).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -89,7 +89,10 @@ impl Default for DwaConfig {
 /// The DWA planner. Owns its buffers; one per episode (`Send`, not shared).
 #[derive(Clone, Debug)]
 pub struct Dwa {
+    /// The configuration, its objective weights scaled by the gain factors.
     cfg: DwaConfig,
+    /// The configured (hand-tuned) weights, in [`Gains::Dwa`] order.
+    tuned: [f64; 4],
     map: LocalMap,
     /// Per w sample and step: the yaw rate and the heading it has reached.
     w_prof: Vec<YawStep>,
@@ -144,6 +147,7 @@ impl Dwa {
     pub fn new(cfg: DwaConfig) -> Self {
         Self {
             cfg,
+            tuned: [cfg.w_goal, cfg.w_path, cfg.w_obstacle, cfg.w_speed],
             map: LocalMap::jackal(cfg.map_resolution),
             w_prof: Vec::new(),
             v_prof: Vec::new(),
@@ -195,6 +199,23 @@ impl Planner for Dwa {
         let cmd = self.cycle(input);
         self.trace.cycle.work.points = self.trace.evaluated - points_before;
         cmd
+    }
+
+    fn gains(&self) -> Option<Gains> {
+        Some(Gains::Dwa)
+    }
+
+    fn set_gain_factors(&mut self, factors: &[f64]) -> Result<(), GainsError> {
+        Gains::Dwa.check(factors)?;
+        let t = self.tuned;
+        let c = &mut self.cfg;
+        (c.w_goal, c.w_path, c.w_obstacle, c.w_speed) = (
+            t[0] * factors[0],
+            t[1] * factors[1],
+            t[2] * factors[2],
+            t[3] * factors[3],
+        );
+        Ok(())
     }
 }
 

@@ -10,6 +10,7 @@ pub mod action;
 pub mod complexity;
 pub mod compute;
 pub mod dwa;
+pub mod gains;
 pub mod local_map;
 pub mod log_mppi;
 pub mod moving;
@@ -24,6 +25,7 @@ pub mod tracker;
 pub use action::{ActionMap, ActionSpace, NameError};
 pub use compute::{Budget, Compute, ComputeConfig, ComputeModel, ComputeTally, CycleWork, Work};
 pub use dwa::{Dwa, DwaConfig};
+pub use gains::{Gains, GainsError};
 pub use log_mppi::{LogMppi, LogMppiConfig};
 pub use moving::{Predicted, Tracking, TrackingConfig};
 pub use mppi::{Mppi, MppiConfig};
@@ -77,6 +79,19 @@ pub trait Planner: Send {
     /// Collision-check points evaluated since construction (centre + boundary points).
     fn evaluated_points(&self) -> u64 {
         self.trace().evaluated
+    }
+    /// The objective gains a policy may set ([`gains`]); `None` (the default) for a planner
+    /// without any.
+    fn gains(&self) -> Option<Gains> {
+        None
+    }
+    /// Multiplies each configured objective weight by its factor (one per name of
+    /// [`Planner::gains`], in that order) from the next cycle on; factors of 1 restore the
+    /// configured planner exactly. Allocation-free. Refuses a planner without gains, a wrong
+    /// count and negative or non-finite factors (the planner is then unchanged).
+    fn set_gain_factors(&mut self, factors: &[f64]) -> Result<(), GainsError> {
+        let _ = factors;
+        Err(GainsError::NoGains(self.name().to_string()))
     }
 }
 

@@ -33,7 +33,7 @@ use sim::robot::{approach, Twist};
 use crate::compute::{admit, evaluation_order, Work};
 use crate::dwa::distance_to_path;
 use crate::local_map::LocalMap;
-use crate::{Integrator, PlanInput, Planner, Predicted, Rollouts, Trace};
+use crate::{Gains, GainsError, Integrator, PlanInput, Planner, Predicted, Rollouts, Trace};
 
 /// MPPI parameters (defaults used by `adp eval`).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -122,7 +122,10 @@ impl Default for MppiConfig {
 /// The MPPI planner. Owns its buffers and its random stream; one per episode.
 #[derive(Clone, Debug)]
 pub struct Mppi {
+    /// The configuration, its objective weights scaled by the gain factors.
     cfg: MppiConfig,
+    /// The configured (hand-tuned) weights, in [`Gains::Mppi`] order.
+    tuned: [f64; 5],
     rng: Pcg64Mcg,
     map: LocalMap,
     /// The warm-start sequence and its grid.
@@ -176,6 +179,13 @@ impl Mppi {
     pub fn new(cfg: MppiConfig, seed: u64) -> Self {
         Self {
             cfg,
+            tuned: [
+                cfg.w_goal,
+                cfg.w_path,
+                cfg.w_obstacle,
+                cfg.w_heading,
+                cfg.w_smooth,
+            ],
             rng: Pcg64Mcg::seed_from_u64(seed),
             map: LocalMap::jackal(cfg.map_resolution),
             nominal: Nominal::default(),
@@ -574,6 +584,24 @@ fn rollout(scene: &Scene<'_>, controls: &[Twist], mut record: Option<&mut Rollou
 
 impl Planner for Mppi {
     crate::planner_identity!("mppi");
+
+    fn gains(&self) -> Option<Gains> {
+        Some(Gains::Mppi)
+    }
+
+    fn set_gain_factors(&mut self, factors: &[f64]) -> Result<(), GainsError> {
+        Gains::Mppi.check(factors)?;
+        let t = self.tuned;
+        let c = &mut self.cfg;
+        (c.w_goal, c.w_path, c.w_obstacle, c.w_heading, c.w_smooth) = (
+            t[0] * factors[0],
+            t[1] * factors[1],
+            t[2] * factors[2],
+            t[3] * factors[3],
+            t[4] * factors[4],
+        );
+        Ok(())
+    }
 
     fn plan(&mut self, input: &PlanInput<'_>) -> Twist {
         let cfg = self.cfg;

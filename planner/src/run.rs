@@ -4,7 +4,7 @@ use sim::episode::{Episode, EpisodeConfig, EpisodeResult, Status};
 use sim::robot::Twist;
 use sim::World;
 
-use crate::compute::{periods, Budget, Compute, ComputeTally};
+use crate::compute::{periods, Budget, Compute, ComputeTally, CycleWork};
 use crate::moving::{Tracking, TrackingConfig};
 use crate::{PlanInput, Planner, Prediction, Schedule};
 
@@ -102,6 +102,18 @@ impl CycleDriver {
             }
         }
     }
+
+    /// Simulates one control period of `ep` issuing `cmd` without planning (the velocity
+    /// action space's pure-RL policy): a cycle of no work and no modelled compute, so under a
+    /// compute model the command acts after the profile's latency less its planning share.
+    /// Returns the episode's status.
+    pub fn command(&mut self, ep: &mut Episode<'_>, cmd: Twist) -> Status {
+        self.tally.record(&CycleWork::default(), 0.0, self.control_dt);
+        match self.compute {
+            None => ep.step(cmd),
+            Some(_) => ep.step_after(cmd, 0.0),
+        }
+    }
 }
 
 /// Runs `planner` on `world` until the episode ends, predicting with the model of the
@@ -149,7 +161,7 @@ pub fn drive_episode(
 mod tests {
     use super::*;
     use crate::compute::{UnitCosts, Work};
-    use crate::{CycleWork, Trace};
+    use crate::Trace;
     use sim::EpisodeConfig;
 
     /// Drives straight at 1 m/s and reports 1,000 check points of work every cycle.

@@ -3,6 +3,8 @@
 //! again without one allocation. A counting global allocator counts the allocations made while
 //! a planning call runs (on any thread: MPPI, Log-MPPI and the system evaluate samples on
 //! rayon's workers). A `Vec` built per cycle, a `collect` or a clone in a cycle fails here.
+//! Planners with objective gains also take their gain factors inside the counted region before
+//! every cycle, as the objective-weight action spaces set them.
 //!
 //! This file holds one test, so no other test's thread allocates while the counter is armed.
 
@@ -74,8 +76,16 @@ impl Planner for Counted<'_> {
         if !self.armed {
             return self.inner.plan(input);
         }
+        // Factors of 1: the same episode as the uncounted one, so the buffers fit it.
+        let ones = [1.0; 8];
+        let gains = self.inner.gains().map_or(0, |g| g.len());
         let before = ALLOCATIONS.load(Ordering::SeqCst);
         ARMED.store(true, Ordering::SeqCst);
+        if gains > 0 {
+            self.inner
+                .set_gain_factors(&ones[..gains])
+                .expect("the planner's own gain count");
+        }
         let cmd = self.inner.plan(input);
         ARMED.store(false, Ordering::SeqCst);
         let made = ALLOCATIONS.load(Ordering::SeqCst) - before;

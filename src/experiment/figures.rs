@@ -241,24 +241,31 @@ fn panels(space: ActionSpace) -> Vec<(String, Derived)> {
     }
 }
 
-/// The rollout horizon a schedule's parameters give (s): what colours the episode's path.
+/// The rollout horizon a schedule's parameters give (s): what colours the episode's path
+/// (DDP's 2 s in the weights space, 0 in the velocity space, which rolls nothing out).
 fn horizon(space: ActionSpace, p: &[f64]) -> f64 {
     match space {
-        ActionSpace::Decremental | ActionSpace::Incremental => p[1],
+        ActionSpace::Decremental | ActionSpace::Incremental | ActionSpace::DecrementalWeights(_) => p[1],
         ActionSpace::Unconstrained => p.iter().sum::<f64>().min(2.0),
         ActionSpace::Fixed => p[0] * (2.0 / p[0]).round().max(1.0),
+        ActionSpace::Weights(_) => planner::action::FIXED_HORIZON,
+        ActionSpace::Velocity => 0.0,
     }
 }
 
 /// The colour scale of [`horizon`] in a space (s): the range its actions can reach.
 fn horizon_range(space: ActionSpace) -> (f64, f64) {
     match space {
-        ActionSpace::Decremental | ActionSpace::Incremental => {
-            let r = space.ranges();
+        ActionSpace::Decremental
+        | ActionSpace::Incremental
+        | ActionSpace::DecrementalWeights(_)
+        | ActionSpace::Weights(_) => {
+            let r = ActionSpace::Decremental.ranges();
             (r[1].1, r[1].2)
         }
         ActionSpace::Unconstrained => (0.4, 2.0),
         ActionSpace::Fixed => (1.8, 2.2),
+        ActionSpace::Velocity => (0.0, 2.0),
     }
 }
 

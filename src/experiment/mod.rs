@@ -487,7 +487,7 @@ fn run_stage(ctx: &Ctx<'_>, stage: &Stage, out: &Path) -> anyhow::Result<()> {
                         seed: s.seed,
                         trace: false,
                     };
-                    let schedule = a.space.schedule(&found[i].action, points)?;
+                    let schedule = a.space.schedule_only(&found[i].action, points)?;
                     let ev = evaluate(&spec, &Controller::Schedule(schedule))?;
                     let c = &mut found[i];
                     for r in ev.per_world.iter().flat_map(|w| w.runs.iter()) {
@@ -551,7 +551,7 @@ fn run_stage(ctx: &Ctx<'_>, stage: &Stage, out: &Path) -> anyhow::Result<()> {
                 ),
                 SweepWho::Constant => {
                     let action = best_action(ctx, arm)?;
-                    let ctrl = Controller::Schedule(a.space.schedule(&action, points)?);
+                    let ctrl = Controller::Schedule(a.space.schedule_only(&action, points)?);
                     ("constant", evaluate(&spec, &ctrl)?, Some(action), None)
                 }
                 SweepWho::Adp { seed } => {
@@ -580,7 +580,7 @@ fn run_stage(ctx: &Ctx<'_>, stage: &Stage, out: &Path) -> anyhow::Result<()> {
             let action = best_action(ctx, arm)?;
             let ev = evaluate(
                 &test_spec(ctx, a, false),
-                &Controller::Schedule(a.space.schedule(&action, points)?),
+                &Controller::Schedule(a.space.schedule_only(&action, points)?),
             )?;
             let mut rec = record(ctx, a, "constant", ev);
             rec.action = Some(action);

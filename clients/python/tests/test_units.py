@@ -1,6 +1,7 @@
 """Unit tests: generated stubs are current, the checksum, the numpy MLP and the action-space
 port (values from planner/src/action.rs's tests)."""
 
+import json
 import math
 import pathlib
 import subprocess
@@ -149,3 +150,36 @@ def test_action_errors():
         ActionSpace("unconstrained").schedule([0.0] * 4, 20)
     with pytest.raises(ActionError, match="unknown action space `bogus`"):
         ActionSpace("bogus")
+
+
+def test_shared_action_vectors_match_the_rust_port():
+    # planner/tests/data/action_vectors.json, also read by planner/src/action.rs's tests.
+    path = pathlib.Path(__file__).resolve().parents[3] / "planner" / "tests" / "data" / "action_vectors.json"
+    vectors = json.loads(path.read_text())["vectors"]
+    assert len(vectors) >= 10
+    for v in vectors:
+        sp, m = ActionSpace(v["space"]), ActionMap(v["map"])
+        got = sp.to_params(m.box_action(sp, v["output"]))
+        np.testing.assert_allclose(got, v["params"], atol=1e-12, err_msg=str(v))
+
+
+def test_weight_and_velocity_spaces():
+    for planner, n in (("dwa", 4), ("mppi", 5), ("system", 4)):
+        for name, dim in ((f"weights:{planner}", n), (f"decremental+weights:{planner}", 4 + n)):
+            sp = ActionSpace(name)
+            assert sp.dim == dim and len(sp.gains) == n
+            for m in ("ddp-centred", "affine"):
+                # The policy output that selects DDP: 0 (ddp-centred) or the DDP box (affine).
+                u = [0.0] * dim if m == "ddp-centred" else sp.ddp_action()
+                q = sp.to_params(ActionMap(m).box_action(sp, u))
+                assert sp.gain_factors(q) == [1.0] * n
+    ddp = ActionSpace("weights:dwa").schedule([0.0] * 4, 20)
+    assert ddp.checks == ActionSpace("decremental").schedule(ActionSpace("decremental").ddp_action(), 20).checks
+    vel = ActionSpace("velocity")
+    assert vel.velocity_command([0.5, 7.0], 1.0) == (0.75, 2.0)
+    with pytest.raises(ActionError, match="no rollout schedule"):
+        vel.schedule([0.0, 0.0], 20)
+    with pytest.raises(ActionError, match="needs the planner: write `weights:dwa`"):
+        ActionSpace("weights")
+    with pytest.raises(ActionError, match="unknown action space `weights:log-mppi`"):
+        ActionSpace("weights:log-mppi")

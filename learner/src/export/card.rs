@@ -111,7 +111,8 @@ pub struct ObservationSegment {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ActionCard {
-    /// The action space (`decremental`, `incremental`, `unconstrained` or `fixed`).
+    /// The action space (`decremental`, `incremental`, `unconstrained`, `fixed`,
+    /// `weights:<planner>`, `decremental+weights:<planner>` or `velocity`).
     pub space: ActionSpace,
     /// Number of action values.
     pub dim: usize,
@@ -121,9 +122,11 @@ pub struct ActionCard {
     pub dimensions: Vec<ActionDimension>,
     /// How a normalized value becomes a physical one.
     pub to_physical: String,
-    /// How the physical values become the planner's rollout schedule.
+    /// How the physical values become the planner's rollout schedule (and gains, or the
+    /// command of the velocity space).
     pub schedule: String,
-    /// The normalized action that reproduces DDP (ADP's initial policy), as a worked example.
+    /// The normalized action that reproduces DDP with the hand-tuned gains (ADP's initial
+    /// policy), as a worked example; the box centre for the velocity space, which has no DDP.
     pub ddp_action: Vec<f64>,
     /// Its physical values.
     pub ddp_physical: Vec<f64>,
@@ -133,7 +136,9 @@ pub struct ActionCard {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ActionDimension {
-    /// Parameter name (`p`, `T`, `N`, `alpha`, `dt`, `check_density`).
+    /// Parameter name (`p`, `T`, `N`, `alpha`, `dt`, `check_density`; a gain's name such as
+    /// `w_obstacle`, whose value is a factor on the configured weight; `v_frac`, the share of
+    /// the speed cap, and `w`, rad/s, in the velocity space).
     pub name: String,
     /// Physical value at normalized -1.
     pub low: f64,
@@ -162,15 +167,14 @@ pub fn observation_layout(space: ActionSpace, laser_clip_m: f64) -> ObservationL
     }
 }
 
-/// The action space's name as in configuration files and the card (`decremental`, ...).
+/// The action space's name as in configuration files and the card (`decremental`,
+/// `weights:dwa`, ...: [`ActionSpace::name`]).
 pub fn space_name(space: ActionSpace) -> String {
-    match serde_json::to_value(space) {
-        Ok(serde_json::Value::String(name)) => name,
-        _ => unreachable!("ActionSpace serializes as a string"),
-    }
+    space.name()
 }
 
-/// How `space`'s physical values make a rollout schedule (mirrors `planner::action`).
+/// How `space`'s physical values make a rollout schedule, set the planner's gains or drive
+/// the robot (mirrors `planner::action`).
 fn schedule_text(space: ActionSpace) -> &'static str {
     match space {
         ActionSpace::Decremental => {
@@ -190,6 +194,21 @@ fn schedule_text(space: ActionSpace) -> &'static str {
         ActionSpace::Fixed => {
             "max(1, round(2 / dt)) steps of dt s, each collision-checking \
              round(check_density n) of the footprint's n boundary points"
+        }
+        ActionSpace::Weights(_) => {
+            "the DDP schedule (p = 1.7, T = 2 s, N = 20, alpha = 0); each gain value is a factor on \
+             the planner's configured objective weight of that name (1 = the hand-tuned weight, \
+             0 = the term off, 2 = doubled), set before the agent step's first planning cycle"
+        }
+        ActionSpace::DecrementalWeights(_) => {
+            "p, T, N, alpha make the decremental schedule (boundary times t_i = alpha (i/N) T + \
+             (1 - alpha) (i/N)^p T, step i collision-checks round(n (1 - (i/N)^p)) of the \
+             footprint's n boundary points); each following gain value is a factor on the \
+             planner's configured objective weight of that name (1 = the hand-tuned weight)"
+        }
+        ActionSpace::Velocity => {
+            "no planner and no schedule: the robot is commanded v = v_frac * max_speed (m/s, the \
+             run's speed cap) and w (rad/s) every control period of the agent step"
         }
     }
 }

@@ -188,6 +188,9 @@ mod tests {
             ActionSpace::Incremental,
             ActionSpace::Unconstrained,
             ActionSpace::Fixed,
+            ActionSpace::Weights(planner::Gains::System),
+            ActionSpace::DecrementalWeights(planner::Gains::Dwa),
+            ActionSpace::Velocity,
         ] {
             let card = observation_layout(space, observation::DEFAULT_LASER_CLIP_M);
             let card_segments: Vec<(&str, usize, usize)> = card
@@ -527,5 +530,59 @@ mod tests {
                 .to_string();
             assert!(err.contains("environment"), "{err}");
         }
+    }
+
+    /// The objective-weight and velocity spaces name every output and its range in the card,
+    /// and the card reads back with the same space.
+    #[test]
+    fn card_names_gains_and_the_velocity_command() {
+        let card_of = |space: ActionSpace| {
+            let config = Td3Config {
+                obs_dim: actor::observation::obs_dim(space),
+                act_dim: space.dim(),
+                ..Td3Config::default()
+            };
+            PolicyCard::new(space, &manifest(config), &serde_json::Value::Null).unwrap()
+        };
+        let space = ActionSpace::DecrementalWeights(planner::Gains::Mppi);
+        let card = card_of(space);
+        let dims: Vec<(&str, f64, f64)> = card
+            .action
+            .dimensions
+            .iter()
+            .map(|d| (d.name.as_str(), d.low, d.high))
+            .collect();
+        assert_eq!(
+            dims[4..],
+            [
+                ("w_goal", 0.0, 2.0),
+                ("w_path", 0.0, 2.0),
+                ("w_obstacle", 0.0, 2.0),
+                ("w_heading", 0.0, 2.0),
+                ("w_smooth", 0.0, 2.0)
+            ]
+        );
+        assert_eq!(card.action.dim, 9);
+        assert_eq!(card.observation.dim, 735);
+        assert_eq!(card.action.ddp_physical[4..], [1.0; 5]);
+        assert!(
+            card.action.schedule.contains("factor on the"),
+            "{}",
+            card.action.schedule
+        );
+        let json = serde_json::to_value(&card).unwrap();
+        assert_eq!(json["action"]["space"], "decremental+weights:mppi");
+        assert_eq!(serde_json::from_value::<PolicyCard>(json).unwrap(), card);
+
+        let card = card_of(ActionSpace::Velocity);
+        let dims: Vec<(&str, f64, f64)> = card
+            .action
+            .dimensions
+            .iter()
+            .map(|d| (d.name.as_str(), d.low, d.high))
+            .collect();
+        assert_eq!(dims, [("v_frac", 0.0, 1.0), ("w", -2.0, 2.0)]);
+        assert_eq!(card.network.layer_sizes, [728, 512, 512, 2]);
+        assert!(card.action.schedule.contains("v = v_frac * max_speed"));
     }
 }

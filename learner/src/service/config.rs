@@ -54,7 +54,9 @@ pub struct ServiceConfig {
     pub checkpoint_replay: bool,
     /// Seconds between writes of `status.json` and TensorBoard service scalars.
     pub status_every_s: f64,
-    /// Fit the actor to the DDP schedule before training (the ADP paper's initialization).
+    /// Fit the actor to the DDP schedule (with the hand-tuned gains in the objective-weight
+    /// spaces) before training (the ADP paper's initialization); skipped in the velocity space,
+    /// which has no DDP.
     pub ddp_init: bool,
     /// TLS for the gRPC server (`cert` and `key`; with `ca`, clients must present certificates).
     pub tls: Option<TlsFiles>,

@@ -314,8 +314,8 @@ impl RunDir {
 
     /// What training starts from: the newest usable checkpoint with `--resume` (and the
     /// warnings about the newer ones skipped), or a fresh state (the actor fitted to the DDP
-    /// schedule with `ddp_init`). Refuses `--resume` without a checkpoint and a fresh run in a
-    /// directory that holds one.
+    /// schedule with `ddp_init`, except in the velocity space). Refuses `--resume` without a
+    /// checkpoint and a fresh run in a directory that holds one.
     fn training_state(
         &self,
         opts: &LearnerOptions,
@@ -348,7 +348,15 @@ impl RunDir {
             }
             (false, None) => {
                 let mut td3 = Td3::new(opts.td3.clone(), &Device::flex())?;
-                if opts.service.ddp_init {
+                if opts.service.ddp_init && opts.space == planner::ActionSpace::Velocity {
+                    // The velocity space drives the robot itself: there is no DDP to start
+                    // from, and a constant fitted action would only be a fixed command.
+                    tracing::info!(
+                        "ddp_init skipped: the velocity action space has no DDP schedule; the actor \
+                         starts from its random initialization (outputs near 0: about half the \
+                         speed cap, straight ahead)"
+                    );
+                } else if opts.service.ddp_init {
                     let target: Vec<f32> = action_map(&opts.env_toml)?
                         .ddp_policy_action(opts.space)
                         .iter()

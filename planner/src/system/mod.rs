@@ -57,7 +57,7 @@ use sampling::{
 
 use crate::compute::{admit, evaluation_order, Budget, Work};
 use crate::local_map::LocalMap;
-use crate::{Integrator, PlanInput, Planner, Trace};
+use crate::{Gains, GainsError, Integrator, PlanInput, Planner, Trace};
 
 /// Scan points this close to the robot centre are checked exactly by the recovery
 /// motions (m): the circumscribed radius plus a back-up step, with room to spare.
@@ -80,7 +80,10 @@ const SCAN_CAPACITY: usize = 1024;
 
 #[derive(Clone, Debug)]
 pub struct NavSystem {
+    /// The configuration, its objective weights scaled by the gain factors.
     cfg: SystemConfig,
+    /// The configured (hand-tuned) weights: `[normal, low]` per gain of [`Gains::System`].
+    tuned: [[f64; 2]; 4],
     map: LocalMap,
     rng: Pcg64Mcg,
     machine: ModeMachine,
@@ -127,6 +130,12 @@ impl NavSystem {
     pub fn new(cfg: SystemConfig, seed: u64) -> Self {
         Self {
             cfg,
+            tuned: [
+                [cfg.normal_goal, cfg.low_goal],
+                [cfg.normal_obstacle, cfg.low_obstacle],
+                [cfg.normal_heading, cfg.low_heading],
+                [cfg.normal_space, cfg.low_space],
+            ],
             map: LocalMap::jackal(cfg.map_resolution),
             rng: Pcg64Mcg::seed_from_u64(seed),
             machine: ModeMachine::new(cfg),
@@ -575,6 +584,21 @@ impl NavSystem {
 
 impl Planner for NavSystem {
     crate::planner_identity!("system");
+
+    fn gains(&self) -> Option<Gains> {
+        Some(Gains::System)
+    }
+
+    fn set_gain_factors(&mut self, factors: &[f64]) -> Result<(), GainsError> {
+        Gains::System.check(factors)?;
+        let [g, o, h, s] = self.tuned;
+        let c = &mut self.cfg;
+        (c.normal_goal, c.low_goal) = (g[0] * factors[0], g[1] * factors[0]);
+        (c.normal_obstacle, c.low_obstacle) = (o[0] * factors[1], o[1] * factors[1]);
+        (c.normal_heading, c.low_heading) = (h[0] * factors[2], h[1] * factors[2]);
+        (c.normal_space, c.low_space) = (s[0] * factors[3], s[1] * factors[3]);
+        Ok(())
+    }
 
     fn plan(&mut self, input: &PlanInput<'_>) -> Twist {
         self.points_at_start = self.trace.evaluated;

@@ -1,9 +1,16 @@
-"""Action spaces: how a normalized action in [-1, 1]^k becomes a planner's rollout schedule
-(a Python port of planner/src/action.rs and the schedule constructors it uses), and the
-action map that turns a policy's output into that box action.
+"""Action spaces: how a normalized action in [-1, 1]^k becomes a planner's rollout schedule,
+its objective gain factors or a velocity command (a Python port of planner/src/action.rs and the
+schedule constructors it uses), and the action map that turns a policy's output into that box
+action.
 
 A schedule is a list of step lengths `dts` (seconds) and, per step, how many footprint
 boundary points are collision-checked (`checks`, at most `n`).
+
+The objective-weight spaces are named with their planner (`weights:dwa`,
+`decremental+weights:mppi`): each gain value is a factor in [0, 2] on the planner's configured
+weight of that name (1, normalized 0, is the hand-tuned weight). `velocity` outputs the command:
+`v_frac` in [0, 1] of the run's speed cap and `w` in [-2, 2] rad/s; it has no schedule.
+The shared test vectors in planner/tests/data/action_vectors.json pin both ports.
 """
 
 import math
@@ -15,12 +22,29 @@ FIXED_HORIZON = 2.0
 UNCONSTRAINED_STEPS = 20
 _DDP_P = 1.7
 
+VELOCITY_MAX_W = 2.0
+FACTOR_RANGE = (0.0, 2.0)
+_DECREMENTAL = [("p", 1.0, 1.7), ("T", 1.6, 2.2), ("N", 15.0, 22.0), ("alpha", 0.0, 0.6)]
+_DDP_PARAMS = [1.7, 2.0, 20.0, 0.0]
+
+# The objective gains of each planner that has them (planner/src/gains.rs), in factor order.
+GAINS = {
+    "dwa": ["w_goal", "w_path", "w_obstacle", "w_speed"],
+    "mppi": ["w_goal", "w_path", "w_obstacle", "w_heading", "w_smooth"],
+    "system": ["goal", "obstacle", "heading", "space"],
+}
+
 _RANGES = {
-    "decremental": [("p", 1.0, 1.7), ("T", 1.6, 2.2), ("N", 15.0, 22.0), ("alpha", 0.0, 0.6)],
-    "incremental": [("p", 1.0, 1.7), ("T", 1.6, 2.2), ("N", 15.0, 22.0), ("alpha", 0.0, 0.6)],
+    "decremental": _DECREMENTAL,
+    "incremental": _DECREMENTAL,
     "unconstrained": [("dt", 0.02, 0.18)] * UNCONSTRAINED_STEPS,
     "fixed": [("dt", 0.05, 0.2), ("check_density", 0.0, 1.0)],
+    "velocity": [("v_frac", 0.0, 1.0), ("w", -VELOCITY_MAX_W, VELOCITY_MAX_W)],
 }
+for _planner, _names in GAINS.items():
+    _g = [(n, FACTOR_RANGE[0], FACTOR_RANGE[1]) for n in _names]
+    _RANGES[f"weights:{_planner}"] = _g
+    _RANGES[f"decremental+weights:{_planner}"] = _DECREMENTAL + _g
 
 
 class ActionError(ValueError):
@@ -69,14 +93,37 @@ def _decremental(p, total, steps, alpha, n) -> Schedule:
 
 
 class ActionSpace:
-    """One of the run's action spaces by name: decremental, incremental, unconstrained, fixed."""
+    """One of the run's action spaces by name: decremental, incremental, unconstrained, fixed,
+    weights:<planner>, decremental+weights:<planner> (planner dwa, mppi or system), velocity."""
 
     def __init__(self, name: str):
+        if name in ("weights", "decremental+weights"):
+            raise ActionError(
+                f"action space `{name}` sets a planner's objective gains and needs the planner: "
+                f"write `{name}:dwa`, `{name}:mppi` or `{name}:system`"
+            )
         if name not in _RANGES:
             raise ActionError(
-                f"unknown action space `{name}` (expected decremental, incremental, unconstrained or fixed)"
+                f"unknown action space `{name}` (expected decremental, incremental, unconstrained, fixed, "
+                "weights:<planner>, decremental+weights:<planner> or velocity)"
             )
         self.name = name
+
+    @property
+    def gains(self):
+        """The names of the planner gains the space sets (empty for the other spaces)."""
+        return GAINS[self.name.split(":")[1]] if ":" in self.name else []
+
+    def gain_factors(self, params) -> List[float]:
+        """The gain factors among an action's physical parameters (after the schedule's)."""
+        return list(params[len(params) - len(self.gains):]) if self.gains else []
+
+    def velocity_command(self, action, max_speed: float):
+        """(v, w) of a velocity-space action: v = v_frac * max_speed (m/s), w (rad/s)."""
+        if self.name != "velocity":
+            raise ActionError(f"velocity action needs 2 values, got {len(action)}")
+        q = self.to_params(action)
+        return q[0] * max_speed, q[1]
 
     @property
     def dim(self) -> int:
@@ -106,9 +153,16 @@ class ActionSpace:
         return [2.0 * (min(max(v, lo), hi) - lo) / (hi - lo) - 1.0 for v, (_, lo, hi) in zip(params, _RANGES[self.name])]
 
     def ddp_action(self) -> List[float]:
-        """The box action closest to the DDP schedule (p = 1.7, T = 2 s, N = 20, alpha = 0)."""
+        """The box action closest to the DDP schedule (p = 1.7, T = 2 s, N = 20, alpha = 0) with
+        the hand-tuned gains (factor 1); the box centre for velocity, which has no DDP."""
         if self.name in ("decremental", "incremental"):
-            return self.to_action([1.7, 2.0, 20.0, 0.0])
+            return self.to_action(_DDP_PARAMS)
+        if self.name.startswith("weights:"):
+            return self.to_action([1.0] * len(self.gains))
+        if self.name.startswith("decremental+weights:"):
+            return self.to_action(_DDP_PARAMS + [1.0] * len(self.gains))
+        if self.name == "velocity":
+            return [0.0, 0.0]
         if self.name == "unconstrained":
             ddp = _decremental(1.7, 2.0, 20, 0.0, 20)
             return self.to_action(ddp.dts)
@@ -117,7 +171,11 @@ class ActionSpace:
     def schedule(self, action, n: int) -> Schedule:
         """The schedule an action selects, with up to `n` footprint boundary points per check."""
         q = self.to_params(action)
-        if self.name == "decremental":
+        if self.name == "velocity":
+            raise ActionError("the velocity action space outputs the command itself and has no rollout schedule")
+        if self.name.startswith("weights:"):
+            return _decremental(_DDP_P, FIXED_HORIZON, 20, 0.0, n)
+        if self.name == "decremental" or self.name.startswith("decremental+weights:"):
             return _decremental(q[0], q[1], int(q[2]), q[3], n)
         if self.name == "incremental":
             s = _decremental(q[0], q[1], int(q[2]), q[3], n)
