@@ -207,6 +207,12 @@ impl Tracking {
         &self.moving
     }
 
+    /// The moving obstacles of the last [`Tracking::update`], in the robot frame of that
+    /// cycle (empty before the first).
+    pub fn moving(&self) -> &[Predicted] {
+        &self.moving
+    }
+
     /// The tracker.
     pub fn tracker(&self) -> &Tracker {
         &self.tracker
