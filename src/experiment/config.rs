@@ -654,6 +654,20 @@ mod tests {
         }
     }
 
+    /// The dynamic experiment trains on DynaBARN's training worlds, evaluates on its 30 test
+    /// worlds, and observes 4 tracks (so its networks take 746 inputs).
+    #[test]
+    fn the_dynamic_experiment_parses() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/experiments/dynamic.toml");
+        let ex = Experiment::load(&path, &Restrict::default()).unwrap();
+        assert_eq!(ex.arms.len(), 1);
+        assert_eq!(ex.test_worlds.len(), 30);
+        assert!(ex.test_worlds.iter().all(|w| (300..360).contains(w)));
+        assert_eq!(ex.arms[0].train_worlds, "dynabarn-fit");
+        assert_eq!(ex.train.env.observe_tracks, 4);
+        assert_eq!(ex.train_config(&ex.arms[0], 0).td3.obs_dim, 746);
+    }
+
     #[test]
     fn minimal_file_takes_the_defaults() {
         let ex = parse(MINIMAL).unwrap();
