@@ -250,7 +250,7 @@ pub struct EvalArgs {
     #[arg(long, value_delimiter = ',', default_value = "1.5")]
     pub max_speed: Vec<f64>,
     /// Moving-obstacle prediction(s), comma-separated: one row per value (`off`: none; `kf`:
-    /// the tracker's constant-velocity forecast; not with --fidelity adp yet).
+    /// the tracker's constant-velocity forecast; with --fidelity adp and a learned policy, kf exactly when the policy observes tracks).
     #[arg(long, value_enum, value_delimiter = ',', default_value = "off")]
     pub prediction: Vec<ObstaclePrediction>,
     /// Worlds: comma-separated splits (BARN: train, test, hardest50, all; DynaBARN: dynabarn,

@@ -408,8 +408,22 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
             bail!("--max-speed {s} must be in (0, {}] m/s", cfg.episode.robot.max_v);
         }
     }
-    if plan.fidelities.contains(&Fidelity::Adp) && plan.predictions.contains(&ObstaclePrediction::Kf) {
-        bail!("--prediction kf does not apply to --fidelity adp yet: the ADP environment has no tracker");
+    // A learned policy runs in its own environment, which runs the tracker exactly when the
+    // policy observes tracks; the rows it makes must say so.
+    if plan.fidelities.contains(&Fidelity::Adp) && plan.policy.is_some() {
+        let tracks = plan.policy_env.observe_tracks;
+        if tracks == 0 && plan.predictions.contains(&ObstaclePrediction::Kf) {
+            bail!(
+                "--prediction kf with --fidelity adp needs a policy that observes tracks ([env] \
+                 observe_tracks > 0): this policy's environment runs no tracker"
+            );
+        }
+        if tracks > 0 && plan.predictions.contains(&ObstaclePrediction::Off) {
+            bail!(
+                "this policy observes {tracks} moving tracks ([env] observe_tracks), so its \
+                 environment always runs the tracker: evaluate it with --prediction kf"
+            );
+        }
     }
     if plan.predictions.is_empty() {
         bail!("--prediction needs at least one value (off, kf)");
@@ -425,14 +439,15 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
         .filter(|_| plan.fidelities.contains(&Fidelity::Adp));
     if let Some(net) = policy {
         let space = plan.adp.space;
-        if (net.obs_dim(), net.act_dim()) != (actor::obs_dim(space), space.dim()) {
+        let obs_dim = actor::obs_dim(space, plan.policy_env.observe_tracks);
+        if (net.obs_dim(), net.act_dim()) != (obs_dim, space.dim()) {
             bail!(
                 "the policy maps {} observation values to {} actions; the {} action space needs {} \
                  to {}",
                 net.obs_dim(),
                 net.act_dim(),
                 kebab(&space),
-                actor::obs_dim(space),
+                obs_dim,
                 space.dim()
             );
         }
@@ -738,6 +753,46 @@ mod tests {
         let (succ, time, _, coll, _, n) = summarize(&[w], 0);
         assert_eq!((succ, coll, n), (75.0, 25.0, 4));
         assert!((time - 20.0).abs() < 1e-12);
+    }
+
+    /// A policy that observes 4 tracks (746 inputs) runs in an environment with the tracker:
+    /// its rows need `--prediction kf`, and they run on a DynaBARN world.
+    #[test]
+    fn a_policy_that_observes_tracks_runs_with_the_tracker() {
+        let cfg = EvalConfig::load(None).unwrap();
+        let space = ActionSpace::Decremental;
+        let mut flat = vec![0.0; 746 * 4];
+        flat.extend([0.0f32; 4]);
+        let plan = |prediction| EvalPlan {
+            planners: vec![PlannerKind::Dwa],
+            fidelities: vec![Fidelity::Adp],
+            speeds: vec![1.5],
+            worlds: vec![300],
+            runs: 1,
+            trim: 0,
+            seed: 1,
+            adp: AdpSetting {
+                space,
+                action: space.ddp_action(),
+            },
+            policy: Some(MlpPolicy::from_flat(&[746, 4], flat.clone()).unwrap()),
+            policy_env: EnvConfig {
+                observe_tracks: 4,
+                ..EnvConfig::default()
+            },
+            predictions: vec![prediction],
+        };
+        let worlds = sim::catalog::worlds();
+        let err = run(&plan(ObstaclePrediction::Off), &cfg, worlds)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("--prediction kf") && err.contains("4 moving tracks"),
+            "{err}"
+        );
+        let rows = run(&plan(ObstaclePrediction::Kf), &cfg, worlds).unwrap();
+        assert_eq!(rows.len(), 1);
+        assert_eq!(rows[0].episodes, 1);
     }
 
     /// A policy with a constant output, run closed-loop, gives the plain driver's result and

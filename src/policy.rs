@@ -158,8 +158,23 @@ fn load_learned(card_path: &Path, requested: Option<ActionSpace>) -> anyhow::Res
             space.dim()
         )));
     }
-    let want = observation::segments(space);
-    let layout_fits = card.observation.dim == observation::obs_dim(space)
+    // Cards written before simulator profiles existed were trained on what is now `ideal`;
+    // before the action map and reward scale existed, on the affine box and raw rewards.
+    let mut recorded = match &card.environment {
+        serde_json::Value::Null => serde_json::json!({}),
+        other => other.clone(),
+    };
+    if let Some(map) = recorded.as_object_mut() {
+        map.entry("profile").or_insert_with(|| "ideal".into());
+        map.entry("action_map").or_insert_with(|| "affine".into());
+        map.entry("reward_scale").or_insert_with(|| 1.0.into());
+    }
+    let env = serde_json::from_value::<EnvConfig>(recorded)
+        .map_err(|e| e.to_string())
+        .and_then(|env| env.validate().map(|()| env).map_err(|e| e.to_string()))
+        .map_err(|e| bad(format!("environment: {e}")))?;
+    let want = observation::segments(space, env.observe_tracks);
+    let layout_fits = card.observation.dim == observation::obs_dim(space, env.observe_tracks)
         && card.observation.segments.len() == want.len()
         && card
             .observation
@@ -176,12 +191,15 @@ fn load_learned(card_path: &Path, requested: Option<ActionSpace>) -> anyhow::Res
             .collect();
         return Err(bad(format!(
             "observation of {} values ({}) does not fit the {} action space's observation of {} \
-             values ({LASER_BEAMS} laser, {} previous action, v, w, local goal, global goal)",
+             values ({LASER_BEAMS} laser, {} previous action, v, w, local goal, global goal, {} \
+             tracks: environment observe_tracks = {})",
             card.observation.dim,
             sizes.join(", "),
             space_name(space),
-            observation::obs_dim(space),
-            space.dim()
+            observation::obs_dim(space, env.observe_tracks),
+            space.dim(),
+            observation::TRACK_FLOATS * env.observe_tracks,
+            env.observe_tracks
         )));
     }
     let dims = &card.network.layer_sizes;
@@ -205,21 +223,6 @@ fn load_learned(card_path: &Path, requested: Option<ActionSpace>) -> anyhow::Res
             "activations {activations:?}: this build runs relu hidden layers and a tanh output"
         )));
     }
-    // Cards written before simulator profiles existed were trained on what is now `ideal`;
-    // before the action map and reward scale existed, on the affine box and raw rewards.
-    let mut recorded = match &card.environment {
-        serde_json::Value::Null => serde_json::json!({}),
-        other => other.clone(),
-    };
-    if let Some(map) = recorded.as_object_mut() {
-        map.entry("profile").or_insert_with(|| "ideal".into());
-        map.entry("action_map").or_insert_with(|| "affine".into());
-        map.entry("reward_scale").or_insert_with(|| 1.0.into());
-    }
-    let env = serde_json::from_value::<EnvConfig>(recorded)
-        .map_err(|e| e.to_string())
-        .and_then(|env| env.validate().map(|()| env).map_err(|e| e.to_string()))
-        .map_err(|e| bad(format!("environment: {e}")))?;
     let weights_path = dir.join(&card.network.safetensors_file);
     let flat = read_weights(&weights_path, dims)?;
     let net = MlpPolicy::from_flat(dims, flat)

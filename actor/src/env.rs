@@ -23,7 +23,9 @@
 use planner::action::ActionError;
 use planner::run::CycleDriver;
 use planner::schedule::DEFAULT_BOUNDARY_POINTS;
-use planner::{ActionMap, ActionSpace, ComputeConfig, ComputeTally, GainsError, Planner, Prediction};
+use planner::{
+    ActionMap, ActionSpace, ComputeConfig, ComputeTally, GainsError, Planner, Prediction, TrackingConfig,
+};
 use serde::{Deserialize, Serialize};
 use sim::episode::{Episode, EpisodeConfig, EpisodeResult, Status};
 use sim::{Dynamics, Profile, World};
@@ -80,6 +82,12 @@ pub struct EnvConfig {
     /// `jackal-onboard`: a cycle budget, and the command acts after the modelled compute;
     /// `model = "free"` prices nothing). See [`planner::compute`].
     pub compute: ComputeConfig,
+    /// Moving tracks in the observation (default 0: none, the layout of every policy trained
+    /// before tracks existed). With `k > 0` every planning cycle runs the obstacle tracker
+    /// (`planner::CycleDriver::with_tracking`): the planner checks its rollouts against the
+    /// tracks' forecast, and the observation ends with the `k` nearest of them (the `tracks`
+    /// segment of [`crate::observation`]). At most [`observation::MAX_OBSERVED_TRACKS`].
+    pub observe_tracks: usize,
 }
 
 impl Default for EnvConfig {
@@ -100,6 +108,7 @@ impl Default for EnvConfig {
             profile: Profile::default(),
             dynamics: None,
             compute: ComputeConfig::default(),
+            observe_tracks: 0,
         }
     }
 }
@@ -133,6 +142,13 @@ impl EnvConfig {
             if !v.is_finite() {
                 return bad(format!("{name} = {v} must be finite"));
             }
+        }
+        if self.observe_tracks > observation::MAX_OBSERVED_TRACKS {
+            return bad(format!(
+                "observe_tracks = {} must be at most {}",
+                self.observe_tracks,
+                observation::MAX_OBSERVED_TRACKS
+            ));
         }
         if !(self.reward_scale.is_finite() && self.reward_scale > 0.0) {
             return bad(format!(
@@ -282,7 +298,10 @@ impl<'w> AdpEnv<'w> {
             .compute
             .resolve(planner.name())
             .map_err(|e| EnvError::Config(format!("env.{e}")))?;
-        let driver = CycleDriver::new(compute, episode_cfg.control_dt);
+        let mut driver = CycleDriver::new(compute, episode_cfg.control_dt);
+        if cfg.observe_tracks > 0 {
+            driver = driver.with_tracking(TrackingConfig::default());
+        }
         let episode = Episode::new(world, episode_cfg, seed);
         let goal_distance = episode.state().pose.position().dist(world.goal);
         Ok(Self {
@@ -314,9 +333,10 @@ impl<'w> AdpEnv<'w> {
         self.space
     }
 
-    /// Length of this environment's observations ([`observation::obs_dim`] of the space).
+    /// Length of this environment's observations ([`observation::obs_dim`] of the space and
+    /// the observed tracks).
     pub fn obs_dim(&self) -> usize {
-        observation::obs_dim(self.space)
+        observation::obs_dim(self.space, self.cfg.observe_tracks)
     }
 
     /// The configuration.
@@ -350,10 +370,12 @@ impl<'w> AdpEnv<'w> {
     /// # Panics
     /// If `out.len() != self.obs_dim()`.
     pub fn observation(&self, out: &mut [f32]) {
+        let tracks = self.driver.tracking().map_or(&[][..], |t| t.moving());
         observation::write(
             &self.episode.perception(),
             &self.previous_action,
             self.cfg.laser_clip_m,
+            tracks,
             out,
         );
     }
@@ -555,6 +577,55 @@ mod tests {
             reward_scale: 1.0,
             ..EnvConfig::default()
         }
+    }
+
+    #[test]
+    fn observed_tracks_show_a_crossing_obstacle_in_the_robot_frame() {
+        use sim::motion::{MovingCylinder, Trajectory};
+        // A cylinder of radius 0.5 m moving along +x at 1 m/s, 3 m ahead of a robot that
+        // stands at the origin facing +y: in the robot frame it is at x = 3 and moves along
+        // -y at 1 m/s. A seed whose phase starts it between x = -3 and 0 keeps it on its
+        // 12 s loop (x from -6 to 6) for the 3 s the test runs.
+        let keys: Vec<[f64; 3]> = (0..=12).map(|k| [k as f64, k as f64 - 6.0, 3.0]).collect();
+        let mut world = open_field(false);
+        world = world.with_moving(vec![MovingCylinder {
+            radius: 0.5,
+            trajectory: Trajectory::new(&keys, 12.0).unwrap(),
+        }]);
+        let seed = (0..)
+            .find(|&s| (3.0..6.0).contains(&sim::episode::obstacle_phase(&world, s)))
+            .unwrap();
+        let cfg = EnvConfig {
+            observe_tracks: 2,
+            ..EnvConfig::default()
+        };
+        let mut e = env(&world, constant(0.0), cfg, seed);
+        assert_eq!(e.obs_dim(), 738);
+        let mut obs = vec![f32::NAN; 738];
+        e.observation(&mut obs);
+        assert!(
+            obs[730..].iter().all(|&x| x == 0.0),
+            "no track before the first cycle"
+        );
+        for _ in 0..12 {
+            e.step(&ddp()).unwrap();
+        }
+        e.observation(&mut obs);
+        let (x, y, vx, vy) = (obs[730], obs[731], obs[732], obs[733]);
+        assert!((x - 3.0).abs() < 0.2 && y.abs() < 3.5, "position {x}, {y}");
+        assert!(vx.abs() < 0.2 && (vy + 1.0).abs() < 0.2, "velocity {vx}, {vy}");
+        assert!(obs[734..].iter().all(|&x| x == 0.0), "one track, one empty slot");
+        // Without the setting the layout is the old one, and too many slots are refused.
+        assert_eq!(
+            env(&world, constant(0.0), EnvConfig::default(), seed).obs_dim(),
+            730
+        );
+        let too_many = EnvConfig {
+            observe_tracks: 17,
+            ..EnvConfig::default()
+        };
+        let err = too_many.validate().unwrap_err().to_string();
+        assert!(err.contains("observe_tracks = 17"), "{err}");
     }
 
     #[test]

@@ -68,6 +68,89 @@ pub fn clearance(
     best
 }
 
+/// Smallest clearance (m) between `footprint` standing still at `pose` (robot frame of the
+/// cycle) and every obstacle of `moving` over the times `t0..=t1` (s from now); infinite
+/// when `moving` is empty. Adds one check point per obstacle to `evaluated`.
+///
+/// Each forecast centre sweeps a segment over the interval. When the segment stays outside
+/// the footprint the clearance is exact: a segment and a rectangle that are apart are
+/// nearest at an end of the segment or a corner of the rectangle. When it passes through
+/// the footprint the value is at most minus the obstacle's radius (contact).
+#[inline]
+pub fn hold_clearance(
+    footprint: &Footprint,
+    pose: &Pose,
+    t0: f64,
+    t1: f64,
+    moving: &[Predicted],
+    evaluated: &mut u64,
+) -> f64 {
+    *evaluated += moving.len() as u64;
+    let (s, c) = pose.yaw.sin_cos();
+    let at = pose.position();
+    let local = |p: Vec2| {
+        let d = p - at;
+        Vec2::new(c * d.x + s * d.y, -s * d.x + c * d.y)
+    };
+    let (hl, hw) = (footprint.half_length, footprint.half_width);
+    let corners = [
+        Vec2::new(hl, hw),
+        Vec2::new(hl, -hw),
+        Vec2::new(-hl, hw),
+        Vec2::new(-hl, -hw),
+    ];
+    let mut best = f64::INFINITY;
+    for o in moving {
+        let a = local(o.position + o.velocity * t0);
+        let b = local(o.position + o.velocity * t1);
+        let ends = footprint
+            .signed_distance_local(a)
+            .min(footprint.signed_distance_local(b));
+        let gap = if segment_meets_box(a, b, hl, hw) {
+            ends.min(0.0)
+        } else {
+            corners
+                .iter()
+                .map(|&q| point_segment_distance(q, a, b))
+                .fold(ends, f64::min)
+        };
+        best = best.min(gap - o.radius);
+    }
+    best
+}
+
+/// Whether the segment `a`-`b` meets the box `|x| <= hl`, `|y| <= hw` (slab clipping).
+fn segment_meets_box(a: Vec2, b: Vec2, hl: f64, hw: f64) -> bool {
+    let (mut lo, mut hi) = (0.0_f64, 1.0_f64);
+    for (p, d, h) in [(a.x, b.x - a.x, hl), (a.y, b.y - a.y, hw)] {
+        if d == 0.0 {
+            if p.abs() > h {
+                return false;
+            }
+        } else {
+            let (u, v) = ((-h - p) / d, (h - p) / d);
+            lo = lo.max(u.min(v));
+            hi = hi.min(u.max(v));
+            if lo > hi {
+                return false;
+            }
+        }
+    }
+    true
+}
+
+/// Distance from `q` to the segment `a`-`b`.
+fn point_segment_distance(q: Vec2, a: Vec2, b: Vec2) -> f64 {
+    let ab = b - a;
+    let len2 = ab.dot(ab);
+    let f = if len2 > 0.0 {
+        ((q - a).dot(ab) / len2).clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    q.dist(a + ab * f)
+}
+
 /// Obstacle prediction settings. Every field is optional in a TOML table; unknown keys are
 /// refused.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -124,6 +207,12 @@ impl Tracking {
         &self.moving
     }
 
+    /// The moving obstacles of the last [`Tracking::update`], in the robot frame of that
+    /// cycle (empty before the first).
+    pub fn moving(&self) -> &[Predicted] {
+        &self.moving
+    }
+
     /// The tracker.
     pub fn tracker(&self) -> &Tracker {
         &self.tracker
@@ -154,6 +243,45 @@ mod tests {
         assert_eq!(n, 2, "one check point per obstacle and call");
         assert_eq!(clearance(&fp, &Pose::default(), 0.0, &[], &mut n), f64::INFINITY);
         assert_eq!(n, 2);
+    }
+
+    #[test]
+    fn a_standing_robot_is_checked_against_the_whole_sweep() {
+        let fp = Footprint::JACKAL;
+        let mut n = 0;
+        // An obstacle of radius 0.2 m, 2 m to the right, moving left at 1 m/s: over 0..1 s it
+        // stops 1 m short of the robot's centre (gap 1 - 0.215 - 0.2 to the right side)...
+        let moving = [Predicted {
+            position: Vec2::new(0.0, -2.0),
+            velocity: Vec2::new(0.0, 1.0),
+            radius: 0.2,
+        }];
+        let at = |t0: f64, t1: f64, n: &mut u64| hold_clearance(&fp, &Pose::default(), t0, t1, &moving, n);
+        assert!((at(0.0, 1.0, &mut n) - (1.0 - 0.215 - 0.2)).abs() < 1e-12);
+        // ...and over 0..3 s it passes through the footprint: contact.
+        assert!(at(0.0, 3.0, &mut n) <= -0.2);
+        // Past the robot by 2.5 s: from 2.5 s on, only the segment's near end counts.
+        assert!((at(2.5, 4.0, &mut n) - (0.5 - 0.215 - 0.2)).abs() < 1e-12);
+        assert_eq!(n, 3, "one check point per obstacle and call");
+        // Passing diagonally beyond a corner: nearest at the corner (0.254, -0.215); the path
+        // x - y = 2 is (2 - 0.254 - 0.215) / sqrt 2 from it.
+        let diagonal = [Predicted {
+            position: Vec2::new(1.0, -1.0),
+            velocity: Vec2::new(1.0, 1.0),
+            radius: 0.1,
+        }];
+        let d = hold_clearance(&fp, &Pose::default(), -3.0, 3.0, &diagonal, &mut n);
+        let expected = (2.0 - 0.254 - 0.215) / 2f64.sqrt() - 0.1;
+        assert!((d - expected).abs() < 1e-12, "{d} vs {expected}");
+        // A rotated stance is handled in its own frame: facing +y, the first obstacle's
+        // sweep over 0..1 s ends 1 m behind the robot (gap 1 - 0.254 - 0.2).
+        let facing_left = Pose::new(0.0, 0.0, std::f64::consts::FRAC_PI_2);
+        let d = hold_clearance(&fp, &facing_left, 0.0, 1.0, &moving, &mut n);
+        assert!((d - (1.0 - 0.254 - 0.2)).abs() < 1e-12, "{d}");
+        assert_eq!(
+            hold_clearance(&fp, &Pose::default(), 0.0, 1.0, &[], &mut n),
+            f64::INFINITY
+        );
     }
 
     #[test]

@@ -157,6 +157,7 @@ impl EpisodeConfig {
             ));
         }
         self.resolved_dynamics()?;
+        self.costmap.validate()?;
         self.lidar.validate()
     }
 
@@ -250,6 +251,8 @@ pub struct Episode<'w> {
     cycles: u64,
     ranges: Vec<f64>,
     points: Vec<Vec2>,
+    /// Every beam's end point (robot frame), for clearing; empty while clearing is off.
+    ends: Vec<Vec2>,
     costmap: Costmap,
     global: GlobalPlanner,
     raw_path: Vec<Vec2>,
@@ -271,7 +274,8 @@ impl<'w> Episode<'w> {
             .unwrap_or_else(|e| panic!("invalid episode configuration: {e}"));
         let lidar = Lidar::new(cfg.lidar);
         let start = jittered_start(world.start, &cfg, seed);
-        let costmap = Costmap::around(cfg.costmap, start.position(), world.goal);
+        let costmap = Costmap::around(cfg.costmap, start.position(), world.goal)
+            .with_clearing(cfg.costmap.clearing.enabled(!world.moving.is_empty()));
         let phase = obstacle_phase(world, seed);
         let mut ep = Self {
             world,
@@ -297,6 +301,7 @@ impl<'w> Episode<'w> {
             cycles: 0,
             ranges: Vec::new(),
             points: Vec::new(),
+            ends: Vec::new(),
             costmap,
             global: GlobalPlanner::default(),
             raw_path: Vec::new(),
@@ -507,12 +512,13 @@ impl<'w> Episode<'w> {
         // `pose.to_world` per point, with the rotation's sine and cosine computed once.
         let (s, c) = pose.yaw.sin_cos();
         let origin = pose.position();
+        let to_world = |p: &Vec2| Vec2::new(c * p.x - s * p.y, s * p.x + c * p.y) + origin;
+        if self.costmap.clears() {
+            self.lidar.ends(&self.ranges, &mut self.ends);
+            self.costmap.clear(origin, self.ends.iter().map(to_world));
+        }
         let pts = &self.points;
-        self.costmap.mark(
-            origin,
-            pts.iter()
-                .map(|p| Vec2::new(c * p.x - s * p.y, s * p.x + c * p.y) + origin),
-        );
+        self.costmap.mark(origin, pts.iter().map(to_world));
         let due = self.cycles.is_multiple_of(self.cfg.replan_every as u64);
         if self.path.is_empty() || due {
             if self.global.plan(
@@ -760,5 +766,60 @@ mod tests {
         assert!((0..50).all(|s| (0.0..4.0).contains(&obstacle_phase(&w, s))));
         // A static world has no phase.
         assert_eq!(obstacle_phase(&corridor(false), 7), 0.0);
+    }
+
+    #[test]
+    fn the_costmap_forgets_an_obstacle_that_moved_on_only_where_the_world_moves() {
+        use crate::costmap::{Clearing, OBSTACLE};
+        use crate::motion::{MovingCylinder, Trajectory};
+        // A cylinder of radius 0.5 m shuttling along x = 2 between y = -4 and y = 4 (16 s
+        // loop), across the view of a robot standing at the origin facing +x: each pass
+        // shows the robot its near side around (1.5, 0).
+        let keys: Vec<[f64; 3]> = (0..=16)
+            .map(|k| {
+                [
+                    k as f64,
+                    2.0,
+                    if k <= 8 { k as f64 - 4.0 } else { 12.0 - k as f64 },
+                ]
+            })
+            .collect();
+        let w = World::new(0, vec![], Pose::default(), Vec2::new(-9.0, 5.0), 9.0, vec![]).with_moving(vec![
+            MovingCylinder {
+                radius: 0.5,
+                trajectory: Trajectory::new(&keys, 16.0).unwrap(),
+            },
+        ]);
+        // The largest cost in the 0.2 m square around (1.5, 0) once the cylinder has passed
+        // y = 0 (it does every 8 s) and is 3 m or more away from it.
+        let trace = |clearing: Clearing| {
+            let mut cfg = ideal();
+            cfg.costmap.clearing = clearing;
+            let mut ep = Episode::new(&w, cfg, 3);
+            assert_eq!(ep.costmap().clears(), clearing != Clearing::Off);
+            while ep.sim_time() < 20.0 || ep.scene().moving()[0].c.y.abs() < 3.0 {
+                assert_eq!(ep.step(Twist::new(0.0, 0.0)), Status::Running);
+            }
+            let m = ep.costmap();
+            let (x0, y0) = m.cell_of(Vec2::new(1.4, -0.1)).unwrap();
+            let (x1, y1) = m.cell_of(Vec2::new(1.6, 0.1)).unwrap();
+            (y0..=y1)
+                .flat_map(|y| (x0..=x1).map(move |x| (x, y)))
+                .map(|(x, y)| m.cost(x, y))
+                .max()
+                .unwrap()
+        };
+        assert_eq!(
+            trace(Clearing::Off),
+            OBSTACLE,
+            "never cleared: the pass left its trace"
+        );
+        assert_eq!(
+            trace(Clearing::Auto),
+            0,
+            "cleared by the beams that see past it now"
+        );
+        // A static world keeps a costmap that never clears under `auto`.
+        assert!(!Episode::new(&corridor(false), ideal(), 3).costmap().clears());
     }
 }

@@ -126,6 +126,13 @@ impl Lidar {
         }
     }
 
+    /// Every beam's end point in the robot frame: its return, or the point at max range for
+    /// a beam without one (what clears free space in [`crate::costmap::Costmap::clear`]).
+    pub fn ends(&self, ranges: &[f64], out: &mut Vec<Vec2>) {
+        out.clear();
+        out.extend(ranges.iter().zip(&self.dirs).map(|(&r, d)| *d * r));
+    }
+
     /// Converts ranges to points in the robot frame, skipping beams at max range (no return).
     pub fn points(&self, ranges: &[f64], out: &mut Vec<Vec2>) {
         out.clear();

@@ -319,7 +319,7 @@ fn collect_steps(
     let eval = EvalConfig::load(None)?;
     let space = cfg.run.action_space;
     let kind = cfg.run.planner;
-    let n = actor::observation::obs_dim(space);
+    let n = actor::observation::obs_dim(space, env.observe_tracks);
     let (mut obs, mut action) = (vec![0.0f32; n], vec![0.0f32; space.dim()]);
     let mut scratch = Scratch::default();
     let mut done = 0u64;
@@ -515,7 +515,11 @@ mod tests {
     fn collection_loop_counts_agent_steps_across_episode_ends() {
         let cfg = TrainConfig::load(None).unwrap();
         let space = cfg.run.action_space;
-        let dims = [actor::observation::obs_dim(space), 8, space.dim()];
+        let dims = [
+            actor::observation::obs_dim(space, cfg.env.observe_tracks),
+            8,
+            space.dim(),
+        ];
         let net = MlpPolicy::from_flat(&dims, vec![0.0; actor::policy::param_count(&dims)]).unwrap();
         let worlds = cfg.worlds().unwrap();
         // 250 steps cannot fit in one episode (capped at 200 agent steps).

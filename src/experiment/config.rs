@@ -624,7 +624,7 @@ impl Experiment {
         cfg.run.action_space = arm.space;
         cfg.run.max_speed = arm.speed;
         cfg.run.worlds = arm.train_worlds.clone();
-        cfg.td3.obs_dim = actor::obs_dim(arm.space);
+        cfg.td3.obs_dim = actor::obs_dim(arm.space, cfg.env.observe_tracks);
         cfg.td3.act_dim = arm.space.dim();
         cfg.td3.seed = self.section.first_seed + seed as u64;
         cfg
@@ -652,6 +652,20 @@ mod tests {
             assert_eq!(ex.test_worlds.len(), 225);
             assert_eq!((ex.eval.runs, ex.eval.trim), (20, 5));
         }
+    }
+
+    /// The dynamic experiment trains on DynaBARN's training worlds, evaluates on its 30 test
+    /// worlds, and observes 4 tracks (so its networks take 746 inputs).
+    #[test]
+    fn the_dynamic_experiment_parses() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/experiments/dynamic.toml");
+        let ex = Experiment::load(&path, &Restrict::default()).unwrap();
+        assert_eq!(ex.arms.len(), 1);
+        assert_eq!(ex.test_worlds.len(), 30);
+        assert!(ex.test_worlds.iter().all(|w| (300..360).contains(w)));
+        assert_eq!(ex.arms[0].train_worlds, "dynabarn-fit");
+        assert_eq!(ex.train.env.observe_tracks, 4);
+        assert_eq!(ex.train_config(&ex.arms[0], 0).td3.obs_dim, 746);
     }
 
     #[test]

@@ -421,6 +421,7 @@ fn test_spec<'a>(ctx: &'a Ctx<'_>, a: &Arm, trace: bool) -> RunSpec<'a> {
         pairs: &[],
         seed: ctx.ex.eval.seed,
         trace,
+        track: ctx.ex.train.env.observe_tracks > 0,
     }
 }
 
@@ -486,6 +487,7 @@ fn run_stage(ctx: &Ctx<'_>, stage: &Stage, out: &Path) -> anyhow::Result<()> {
                         pairs: &pairs[done..upto],
                         seed: s.seed,
                         trace: false,
+                        track: ctx.ex.train.env.observe_tracks > 0,
                     };
                     let schedule = a.space.schedule_only(&found[i].action, points)?;
                     let ev = evaluate(&spec, &Controller::Schedule(schedule))?;
@@ -637,6 +639,7 @@ fn shuffle_observations(ctx: &Ctx<'_>, a: &Arm, p: &LearnedPolicy) -> anyhow::Re
         pairs: &[],
         seed: ctx.ex.shuffle.seed,
         trace: false,
+        track: ctx.ex.train.env.observe_tracks > 0,
     };
     let ctrl = Controller::of(p);
     let seen = observations(&spec, &ctrl)?.observations;

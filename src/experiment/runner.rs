@@ -13,7 +13,8 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use actor::{AdpEnv, End, EnvConfig, MlpPolicy, Scratch};
-use planner::{run::run_episode, ActionSpace, ComputeTally, Schedule};
+use planner::run::{drive_episode, CycleDriver};
+use planner::{ActionSpace, ComputeTally, Schedule, TrackingConfig};
 use sim::{EpisodeResult, World};
 
 use crate::config::EvalConfig;
@@ -94,6 +95,10 @@ pub struct RunSpec<'a> {
     /// Record the chosen schedule and the clutter of every agent step of run 0 of every
     /// world (network controllers only).
     pub trace: bool,
+    /// Run the moving-obstacle tracker in the schedule controllers' runs too, so that they
+    /// plan with its forecast as the policies do whose environment observes tracks
+    /// (`[train.env] observe_tracks > 0`).
+    pub track: bool,
 }
 
 /// Every run of one world, in run order.
@@ -215,14 +220,21 @@ fn run_one(
     let mut planner = spec.planner.build(spec.cfg, seed ^ 0x5eed_91a2);
     let (net, env, space, pool) = match ctrl {
         Controller::Schedule(s) => {
-            let (res, tally) = run_episode(
+            let mut driver = CycleDriver::new(
+                spec.cfg.compute.resolve(spec.planner.name())?,
+                spec.cfg.episode.control_dt,
+            );
+            if spec.track {
+                driver = driver.with_tracking(TrackingConfig::default());
+            }
+            let (res, tally) = drive_episode(
                 world,
                 spec.cfg.episode,
                 planner.as_mut(),
                 s,
                 spec.speed,
                 seed,
-                spec.cfg.compute.resolve(spec.planner.name())?,
+                driver,
                 |_, _, _| {},
             );
             return Ok((res, tally, Vec::new(), Vec::new()));
@@ -336,6 +348,7 @@ mod tests {
             pairs: &[],
             seed: 9,
             trace: true,
+            track: false,
         };
         let env = EnvConfig::default();
         let real = evaluate(

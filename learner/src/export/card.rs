@@ -149,10 +149,10 @@ pub struct ActionDimension {
 }
 
 /// The observation layout of DESIGN §5 for `space`: 720 laser values (ranges clipped at
-/// `laser_clip_m`), the previous action, v, w, and (bearing, distance) to the local and the
-/// global goal.
-pub fn observation_layout(space: ActionSpace, laser_clip_m: f64) -> ObservationLayout {
-    let segments = observation::segments(space)
+/// `laser_clip_m`), the previous action, v, w, (bearing, distance) to the local and the
+/// global goal, and, when `tracks > 0`, the nearest `tracks` moving tracks.
+pub fn observation_layout(space: ActionSpace, laser_clip_m: f64, tracks: usize) -> ObservationLayout {
+    let segments = observation::segments(space, tracks)
         .iter()
         .map(|s| ObservationSegment {
             name: s.name.into(),
@@ -162,7 +162,7 @@ pub fn observation_layout(space: ActionSpace, laser_clip_m: f64) -> ObservationL
         })
         .collect();
     ObservationLayout {
-        dim: observation::obs_dim(space),
+        dim: observation::obs_dim(space, tracks),
         segments,
     }
 }
@@ -265,6 +265,12 @@ pub enum CardMismatch {
     /// The recorded laser clip is not a positive number.
     #[error("the recorded environment's laser_clip_m = {0} is not a positive number")]
     LaserClip(serde_json::Value),
+    /// The recorded number of observed tracks is not an integer in range.
+    #[error(
+        "the recorded environment's observe_tracks = {0} is not an integer in 0..={max}",
+        max = observation::MAX_OBSERVED_TRACKS
+    )]
+    ObserveTracks(serde_json::Value),
 }
 
 impl PolicyCard {
@@ -291,7 +297,7 @@ impl PolicyCard {
         environment: &serde_json::Value,
     ) -> Result<Self, CardMismatch> {
         let config = &manifest.config;
-        let layout = observation_layout(space, laser_clip_m(environment)?);
+        let layout = observation_layout(space, laser_clip_m(environment)?, observe_tracks(environment)?);
         if config.act_dim != space.dim() {
             return Err(CardMismatch::ActDim {
                 act_dim: config.act_dim,
@@ -383,5 +389,18 @@ fn laser_clip_m(environment: &serde_json::Value) -> Result<f64, CardMismatch> {
             .as_f64()
             .filter(|c| c.is_finite() && *c > 0.0)
             .ok_or_else(|| CardMismatch::LaserClip(v.clone())),
+    }
+}
+
+/// The recorded environment's `observe_tracks` (0 when absent, as in settings recorded before
+/// tracks could be observed). `environment` is a table or null ([`laser_clip_m`] checks it).
+fn observe_tracks(environment: &serde_json::Value) -> Result<usize, CardMismatch> {
+    match environment.get("observe_tracks") {
+        None => Ok(0),
+        Some(v) => v
+            .as_u64()
+            .map(|k| k as usize)
+            .filter(|&k| k <= observation::MAX_OBSERVED_TRACKS)
+            .ok_or_else(|| CardMismatch::ObserveTracks(v.clone())),
     }
 }

@@ -178,7 +178,7 @@ mod tests {
         assert_eq!(
             (c.obs_dim, c.laser_dim, c.act_dim),
             (
-                observation::obs_dim(ActionSpace::Decremental),
+                observation::obs_dim(ActionSpace::Decremental, 0),
                 observation::LASER_BEAMS,
                 ActionSpace::Decremental.dim()
             )
@@ -192,18 +192,20 @@ mod tests {
             ActionSpace::DecrementalWeights(planner::Gains::Dwa),
             ActionSpace::Velocity,
         ] {
-            let card = observation_layout(space, observation::DEFAULT_LASER_CLIP_M);
-            let card_segments: Vec<(&str, usize, usize)> = card
-                .segments
-                .iter()
-                .map(|s| (s.name.as_str(), s.offset, s.size))
-                .collect();
-            let actor_segments: Vec<(&str, usize, usize)> = observation::segments(space)
-                .iter()
-                .map(|s| (s.name, s.offset, s.size))
-                .collect();
-            assert_eq!(card_segments, actor_segments, "{space:?}");
-            assert_eq!(card.dim, observation::obs_dim(space), "{space:?}");
+            for tracks in [0, 4] {
+                let card = observation_layout(space, observation::DEFAULT_LASER_CLIP_M, tracks);
+                let card_segments: Vec<(&str, usize, usize)> = card
+                    .segments
+                    .iter()
+                    .map(|s| (s.name.as_str(), s.offset, s.size))
+                    .collect();
+                let actor_segments: Vec<(&str, usize, usize)> = observation::segments(space, tracks)
+                    .iter()
+                    .map(|s| (s.name, s.offset, s.size))
+                    .collect();
+                assert_eq!(card_segments, actor_segments, "{space:?}");
+                assert_eq!(card.dim, observation::obs_dim(space, tracks), "{space:?}");
+            }
         }
     }
 
@@ -468,6 +470,39 @@ mod tests {
         .unwrap();
         assert_eq!(card.observation.dim, 746);
         assert_eq!(card.action.dimensions.len(), 20);
+    }
+
+    /// A run that observed 4 tracks records it in its environment settings; its card's
+    /// layout ends with the 16-float tracks segment, and a bad count is refused by name.
+    #[test]
+    fn card_records_the_observed_tracks() {
+        let with_tracks = Td3Config {
+            obs_dim: 746,
+            ..Td3Config::default()
+        };
+        let env = serde_json::json!({ "observe_tracks": 4 });
+        let card = PolicyCard::new(ActionSpace::Decremental, &manifest(with_tracks.clone()), &env).unwrap();
+        assert_eq!(card.observation.dim, 746);
+        let last = card.observation.segments.last().unwrap();
+        assert_eq!((last.name.as_str(), last.offset, last.size), ("tracks", 730, 16));
+        assert!(last.encoding.contains("4 nearest"), "{}", last.encoding);
+        // The same checkpoint without the setting does not fit the layout.
+        let err = PolicyCard::new(
+            ActionSpace::Decremental,
+            &manifest(with_tracks.clone()),
+            &serde_json::Value::Null,
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            err.contains("obs_dim = 746") && err.contains("730 values"),
+            "{err}"
+        );
+        let bad = serde_json::json!({ "observe_tracks": -1 });
+        let err = PolicyCard::new(ActionSpace::Decremental, &manifest(with_tracks), &bad)
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("observe_tracks = -1"), "{err}");
     }
 
     #[test]

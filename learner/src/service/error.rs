@@ -154,6 +154,12 @@ pub enum ServiceError {
     /// The environment settings are not a TOML table.
     #[error("the environment settings (env_toml) are not a TOML table: {0}")]
     EnvToml(#[source] toml::de::Error),
+    /// `env.observe_tracks` is not an integer in range.
+    #[error(
+        "env.observe_tracks = {0} must be an integer in 0..={max}",
+        max = actor::observation::MAX_OBSERVED_TRACKS
+    )]
+    ObserveTracks(toml::Value),
     /// `env.action_map` is not a string.
     #[error("env.action_map = {0} must be a string")]
     ActionMapType(toml::Value),

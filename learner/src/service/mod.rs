@@ -615,12 +615,13 @@ impl Learner {
         };
         let (state, resume_warnings, resumed_from) = run.training_state(&opts, &registry_cfg)?;
         let cfg = state.td3.config().clone();
-        if cfg.obs_dim != actor::obs_dim(opts.space) || cfg.act_dim != opts.space.dim() {
+        let space_obs_dim = actor::obs_dim(opts.space, observe_tracks(&opts.env_toml)?);
+        if cfg.obs_dim != space_obs_dim || cfg.act_dim != opts.space.dim() {
             return Err(ServiceError::SpaceMismatch {
                 obs_dim: cfg.obs_dim,
                 act_dim: cfg.act_dim,
                 space: space_name(opts.space),
-                space_obs_dim: actor::obs_dim(opts.space),
+                space_obs_dim,
                 space_act_dim: opts.space.dim(),
             });
         }
@@ -845,6 +846,20 @@ fn action_map(env_toml: &str) -> Result<planner::ActionMap, ServiceError> {
             .ok_or_else(|| ServiceError::ActionMapType(v.clone()))?
             .parse()
             .map_err(ServiceError::ActionMap),
+    }
+}
+
+/// The moving tracks the actors' observations hold (`observe_tracks` in `env_toml`; 0 when
+/// absent), which size the observation with the action space.
+fn observe_tracks(env_toml: &str) -> Result<usize, ServiceError> {
+    let table: toml::Table = toml::from_str(env_toml).map_err(ServiceError::EnvToml)?;
+    match table.get("observe_tracks") {
+        None => Ok(0),
+        Some(v) => v
+            .as_integer()
+            .and_then(|k| usize::try_from(k).ok())
+            .filter(|&k| k <= actor::observation::MAX_OBSERVED_TRACKS)
+            .ok_or_else(|| ServiceError::ObserveTracks(v.clone())),
     }
 }
 

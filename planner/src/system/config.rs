@@ -123,6 +123,11 @@ pub struct SystemConfig {
     pub space_half_angle_deg: f64,
     /// The averaged command must stay collision-free over this much of the rollout (s).
     pub verify_time: f64,
+    /// Among moving obstacles, a feasible rollout must end where the robot could stop and
+    /// stay clear of the obstacles' forecast for this long after the horizon (s; a
+    /// passive-safety check, see the sampling's `evaluate`). Without a forecast (static
+    /// worlds) it plays no part.
+    pub moving_hold_time: f64,
     /// Distance-field cell size (m).
     pub map_resolution: f64,
 }
@@ -186,6 +191,7 @@ impl Default for SystemConfig {
             space_cap: 2.0,
             space_half_angle_deg: 45.0,
             verify_time: 0.5,
+            moving_hold_time: 1.0,
             map_resolution: 0.05,
         }
     }

@@ -412,6 +412,7 @@ impl NavSystem {
             half_width: fp.half_width,
             record: self.trace.recording,
             moving: input.moving,
+            hold_time: cfg.moving_hold_time,
         };
         let controls = &self.controls;
         self.evals[..n]
@@ -503,7 +504,7 @@ impl NavSystem {
         let first = self.controls[best * steps];
         for c in candidates {
             let c = Twist::new(c.v.clamp(0.0, v_top), c.w.clamp(-w_max, w_max));
-            if self.verify(c, per.vel, dts, sched.checks(), mp.margin) {
+            if self.verify(c, per.vel, (dts, sched.checks()), mp.margin, input.moving) {
                 return Some(c);
             }
         }
@@ -553,8 +554,16 @@ impl NavSystem {
     }
 
     /// True when the constant command `cmd` stays collision-free over the first
-    /// `verify_time` seconds of the schedule.
-    fn verify(&mut self, cmd: Twist, start: Twist, dts: &[f64], checks: &[u16], margin: f64) -> bool {
+    /// `verify_time` seconds of the schedule (`dts` with their `checks`), against the scan
+    /// and against the forecast of the `moving` obstacles.
+    fn verify(
+        &mut self,
+        cmd: Twist,
+        start: Twist,
+        (dts, checks): (&[f64], &[u16]),
+        margin: f64,
+        moving: &[crate::Predicted],
+    ) -> bool {
         let (mut vel, mut pose, mut t) = (start, Pose::default(), 0.0);
         let mut clear = self.start_clear;
         for (&dt, &m) in dts.iter().zip(checks) {
@@ -574,7 +583,12 @@ impl NavSystem {
                 self.cfg.clearance_cap,
                 &mut self.trace.evaluated,
             );
-            if clear < margin {
+            let ahead = if moving.is_empty() {
+                f64::INFINITY
+            } else {
+                crate::moving::clearance(self.map.footprint(), &pose, t, moving, &mut self.trace.evaluated)
+            };
+            if clear.min(ahead) < margin {
                 return false;
             }
         }

@@ -160,6 +160,9 @@ pub(super) struct RolloutCtx<'a> {
     pub(super) record: bool,
     /// Moving obstacles, checked where they will be ([`crate::moving`]).
     pub(super) moving: &'a [Predicted],
+    /// Among moving obstacles, how long the robot must be able to stand where a rollout
+    /// ends (or stops) and stay clear of their forecast (s).
+    pub(super) hold_time: f64,
 }
 
 /// Rolls `controls` out from the robot's pose and scores the rollout into `e`.
@@ -167,6 +170,13 @@ pub(super) struct RolloutCtx<'a> {
 /// A rollout is infeasible when a check fails, unless early stops are allowed and it has
 /// driven collision-free for `min_safe_time`: then it stops at its last clear pose (the
 /// acceleration limits stop the robot within a few centimetres) and stays there.
+///
+/// Among moving obstacles (a non-empty forecast) a rollout must also end where the robot
+/// could stop and stay clear of the forecast from the end of its driving (the horizon, or
+/// the early stop) for `hold_time` more (past the horizon; [`crate::moving::hold_clearance`]):
+/// a passive-safety check, without which the sampler keeps choosing rollouts that outrun an
+/// obstacle over the horizon but leave the robot in its path, where nothing is feasible a
+/// few cycles later and the mode machine stops it.
 pub(super) fn evaluate(ctx: &RolloutCtx<'_>, controls: &[Twist], e: &mut SampleEval) {
     e.poses.clear();
     e.evaluated = 0;
@@ -179,6 +189,8 @@ pub(super) fn evaluate(ctx: &RolloutCtx<'_>, controls: &[Twist], e: &mut SampleE
     let mut last_clear = ctx.start_clear;
     // Clearance to the moving obstacles' forecast at the last driven step (infinite: none).
     let mut moving_clear = f64::INFINITY;
+    // When the rollout stops driving (the horizon, unless it stops early).
+    let mut stopped_at = None;
     for (k, (&dt, u)) in ctx.dts.iter().zip(controls).enumerate() {
         if k < e.driven {
             e.steps += 1;
@@ -207,6 +219,7 @@ pub(super) fn evaluate(ctx: &RolloutCtx<'_>, controls: &[Twist], e: &mut SampleE
                     Some(t) if time >= t => {
                         e.driven = k;
                         (vel, pose) = before;
+                        stopped_at = Some(time);
                     }
                     _ => {
                         if ctx.record {
@@ -248,6 +261,14 @@ pub(super) fn evaluate(ctx: &RolloutCtx<'_>, controls: &[Twist], e: &mut SampleE
     }
     if travel < ctx.min_travel {
         return;
+    }
+    if !ctx.moving.is_empty() {
+        let fp = ctx.map.footprint();
+        let from = stopped_at.unwrap_or(time);
+        let t1 = time + ctx.hold_time;
+        if crate::moving::hold_clearance(fp, &pose, from, t1, ctx.moving, &mut e.evaluated) < ctx.margin {
+            return;
+        }
     }
     let n_q = n_q.max(1) as f64;
     e.feasible = true;
