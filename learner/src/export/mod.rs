@@ -573,7 +573,7 @@ mod tests {
     fn card_names_gains_and_the_velocity_command() {
         let card_of = |space: ActionSpace| {
             let config = Td3Config {
-                obs_dim: actor::observation::obs_dim(space),
+                obs_dim: actor::observation::obs_dim(space, 0),
                 act_dim: space.dim(),
                 ..Td3Config::default()
             };
