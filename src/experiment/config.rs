@@ -144,6 +144,9 @@ pub struct SweepSection {
     pub free: bool,
     /// Runs per test world of each sweep evaluation.
     pub runs: usize,
+    /// Fastest and slowest runs dropped per world before averaging (as `[eval] trim`, for
+    /// this section's own run count: `2 * trim < runs`).
+    pub trim: usize,
     /// The arm swept (index into the arms in file order: planners x spaces x speeds x
     /// training worlds).
     pub arm: usize,
@@ -155,6 +158,7 @@ impl Default for SweepSection {
             budget_scales: Vec::new(),
             free: false,
             runs: 5,
+            trim: 1,
             arm: 0,
         }
     }
@@ -575,9 +579,15 @@ impl Experiment {
                     arms.len()
                 );
             }
-            if sweep.runs == 0 || sweep.budget_scales.iter().any(|k| !(k.is_finite() && *k > 0.0)) {
+            if sweep.runs == 0
+                || 2 * sweep.trim >= sweep.runs
+                || sweep.budget_scales.iter().any(|k| !(k.is_finite() && *k > 0.0))
+            {
                 bail!(
-                    "{name}: [compute_sweep] runs must be at least 1 and every budget scale finite and > 0"
+                    "{name}: [compute_sweep] runs = {} and trim = {}: runs must be at least 1, trim \
+                     less than half of runs, and every budget scale finite and > 0",
+                    sweep.runs,
+                    sweep.trim
                 );
             }
         }
@@ -741,6 +751,16 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("[eval]") && e.contains("trim"), "{e}");
+        // The sweep's runs are its own: its trim is checked against them (5 runs, trim 5
+        // would leave nothing of a world to average).
+        let sweep = |trim: usize| {
+            parse(&format!(
+                "{MINIMAL}[compute_sweep]\nbudget_scales = [1.0]\nruns = 5\ntrim = {trim}\n"
+            ))
+        };
+        let e = sweep(3).unwrap_err().to_string();
+        assert!(e.contains("[compute_sweep]") && e.contains("trim = 3"), "{e}");
+        assert_eq!(sweep(2).unwrap().sweep.trim, 2);
         let e = parse(&MINIMAL.replace("dwa", "dwaa")).unwrap_err().to_string();
         assert!(e.contains("dwaa"), "{e}");
         let e = parse(&format!("{MINIMAL}[eval]\nstart_jitter_m = 3.0\n"))

@@ -570,6 +570,7 @@ fn run_stage(ctx: &Ctx<'_>, stage: &Stage, out: &Path) -> anyhow::Result<()> {
             };
             let mut rec = record(ctx, a, name, ev);
             rec.runs = ex.sweep.runs;
+            rec.trim = ex.sweep.trim;
             rec.action = action;
             rec.policy = policy;
             if let SweepWho::Adp { seed } = who {
