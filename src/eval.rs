@@ -795,9 +795,6 @@ mod tests {
         assert_eq!(rows[0].episodes, 1);
     }
 
-    /// A policy with a constant output, run closed-loop, gives the plain driver's result and
-    /// cycle count with that action's schedule, for a run that succeeds and one that times out
-    /// (on a shortened clock).
     /// Every row of one evaluation runs the same robot: a policy trained on another profile
     /// is refused with the flag that fixes it; rows report the cost of their fidelity.
     #[test]
@@ -840,6 +837,9 @@ mod tests {
         }
     }
 
+    /// A policy with a constant output, run closed-loop, gives the plain driver's result and
+    /// cycle count with that action's schedule, for a run that succeeds and one that times out
+    /// (on a shortened clock).
     #[test]
     fn closed_loop_constant_policy_equals_the_plain_driver() {
         let cfg = EvalConfig::load(None).unwrap();
