@@ -353,7 +353,10 @@ fn assert_consistent(s: &Status, procs: &Procs) {
 
 #[test]
 fn a_frozen_actor_loses_its_lease_and_its_late_data_is_refused() {
-    const BUDGET: u64 = 4000;
+    // Long enough that the run cannot end while the attempts below look for a frozen actor
+    // with late data (each takes a few seconds; three actors collect 500+ steps/s on 2 idle
+    // cores: 4,000 steps once ran out mid-search and the actors exited 0).
+    const BUDGET: u64 = 12_000;
     let _turn = take_turn();
     let (dir, run, cfg) = TestConfig {
         shared_memory: false,
