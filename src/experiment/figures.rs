@@ -555,9 +555,12 @@ pub fn compute_pareto(
             for (k, p) in points.iter().filter(|p| !p.label.is_empty()).enumerate() {
                 let c = colour(k);
                 let at = (p.ms, get(p));
-                chart.draw_series([Circle::new(at, 6, c.filled())]).map_err(err)?;
+                // The label sits right of its marker (pixel offset), not under it.
+                let font = (FAMILY, 12).into_font().color(&c);
                 chart
-                    .draw_series([Text::new(p.label.clone(), at, (FAMILY, 12).into_font().color(&c))])
+                    .draw_series([EmptyElement::at(at)
+                        + Circle::new((0, 0), 6, c.filled())
+                        + Text::new(p.label.clone(), (9, -7), font)])
                     .map_err(err)?;
             }
         }
