@@ -75,7 +75,7 @@ pub struct Setup {
     /// Simulator profile (ideal, gazebo-jackal, custom): overrides [episode] profile.
     #[arg(long, value_parser = parse_profile)]
     pub profile: Option<Profile>,
-    /// Onboard compute model (free, jackal-onboard, custom): overrides [compute] model, for
+    /// Onboard compute model (free, jackal-onboard-v2, jackal-onboard, custom): overrides [compute] model, for
     /// every row (a policy's own model otherwise applies to the rows of its evaluation).
     #[arg(long, value_parser = parse_compute)]
     pub compute: Option<ComputeModel>,
@@ -134,9 +134,10 @@ fn parse_compute(s: &str) -> Result<ComputeModel, String> {
     match s {
         "free" => Ok(ComputeModel::Free),
         "jackal-onboard" => Ok(ComputeModel::JackalOnboard),
+        "jackal-onboard-v2" => Ok(ComputeModel::JackalOnboardV2),
         "custom" => Ok(ComputeModel::Custom),
         _ => Err(format!(
-            "unknown compute model {s:?} (free, jackal-onboard, custom)"
+            "unknown compute model {s:?} (free, jackal-onboard-v2, jackal-onboard, custom)"
         )),
     }
 }

@@ -79,7 +79,7 @@ pub struct EnvConfig {
     /// otherwise).
     pub dynamics: Option<Dynamics>,
     /// The onboard compute model the planner runs under (`[env.compute]`; default
-    /// `jackal-onboard`: a cycle budget, and the command acts after the modelled compute;
+    /// `jackal-onboard-v2`: a cycle budget, and the command acts after the modelled compute;
     /// `model = "free"` prices nothing). See [`planner::compute`].
     pub compute: ComputeConfig,
     /// Moving tracks in the observation (default 0: none, the layout of every policy trained

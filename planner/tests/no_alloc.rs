@@ -113,7 +113,7 @@ fn planning_cycles_do_not_allocate() {
     // no call has to queue a job from outside it (which allocates the queue's blocks).
     let pool = rayon::ThreadPoolBuilder::new().num_threads(2).build().unwrap();
     let jackal = ComputeConfig {
-        model: planner::compute::ComputeModel::JackalOnboard,
+        model: planner::compute::ComputeModel::JackalOnboardV2,
         ..ComputeConfig::FREE
     };
     let mut failures = Vec::new();

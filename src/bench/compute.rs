@@ -1,17 +1,22 @@
 //! `adp bench compute`: measures what each unit of planner work costs on this machine and
-//! derives the `jackal-onboard` compute platform from it ([`planner::compute`]).
+//! derives the `jackal-onboard-v2` compute platform from it ([`planner::compute`]).
 //!
 //! Every planner (DWA, MPPI, Log-MPPI, the system) runs the vanilla, DDP and three constant
 //! decremental schedules at 1.5 m/s on the first training worlds, one thread, free compute
-//! model; every planning call's counted [`Work`] and its CPU time (the thread's CPU clock,
-//! so the load of other processes does not count) are recorded. A non-negative least-squares fit of time on (1, cells, samples, draws, steps,
-//! points) gives the unit costs here. The platform scales them so that the system's DDP
-//! cycle takes 40 ms at its 95th percentile (the authors' per-thread limit for their 550 DDP
-//! samples), and gives each planner the budget its own DDP cycle needs at the 95th
-//! percentile. The result is printed as a `[compute.platform]` table.
+//! model, each at three sample counts ([`AXIS_SCALES`]); every planning call's counted
+//! [`Work`] and its CPU time (the thread's CPU clock, so the load of other processes does not
+//! count) are recorded. For each planner, a non-negative least-squares fit of time on
+//! (1, cells, samples, draws, steps, points) gives its unit costs here: the planners do
+//! different work per unit, and a pooled fit priced a system rollout step (which scores its
+//! obstacle terms) like a DWA step (a table lookup). The sample counts vary because at one
+//! count per planner a per-sample cost cannot be told from a per-cycle one. The platform
+//! scales every planner's costs by one factor, so that the system's DDP cycle takes 40 ms at
+//! its 95th percentile (the authors' per-thread limit for their 550 DDP samples), and gives
+//! each planner the budget its own DDP cycle (at its configured sample count) needs at the
+//! 95th percentile. The result is printed as a `[compute.platform]` table.
 
 use anyhow::Context;
-use planner::compute::{PlannerBudgets, Platform, UnitCosts};
+use planner::compute::{PlannerBudgets, PlannerCosts, Platform, UnitCosts};
 use planner::{PlanInput, Planner, Schedule, Trace, Work};
 use sim::robot::Twist;
 
@@ -23,12 +28,19 @@ use super::{figure, Figure};
 /// The anchor: the system's DDP cycle at its 95th percentile on the reference platform (ms).
 const SYSTEM_DDP_P95_MS: f64 = 40.0;
 
+/// Multipliers of each sampling axis in the fit's design (DWA's and the system's v and w
+/// grid axes; MPPI's and Log-MPPI's sample count by their square): the configured count
+/// (1) and about a quarter and 2.25 times as many samples.
+pub(super) const AXIS_SCALES: [f64; 3] = [0.5, 1.0, 1.5];
+
 /// One planning call: the planner, whether the schedule was DDP, its work and CPU time (ns).
 pub(super) struct Call {
     /// The planner.
     pub(super) planner: PlannerKind,
     /// Whether the schedule was DDP.
     pub(super) ddp: bool,
+    /// The sampling axes' multiplier (1: the configured sample count).
+    pub(super) axis_scale: f64,
     /// The work the call counted.
     pub(super) work: Work,
     /// The calling thread's CPU time over the call (ns).
@@ -40,6 +52,7 @@ struct Timed<'a> {
     inner: Box<dyn Planner>,
     kind: PlannerKind,
     ddp: bool,
+    axis_scale: f64,
     calls: &'a mut Vec<Call>,
 }
 
@@ -55,6 +68,7 @@ impl Planner for Timed<'_> {
         self.calls.push(Call {
             planner: self.kind,
             ddp: self.ddp,
+            axis_scale: self.axis_scale,
             work: self.inner.trace().cycle.work,
             ns,
         });
@@ -142,6 +156,45 @@ fn nonnegative_fit(x: &[[f64; 6]], y: &[f64]) -> [f64; 6] {
     }
 }
 
+/// The non-negative least-squares unit costs of `calls` (time on 1, cells, samples, draws,
+/// steps, points) and the R^2 of the fit.
+fn fit(calls: &[&Call]) -> (UnitCosts, f64) {
+    let x: Vec<[f64; 6]> = calls
+        .iter()
+        .map(|c| {
+            let [cl, s, d, st, p] = c.work.as_array().map(|u| u as f64);
+            [1.0, cl, s, d, st, p]
+        })
+        .collect();
+    let y: Vec<f64> = calls.iter().map(|c| c.ns).collect();
+    let b = nonnegative_fit(&x, &y);
+    let costs = UnitCosts {
+        cycle_ns: b[0],
+        cell_ns: b[1],
+        sample_ns: b[2],
+        draw_ns: b[3],
+        step_ns: b[4],
+        point_ns: b[5],
+    };
+    let mean = y.iter().sum::<f64>() / y.len().max(1) as f64;
+    let (mut ss_res, mut ss_tot) = (0.0, 0.0);
+    for (c, &yi) in calls.iter().zip(&y) {
+        ss_res += (yi - costs.cycle_ns(&c.work)).powi(2);
+        ss_tot += (yi - mean).powi(2);
+    }
+    (costs, 1.0 - ss_res / ss_tot.max(1e-30))
+}
+
+/// The table of `kind` in `costs`.
+fn costs_mut(costs: &mut PlannerCosts, kind: PlannerKind) -> &mut UnitCosts {
+    match kind {
+        PlannerKind::Dwa => &mut costs.dwa,
+        PlannerKind::Mppi => &mut costs.mppi,
+        PlannerKind::LogMppi => &mut costs.log_mppi,
+        PlannerKind::System => &mut costs.system,
+    }
+}
+
 pub(super) fn percentile(mut v: Vec<f64>, q: f64) -> f64 {
     if v.is_empty() {
         return 0.0;
@@ -150,16 +203,35 @@ pub(super) fn percentile(mut v: Vec<f64>, q: f64) -> f64 {
     v[((v.len() - 1) as f64 * q).round() as usize]
 }
 
+/// `cfg` with every planner's sampling axes scaled by `k`: DWA's and the system's v and w
+/// grid axes (and the system's warm-start copies) by `k`, MPPI's and Log-MPPI's sample count
+/// by `k^2`; at least one sample per axis.
+fn resized(cfg: &EvalConfig, k: f64) -> EvalConfig {
+    let axis = |n: usize| ((n as f64 * k).round() as usize).max(1);
+    let count = |n: usize| ((n as f64 * k * k).round() as usize).max(1);
+    let mut c = cfg.clone();
+    c.dwa.v_samples = axis(c.dwa.v_samples);
+    c.dwa.w_samples = axis(c.dwa.w_samples);
+    c.system.v_samples = axis(c.system.v_samples);
+    c.system.w_samples = axis(c.system.w_samples);
+    c.system.warm_samples = axis(c.system.warm_samples);
+    c.mppi.samples = count(c.mppi.samples);
+    c.log_mppi.samples = count(c.log_mppi.samples);
+    c
+}
+
 /// Drives every planner in `kinds` with every schedule on the first `worlds` training worlds
-/// at 1.5 m/s, one thread, free compute model, and returns every planning call's work and
-/// CPU time. The schedules are `(schedule, is DDP)`.
+/// at 1.5 m/s, one thread, free compute model, at every sampling-axis multiplier of
+/// `axis_scales` ([`AXIS_SCALES`]; `[1.0]` for the configured planners only), and returns
+/// every planning call's work and CPU time. The schedules are `(schedule, is DDP)`.
 pub(super) fn measure_calls(
     worlds: usize,
     kinds: &[PlannerKind],
     schedules: &[(Schedule, bool)],
+    axis_scales: &[f64],
 ) -> anyhow::Result<Vec<Call>> {
-    let mut cfg = EvalConfig::load(None)?;
-    cfg.compute = planner::ComputeConfig::FREE;
+    let mut base = EvalConfig::load(None)?;
+    base.compute = planner::ComputeConfig::FREE;
     let ids: Vec<usize> = sim::splits::select("train")?
         .into_iter()
         .take(worlds.max(1))
@@ -167,27 +239,31 @@ pub(super) fn measure_calls(
     let pool = rayon::ThreadPoolBuilder::new().num_threads(1).build()?;
     let mut calls = Vec::with_capacity(1 << 20);
     pool.install(|| -> anyhow::Result<()> {
-        for &kind in kinds {
-            for (sched, ddp) in schedules {
-                for &w in &ids {
-                    let world = sim::catalog::world(w).with_context(|| format!("world {w}"))?;
-                    let seed = crate::eval::run_seed(7, w, 0);
-                    let mut timed = Timed {
-                        inner: kind.build(&cfg, seed),
-                        kind,
-                        ddp: *ddp,
-                        calls: &mut calls,
-                    };
-                    planner::run::run_episode(
-                        world,
-                        cfg.episode,
-                        &mut timed,
-                        sched,
-                        1.5,
-                        seed,
-                        None,
-                        |_, _, _| {},
-                    );
+        for &axis_scale in axis_scales {
+            let cfg = resized(&base, axis_scale);
+            for &kind in kinds {
+                for (sched, ddp) in schedules {
+                    for &w in &ids {
+                        let world = sim::catalog::world(w).with_context(|| format!("world {w}"))?;
+                        let seed = crate::eval::run_seed(7, w, 0);
+                        let mut timed = Timed {
+                            inner: kind.build(&cfg, seed),
+                            kind,
+                            ddp: *ddp,
+                            axis_scale,
+                            calls: &mut calls,
+                        };
+                        planner::run::run_episode(
+                            world,
+                            cfg.episode,
+                            &mut timed,
+                            sched,
+                            1.5,
+                            seed,
+                            None,
+                            |_, _, _| {},
+                        );
+                    }
                 }
             }
         }
@@ -200,45 +276,42 @@ pub(super) fn measure_calls(
 /// platform.
 pub fn run(worlds: usize) -> anyhow::Result<Vec<Figure>> {
     let mut schedules = vec![(Schedule::vanilla(), false), (Schedule::ddp_default(), true)];
-    for (p, t, n, alpha) in [(1.0, 1.6, 15, 0.6), (1.3, 1.9, 18, 0.3), (1.7, 2.2, 22, 0.0)] {
+    for (p, t, n, alpha) in [
+        (1.5, 2.0, 10, 0.3),
+        (1.0, 1.6, 15, 0.6),
+        (1.3, 1.9, 18, 0.3),
+        (1.7, 2.2, 22, 0.0),
+    ] {
         schedules.push((Schedule::decremental(p, t, n, alpha, 20)?, false));
     }
     let kinds = PlannerKind::ALL;
-    let calls = measure_calls(worlds, &kinds, &schedules)?;
-    let row = |w: &Work| {
-        let [c, s, d, st, p] = w.as_array().map(|u| u as f64);
-        [1.0, c, s, d, st, p]
-    };
-    let x: Vec<[f64; 6]> = calls.iter().map(|c| row(&c.work)).collect();
-    let y: Vec<f64> = calls.iter().map(|c| c.ns).collect();
-    let b = nonnegative_fit(&x, &y);
-    let here = UnitCosts {
-        cycle_ns: b[0],
-        cell_ns: b[1],
-        sample_ns: b[2],
-        draw_ns: b[3],
-        step_ns: b[4],
-        point_ns: b[5],
-    };
-    let mean = y.iter().sum::<f64>() / y.len().max(1) as f64;
-    let (mut ss_res, mut ss_tot) = (0.0, 0.0);
-    for (c, &yi) in calls.iter().zip(&y) {
-        ss_res += (yi - here.cycle_ns(&c.work)).powi(2);
-        ss_tot += (yi - mean).powi(2);
+    let calls = measure_calls(worlds, &kinds, &schedules, &AXIS_SCALES)?;
+    // Per planner: its unit costs here and the R^2 of their fit to its calls.
+    let mut here = PlannerCosts::shared(UnitCosts::ZERO);
+    let mut r2 = [0.0; 4];
+    for (k, kind) in kinds.iter().enumerate() {
+        let own: Vec<&Call> = calls.iter().filter(|c| c.planner == *kind).collect();
+        let (costs, fit_r2) = fit(&own);
+        *costs_mut(&mut here, *kind) = costs;
+        r2[k] = fit_r2;
     }
-    let r2 = 1.0 - ss_res / ss_tot.max(1e-30);
-    let ddp_p95 = |k: PlannerKind, costs: &UnitCosts| {
-        percentile(
-            calls
-                .iter()
-                .filter(|c| c.planner == k && c.ddp)
-                .map(|c| costs.cycle_ns(&c.work))
-                .collect(),
-            0.95,
-        )
+    // The planner's configured DDP cycles (the budgets' reference).
+    let ddp_calls = |k: PlannerKind| {
+        calls
+            .iter()
+            .filter(move |c| c.planner == k && c.ddp && c.axis_scale == 1.0)
+    };
+    let ddp_p95 = |k: PlannerKind, costs: &PlannerCosts| {
+        let c = costs.of(k.name()).expect("one of the crate's planners");
+        percentile(ddp_calls(k).map(|call| c.cycle_ns(&call.work)).collect(), 0.95)
     };
     let scale = SYSTEM_DDP_P95_MS * 1e6 / ddp_p95(PlannerKind::System, &here).max(1.0);
-    let costs = here.scaled(scale);
+    let costs = PlannerCosts {
+        dwa: here.dwa.scaled(scale),
+        mppi: here.mppi.scaled(scale),
+        log_mppi: here.log_mppi.scaled(scale),
+        system: here.system.scaled(scale),
+    };
     let budget = |k| (ddp_p95(k, &costs) / 1e6 * 100.0).round() / 100.0;
     let platform = Platform {
         costs,
@@ -250,32 +323,30 @@ pub fn run(worlds: usize) -> anyhow::Result<Vec<Figure>> {
         },
     };
     println!(
-        "unit costs on this machine (ns, {} planning calls, R^2 {r2:.3}): {here:?}",
+        "unit costs on this machine (ns), fitted per planner over {} planning calls:",
         calls.len()
     );
+    for (k, kind) in kinds.iter().enumerate() {
+        let c = here.of(kind.name()).expect("one of the crate's planners");
+        println!("  {:<9} R^2 {:.3}: {c:?}", kind.name(), r2[k]);
+    }
     println!("scale to the reference platform: x{scale:.2}");
     println!(
         "[compute.platform]\n{}",
         toml::to_string(&platform).unwrap_or_default()
     );
-    let mut figs = vec![figure("compute model fit, R^2 of per-call CPU time", r2, "")];
+    let mut figs = Vec::new();
+    for (k, kind) in kinds.iter().enumerate() {
+        figs.push(figure(
+            format!("compute model fit of {}, R^2 of per-call CPU time", kind.name()),
+            r2[k],
+            "",
+        ));
+    }
     for k in kinds {
-        let measured = percentile(
-            calls
-                .iter()
-                .filter(|c| c.planner == k && c.ddp)
-                .map(|c| c.ns)
-                .collect(),
-            0.5,
-        );
-        let fitted = percentile(
-            calls
-                .iter()
-                .filter(|c| c.planner == k && c.ddp)
-                .map(|c| here.cycle_ns(&c.work))
-                .collect(),
-            0.5,
-        );
+        let c = here.of(k.name()).expect("one of the crate's planners");
+        let measured = percentile(ddp_calls(k).map(|call| call.ns).collect(), 0.5);
+        let fitted = percentile(ddp_calls(k).map(|call| c.cycle_ns(&call.work)).collect(), 0.5);
         figs.push(figure(
             format!(
                 "{} DDP cycle here, median: measured (fit {:.3} ms)",

@@ -64,7 +64,7 @@ pub fn run(worlds: usize) -> anyhow::Result<Vec<Figure>> {
         3.0
     });
     let schedules = [(Schedule::vanilla(), false), (Schedule::ddp_default(), true)];
-    let calls = measure_calls(worlds, &PlannerKind::ALL, &schedules)?;
+    let calls = measure_calls(worlds, &PlannerKind::ALL, &schedules, &[1.0])?;
     println!(
         "planner cycles against their roofline ({} calls, {ghz:.2} GHz, cycles per unit {:?} for {:?})",
         calls.len(),

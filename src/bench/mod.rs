@@ -12,7 +12,7 @@
 //! - `cycle` ([`cycle`], not in the default set): each planner's cycle, measured, next to
 //!   the roofline of its counted work on this CPU.
 //! - `compute` ([`compute`], not in the default set): the unit costs of planner work on this
-//!   machine and the `jackal-onboard` compute platform derived from them.
+//!   machine and the `jackal-onboard-v2` compute platform derived from them.
 //!
 //! Timing is wall clock in a release build; nothing here is a test.
 
