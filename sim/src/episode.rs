@@ -506,8 +506,12 @@ impl<'w> Episode<'w> {
     /// Scan (from the true pose), then, from the believed pose: mark the map, replan when due,
     /// and recompute the local goal.
     fn sense(&mut self) {
-        self.lidar
-            .scan(&self.scene, &self.state.pose, &mut self.lidar_rng, &mut self.ranges);
+        self.lidar.scan(
+            &self.scene,
+            &self.state.pose,
+            &mut self.lidar_rng,
+            &mut self.ranges,
+        );
         let dynamics = *self.drive.dynamics();
         self.localization
             .drift(&dynamics, self.undrifted, &mut self.drift_rng);

@@ -425,7 +425,12 @@ mod tests {
         let mut truth = Vec::new();
         clean.scan(&w.at(0.0), &Pose::default(), &mut LidarRng::new(5), &mut truth);
         let mut ranges = Vec::new();
-        Lidar::new(LidarConfig::default()).scan(&w.at(0.0), &Pose::default(), &mut LidarRng::new(5), &mut ranges);
+        Lidar::new(LidarConfig::default()).scan(
+            &w.at(0.0),
+            &Pose::default(),
+            &mut LidarRng::new(5),
+            &mut ranges,
+        );
         let normal = Normal::new(0.0, 0.001).unwrap();
         let mut stream = Pcg64Mcg::seed_from_u64(5);
         for (k, (&r, &t)) in ranges.iter().zip(&truth).enumerate() {
@@ -462,7 +467,10 @@ mod tests {
         let n = errs.len() as f64;
         let mean = errs.iter().sum::<f64>() / n;
         let sd = (errs.iter().map(|e| (e - mean).powi(2)).sum::<f64>() / n).sqrt();
-        assert!((sd - 0.225).abs() < 0.015 && mean.abs() < 0.02, "mean {mean} sd {sd}");
+        assert!(
+            (sd - 0.225).abs() < 0.015 && mean.abs() < 0.02,
+            "mean {mean} sd {sd}"
+        );
         // Without a return there is nothing to scale: no noise at all.
         let empty = World::new(0, vec![], Pose::default(), Vec2::new(9.0, 0.0), 9.0, vec![]);
         noisy.scan(&empty.at(0.0), &Pose::default(), &mut rng, &mut ranges);
@@ -482,13 +490,7 @@ mod tests {
             noise_sigma: 0.01,
             ..Default::default()
         };
-        let (plain, dropping) = (
-            Lidar::new(base),
-            Lidar::new(LidarConfig {
-                dropout: 0.1,
-                ..base
-            }),
-        );
+        let (plain, dropping) = (Lidar::new(base), Lidar::new(LidarConfig { dropout: 0.1, ..base }));
         let (mut a, mut b) = (LidarRng::new(11), LidarRng::new(11));
         let (mut ra, mut rb) = (Vec::new(), Vec::new());
         let mut dropped = 0usize;
@@ -504,7 +506,10 @@ mod tests {
                 }
             }
         }
-        assert!((dropped as f64 - 10_000.0).abs() < 475.0, "{dropped} of 100000 dropped");
+        assert!(
+            (dropped as f64 - 10_000.0).abs() < 475.0,
+            "{dropped} of 100000 dropped"
+        );
     }
 
     #[test]
@@ -523,7 +528,10 @@ mod tests {
             noise_fraction: 1.5,
             ..Default::default()
         });
-        assert!(e.starts_with("lidar.noise_fraction = 1.5 must be in [0, 1]"), "{e}");
+        assert!(
+            e.starts_with("lidar.noise_fraction = 1.5 must be in [0, 1]"),
+            "{e}"
+        );
         let e = err(LidarConfig {
             dropout: 1.0,
             ..Default::default()
