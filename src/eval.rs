@@ -17,7 +17,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use actor::{AdpEnv, End, EnvConfig, MlpPolicy, Scratch, LASER_BEAMS};
+use actor::{AdpEnv, End, EnvConfig, MlpPolicy, Scratch};
 use planner::{
     run::{drive_episode, CycleDriver},
     ActionSpace, ComputeConfig, ComputeModel, ComputeTally, Dwa, LogMppi, Mppi, NavSystem, PlanInput,
@@ -540,11 +540,12 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
         .filter(|_| plan.fidelities.contains(&Fidelity::Adp));
     if let Some(net) = policy {
         let space = plan.adp.space;
-        let obs_dim = actor::obs_dim(space, plan.policy_env.observe_tracks);
+        let laser = plan.policy_env.observation;
+        let obs_dim = actor::obs_dim(laser, space, plan.policy_env.observe_tracks);
         if (net.obs_dim(), net.act_dim()) != (obs_dim, space.dim()) {
             bail!(
-                "the policy maps {} observation values to {} actions; the {} action space needs {} \
-                 to {}",
+                "the policy maps {} observation values to {} actions; the {} action space with the \
+                 {laser} laser layout needs {} to {}",
                 net.obs_dim(),
                 net.act_dim(),
                 kebab(&space),
@@ -559,13 +560,6 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
                 plan.policy_env.profile.name(),
                 cfg.episode.profile.name(),
                 plan.policy_env.profile.name()
-            );
-        }
-        if cfg.episode.lidar.beams != LASER_BEAMS {
-            bail!(
-                "the policy reads {LASER_BEAMS} lidar ranges but the configuration's \
-                 [episode.lidar] beams = {}",
-                cfg.episode.lidar.beams
             );
         }
     }
@@ -844,6 +838,7 @@ pub fn command(a: &crate::cli::EvalArgs) -> anyhow::Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use actor::LaserLayout;
 
     fn res(status: Status, time_s: f64, score: f64) -> EpisodeResult {
         EpisodeResult {
@@ -1099,6 +1094,65 @@ mod tests {
         let json = serde_json::to_value(&rows[0]).unwrap();
         assert!(json.get("lidar").is_none(), "the default rows' JSON is as before");
         assert!(!table(&rows).contains("lidar"));
+    }
+
+    /// A trained policy evaluates under any lidar: its observation is built in its own
+    /// layout from whatever the sensor gives. A `scan` policy and a `sectors:25` policy each run
+    /// on 720-, 360- and 90-beam lidars, noisy and dropping beams; a policy whose input does not
+    /// fit its recorded layout is refused by name.
+    #[test]
+    fn a_policy_runs_under_every_sensing_condition() {
+        let cfg = EvalConfig::load(None).unwrap();
+        let space = ActionSpace::Decremental;
+        let net = |inputs: usize| {
+            let mut flat = vec![0.0; inputs * 4];
+            flat.extend([0.2f32, -0.3, 0.1, -0.6]);
+            MlpPolicy::from_flat(&[inputs, 4], flat).unwrap()
+        };
+        let plan = |net: MlpPolicy, observation, lidars| EvalPlan {
+            planners: vec![PlannerKind::Dwa],
+            fidelities: vec![Fidelity::Adp],
+            speeds: vec![1.5],
+            worlds: vec![1],
+            runs: 1,
+            trim: 0,
+            seed: 1,
+            adp: AdpSetting {
+                space,
+                action: space.ddp_action(),
+            },
+            policy: Some(net),
+            policy_env: EnvConfig {
+                observation,
+                ..EnvConfig::default()
+            },
+            predictions: vec![ObstaclePrediction::Off],
+            lidars,
+        };
+        let worlds = sim::barn::worlds();
+        let conditions = [
+            LidarOverride::combinations(&[720, 360, 90], &[], &[]),
+            LidarOverride::combinations(&[360], &[0.1], &[0.05]),
+        ]
+        .concat();
+        for (inputs, layout) in [(730, LaserLayout::Scan), (35, LaserLayout::Sectors(25))] {
+            let rows = run(&plan(net(inputs), layout, conditions.clone()), &cfg, worlds).unwrap();
+            let beams: Vec<usize> = rows.iter().map(|r| r.lidar.unwrap().beams).collect();
+            assert_eq!(beams, [720, 360, 90, 360], "{layout}");
+            assert!(rows.iter().all(|r| r.episodes == 1), "{layout}");
+        }
+        let err = run(
+            &plan(net(730), LaserLayout::Sectors(25), vec![LidarOverride::default()]),
+            &cfg,
+            worlds,
+        )
+        .unwrap_err()
+        .to_string();
+        assert_eq!(
+            err,
+            "the policy maps 730 observation values to 4 actions; the decremental action space with \
+             the sectors:25 laser layout needs 35 to 4"
+        );
     }
 
     #[test]

@@ -30,7 +30,7 @@ use serde::{Deserialize, Serialize};
 use sim::episode::{Episode, EpisodeConfig, EpisodeResult, Status};
 use sim::{Dynamics, Profile, World};
 
-use crate::observation::{self, DEFAULT_LASER_CLIP_M, LASER_BEAMS};
+use crate::observation::{self, LaserLayout, LaserResampler, DEFAULT_LASER_CLIP_M};
 use crate::reward::{footprint_clearance, obstacle_penalty};
 
 /// Environment parameters: agent rate, step cap, laser clip and the reward terms.
@@ -88,6 +88,11 @@ pub struct EnvConfig {
     /// tracks' forecast, and the observation ends with the `k` nearest of them (the `tracks`
     /// segment of [`crate::observation`]). At most [`observation::MAX_OBSERVED_TRACKS`].
     pub observe_tracks: usize,
+    /// The laser segment's layout (`"scan"`, the default: the 720 ranges; `"sectors:N"`: the
+    /// least range in each of N equal sectors of the 270-degree field). The observation is
+    /// built in this layout from whatever the lidar gives (any beam count, resampled: see
+    /// [`LaserResampler`]).
+    pub observation: LaserLayout,
 }
 
 impl Default for EnvConfig {
@@ -109,6 +114,7 @@ impl Default for EnvConfig {
             dynamics: None,
             compute: ComputeConfig::default(),
             observe_tracks: 0,
+            observation: LaserLayout::Scan,
         }
     }
 }
@@ -236,6 +242,8 @@ pub struct AdpEnv<'w> {
     /// Plans each control period under the compute model.
     driver: CycleDriver,
     cfg: EnvConfig,
+    /// Builds the laser segment in `cfg.observation`'s layout from the lidar's scans.
+    laser: LaserResampler,
     previous_action: Vec<f32>,
     /// The space's DDP action in box units (for the action map).
     ddp_box: Vec<f64>,
@@ -251,11 +259,11 @@ pub struct AdpEnv<'w> {
 impl<'w> AdpEnv<'w> {
     /// Starts an episode on `world` with `episode_cfg` under the profile of `cfg` (which
     /// replaces the episode settings' own); `seed` drives the sensor noise and drift. The
-    /// previous action starts as the policy output that selects DDP under the action map. Refuses
-    /// invalid configurations, a lidar without [`LASER_BEAMS`] beams (the observation layout
-    /// needs them), a non-positive speed cap, and an objective-weight space whose gains are not
-    /// the planner's. In the velocity space `planner` never plans (it only names the compute
-    /// model's planner).
+    /// previous action starts as the policy output that selects DDP under the action map. The
+    /// lidar may have any beam count: the observation resamples its scans into the layout of
+    /// `cfg.observation`. Refuses invalid configurations, a non-positive speed cap, and an
+    /// objective-weight space whose gains are not the planner's. In the velocity space
+    /// `planner` never plans (it only names the compute model's planner).
     pub fn new(
         world: &'w World,
         episode_cfg: EpisodeConfig,
@@ -270,12 +278,6 @@ impl<'w> AdpEnv<'w> {
         episode_cfg
             .validate()
             .map_err(|e| EnvError::Config(format!("episode: {e}")))?;
-        if episode_cfg.lidar.beams != LASER_BEAMS {
-            return Err(EnvError::Config(format!(
-                "the lidar has {} beams; the observation layout needs {LASER_BEAMS}",
-                episode_cfg.lidar.beams
-            )));
-        }
         if !(max_speed.is_finite() && max_speed > 0.0) {
             return Err(EnvError::Config(format!(
                 "max_speed = {max_speed} must be finite and > 0"
@@ -303,6 +305,7 @@ impl<'w> AdpEnv<'w> {
             driver = driver.with_tracking(TrackingConfig::default());
         }
         let episode = Episode::new(world, episode_cfg, seed);
+        let laser = LaserResampler::new(cfg.observation, episode.lidar().angles());
         let goal_distance = episode.state().pose.position().dist(world.goal);
         Ok(Self {
             episode,
@@ -312,6 +315,7 @@ impl<'w> AdpEnv<'w> {
             prediction: Prediction::for_profile(cfg.profile),
             driver,
             cfg,
+            laser,
             previous_action: cfg
                 .action_map
                 .ddp_policy_action(space)
@@ -333,10 +337,10 @@ impl<'w> AdpEnv<'w> {
         self.space
     }
 
-    /// Length of this environment's observations ([`observation::obs_dim`] of the space and
-    /// the observed tracks).
+    /// Length of this environment's observations ([`observation::obs_dim`] of the laser
+    /// layout, the space and the observed tracks).
     pub fn obs_dim(&self) -> usize {
-        observation::obs_dim(self.space, self.cfg.observe_tracks)
+        observation::obs_dim(self.cfg.observation, self.space, self.cfg.observe_tracks)
     }
 
     /// The configuration.
@@ -373,6 +377,7 @@ impl<'w> AdpEnv<'w> {
         let tracks = self.driver.tracking().map_or(&[][..], |t| t.moving());
         observation::write(
             &self.episode.perception(),
+            &self.laser,
             &self.previous_action,
             self.cfg.laser_clip_m,
             tracks,
@@ -850,23 +855,42 @@ mod tests {
         assert_eq!(&obs[720..724], &[1.0, -1.0, 0.0, 0.0]);
     }
 
+    /// The observation is built in the configured layout from any lidar: a 90-beam scan
+    /// fills the 720 values of the `scan` layout, a `sectors:25` layout makes 25.
+    #[test]
+    fn any_lidar_makes_the_observation_of_the_layout() {
+        let world = open_field(true);
+        for (beams, layout, dim) in [
+            (90, LaserLayout::Scan, 730),
+            (720, LaserLayout::Sectors(25), 35),
+            (90, LaserLayout::Sectors(50), 60),
+        ] {
+            let mut ep = EpisodeConfig::default();
+            ep.lidar.beams = beams;
+            let cfg = EnvConfig {
+                observation: layout,
+                ..EnvConfig::default()
+            };
+            let mut e = AdpEnv::new(&world, ep, dwa(), ActionSpace::Decremental, 1.5, cfg, 1).unwrap();
+            assert_eq!(e.obs_dim(), dim, "{beams} beams, {layout}");
+            e.step(&ddp()).unwrap();
+            let mut obs = vec![f32::NAN; dim];
+            e.observation(&mut obs);
+            let laser = &obs[..layout.size()];
+            assert!(laser.iter().all(|x| (-1.0..=1.0).contains(x)), "{laser:?}");
+            // The wall 1.5 m ahead across the heading: the values ahead read it (below the 3 m
+            // clip), the ones behind the robot's shoulders do not.
+            let ahead = laser[laser.len() / 2];
+            assert!(
+                ahead < 0.0 && laser[0] == 1.0,
+                "{beams} beams, {layout}: {laser:?}"
+            );
+        }
+    }
+
     #[test]
     fn invalid_configurations_are_refused() {
         let world = open_field(false);
-        let mut ep = EpisodeConfig::default();
-        ep.lidar.beams = 360;
-        let err = AdpEnv::new(
-            &world,
-            ep,
-            dwa(),
-            ActionSpace::Decremental,
-            1.5,
-            EnvConfig::default(),
-            1,
-        )
-        .err()
-        .unwrap();
-        assert!(err.to_string().contains("360 beams"), "{err}");
         let cfg = EnvConfig {
             agent_period_cycles: 0,
             ..EnvConfig::default()
