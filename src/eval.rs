@@ -414,14 +414,14 @@ impl Planner for Metered {
 }
 
 /// The environment settings of an evaluation run with a trained policy: the ones it was
-/// trained with (agent period, laser clip: the observation its card documents) with no
-/// agent-step cap, so runs end by the BARN protocol of `[episode]` like every other row, and
+/// trained with (agent period, laser clip and layout: the observation its card documents) with
+/// no agent-step cap, so runs end by the BARN protocol of `[episode]` like every other row, no
+/// domain randomization, so every row runs its own lidar ([`EnvConfig::for_evaluation`]), and
 /// the evaluation's compute model, so every row runs on the same computer.
 fn eval_env_config(trained: EnvConfig, compute: ComputeConfig) -> EnvConfig {
     EnvConfig {
-        max_agent_steps: u32::MAX,
         compute,
-        ..trained
+        ..trained.for_evaluation()
     }
 }
 

@@ -26,8 +26,11 @@ use planner::schedule::DEFAULT_BOUNDARY_POINTS;
 use planner::{
     ActionMap, ActionSpace, ComputeConfig, ComputeTally, GainsError, Planner, Prediction, TrackingConfig,
 };
+use rand::{Rng, SeedableRng};
+use rand_pcg::Pcg64Mcg;
 use serde::{Deserialize, Serialize};
 use sim::episode::{Episode, EpisodeConfig, EpisodeResult, Status};
+use sim::lidar::LidarConfig;
 use sim::{Dynamics, Profile, World};
 
 use crate::observation::{self, LaserLayout, LaserResampler, DEFAULT_LASER_CLIP_M};
@@ -93,6 +96,129 @@ pub struct EnvConfig {
     /// built in this layout from whatever the lidar gives (any beam count, resampled: see
     /// [`LaserResampler`]).
     pub observation: LaserLayout,
+    /// Domain randomization of the sensing conditions, drawn per episode (`[env.randomize]`;
+    /// off by default).
+    pub randomize: Randomize,
+}
+
+/// Seed offset of the domain-randomization stream (apart from the simulator's streams, so a
+/// run without randomization draws nothing from it and changes nothing).
+const RANDOMIZE_STREAM: u64 = 0x5eed_7a4d_7000_0005;
+
+/// Most beam counts [`Randomize::beams`] may list.
+pub const MAX_BEAM_CHOICES: usize = 8;
+
+/// Beam counts to draw from (at most [`MAX_BEAM_CHOICES`]; a TOML list, e.g. `[90, 360,
+/// 720]`). Fixed-size, so that [`EnvConfig`] stays `Copy`.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(try_from = "Vec<usize>", into = "Vec<usize>")]
+pub struct BeamChoices {
+    len: usize,
+    values: [usize; MAX_BEAM_CHOICES],
+}
+
+impl BeamChoices {
+    /// The listed beam counts, in order.
+    pub fn as_slice(&self) -> &[usize] {
+        &self.values[..self.len]
+    }
+}
+
+impl TryFrom<Vec<usize>> for BeamChoices {
+    type Error = String;
+
+    fn try_from(v: Vec<usize>) -> Result<Self, String> {
+        if v.len() > MAX_BEAM_CHOICES {
+            return Err(format!(
+                "randomize.beams lists {} beam counts; at most {MAX_BEAM_CHOICES}",
+                v.len()
+            ));
+        }
+        let mut values = [0; MAX_BEAM_CHOICES];
+        values[..v.len()].copy_from_slice(&v);
+        Ok(Self { len: v.len(), values })
+    }
+}
+
+impl From<BeamChoices> for Vec<usize> {
+    fn from(b: BeamChoices) -> Vec<usize> {
+        b.as_slice().to_vec()
+    }
+}
+
+/// Domain randomization of the lidar's sensing conditions (`[env.randomize]`), a training
+/// option: every episode draws its own beam count, noise and dropout from the environment's
+/// seed (which the scheduler derives from the run seed, the actor's rank and the episode
+/// count) on a stream of its own, in that order, each only when given. Off by default: nothing
+/// is drawn and the episode's `[episode.lidar]` applies. Evaluation turns it off
+/// ([`EnvConfig::for_evaluation`]): rows run the evaluation's own lidar.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct Randomize {
+    /// Beam counts to draw from, uniformly (empty: the episode's own).
+    pub beams: BeamChoices,
+    /// `[low, high]`: the noise fraction (sigma as a fraction of each scan's mean range) drawn
+    /// uniformly in it; it replaces the episode's absolute noise (`noise_sigma` becomes 0).
+    /// Absent: the episode's noise.
+    pub noise_fraction: Option<[f64; 2]>,
+    /// `[low, high]`: the beam dropout probability drawn uniformly in it. Absent: the
+    /// episode's.
+    pub dropout: Option<[f64; 2]>,
+}
+
+impl Randomize {
+    /// Whether it draws anything.
+    pub fn is_on(&self) -> bool {
+        !self.beams.as_slice().is_empty() || self.noise_fraction.is_some() || self.dropout.is_some()
+    }
+
+    /// Checks the values; the message names the field and the value.
+    fn validate(&self) -> Result<(), String> {
+        if let Some(&b) = self.beams.as_slice().iter().find(|&&b| b < 2) {
+            return Err(format!(
+                "randomize.beams = {:?}: {b} beams is too few (at least 2)",
+                self.beams.as_slice()
+            ));
+        }
+        if let Some([lo, hi]) = self.noise_fraction {
+            if !(0.0 <= lo && lo <= hi && hi <= 1.0) {
+                return Err(format!(
+                    "randomize.noise_fraction = [{lo}, {hi}] must be a range low <= high within [0, 1]"
+                ));
+            }
+        }
+        if let Some([lo, hi]) = self.dropout {
+            if !(0.0 <= lo && lo <= hi && hi < 1.0) {
+                return Err(format!(
+                    "randomize.dropout = [{lo}, {hi}] must be a range low <= high within [0, 1)"
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// `lidar` with this episode's draws from the stream of `seed` (unchanged, and nothing
+    /// drawn, when off).
+    pub fn draw(&self, lidar: LidarConfig, seed: u64) -> LidarConfig {
+        if !self.is_on() {
+            return lidar;
+        }
+        let mut rng = Pcg64Mcg::seed_from_u64(seed ^ RANDOMIZE_STREAM);
+        let mut out = lidar;
+        let choices = self.beams.as_slice();
+        if !choices.is_empty() {
+            out.beams = choices[rng.random_range(0..choices.len())];
+        }
+        let mut uniform = |[lo, hi]: [f64; 2]| lo + (hi - lo) * rng.random::<f64>();
+        if let Some(range) = self.noise_fraction {
+            out.noise_fraction = uniform(range);
+            out.noise_sigma = 0.0;
+        }
+        if let Some(range) = self.dropout {
+            out.dropout = uniform(range);
+        }
+        out
+    }
 }
 
 impl Default for EnvConfig {
@@ -115,11 +241,23 @@ impl Default for EnvConfig {
             compute: ComputeConfig::default(),
             observe_tracks: 0,
             observation: LaserLayout::Scan,
+            randomize: Randomize::default(),
         }
     }
 }
 
 impl EnvConfig {
+    /// These settings for evaluating a policy trained with them: no agent-step cap (runs end
+    /// by the BARN protocol of `[episode]`, like every other evaluation row) and no domain
+    /// randomization (the evaluation's own lidar applies).
+    pub fn for_evaluation(self) -> Self {
+        Self {
+            max_agent_steps: u32::MAX,
+            randomize: Randomize::default(),
+            ..self
+        }
+    }
+
     /// Checks the values; the error names the offending field.
     pub fn validate(&self) -> Result<(), EnvError> {
         let bad = |msg: String| Err(EnvError::Config(msg));
@@ -156,6 +294,7 @@ impl EnvConfig {
                 observation::MAX_OBSERVED_TRACKS
             ));
         }
+        self.randomize.validate().map_err(EnvError::Config)?;
         if !(self.reward_scale.is_finite() && self.reward_scale > 0.0) {
             return bad(format!(
                 "reward_scale = {} must be finite and > 0",
@@ -274,7 +413,8 @@ impl<'w> AdpEnv<'w> {
         seed: u64,
     ) -> Result<Self, EnvError> {
         cfg.validate()?;
-        let episode_cfg = episode_cfg.with_profile(cfg.profile, cfg.dynamics);
+        let mut episode_cfg = episode_cfg.with_profile(cfg.profile, cfg.dynamics);
+        episode_cfg.lidar = cfg.randomize.draw(episode_cfg.lidar, seed);
         episode_cfg
             .validate()
             .map_err(|e| EnvError::Config(format!("episode: {e}")))?;
@@ -886,6 +1026,121 @@ mod tests {
                 "{beams} beams, {layout}: {laser:?}"
             );
         }
+    }
+
+    /// `[env.randomize]` draws every episode's lidar from its seed, within the given choices
+    /// and ranges, repeatably; off (the default) it draws nothing; evaluation turns it off.
+    #[test]
+    fn randomized_sensing_is_drawn_per_episode_from_the_seed() {
+        let lidar = EpisodeConfig::default().lidar;
+        let off = Randomize::default();
+        assert!(!off.is_on());
+        assert_eq!(off.draw(lidar, 3), lidar);
+        let on = Randomize {
+            beams: vec![90, 360, 720].try_into().unwrap(),
+            noise_fraction: Some([0.05, 0.2]),
+            dropout: Some([0.0, 0.1]),
+        };
+        let mut seen = std::collections::BTreeSet::new();
+        for seed in 0..200 {
+            let l = on.draw(lidar, seed);
+            assert_eq!(l, on.draw(lidar, seed), "seed {seed} repeats");
+            seen.insert(l.beams);
+            assert!(
+                (0.05..=0.2).contains(&l.noise_fraction) && l.noise_sigma == 0.0,
+                "{l:?}"
+            );
+            assert!((0.0..=0.1).contains(&l.dropout), "{l:?}");
+            l.validate().unwrap();
+        }
+        assert_eq!(seen.into_iter().collect::<Vec<_>>(), [90, 360, 720]);
+        assert_ne!(on.draw(lidar, 1), on.draw(lidar, 2));
+        // Only what is given is drawn: a beams-only randomization keeps the episode's noise.
+        let beams_only = Randomize {
+            beams: vec![360].try_into().unwrap(),
+            ..Randomize::default()
+        };
+        assert_eq!(beams_only.draw(lidar, 9), LidarConfig { beams: 360, ..lidar });
+        // The environment runs the drawn lidar, in the layout of its observation.
+        let world = open_field(true);
+        let cfg = EnvConfig {
+            randomize: on,
+            ..EnvConfig::default()
+        };
+        for seed in [4, 5] {
+            let e = AdpEnv::new(
+                &world,
+                EpisodeConfig::default(),
+                dwa(),
+                ActionSpace::Decremental,
+                1.5,
+                cfg,
+                seed,
+            )
+            .unwrap();
+            assert_eq!(e.episode().config().lidar, on.draw(lidar, seed));
+            assert_eq!(e.obs_dim(), 730);
+            let mut obs = vec![f32::NAN; 730];
+            e.observation(&mut obs);
+            assert!(obs[..720].iter().all(|x| (-1.0..=1.0).contains(x)));
+        }
+        let eval = cfg.for_evaluation();
+        assert_eq!(
+            (eval.randomize, eval.max_agent_steps),
+            (Randomize::default(), u32::MAX)
+        );
+        // The settings travel to the actors as TOML.
+        let text = toml::to_string(&cfg).unwrap();
+        assert!(
+            text.contains("[randomize]") && text.contains("beams = [90, 360, 720]"),
+            "{text}"
+        );
+        assert_eq!(toml::from_str::<EnvConfig>(&text).unwrap(), cfg);
+        let default = EnvConfig::default();
+        assert_eq!(
+            toml::from_str::<EnvConfig>(&toml::to_string(&default).unwrap()).unwrap(),
+            default
+        );
+    }
+
+    #[test]
+    fn bad_randomization_is_refused_by_name() {
+        let err = |r: Randomize| {
+            EnvConfig {
+                randomize: r,
+                ..EnvConfig::default()
+            }
+            .validate()
+            .unwrap_err()
+            .to_string()
+        };
+        assert_eq!(
+            err(Randomize {
+                beams: vec![720, 1].try_into().unwrap(),
+                ..Randomize::default()
+            }),
+            "invalid environment configuration: randomize.beams = [720, 1]: 1 beams is too few (at least 2)"
+        );
+        assert_eq!(
+            err(Randomize {
+                noise_fraction: Some([0.2, 0.1]),
+                ..Randomize::default()
+            }),
+            "invalid environment configuration: randomize.noise_fraction = [0.2, 0.1] must be a range \
+             low <= high within [0, 1]"
+        );
+        assert!(err(Randomize {
+            dropout: Some([0.0, 1.0]),
+            ..Randomize::default()
+        })
+        .contains("randomize.dropout = [0, 1] must be a range low <= high within [0, 1)"));
+        let too_many = toml::from_str::<EnvConfig>("[randomize]\nbeams = [2, 3, 4, 5, 6, 7, 8, 9, 10]\n")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            too_many.contains("randomize.beams lists 9 beam counts; at most 8"),
+            "{too_many}"
+        );
     }
 
     #[test]
