@@ -128,6 +128,7 @@ const ANGLE_EPS: f64 = 1e-9;
 #[derive(Clone, Debug, PartialEq)]
 pub struct LaserResampler {
     layout: LaserLayout,
+    /// The sensor's beam count (the length of the scans it reads).
     beams: usize,
     /// Per laser value, the sensor beams `[start, end)` it is the minimum of.
     spans: Vec<(usize, usize)>,
@@ -188,11 +189,6 @@ impl LaserResampler {
     /// The layout it builds.
     pub fn layout(&self) -> LaserLayout {
         self.layout
-    }
-
-    /// The sensor's beam count (the length of the scans it reads).
-    pub fn beams(&self) -> usize {
-        self.beams
     }
 
     /// Writes the laser segment of `ranges` (one scan of the sensor) into `out`, ranges
