@@ -254,6 +254,19 @@ pub struct EvalArgs {
     /// the tracker's constant-velocity forecast; with --fidelity adp and a learned policy, kf exactly when the policy observes tracks).
     #[arg(long, value_enum, value_delimiter = ',', default_value = "off")]
     pub prediction: Vec<ObstaclePrediction>,
+    /// Lidar beam count(s) over the field of view, comma-separated: one row per value
+    /// (overrides [episode.lidar] beams). A trained policy reads any beam count, resampled to
+    /// its own layout (README "Sensing conditions").
+    #[arg(long, value_delimiter = ',')]
+    pub lidar_beams: Vec<usize>,
+    /// Lidar range noise as a fraction of each scan's mean range (replaces [episode.lidar]
+    /// noise_sigma), comma-separated: one row per value, e.g. 0.05,0.1,0.2.
+    #[arg(long, value_delimiter = ',')]
+    pub lidar_noise_fraction: Vec<f64>,
+    /// Probability that a lidar beam returns nothing (reads max range), comma-separated: one
+    /// row per value (overrides [episode.lidar] dropout).
+    #[arg(long, value_delimiter = ',')]
+    pub lidar_dropout: Vec<f64>,
     /// Worlds: comma-separated splits (BARN: train, test, hardest50, all; DynaBARN: dynabarn,
     /// dynabarn-easy|medium|hard, dynabarn-train, dynabarn-test, ...), ranges (0..50, 300..320)
     /// and ids (3,7,305).
@@ -570,6 +583,7 @@ fn calibrate(a: &CalibrateArgs) -> anyhow::Result<()> {
             trim: 0,
             seed: a.run.seed,
             predictions: vec![crate::eval::ObstaclePrediction::Off],
+            lidars: vec![crate::eval::LidarOverride::default()],
         };
         eprintln!("{}:", row.label);
         eval_rows.extend(pool.install(|| crate::eval::run(&plan, &cfg, &all))?);

@@ -17,14 +17,15 @@ use indicatif::{ProgressBar, ProgressStyle};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use actor::{AdpEnv, End, EnvConfig, MlpPolicy, Scratch, LASER_BEAMS};
+use actor::{AdpEnv, End, EnvConfig, MlpPolicy, Scratch};
 use planner::{
     run::{drive_episode, CycleDriver},
     ActionSpace, ComputeConfig, ComputeModel, ComputeTally, Dwa, LogMppi, Mppi, NavSystem, PlanInput,
     Planner, Schedule, Trace, TrackingConfig,
 };
+use sim::lidar::LidarConfig;
 use sim::robot::Twist;
-use sim::{EpisodeResult, Status, World};
+use sim::{EpisodeConfig, EpisodeResult, Status, World};
 
 use crate::config::{EvalConfig, UnknownName};
 
@@ -138,6 +139,91 @@ impl PlannerKind {
     }
 }
 
+/// A sensing condition of `adp eval --lidar-beams/--lidar-noise-fraction/--lidar-dropout`: the
+/// `[episode.lidar]` values it replaces (`None` keeps the configuration's).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct LidarOverride {
+    /// Beams over the field of view.
+    pub beams: Option<usize>,
+    /// Range noise as a fraction of each scan's mean range; replaces the absolute noise (its
+    /// `noise_sigma` becomes 0).
+    pub noise_fraction: Option<f64>,
+    /// Probability that a beam returns nothing.
+    pub dropout: Option<f64>,
+}
+
+impl LidarOverride {
+    /// Every combination of the given values, in the order beams, then noise fraction, then
+    /// dropout (an empty list keeps the configuration's value): one row each. No values at all
+    /// give the one override that changes nothing.
+    pub fn combinations(beams: &[usize], noise_fractions: &[f64], dropouts: &[f64]) -> Vec<Self> {
+        fn or_keep<T: Copy>(values: &[T]) -> Vec<Option<T>> {
+            if values.is_empty() {
+                vec![None]
+            } else {
+                values.iter().copied().map(Some).collect()
+            }
+        }
+        let mut out = Vec::new();
+        for &beams in &or_keep(beams) {
+            for &noise_fraction in &or_keep(noise_fractions) {
+                for &dropout in &or_keep(dropouts) {
+                    out.push(Self {
+                        beams,
+                        noise_fraction,
+                        dropout,
+                    });
+                }
+            }
+        }
+        out
+    }
+
+    /// Whether it replaces nothing.
+    pub fn is_none(&self) -> bool {
+        *self == Self::default()
+    }
+
+    /// `lidar` with these values, checked; the error names the flags that made it.
+    pub fn apply(&self, lidar: LidarConfig) -> anyhow::Result<LidarConfig> {
+        let mut out = lidar;
+        let mut flags = Vec::new();
+        if let Some(b) = self.beams {
+            out.beams = b;
+            flags.push(format!("--lidar-beams {b}"));
+        }
+        if let Some(f) = self.noise_fraction {
+            out.noise_fraction = f;
+            out.noise_sigma = 0.0;
+            flags.push(format!("--lidar-noise-fraction {f}"));
+        }
+        if let Some(d) = self.dropout {
+            out.dropout = d;
+            flags.push(format!("--lidar-dropout {d}"));
+        }
+        out.validate()
+            .map_err(|e| anyhow::anyhow!("{}: {e}", flags.join(" ")))?;
+        Ok(out)
+    }
+}
+
+/// A short label of a lidar's sensing condition: beams, noise and dropout.
+pub fn lidar_label(l: &LidarConfig) -> String {
+    // A share in percent, to 6 decimals (0.07 reads 7, not 7.000000000000001).
+    let pct = |x: f64| (x * 1e8).round() / 1e6;
+    let noise = if l.noise_fraction > 0.0 {
+        format!("noise {}% of mean range", pct(l.noise_fraction))
+    } else {
+        format!("noise {} m", l.noise_sigma)
+    };
+    let dropout = if l.dropout > 0.0 {
+        format!(", dropout {}%", pct(l.dropout))
+    } else {
+        String::new()
+    };
+    format!("{} beams, {noise}{dropout}", l.beams)
+}
+
 /// What to evaluate.
 #[derive(Clone, Debug)]
 pub struct EvalPlan {
@@ -165,6 +251,9 @@ pub struct EvalPlan {
     pub policy_env: EnvConfig,
     /// Obstacle predictions: one row per value.
     pub predictions: Vec<ObstaclePrediction>,
+    /// Sensing conditions: one row per value (`[LidarOverride::default()]`: the configuration's
+    /// `[episode.lidar]`).
+    pub lidars: Vec<LidarOverride>,
 }
 
 /// One table row.
@@ -181,6 +270,10 @@ pub struct Row {
     pub prediction: ObstaclePrediction,
     /// Speed cap (m/s).
     pub max_speed: f64,
+    /// The row's lidar, when `--lidar-*` set its sensing condition (absent otherwise: the
+    /// configuration's `[episode.lidar]`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub lidar: Option<LidarConfig>,
     /// Successful runs (%).
     pub success_pct: f64,
     /// Mean time (s), failed runs counted as 50 s.
@@ -321,14 +414,14 @@ impl Planner for Metered {
 }
 
 /// The environment settings of an evaluation run with a trained policy: the ones it was
-/// trained with (agent period, laser clip: the observation its card documents) with no
-/// agent-step cap, so runs end by the BARN protocol of `[episode]` like every other row, and
+/// trained with (agent period, laser clip and layout: the observation its card documents) with
+/// no agent-step cap, so runs end by the BARN protocol of `[episode]` like every other row, no
+/// domain randomization, so every row runs its own lidar ([`EnvConfig::for_evaluation`]), and
 /// the evaluation's compute model, so every row runs on the same computer.
 fn eval_env_config(trained: EnvConfig, compute: ComputeConfig) -> EnvConfig {
     EnvConfig {
-        max_agent_steps: u32::MAX,
         compute,
-        ..trained
+        ..trained.for_evaluation()
     }
 }
 
@@ -391,7 +484,7 @@ pub fn summarize(per_world: &[WorldRuns], trim: usize) -> (f64, f64, f64, f64, f
 }
 
 /// Runs the whole plan on `worlds` (indexed by id) and returns one row per
-/// (planner, fidelity, speed).
+/// (planner, fidelity, speed, prediction, sensing condition).
 pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Result<Vec<Row>> {
     if plan.runs == 0 {
         bail!("--runs must be at least 1");
@@ -428,6 +521,14 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
     if plan.predictions.is_empty() {
         bail!("--prediction needs at least one value (off, kf)");
     }
+    if plan.lidars.is_empty() {
+        bail!("an evaluation needs at least one sensing condition");
+    }
+    let lidars: Vec<LidarConfig> = plan
+        .lidars
+        .iter()
+        .map(|o| o.apply(cfg.episode.lidar))
+        .collect::<anyhow::Result<_>>()?;
     for &w in &plan.worlds {
         worlds
             .get(w)
@@ -439,11 +540,12 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
         .filter(|_| plan.fidelities.contains(&Fidelity::Adp));
     if let Some(net) = policy {
         let space = plan.adp.space;
-        let obs_dim = actor::obs_dim(space, plan.policy_env.observe_tracks);
+        let laser = plan.policy_env.observation;
+        let obs_dim = actor::obs_dim(laser, space, plan.policy_env.observe_tracks);
         if (net.obs_dim(), net.act_dim()) != (obs_dim, space.dim()) {
             bail!(
-                "the policy maps {} observation values to {} actions; the {} action space needs {} \
-                 to {}",
+                "the policy maps {} observation values to {} actions; the {} action space with the \
+                 {laser} laser layout needs {} to {}",
                 net.obs_dim(),
                 net.act_dim(),
                 kebab(&space),
@@ -460,19 +562,12 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
                 plan.policy_env.profile.name()
             );
         }
-        if cfg.episode.lidar.beams != LASER_BEAMS {
-            bail!(
-                "the policy reads {LASER_BEAMS} lidar ranges but the configuration's \
-                 [episode.lidar] beams = {}",
-                cfg.episode.lidar.beams
-            );
-        }
     }
     let mut jobs = Vec::new();
-    for (ri, (p, f, s, pr)) in combos(plan).enumerate() {
+    for (ri, (p, f, s, pr, li)) in combos(plan).enumerate() {
         for &w in &plan.worlds {
             for r in 0..plan.runs {
-                jobs.push((ri, p, f, s, pr, w, r));
+                jobs.push((ri, p, f, s, pr, li, w, r));
             }
         }
     }
@@ -485,8 +580,12 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
     let t0 = Instant::now();
     let results: Vec<(usize, usize, usize, EpisodeResult, ComputeTally, Arc<PlanCost>)> = jobs
         .par_iter()
-        .map_init(PolicyBuffers::default, |buf, &(ri, p, f, s, pr, w, r)| {
+        .map_init(PolicyBuffers::default, |buf, &(ri, p, f, s, pr, li, w, r)| {
             let seed = run_seed(plan.seed, w, r);
+            let episode = EpisodeConfig {
+                lidar: lidars[li],
+                ..cfg.episode
+            };
             let cost = Arc::new(PlanCost::default());
             let mut planner: Box<dyn Planner> = Box::new(Metered {
                 inner: p.build(cfg, seed ^ 0x5eed_91a2),
@@ -496,7 +595,7 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
                 Some(net) => {
                     let env = AdpEnv::new(
                         &worlds[w],
-                        cfg.episode,
+                        episode,
                         planner,
                         plan.adp.space,
                         s,
@@ -514,7 +613,7 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
                     };
                     drive_episode(
                         &worlds[w],
-                        cfg.episode,
+                        episode,
                         planner.as_mut(),
                         &f.schedule(&plan.adp)?,
                         s,
@@ -544,7 +643,7 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
     );
 
     let mut rows = Vec::new();
-    for (ri, (p, f, s, pr)) in combos(plan).enumerate() {
+    for (ri, (p, f, s, pr, li)) in combos(plan).enumerate() {
         let per_world: Vec<WorldRuns> = plan
             .worlds
             .iter()
@@ -580,6 +679,7 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
             },
             prediction: pr,
             max_speed: s,
+            lidar: (!plan.lidars[li].is_none()).then_some(lidars[li]),
             success_pct,
             avg_time_s,
             avg_score,
@@ -600,13 +700,18 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
     Ok(rows)
 }
 
-/// The rows of `plan` in table order: planner, then fidelity, then speed, then prediction.
-fn combos(plan: &EvalPlan) -> impl Iterator<Item = (PlannerKind, Fidelity, f64, ObstaclePrediction)> + '_ {
+/// The rows of `plan` in table order: planner, then fidelity, then speed, then prediction,
+/// then sensing condition (its index in `plan.lidars`).
+fn combos(
+    plan: &EvalPlan,
+) -> impl Iterator<Item = (PlannerKind, Fidelity, f64, ObstaclePrediction, usize)> + '_ {
     plan.planners.iter().flat_map(move |&p| {
         plan.fidelities.iter().flat_map(move |&f| {
-            plan.speeds
-                .iter()
-                .flat_map(move |&s| plan.predictions.iter().map(move |&pr| (p, f, s, pr)))
+            plan.speeds.iter().flat_map(move |&s| {
+                plan.predictions
+                    .iter()
+                    .flat_map(move |&pr| (0..plan.lidars.len()).map(move |li| (p, f, s, pr, li)))
+            })
         })
     })
 }
@@ -619,15 +724,24 @@ fn kebab<T: Serialize>(v: &T) -> String {
         .unwrap_or_default()
 }
 
-/// The markdown table of the rows.
+/// The markdown table of the rows; a `lidar` column after the speed when a row has its own
+/// sensing condition.
 pub fn table(rows: &[Row]) -> String {
-    let mut out = String::from(
-        "| planner | fidelity | max speed (m/s) | success (%) | avg time (s) | avg score | collision (%) | timeout (%) | episodes | check points / cycle | plan ms / cycle | compute | model ms / cycle | samples evaluated (%) | late cycles (%) |\n\
-         |---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
+    let lidar_column = rows.iter().any(|r| r.lidar.is_some());
+    let mut out = format!(
+        "| planner | fidelity | max speed (m/s) |{} success (%) | avg time (s) | avg score | collision (%) | timeout (%) | episodes | check points / cycle | plan ms / cycle | compute | model ms / cycle | samples evaluated (%) | late cycles (%) |\n\
+         |---|---|---|{}---|---|---|---|---|---|---|---|---|---|---|---|\n",
+        if lidar_column { " lidar |" } else { "" },
+        if lidar_column { "---|" } else { "" },
     );
     for r in rows {
+        let lidar = match (&r.lidar, lidar_column) {
+            (_, false) => String::new(),
+            (Some(l), true) => format!(" {} |", lidar_label(l)),
+            (None, true) => " [episode.lidar] |".into(),
+        };
         out.push_str(&format!(
-            "| {} | {} | {:.1} | {:.2} | {:.2} | {:.3} | {:.2} | {:.2} | {} | {:.0} | {:.3} | {} | {:.2} | {:.1} | {:.2} |\n",
+            "| {} | {} | {:.1} |{lidar} {:.2} | {:.2} | {:.3} | {:.2} | {:.2} | {} | {:.0} | {:.3} | {} | {:.2} | {:.1} | {:.2} |\n",
             serde_json::to_value(r.planner)
                 .expect("enum")
                 .as_str()
@@ -711,6 +825,7 @@ pub fn command(a: &crate::cli::EvalArgs) -> anyhow::Result<()> {
         trim: a.trim,
         seed: a.run.seed,
         predictions: a.prediction.clone(),
+        lidars: LidarOverride::combinations(&a.lidar_beams, &a.lidar_noise_fraction, &a.lidar_dropout),
     };
     let rows = a.run.pool()?.install(|| run(&plan, &cfg, &all))?;
     if let Some(source) = source {
@@ -723,6 +838,7 @@ pub fn command(a: &crate::cli::EvalArgs) -> anyhow::Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use actor::LaserLayout;
 
     fn res(status: Status, time_s: f64, score: f64) -> EpisodeResult {
         EpisodeResult {
@@ -781,6 +897,7 @@ mod tests {
                 ..EnvConfig::default()
             },
             predictions: vec![prediction],
+            lidars: vec![LidarOverride::default()],
         };
         let worlds = sim::catalog::worlds();
         let err = run(&plan(ObstaclePrediction::Off), &cfg, worlds)
@@ -822,6 +939,7 @@ mod tests {
                 ..EnvConfig::default()
             },
             predictions: vec![ObstaclePrediction::Off],
+            lidars: vec![LidarOverride::default()],
         };
         let worlds = sim::barn::worlds();
         let err = run(&plan(sim::Profile::Ideal), &cfg, worlds)
@@ -893,6 +1011,148 @@ mod tests {
             statuses.push(plain.0.status);
         }
         assert_eq!(statuses, [Status::Succeeded, Status::TimedOut]);
+    }
+
+    /// `--lidar-*` lists make one row per combination, each recording its lidar; the
+    /// default condition adds nothing to a row's JSON; a bad value names its flag.
+    #[test]
+    fn sensing_conditions_make_rows() {
+        let combos = LidarOverride::combinations(&[720, 90], &[], &[0.0, 0.1]);
+        let got: Vec<_> = combos
+            .iter()
+            .map(|o| (o.beams, o.noise_fraction, o.dropout))
+            .collect();
+        assert_eq!(
+            got,
+            [
+                (Some(720), None, Some(0.0)),
+                (Some(720), None, Some(0.1)),
+                (Some(90), None, Some(0.0)),
+                (Some(90), None, Some(0.1))
+            ]
+        );
+        assert_eq!(
+            LidarOverride::combinations(&[], &[], &[]),
+            [LidarOverride::default()]
+        );
+        let cfg = EvalConfig::load(None).unwrap();
+        let fraction = LidarOverride {
+            noise_fraction: Some(0.1),
+            ..LidarOverride::default()
+        }
+        .apply(cfg.episode.lidar)
+        .unwrap();
+        assert_eq!((fraction.noise_sigma, fraction.noise_fraction), (0.0, 0.1));
+        let err = LidarOverride {
+            beams: Some(1),
+            dropout: Some(0.5),
+            ..LidarOverride::default()
+        }
+        .apply(cfg.episode.lidar)
+        .unwrap_err()
+        .to_string();
+        assert_eq!(
+            err,
+            "--lidar-beams 1 --lidar-dropout 0.5: lidar.beams = 1 must be at least 2"
+        );
+        let plan = |lidars: Vec<LidarOverride>| EvalPlan {
+            planners: vec![PlannerKind::Dwa],
+            fidelities: vec![Fidelity::Ddp],
+            speeds: vec![1.5],
+            worlds: vec![1],
+            runs: 1,
+            trim: 0,
+            seed: 1,
+            adp: AdpSetting {
+                space: ActionSpace::Decremental,
+                action: ActionSpace::Decremental.ddp_action(),
+            },
+            policy: None,
+            policy_env: EnvConfig::default(),
+            predictions: vec![ObstaclePrediction::Off],
+            lidars,
+        };
+        let worlds = sim::barn::worlds();
+        let rows = run(
+            &plan(LidarOverride::combinations(&[90], &[0.07], &[])),
+            &cfg,
+            worlds,
+        )
+        .unwrap();
+        let lidar = rows[0].lidar.unwrap();
+        assert_eq!(
+            (lidar.beams, lidar.noise_sigma, lidar.noise_fraction),
+            (90, 0.0, 0.07)
+        );
+        assert!(
+            table(&rows).contains("| 90 beams, noise 7% of mean range |"),
+            "{}",
+            table(&rows)
+        );
+        let rows = run(&plan(vec![LidarOverride::default()]), &cfg, worlds).unwrap();
+        assert!(rows[0].lidar.is_none());
+        let json = serde_json::to_value(&rows[0]).unwrap();
+        assert!(json.get("lidar").is_none(), "the default rows' JSON is as before");
+        assert!(!table(&rows).contains("lidar"));
+    }
+
+    /// A trained policy evaluates under any lidar: its observation is built in its own
+    /// layout from whatever the sensor gives. A `scan` policy and a `sectors:25` policy each run
+    /// on 720-, 360- and 90-beam lidars, noisy and dropping beams; a policy whose input does not
+    /// fit its recorded layout is refused by name.
+    #[test]
+    fn a_policy_runs_under_every_sensing_condition() {
+        let cfg = EvalConfig::load(None).unwrap();
+        let space = ActionSpace::Decremental;
+        let net = |inputs: usize| {
+            let mut flat = vec![0.0; inputs * 4];
+            flat.extend([0.2f32, -0.3, 0.1, -0.6]);
+            MlpPolicy::from_flat(&[inputs, 4], flat).unwrap()
+        };
+        let plan = |net: MlpPolicy, observation, lidars| EvalPlan {
+            planners: vec![PlannerKind::Dwa],
+            fidelities: vec![Fidelity::Adp],
+            speeds: vec![1.5],
+            worlds: vec![1],
+            runs: 1,
+            trim: 0,
+            seed: 1,
+            adp: AdpSetting {
+                space,
+                action: space.ddp_action(),
+            },
+            policy: Some(net),
+            policy_env: EnvConfig {
+                observation,
+                ..EnvConfig::default()
+            },
+            predictions: vec![ObstaclePrediction::Off],
+            lidars,
+        };
+        let worlds = sim::barn::worlds();
+        let conditions = [
+            LidarOverride::combinations(&[720, 360, 90], &[], &[]),
+            LidarOverride::combinations(&[360], &[0.1], &[0.05]),
+        ]
+        .concat();
+        for (inputs, layout) in [(730, LaserLayout::Scan), (35, LaserLayout::Sectors(25))] {
+            let rows = run(&plan(net(inputs), layout, conditions.clone()), &cfg, worlds).unwrap();
+            let beams: Vec<usize> = rows.iter().map(|r| r.lidar.unwrap().beams).collect();
+            assert_eq!(beams, [720, 360, 90, 360], "{layout}");
+            assert!(rows.iter().all(|r| r.episodes == 1), "{layout}");
+        }
+        let err = run(
+            &plan(net(730), LaserLayout::Sectors(25), vec![LidarOverride::default()]),
+            &cfg,
+            worlds,
+        )
+        .unwrap_err()
+        .to_string();
+        assert_eq!(
+            err,
+            "the policy maps 730 observation values to 4 actions; the decremental action space with \
+             the sectors:25 laser layout needs 35 to 4"
+        );
     }
 
     #[test]

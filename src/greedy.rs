@@ -172,12 +172,9 @@ impl Setup {
     }
 
     /// The greedy policy closed-loop through the training environment (no step cap: the BARN
-    /// clock of `[episode]` ends runs, as in `adp eval`).
+    /// clock of `[episode]` ends runs, as in `adp eval`; no domain randomization).
     fn policy(&self, net: &MlpPolicy) -> anyhow::Result<Outcome> {
-        let env_cfg = EnvConfig {
-            max_agent_steps: u32::MAX,
-            ..self.env
-        };
+        let env_cfg = self.env.for_evaluation();
         let ddp_box = self.space.ddp_action();
         let mut buf = PolicyBuffers::default();
         let (mut u, mut boxed) = (vec![0.0; self.space.dim()], vec![0.0; self.space.dim()]);

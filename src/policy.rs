@@ -16,7 +16,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{bail, Context};
 use serde::Deserialize;
 
-use actor::observation::{self, LASER_BEAMS};
+use actor::observation;
 use actor::policy::MlpPolicy;
 use actor::EnvConfig;
 use learner::export::{read_actor_safetensors, space_name, PolicyCard, JSON_FILE};
@@ -173,8 +173,9 @@ fn load_learned(card_path: &Path, requested: Option<ActionSpace>) -> anyhow::Res
         .map_err(|e| e.to_string())
         .and_then(|env| env.validate().map(|()| env).map_err(|e| e.to_string()))
         .map_err(|e| bad(format!("environment: {e}")))?;
-    let want = observation::segments(space, env.observe_tracks);
-    let layout_fits = card.observation.dim == observation::obs_dim(space, env.observe_tracks)
+    let laser = env.observation;
+    let want = observation::segments(laser, space, env.observe_tracks);
+    let layout_fits = card.observation.dim == observation::obs_dim(laser, space, env.observe_tracks)
         && card.observation.segments.len() == want.len()
         && card
             .observation
@@ -191,12 +192,13 @@ fn load_learned(card_path: &Path, requested: Option<ActionSpace>) -> anyhow::Res
             .collect();
         return Err(bad(format!(
             "observation of {} values ({}) does not fit the {} action space's observation of {} \
-             values ({LASER_BEAMS} laser, {} previous action, v, w, local goal, global goal, {} \
-             tracks: environment observe_tracks = {})",
+             values ({} laser: environment observation = \"{laser}\"; {} previous action, v, w, \
+             local goal, global goal, {} tracks: environment observe_tracks = {})",
             card.observation.dim,
             sizes.join(", "),
             space_name(space),
-            observation::obs_dim(space, env.observe_tracks),
+            observation::obs_dim(laser, space, env.observe_tracks),
+            laser.size(),
             space.dim(),
             observation::TRACK_FLOATS * env.observe_tracks,
             env.observe_tracks
@@ -266,9 +268,14 @@ mod tests {
     /// [`write_export`] with recorded environment settings.
     fn write_export_with(dir: &Path, actor: &Actor, space: ActionSpace, environment: &serde_json::Value) {
         let (dims, _) = actor.flat_weights();
+        let laser: actor::LaserLayout = environment
+            .get("observation")
+            .and_then(|v| v.as_str())
+            .map_or(actor::LaserLayout::Scan, |s| s.parse().unwrap());
         let config = Td3Config {
             obs_dim: dims[0],
             act_dim: dims[dims.len() - 1],
+            laser_dim: laser.size(),
             actor_hidden: dims[1..dims.len() - 1].to_vec(),
             ..Td3Config::default()
         };
@@ -425,6 +432,46 @@ mod tests {
             write_export_with(&dir, &actor, ActionSpace::Decremental, &bad);
             one_line_error(load(&dir, None), &["policy.json: environment"]);
         }
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    /// A policy trained on the `sectors:25` layout loads with it (35 inputs); its card edited to
+    /// another layout no longer fits its network and is refused with both layouts' sizes.
+    #[test]
+    fn a_sectors_policy_loads_with_its_layout() {
+        let dir = fresh_dir("sectors");
+        let actor = Actor::new(35, &[8], 4, &Device::flex(), &mut seeded_rng(7, 0));
+        let trained = EnvConfig {
+            observation: actor::LaserLayout::Sectors(25),
+            ..EnvConfig::default()
+        };
+        write_export_with(
+            &dir,
+            &actor,
+            ActionSpace::Decremental,
+            &serde_json::to_value(trained).unwrap(),
+        );
+        let l = learned(&dir, None).unwrap();
+        assert_eq!((l.env, l.net.obs_dim()), (trained, 35));
+        let card_path = dir.join(JSON_FILE);
+        let card = std::fs::read_to_string(&card_path).unwrap();
+        assert!(card.contains("\"observation\": \"sectors:25\""), "{card}");
+        std::fs::write(
+            &card_path,
+            card.replace(
+                "\"observation\": \"sectors:25\"",
+                "\"observation\": \"sectors:15\"",
+            ),
+        )
+        .unwrap();
+        one_line_error(
+            load(&dir, None),
+            &[
+                "policy.json",
+                "observation of 35 values (laser 25,",
+                "observation of 25 values (15 laser: environment observation = \"sectors:15\"",
+            ],
+        );
         std::fs::remove_dir_all(&dir).ok();
     }
 

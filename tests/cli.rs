@@ -409,12 +409,22 @@ fn bad_policies_give_one_line_errors() {
         ]),
         "--policy applies to --fidelity adp",
     );
-    // A simulated lidar that does not make the policy's observation.
+    // A lidar of another beam count is resampled to the policy's 720-beam layout: it runs
+    // (README "Sensing conditions"); a sensing condition that is none is refused by its flag.
     let config = dir.join("eval.toml");
     std::fs::write(&config, "[episode.lidar]\nbeams = 360\n").unwrap();
+    let o = eval(&export, &["--config", config.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let o = eval(&export, &["--lidar-beams", "90", "--lidar-dropout", "0.2"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(
+        stdout(&o).contains("| 90 beams, noise 0.001 m, dropout 20% |"),
+        "{}",
+        stdout(&o)
+    );
     one_line_error(
-        &eval(&export, &["--config", config.to_str().unwrap()]),
-        "the policy reads 720 lidar ranges but the configuration's [episode.lidar] beams = 360",
+        &eval(&export, &["--lidar-dropout", "1"]),
+        "--lidar-dropout 1: lidar.dropout = 1 must be in [0, 1)",
     );
     let card_path = export.join("policy.json");
     let card = std::fs::read_to_string(&card_path).unwrap();

@@ -26,11 +26,14 @@ use planner::schedule::DEFAULT_BOUNDARY_POINTS;
 use planner::{
     ActionMap, ActionSpace, ComputeConfig, ComputeTally, GainsError, Planner, Prediction, TrackingConfig,
 };
+use rand::{Rng, SeedableRng};
+use rand_pcg::Pcg64Mcg;
 use serde::{Deserialize, Serialize};
 use sim::episode::{Episode, EpisodeConfig, EpisodeResult, Status};
+use sim::lidar::LidarConfig;
 use sim::{Dynamics, Profile, World};
 
-use crate::observation::{self, DEFAULT_LASER_CLIP_M, LASER_BEAMS};
+use crate::observation::{self, LaserLayout, LaserResampler, DEFAULT_LASER_CLIP_M};
 use crate::reward::{footprint_clearance, obstacle_penalty};
 
 /// Environment parameters: agent rate, step cap, laser clip and the reward terms.
@@ -88,6 +91,134 @@ pub struct EnvConfig {
     /// tracks' forecast, and the observation ends with the `k` nearest of them (the `tracks`
     /// segment of [`crate::observation`]). At most [`observation::MAX_OBSERVED_TRACKS`].
     pub observe_tracks: usize,
+    /// The laser segment's layout (`"scan"`, the default: the 720 ranges; `"sectors:N"`: the
+    /// least range in each of N equal sectors of the 270-degree field). The observation is
+    /// built in this layout from whatever the lidar gives (any beam count, resampled: see
+    /// [`LaserResampler`]).
+    pub observation: LaserLayout,
+    /// Domain randomization of the sensing conditions, drawn per episode (`[env.randomize]`;
+    /// off by default).
+    pub randomize: Randomize,
+}
+
+/// Seed offset of the domain-randomization stream (apart from the simulator's streams, so a
+/// run without randomization draws nothing from it and changes nothing).
+const RANDOMIZE_STREAM: u64 = 0x5eed_7a4d_7000_0005;
+
+/// Most beam counts [`Randomize::beams`] may list.
+pub const MAX_BEAM_CHOICES: usize = 8;
+
+/// Beam counts to draw from (at most [`MAX_BEAM_CHOICES`]; a TOML list, e.g. `[90, 360,
+/// 720]`). Fixed-size, so that [`EnvConfig`] stays `Copy`.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(try_from = "Vec<usize>", into = "Vec<usize>")]
+pub struct BeamChoices {
+    len: usize,
+    values: [usize; MAX_BEAM_CHOICES],
+}
+
+impl BeamChoices {
+    /// The listed beam counts, in order.
+    pub fn as_slice(&self) -> &[usize] {
+        &self.values[..self.len]
+    }
+}
+
+impl TryFrom<Vec<usize>> for BeamChoices {
+    type Error = String;
+
+    fn try_from(v: Vec<usize>) -> Result<Self, String> {
+        if v.len() > MAX_BEAM_CHOICES {
+            return Err(format!(
+                "randomize.beams lists {} beam counts; at most {MAX_BEAM_CHOICES}",
+                v.len()
+            ));
+        }
+        let mut values = [0; MAX_BEAM_CHOICES];
+        values[..v.len()].copy_from_slice(&v);
+        Ok(Self { len: v.len(), values })
+    }
+}
+
+impl From<BeamChoices> for Vec<usize> {
+    fn from(b: BeamChoices) -> Vec<usize> {
+        b.as_slice().to_vec()
+    }
+}
+
+/// Domain randomization of the lidar's sensing conditions (`[env.randomize]`), a training
+/// option: every episode draws its own beam count, noise and dropout from the environment's
+/// seed (which the scheduler derives from the run seed, the actor's rank and the episode
+/// count) on a stream of its own, in that order, each only when given. Off by default: nothing
+/// is drawn and the episode's `[episode.lidar]` applies. Evaluation turns it off
+/// ([`EnvConfig::for_evaluation`]): rows run the evaluation's own lidar.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct Randomize {
+    /// Beam counts to draw from, uniformly (empty: the episode's own).
+    pub beams: BeamChoices,
+    /// `[low, high]`: the noise fraction (sigma as a fraction of each scan's mean range) drawn
+    /// uniformly in it; it replaces the episode's absolute noise (`noise_sigma` becomes 0).
+    /// Absent: the episode's noise.
+    pub noise_fraction: Option<[f64; 2]>,
+    /// `[low, high]`: the beam dropout probability drawn uniformly in it. Absent: the
+    /// episode's.
+    pub dropout: Option<[f64; 2]>,
+}
+
+impl Randomize {
+    /// Whether it draws anything.
+    pub fn is_on(&self) -> bool {
+        !self.beams.as_slice().is_empty() || self.noise_fraction.is_some() || self.dropout.is_some()
+    }
+
+    /// Checks the values; the message names the field and the value.
+    fn validate(&self) -> Result<(), String> {
+        if let Some(&b) = self.beams.as_slice().iter().find(|&&b| b < 2) {
+            return Err(format!(
+                "randomize.beams = {:?}: {b} beams is too few (at least 2)",
+                self.beams.as_slice()
+            ));
+        }
+        if let Some([lo, hi]) = self.noise_fraction {
+            if !(0.0 <= lo && lo <= hi && hi <= 1.0) {
+                return Err(format!(
+                    "randomize.noise_fraction = [{lo}, {hi}] must be a range low <= high within [0, 1]"
+                ));
+            }
+        }
+        if let Some([lo, hi]) = self.dropout {
+            if !(0.0 <= lo && lo <= hi && hi < 1.0) {
+                return Err(format!(
+                    "randomize.dropout = [{lo}, {hi}] must be a range low <= high within [0, 1)"
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// `lidar` with this episode's draws from the stream of `seed` (unchanged, and nothing
+    /// drawn, when off).
+    pub fn draw(&self, lidar: LidarConfig, seed: u64) -> LidarConfig {
+        if !self.is_on() {
+            return lidar;
+        }
+        let mut rng = Pcg64Mcg::seed_from_u64(seed ^ RANDOMIZE_STREAM);
+        let mut out = lidar;
+        let choices = self.beams.as_slice();
+        if !choices.is_empty() {
+            out.beams = choices[rng.random_range(0..choices.len())];
+        }
+        let mut uniform = |[lo, hi]: [f64; 2]| lo + (hi - lo) * rng.random::<f64>();
+        if let Some(range) = self.noise_fraction {
+            out.noise_fraction = uniform(range);
+            out.noise_sigma = 0.0;
+        }
+        if let Some(range) = self.dropout {
+            out.dropout = uniform(range);
+        }
+        out
+    }
 }
 
 impl Default for EnvConfig {
@@ -109,11 +240,24 @@ impl Default for EnvConfig {
             dynamics: None,
             compute: ComputeConfig::default(),
             observe_tracks: 0,
+            observation: LaserLayout::Scan,
+            randomize: Randomize::default(),
         }
     }
 }
 
 impl EnvConfig {
+    /// These settings for evaluating a policy trained with them: no agent-step cap (runs end
+    /// by the BARN protocol of `[episode]`, like every other evaluation row) and no domain
+    /// randomization (the evaluation's own lidar applies).
+    pub fn for_evaluation(self) -> Self {
+        Self {
+            max_agent_steps: u32::MAX,
+            randomize: Randomize::default(),
+            ..self
+        }
+    }
+
     /// Checks the values; the error names the offending field.
     pub fn validate(&self) -> Result<(), EnvError> {
         let bad = |msg: String| Err(EnvError::Config(msg));
@@ -150,6 +294,7 @@ impl EnvConfig {
                 observation::MAX_OBSERVED_TRACKS
             ));
         }
+        self.randomize.validate().map_err(EnvError::Config)?;
         if !(self.reward_scale.is_finite() && self.reward_scale > 0.0) {
             return bad(format!(
                 "reward_scale = {} must be finite and > 0",
@@ -236,6 +381,8 @@ pub struct AdpEnv<'w> {
     /// Plans each control period under the compute model.
     driver: CycleDriver,
     cfg: EnvConfig,
+    /// Builds the laser segment in `cfg.observation`'s layout from the lidar's scans.
+    laser: LaserResampler,
     previous_action: Vec<f32>,
     /// The space's DDP action in box units (for the action map).
     ddp_box: Vec<f64>,
@@ -251,11 +398,11 @@ pub struct AdpEnv<'w> {
 impl<'w> AdpEnv<'w> {
     /// Starts an episode on `world` with `episode_cfg` under the profile of `cfg` (which
     /// replaces the episode settings' own); `seed` drives the sensor noise and drift. The
-    /// previous action starts as the policy output that selects DDP under the action map. Refuses
-    /// invalid configurations, a lidar without [`LASER_BEAMS`] beams (the observation layout
-    /// needs them), a non-positive speed cap, and an objective-weight space whose gains are not
-    /// the planner's. In the velocity space `planner` never plans (it only names the compute
-    /// model's planner).
+    /// previous action starts as the policy output that selects DDP under the action map. The
+    /// lidar may have any beam count: the observation resamples its scans into the layout of
+    /// `cfg.observation`. Refuses invalid configurations, a non-positive speed cap, and an
+    /// objective-weight space whose gains are not the planner's. In the velocity space
+    /// `planner` never plans (it only names the compute model's planner).
     pub fn new(
         world: &'w World,
         episode_cfg: EpisodeConfig,
@@ -266,16 +413,11 @@ impl<'w> AdpEnv<'w> {
         seed: u64,
     ) -> Result<Self, EnvError> {
         cfg.validate()?;
-        let episode_cfg = episode_cfg.with_profile(cfg.profile, cfg.dynamics);
+        let mut episode_cfg = episode_cfg.with_profile(cfg.profile, cfg.dynamics);
+        episode_cfg.lidar = cfg.randomize.draw(episode_cfg.lidar, seed);
         episode_cfg
             .validate()
             .map_err(|e| EnvError::Config(format!("episode: {e}")))?;
-        if episode_cfg.lidar.beams != LASER_BEAMS {
-            return Err(EnvError::Config(format!(
-                "the lidar has {} beams; the observation layout needs {LASER_BEAMS}",
-                episode_cfg.lidar.beams
-            )));
-        }
         if !(max_speed.is_finite() && max_speed > 0.0) {
             return Err(EnvError::Config(format!(
                 "max_speed = {max_speed} must be finite and > 0"
@@ -303,6 +445,7 @@ impl<'w> AdpEnv<'w> {
             driver = driver.with_tracking(TrackingConfig::default());
         }
         let episode = Episode::new(world, episode_cfg, seed);
+        let laser = LaserResampler::new(cfg.observation, episode.lidar().angles());
         let goal_distance = episode.state().pose.position().dist(world.goal);
         Ok(Self {
             episode,
@@ -312,6 +455,7 @@ impl<'w> AdpEnv<'w> {
             prediction: Prediction::for_profile(cfg.profile),
             driver,
             cfg,
+            laser,
             previous_action: cfg
                 .action_map
                 .ddp_policy_action(space)
@@ -333,10 +477,10 @@ impl<'w> AdpEnv<'w> {
         self.space
     }
 
-    /// Length of this environment's observations ([`observation::obs_dim`] of the space and
-    /// the observed tracks).
+    /// Length of this environment's observations ([`observation::obs_dim`] of the laser
+    /// layout, the space and the observed tracks).
     pub fn obs_dim(&self) -> usize {
-        observation::obs_dim(self.space, self.cfg.observe_tracks)
+        observation::obs_dim(self.cfg.observation, self.space, self.cfg.observe_tracks)
     }
 
     /// The configuration.
@@ -373,6 +517,7 @@ impl<'w> AdpEnv<'w> {
         let tracks = self.driver.tracking().map_or(&[][..], |t| t.moving());
         observation::write(
             &self.episode.perception(),
+            &self.laser,
             &self.previous_action,
             self.cfg.laser_clip_m,
             tracks,
@@ -850,23 +995,157 @@ mod tests {
         assert_eq!(&obs[720..724], &[1.0, -1.0, 0.0, 0.0]);
     }
 
+    /// The observation is built in the configured layout from any lidar: a 90-beam scan
+    /// fills the 720 values of the `scan` layout, a `sectors:25` layout makes 25.
+    #[test]
+    fn any_lidar_makes_the_observation_of_the_layout() {
+        let world = open_field(true);
+        for (beams, layout, dim) in [
+            (90, LaserLayout::Scan, 730),
+            (720, LaserLayout::Sectors(25), 35),
+            (90, LaserLayout::Sectors(50), 60),
+        ] {
+            let mut ep = EpisodeConfig::default();
+            ep.lidar.beams = beams;
+            let cfg = EnvConfig {
+                observation: layout,
+                ..EnvConfig::default()
+            };
+            let mut e = AdpEnv::new(&world, ep, dwa(), ActionSpace::Decremental, 1.5, cfg, 1).unwrap();
+            assert_eq!(e.obs_dim(), dim, "{beams} beams, {layout}");
+            e.step(&ddp()).unwrap();
+            let mut obs = vec![f32::NAN; dim];
+            e.observation(&mut obs);
+            let laser = &obs[..layout.size()];
+            assert!(laser.iter().all(|x| (-1.0..=1.0).contains(x)), "{laser:?}");
+            // The wall 1.5 m ahead across the heading: the values ahead read it (below the 3 m
+            // clip), the ones behind the robot's shoulders do not.
+            let ahead = laser[laser.len() / 2];
+            assert!(
+                ahead < 0.0 && laser[0] == 1.0,
+                "{beams} beams, {layout}: {laser:?}"
+            );
+        }
+    }
+
+    /// `[env.randomize]` draws every episode's lidar from its seed, within the given choices
+    /// and ranges, repeatably; off (the default) it draws nothing; evaluation turns it off.
+    #[test]
+    fn randomized_sensing_is_drawn_per_episode_from_the_seed() {
+        let lidar = EpisodeConfig::default().lidar;
+        let off = Randomize::default();
+        assert!(!off.is_on());
+        assert_eq!(off.draw(lidar, 3), lidar);
+        let on = Randomize {
+            beams: vec![90, 360, 720].try_into().unwrap(),
+            noise_fraction: Some([0.05, 0.2]),
+            dropout: Some([0.0, 0.1]),
+        };
+        let mut seen = std::collections::BTreeSet::new();
+        for seed in 0..200 {
+            let l = on.draw(lidar, seed);
+            assert_eq!(l, on.draw(lidar, seed), "seed {seed} repeats");
+            seen.insert(l.beams);
+            assert!(
+                (0.05..=0.2).contains(&l.noise_fraction) && l.noise_sigma == 0.0,
+                "{l:?}"
+            );
+            assert!((0.0..=0.1).contains(&l.dropout), "{l:?}");
+            l.validate().unwrap();
+        }
+        assert_eq!(seen.into_iter().collect::<Vec<_>>(), [90, 360, 720]);
+        assert_ne!(on.draw(lidar, 1), on.draw(lidar, 2));
+        // Only what is given is drawn: a beams-only randomization keeps the episode's noise.
+        let beams_only = Randomize {
+            beams: vec![360].try_into().unwrap(),
+            ..Randomize::default()
+        };
+        assert_eq!(beams_only.draw(lidar, 9), LidarConfig { beams: 360, ..lidar });
+        // The environment runs the drawn lidar, in the layout of its observation.
+        let world = open_field(true);
+        let cfg = EnvConfig {
+            randomize: on,
+            ..EnvConfig::default()
+        };
+        for seed in [4, 5] {
+            let e = AdpEnv::new(
+                &world,
+                EpisodeConfig::default(),
+                dwa(),
+                ActionSpace::Decremental,
+                1.5,
+                cfg,
+                seed,
+            )
+            .unwrap();
+            assert_eq!(e.episode().config().lidar, on.draw(lidar, seed));
+            assert_eq!(e.obs_dim(), 730);
+            let mut obs = vec![f32::NAN; 730];
+            e.observation(&mut obs);
+            assert!(obs[..720].iter().all(|x| (-1.0..=1.0).contains(x)));
+        }
+        let eval = cfg.for_evaluation();
+        assert_eq!(
+            (eval.randomize, eval.max_agent_steps),
+            (Randomize::default(), u32::MAX)
+        );
+        // The settings travel to the actors as TOML.
+        let text = toml::to_string(&cfg).unwrap();
+        assert!(
+            text.contains("[randomize]") && text.contains("beams = [90, 360, 720]"),
+            "{text}"
+        );
+        assert_eq!(toml::from_str::<EnvConfig>(&text).unwrap(), cfg);
+        let default = EnvConfig::default();
+        assert_eq!(
+            toml::from_str::<EnvConfig>(&toml::to_string(&default).unwrap()).unwrap(),
+            default
+        );
+    }
+
+    #[test]
+    fn bad_randomization_is_refused_by_name() {
+        let err = |r: Randomize| {
+            EnvConfig {
+                randomize: r,
+                ..EnvConfig::default()
+            }
+            .validate()
+            .unwrap_err()
+            .to_string()
+        };
+        assert_eq!(
+            err(Randomize {
+                beams: vec![720, 1].try_into().unwrap(),
+                ..Randomize::default()
+            }),
+            "invalid environment configuration: randomize.beams = [720, 1]: 1 beams is too few (at least 2)"
+        );
+        assert_eq!(
+            err(Randomize {
+                noise_fraction: Some([0.2, 0.1]),
+                ..Randomize::default()
+            }),
+            "invalid environment configuration: randomize.noise_fraction = [0.2, 0.1] must be a range \
+             low <= high within [0, 1]"
+        );
+        assert!(err(Randomize {
+            dropout: Some([0.0, 1.0]),
+            ..Randomize::default()
+        })
+        .contains("randomize.dropout = [0, 1] must be a range low <= high within [0, 1)"));
+        let too_many = toml::from_str::<EnvConfig>("[randomize]\nbeams = [2, 3, 4, 5, 6, 7, 8, 9, 10]\n")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            too_many.contains("randomize.beams lists 9 beam counts; at most 8"),
+            "{too_many}"
+        );
+    }
+
     #[test]
     fn invalid_configurations_are_refused() {
         let world = open_field(false);
-        let mut ep = EpisodeConfig::default();
-        ep.lidar.beams = 360;
-        let err = AdpEnv::new(
-            &world,
-            ep,
-            dwa(),
-            ActionSpace::Decremental,
-            1.5,
-            EnvConfig::default(),
-            1,
-        )
-        .err()
-        .unwrap();
-        assert!(err.to_string().contains("360 beams"), "{err}");
         let cfg = EnvConfig {
             agent_period_cycles: 0,
             ..EnvConfig::default()

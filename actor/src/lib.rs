@@ -5,8 +5,9 @@
 //!   the planner's rollout schedule through an [`planner::ActionSpace`]; the step returns the
 //!   reward (progress, step and obstacle penalties, collision / timeout / success terms) and
 //!   whether the episode ended as a true terminal or was truncated by a time limit.
-//! * [`observation`] defines the observation vector (720 encoded lidar ranges, the previous
-//!   action, velocity, local and global goal): the layout the exported policy card documents.
+//! * [`observation`] defines the observation vector (the encoded lidar ranges, 720 or one per
+//!   sector, resampled from any lidar; the previous action, velocity, local and global goal):
+//!   the layout the exported policy card documents.
 //! * [`reward`] holds the scan-dependent reward term as pure functions.
 //! * [`policy::MlpPolicy`] evaluates the actor network (ReLU hidden layers, tanh output) from
 //!   the flat weight vector the learner publishes, without allocating per call;
@@ -29,5 +30,5 @@ pub mod run;
 
 pub use env::{AdpEnv, End, EnvConfig, EnvError, EnvResult, StepOutcome};
 pub use exploration::Exploration;
-pub use observation::{obs_dim, LASER_BEAMS};
+pub use observation::{obs_dim, LaserLayout, LaserResampler, LASER_BEAMS};
 pub use policy::{param_count, MlpPolicy, PolicyError, Scratch};

@@ -1,11 +1,12 @@
 //! The observation layout and its builder.
 //!
-//! One observation is `obs_dim(space, k) = 720 + space.dim() + 6 + 4 k` floats, in this
-//! order ([`segments`] gives the offsets):
+//! One observation is `obs_dim(laser, space, k) = L + space.dim() + 6 + 4 k` floats, in this
+//! order ([`segments`] gives the offsets), with `L` the size of the [`LaserLayout`] (720 for
+//! `scan`, the default; `N` for `sectors:N`):
 //!
 //! | segment           | size          | encoding                                                  |
 //! |-------------------|---------------|-----------------------------------------------------------|
-//! | `laser`           | 720           | lidar ranges in beam order, `2 * min(r, clip) / clip - 1` |
+//! | `laser`           | `L`           | lidar ranges in beam order (`scan`) or the least range per angular sector (`sectors:N`), `2 * min(r, clip) / clip - 1` |
 //! | `previous_action` | `space.dim()` | the previous (clamped) normalized action, in [-1, 1]      |
 //! | `v`               | 1             | measured linear velocity (m/s), raw                       |
 //! | `w`               | 1             | measured angular velocity (rad/s), raw                    |
@@ -16,16 +17,212 @@
 //! The tracks segment comes last, so the layouts without it (`k = 0`, the default) are the
 //! layouts of every policy trained before it existed.
 //!
+//! The laser segment is built in the policy's own layout from whatever the lidar gives
+//! ([`LaserResampler`]): a policy trained on the 720-beam scan runs on a 90-beam lidar (each of
+//! its 720 values takes the nearest beam), and a `sectors:N` policy takes each sector's least
+//! range from any beam count. A scan of the layout's own 720 beams passes unchanged.
+//!
 //! This module is the one definition of the layout: the learner sizes its networks with
 //! [`obs_dim`] and the exported policy card documents [`segments`] with [`Segment::encoding`]
 //! (`learner::export::observation_layout`).
 
+use std::fmt;
+use std::str::FromStr;
+
 use planner::{ActionSpace, Predicted};
+use serde::{Deserialize, Serialize};
 use sim::episode::Perception;
 use sim::geometry::Vec2;
 
-/// Lidar beams in the observation (the Hokuyo UST-10's 720 over 270 degrees).
+/// Lidar beams in the `scan` layout (the Hokuyo UST-10's 720 over 270 degrees).
 pub const LASER_BEAMS: usize = 720;
+/// The angular field every laser layout covers (degrees), centred on the heading.
+pub const LASER_FIELD_DEG: f64 = 270.0;
+/// Most sectors of a `sectors:N` layout (one per beam of the `scan` layout).
+pub const MAX_SECTORS: usize = LASER_BEAMS;
+
+/// How the observation's laser segment is laid out (`[env] observation`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(try_from = "String", into = "String")]
+pub enum LaserLayout {
+    /// `"scan"` (the default): [`LASER_BEAMS`] ranges in beam order, beam k at `-135 + k *
+    /// 270/719` degrees from the heading.
+    #[default]
+    Scan,
+    /// `"sectors:N"`: the 270-degree field split into `N` equal sectors (1 to
+    /// [`MAX_SECTORS`]), from -135 degrees counter-clockwise; each value is the least range
+    /// the lidar measured in its sector (the N nearest-obstacle distances of the 3D RL-DWA
+    /// paper's sensing resolutions, 15, 25 and 50).
+    Sectors(usize),
+}
+
+impl LaserLayout {
+    /// Floats of the laser segment: [`LASER_BEAMS`] or `N`.
+    pub fn size(self) -> usize {
+        match self {
+            LaserLayout::Scan => LASER_BEAMS,
+            LaserLayout::Sectors(n) => n,
+        }
+    }
+}
+
+impl fmt::Display for LaserLayout {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            LaserLayout::Scan => f.write_str("scan"),
+            LaserLayout::Sectors(n) => write!(f, "sectors:{n}"),
+        }
+    }
+}
+
+/// Why a laser layout name was refused.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("observation = {0:?} is not a laser layout: \"scan\" or \"sectors:N\" with N in 1..={MAX_SECTORS}")]
+pub struct LayoutError(pub String);
+
+impl FromStr for LaserLayout {
+    type Err = LayoutError;
+
+    fn from_str(s: &str) -> Result<Self, LayoutError> {
+        if s == "scan" {
+            return Ok(LaserLayout::Scan);
+        }
+        s.strip_prefix("sectors:")
+            .and_then(|n| n.parse::<usize>().ok())
+            .filter(|n| (1..=MAX_SECTORS).contains(n))
+            .map(LaserLayout::Sectors)
+            .ok_or_else(|| LayoutError(s.to_string()))
+    }
+}
+
+impl TryFrom<String> for LaserLayout {
+    type Error = LayoutError;
+
+    fn try_from(s: String) -> Result<Self, LayoutError> {
+        s.parse()
+    }
+}
+
+impl From<LaserLayout> for String {
+    fn from(l: LaserLayout) -> String {
+        l.to_string()
+    }
+}
+
+/// Angles (rad) closer than this count as equal when placing beams in sectors: a beam at the
+/// field's edge, computed with rounding, still falls in the field.
+const ANGLE_EPS: f64 = 1e-9;
+
+/// Builds a [`LaserLayout`]'s laser segment from the scans of one lidar, whatever its beam
+/// count and field of view. Precomputed once per sensor; allocation-free per observation.
+///
+/// Every laser value is the least range over a run of consecutive beams:
+///
+/// * `scan`: layout beam k (at `-135 + k * 270/719` degrees) takes the one sensor beam nearest
+///   its angle (ties: the lower index). A sensor of 720 beams over 270 degrees maps beam k to
+///   beam k, so its scan passes bit for bit; a 90-beam scan repeats each beam about 8 times.
+/// * `sectors:N`: sector i takes the least range of the sensor beams whose angle falls in
+///   `[-135 + i 270/N, -135 + (i + 1) 270/N)` degrees (the last sector includes +135; beams
+///   outside the 270-degree field are not used); a sector without a beam takes the beam
+///   nearest its centre.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LaserResampler {
+    layout: LaserLayout,
+    /// The sensor's beam count (the length of the scans it reads).
+    beams: usize,
+    /// Per laser value, the sensor beams `[start, end)` it is the minimum of.
+    spans: Vec<(usize, usize)>,
+}
+
+impl LaserResampler {
+    /// The resampler from a lidar whose beams point at `angles` (rad from the heading,
+    /// counter-clockwise positive, increasing, as [`sim::lidar::Lidar::angles`]) into `layout`.
+    ///
+    /// # Panics
+    /// If `angles` is empty or not increasing (no lidar makes such a scan).
+    pub fn new(layout: LaserLayout, angles: &[f64]) -> Self {
+        assert!(
+            !angles.is_empty() && angles.windows(2).all(|w| w[0] < w[1]),
+            "beam angles must be increasing"
+        );
+        let field = LASER_FIELD_DEG.to_radians();
+        let one = |j: usize| (j, j + 1);
+        let spans = match layout {
+            LaserLayout::Scan => (0..LASER_BEAMS)
+                .map(|k| {
+                    one(nearest(
+                        angles,
+                        -field / 2.0 + field * k as f64 / (LASER_BEAMS - 1) as f64,
+                    ))
+                })
+                .collect(),
+            LaserLayout::Sectors(n) => {
+                let (half, width) = (field / 2.0, field / n as f64);
+                let mut spans = vec![(usize::MAX, 0); n];
+                for (j, &a) in angles.iter().enumerate() {
+                    if a < -half - ANGLE_EPS || a > half + ANGLE_EPS {
+                        continue;
+                    }
+                    let i = (((a + half) / width).floor().max(0.0) as usize).min(n - 1);
+                    let span = &mut spans[i];
+                    if span.0 == usize::MAX {
+                        *span = one(j);
+                    } else {
+                        span.1 = j + 1;
+                    }
+                }
+                for (i, span) in spans.iter_mut().enumerate() {
+                    if span.0 == usize::MAX {
+                        *span = one(nearest(angles, -half + (i as f64 + 0.5) * width));
+                    }
+                }
+                spans
+            }
+        };
+        Self {
+            layout,
+            beams: angles.len(),
+            spans,
+        }
+    }
+
+    /// The layout it builds.
+    pub fn layout(&self) -> LaserLayout {
+        self.layout
+    }
+
+    /// Writes the laser segment of `ranges` (one scan of the sensor) into `out`, ranges
+    /// clipped at `clip` and encoded by [`encode_range`]. Allocation-free.
+    ///
+    /// # Panics
+    /// If `ranges` is not one range per beam of the sensor or `out` is not the layout's size.
+    pub fn write(&self, ranges: &[f64], clip: f64, out: &mut [f32]) {
+        assert_eq!(
+            ranges.len(),
+            self.beams,
+            "the resampler reads scans of {} beams, the scan has {}",
+            self.beams,
+            ranges.len()
+        );
+        assert_eq!(out.len(), self.spans.len(), "laser segment size");
+        for (x, &(start, end)) in out.iter_mut().zip(&self.spans) {
+            let r = ranges[start..end].iter().copied().fold(f64::INFINITY, f64::min);
+            *x = encode_range(r, clip);
+        }
+    }
+}
+
+/// The index of the angle in `angles` (increasing) nearest `a`; ties go to the lower index.
+fn nearest(angles: &[f64], a: f64) -> usize {
+    let i = angles.partition_point(|&x| x < a);
+    if i == 0 {
+        0
+    } else if i == angles.len() || a - angles[i - 1] <= angles[i] - a {
+        i - 1
+    } else {
+        i
+    }
+}
 /// Default laser clip (m): ranges beyond it read as the clip.
 pub const DEFAULT_LASER_CLIP_M: f64 = 3.0;
 /// Floats after the previous action: v, w, local goal (2), global goal (2).
@@ -60,16 +257,31 @@ pub struct Segment {
 }
 
 impl Segment {
-    /// How the segment's values are computed from the robot's state and sensors, for lidar
-    /// ranges clipped at `laser_clip_m`: the `encoding` the exported policy card states.
-    pub fn encoding(&self, laser_clip_m: f64) -> String {
-        match self.name {
-            "laser" => format!(
+    /// How the segment's values are computed from the robot's state and sensors, for the
+    /// laser layout `laser` with ranges clipped at `laser_clip_m`: the `encoding` the exported
+    /// policy card states.
+    pub fn encoding(&self, laser: LaserLayout, laser_clip_m: f64) -> String {
+        match (self.name, laser) {
+            ("laser", LaserLayout::Scan) => format!(
                 "lidar ranges r (m) in beam order, beam k at -135 + k * 270/{} degrees from the \
                  heading (counter-clockwise positive); x = 2 * min(r, {laser_clip_m}) / \
                  {laser_clip_m} - 1, in [-1, 1]",
                 LASER_BEAMS - 1
             ),
+            ("laser", LaserLayout::Sectors(n)) => format!(
+                "the 270-degree field split into {n} equal sectors, sector i spanning -135 + i * \
+                 270/{n} to -135 + (i + 1) * 270/{n} degrees from the heading (counter-clockwise \
+                 positive); r (m) is the least lidar range of the beams in the sector (a sector \
+                 without a beam takes the beam nearest its centre); x = 2 * min(r, \
+                 {laser_clip_m}) / {laser_clip_m} - 1, in [-1, 1]"
+            ),
+            (name, _) => self.state_encoding(name),
+        }
+    }
+
+    /// The encoding of a segment other than the laser's.
+    fn state_encoding(&self, name: &str) -> String {
+        match name {
             "previous_action" => "the policy's previous action, normalized to [-1, 1] like its output".into(),
             "v" => "measured linear velocity (m/s), not normalized".into(),
             "w" => "measured angular velocity (rad/s, counter-clockwise positive), not normalized".into(),
@@ -93,10 +305,10 @@ impl Segment {
     }
 }
 
-/// The observation segments of `space` with `tracks` observed tracks, in order, contiguous
-/// from offset 0 (the `tracks` segment only when `tracks > 0`).
-pub fn segments(space: ActionSpace, tracks: usize) -> Vec<Segment> {
-    let sizes = [LASER_BEAMS, space.dim(), 1, 1, 2, 2, TRACK_FLOATS * tracks];
+/// The observation segments of the laser layout `laser` and `space` with `tracks` observed
+/// tracks, in order, contiguous from offset 0 (the `tracks` segment only when `tracks > 0`).
+pub fn segments(laser: LaserLayout, space: ActionSpace, tracks: usize) -> Vec<Segment> {
+    let sizes = [laser.size(), space.dim(), 1, 1, 2, 2, TRACK_FLOATS * tracks];
     let mut offset = 0;
     SEGMENT_NAMES
         .iter()
@@ -110,10 +322,11 @@ pub fn segments(space: ActionSpace, tracks: usize) -> Vec<Segment> {
         .collect()
 }
 
-/// Length of an observation for `space` with `tracks` observed tracks:
-/// `720 + space.dim() + 6 + 4 tracks` (730 for the decremental space without tracks).
-pub fn obs_dim(space: ActionSpace, tracks: usize) -> usize {
-    LASER_BEAMS + space.dim() + STATE_TAIL + TRACK_FLOATS * tracks
+/// Length of an observation for the laser layout `laser` and `space` with `tracks` observed
+/// tracks: `laser.size() + space.dim() + 6 + 4 tracks` (730 for the `scan` layout and the
+/// decremental space without tracks; 35 for `sectors:25`).
+pub fn obs_dim(laser: LaserLayout, space: ActionSpace, tracks: usize) -> usize {
+    laser.size() + space.dim() + STATE_TAIL + TRACK_FLOATS * tracks
 }
 
 /// Beams closer than this (m) count as clutter ([`clutter`]).
@@ -138,37 +351,32 @@ pub fn bearing_distance(p: Vec2) -> (f32, f32) {
     (p.y.atan2(p.x) as f32, p.norm() as f32)
 }
 
-/// Writes the observation of `perception`, `previous_action` and the moving obstacles
-/// `tracks` (robot frame) into `out`; the tracks segment holds `(out.len() - 726 -
-/// previous_action.len()) / 4` slots. Allocation-free.
+/// Writes the observation of `perception` (its scan through `laser` into the laser layout),
+/// `previous_action` and the moving obstacles `tracks` (robot frame) into `out`; the tracks
+/// segment holds `(out.len() - laser size - previous_action.len() - 6) / 4` slots.
+/// Allocation-free.
 ///
 /// # Panics
-/// If `out.len()` is not `LASER_BEAMS + previous_action.len() + STATE_TAIL` plus a whole
-/// number of track slots, or the perception does not have [`LASER_BEAMS`] ranges: both are
-/// wiring errors the environment rules out.
+/// If `out.len()` is not the laser layout's size plus `previous_action.len() + STATE_TAIL`
+/// plus a whole number of track slots, or the perception's scan is not of `laser`'s sensor:
+/// both are wiring errors the environment rules out.
 pub fn write(
     perception: &Perception<'_>,
+    laser: &LaserResampler,
     previous_action: &[f32],
     laser_clip_m: f64,
     tracks: &[Predicted],
     out: &mut [f32],
 ) {
-    let base = LASER_BEAMS + previous_action.len() + STATE_TAIL;
+    let laser_size = laser.layout().size();
+    let base = laser_size + previous_action.len() + STATE_TAIL;
     assert!(
         out.len() >= base && (out.len() - base).is_multiple_of(TRACK_FLOATS),
         "observation buffer has {} floats, the layout needs {base} plus {TRACK_FLOATS} per track",
         out.len()
     );
-    assert_eq!(
-        perception.ranges.len(),
-        LASER_BEAMS,
-        "the observation needs {LASER_BEAMS} lidar ranges, the scan has {}",
-        perception.ranges.len()
-    );
-    let (laser, rest) = out.split_at_mut(LASER_BEAMS);
-    for (x, &r) in laser.iter_mut().zip(perception.ranges) {
-        *x = encode_range(r, laser_clip_m);
-    }
+    let (laser_out, rest) = out.split_at_mut(laser_size);
+    laser.write(perception.ranges, laser_clip_m, laser_out);
     let (prev, rest) = rest.split_at_mut(previous_action.len());
     prev.copy_from_slice(previous_action);
     let (tail, slots) = rest.split_at_mut(STATE_TAIL);
@@ -210,7 +418,17 @@ fn write_tracks(tracks: &[Predicted], slots: &mut [f32]) {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use sim::lidar::{Lidar, LidarConfig};
     use sim::robot::Twist;
+
+    /// The resampler of a lidar of `beams` beams over 270 degrees into `layout`.
+    fn resampler(layout: LaserLayout, beams: usize) -> LaserResampler {
+        let lidar = Lidar::new(LidarConfig {
+            beams,
+            ..LidarConfig::default()
+        });
+        LaserResampler::new(layout, lidar.angles())
+    }
 
     #[test]
     fn clutter_is_the_share_of_close_beams() {
@@ -227,23 +445,35 @@ mod tests {
             ActionSpace::Fixed,
         ] {
             for tracks in [0, 4] {
-                let segs = segments(space, tracks);
+                let segs = segments(LaserLayout::Scan, space, tracks);
                 let mut offset = 0;
                 for s in &segs {
                     assert_eq!(s.offset, offset, "{space:?} {}", s.name);
                     offset += s.size;
                 }
-                assert_eq!(offset, obs_dim(space, tracks));
+                assert_eq!(offset, obs_dim(LaserLayout::Scan, space, tracks));
                 assert_eq!(segs[1].size, space.dim());
                 assert_eq!(segs.len(), if tracks > 0 { 7 } else { 6 });
             }
         }
-        assert_eq!(obs_dim(ActionSpace::Decremental, 0), 730);
-        assert_eq!(obs_dim(ActionSpace::Unconstrained, 0), 746);
-        assert_eq!(obs_dim(ActionSpace::Decremental, 4), 746);
-        let last = segments(ActionSpace::Decremental, 4)[6];
+        let scan = LaserLayout::Scan;
+        assert_eq!(obs_dim(scan, ActionSpace::Decremental, 0), 730);
+        assert_eq!(obs_dim(scan, ActionSpace::Unconstrained, 0), 746);
+        assert_eq!(obs_dim(scan, ActionSpace::Decremental, 4), 746);
+        let last = segments(scan, ActionSpace::Decremental, 4)[6];
         assert_eq!((last.name, last.offset, last.size), ("tracks", 730, 16));
-        assert!(last.encoding(3.0).starts_with("the 4 nearest"));
+        assert!(last.encoding(scan, 3.0).starts_with("the 4 nearest"));
+        // A sectors layout shrinks the laser segment only.
+        let sectors = LaserLayout::Sectors(25);
+        assert_eq!(obs_dim(sectors, ActionSpace::Decremental, 0), 35);
+        let segs = segments(sectors, ActionSpace::Decremental, 4);
+        assert_eq!((segs[0].size, segs[1].offset, segs[6].offset), (25, 25, 35));
+        assert!(segs[0]
+            .encoding(sectors, 3.0)
+            .starts_with("the 270-degree field split into 25"));
+        assert!(segs[0]
+            .encoding(scan, 3.0)
+            .starts_with("lidar ranges r (m) in beam order"));
     }
 
     #[test]
@@ -262,7 +492,8 @@ mod tests {
             goal: Vec2::new(-3.0, -4.0),
         };
         let mut out = vec![f32::NAN; 730];
-        write(&p, &[0.1, 0.2, 0.3, 0.4], 3.0, &[], &mut out);
+        let scan = resampler(LaserLayout::Scan, LASER_BEAMS);
+        write(&p, &scan, &[0.1, 0.2, 0.3, 0.4], 3.0, &[], &mut out);
         assert_eq!(out[0], -1.0);
         assert!((out[150] - 0.0).abs() < 1e-6, "1.5 m reads 0");
         assert_eq!(out[719], 1.0, "7.19 m is clipped to 3 m");
@@ -297,19 +528,110 @@ mod tests {
             track(-5.0, 0.0, -0.5, 0.25),
         ];
         let mut out = vec![f32::NAN; 730 + 8];
-        write(&p, &[0.0; 4], 3.0, &tracks, &mut out);
+        let scan = resampler(LaserLayout::Scan, LASER_BEAMS);
+        write(&p, &scan, &[0.0; 4], 3.0, &tracks, &mut out);
         assert_eq!(&out[730..], &[0.0, -2.0, 0.0, 1.5, 3.0, 4.0, 1.0, 0.0]);
         let mut out = vec![f32::NAN; 730 + 16];
-        write(&p, &[0.0; 4], 3.0, &tracks, &mut out);
+        write(&p, &scan, &[0.0; 4], 3.0, &tracks, &mut out);
         assert_eq!(
             &out[730..],
             &[0.0, -2.0, 0.0, 1.5, 3.0, 4.0, 1.0, 0.0, -5.0, 0.0, -0.5, 0.25, 0.0, 0.0, 0.0, 0.0]
         );
         // No tracks: all zeros; the rest of the observation is as without the segment.
         let mut without = vec![f32::NAN; 730];
-        write(&p, &[0.0; 4], 3.0, &tracks, &mut without);
-        write(&p, &[0.0; 4], 3.0, &[], &mut out);
+        write(&p, &scan, &[0.0; 4], 3.0, &tracks, &mut without);
+        write(&p, &scan, &[0.0; 4], 3.0, &[], &mut out);
         assert_eq!(&out[..730], &without[..]);
         assert!(out[730..].iter().all(|&x| x == 0.0));
+    }
+
+    #[test]
+    fn layouts_parse_and_print() {
+        for (text, layout) in [
+            ("scan", LaserLayout::Scan),
+            ("sectors:15", LaserLayout::Sectors(15)),
+            ("sectors:720", LaserLayout::Sectors(720)),
+        ] {
+            assert_eq!(text.parse::<LaserLayout>().unwrap(), layout);
+            assert_eq!(layout.to_string(), text);
+        }
+        for bad in ["sectors:0", "sectors:721", "sectors:", "sectors:x", "beams", ""] {
+            let e = bad.parse::<LaserLayout>().unwrap_err().to_string();
+            assert_eq!(
+                e,
+                format!(
+                    "observation = {bad:?} is not a laser layout: \"scan\" or \"sectors:N\" with N in 1..=720"
+                )
+            );
+        }
+        assert_eq!(LaserLayout::default().size(), 720);
+        assert_eq!(LaserLayout::Sectors(50).size(), 50);
+    }
+
+    #[test]
+    fn sectors_take_the_least_range_of_their_beams() {
+        // 12 beams over 270 degrees: beam k at -135 + k * 270/11 = -135 + 24.55 k degrees. Three
+        // sectors of 90 degrees: [-135, -45) holds beams 0..=3 (up to -61.4), [-45, 45) beams
+        // 4..=7 (-36.8 to 36.8), [45, 135] beams 8..=11.
+        let ranges = [
+            5.0, 0.7, 2.0, 9.0, // sector 0: least 0.7
+            1.2, 1.1, 4.0, 2.5, // sector 1: least 1.1
+            3.5, 6.0, 3.4, 8.0, // sector 2: least 3.4, past the 3 m clip
+        ];
+        let r = resampler(LaserLayout::Sectors(3), 12);
+        let mut out = [f32::NAN; 3];
+        r.write(&ranges, 3.0, &mut out);
+        assert_eq!(
+            out,
+            [encode_range(0.7, 3.0), encode_range(1.1, 3.0), 1.0],
+            "2 * 0.7 / 3 - 1, 2 * 1.1 / 3 - 1, clipped"
+        );
+        // 3 beams (-135, 0, +135 degrees) in 5 sectors of 54 degrees: sectors 0, 2 and 4 hold
+        // one beam each; sector 1 (centre -54) is nearest the middle beam (54 degrees away, the
+        // first is 81), and so is sector 3 (centre +54).
+        let r = resampler(LaserLayout::Sectors(5), 3);
+        let mut out = [f32::NAN; 5];
+        r.write(&[0.3, 1.5, 2.7], 3.0, &mut out);
+        let [a, b, c] = [0.3, 1.5, 2.7].map(|x| encode_range(x, 3.0));
+        assert_eq!(out, [a, b, b, b, c]);
+        // Beams outside the 270-degree field are not used: a 360-degree lidar of 5 beams
+        // (-180, -90, 0, 90, 180) in one sector sees only the 3 inside.
+        let wide = Lidar::new(LidarConfig {
+            beams: 5,
+            fov_deg: 360.0,
+            ..LidarConfig::default()
+        });
+        let r = LaserResampler::new(LaserLayout::Sectors(1), wide.angles());
+        let mut out = [f32::NAN; 1];
+        r.write(&[0.2, 1.0, 2.0, 1.5, 0.1], 3.0, &mut out);
+        assert_eq!(out, [encode_range(1.0, 3.0)]);
+    }
+
+    #[test]
+    fn a_scan_of_the_layouts_own_beams_passes_unchanged_and_others_take_the_nearest_beam() {
+        let ranges: Vec<f64> = (0..LASER_BEAMS)
+            .map(|k| 0.1 + (k as f64 * 0.37).sin().abs() * 2.9)
+            .collect();
+        let direct: Vec<f32> = ranges.iter().map(|&r| encode_range(r, 3.0)).collect();
+        let mut out = vec![f32::NAN; LASER_BEAMS];
+        resampler(LaserLayout::Scan, LASER_BEAMS).write(&ranges, 3.0, &mut out);
+        assert_eq!(
+            out.iter().map(|x| x.to_bits()).collect::<Vec<_>>(),
+            direct.iter().map(|x| x.to_bits()).collect::<Vec<_>>()
+        );
+        // 360 beams over the same field: layout beam k is at fraction k/719 of it, beam j of the
+        // sensor at j/359, so the nearest is j = round(k * 359/719) (no ties: 719 is odd).
+        let ranges: Vec<f64> = (0..360).map(|j| 0.1 + j as f64 * 0.008).collect();
+        resampler(LaserLayout::Scan, 360).write(&ranges, 3.0, &mut out);
+        for (k, &x) in out.iter().enumerate() {
+            let j = (k as f64 * 359.0 / 719.0).round() as usize;
+            assert_eq!(x, encode_range(ranges[j], 3.0), "layout beam {k}");
+        }
+        // A sectors layout of 720 sectors on the 720-beam scan is the scan itself.
+        let ranges: Vec<f64> = (0..LASER_BEAMS).map(|k| 0.2 + k as f64 * 0.004).collect();
+        let mut sectors = vec![f32::NAN; LASER_BEAMS];
+        resampler(LaserLayout::Sectors(LASER_BEAMS), LASER_BEAMS).write(&ranges, 3.0, &mut sectors);
+        resampler(LaserLayout::Scan, LASER_BEAMS).write(&ranges, 3.0, &mut out);
+        assert_eq!(sectors, out);
     }
 }

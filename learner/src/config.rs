@@ -21,13 +21,15 @@ use thiserror::Error;
 #[serde(default, deny_unknown_fields)]
 pub struct Td3Config {
     /// Observation size: 730 for the 4-D decremental action space (720 laser values, the
-    /// previous action, v, w and two (bearing, distance) goal pairs). Comes from the planner's
-    /// action space; not a constant of this crate.
+    /// previous action, v, w and two (bearing, distance) goal pairs; N + 10 with the
+    /// `sectors:N` laser layout). Comes from the planner's action space and the environment's
+    /// laser layout; not a constant of this crate.
     pub obs_dim: usize,
     /// Action size: 4 for the decremental action space, 20 for the unconstrained one.
     pub act_dim: usize,
-    /// How many leading observation values are laser ranges in [-1, 1]. The replay buffer stores
-    /// them as 16-bit integers. Must be at most `obs_dim`; 0 stores everything as `f32`.
+    /// How many leading observation values are laser ranges in [-1, 1] (720, or N with the
+    /// `sectors:N` layout). The replay buffer stores them as 16-bit integers. Must be at most
+    /// `obs_dim`; 0 stores everything as `f32`.
     pub laser_dim: usize,
     /// Hidden layer widths of the actor (ReLU between layers, tanh on the output).
     pub actor_hidden: Vec<usize>,

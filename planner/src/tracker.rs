@@ -377,8 +377,7 @@ impl Tracker {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use rand::SeedableRng;
-    use sim::lidar::{Lidar, LidarConfig};
+    use sim::lidar::{Lidar, LidarConfig, LidarRng};
     use sim::{Circle, World};
 
     /// An empty world with one cylinder.
@@ -394,7 +393,7 @@ mod tests {
     }
 
     /// Scans `world` from `pose` with 1 cm range noise.
-    fn scan(lidar: &Lidar, world: &World, pose: &Pose, rng: &mut rand_pcg::Pcg64Mcg) -> Vec<Vec2> {
+    fn scan(lidar: &Lidar, world: &World, pose: &Pose, rng: &mut LidarRng) -> Vec<Vec2> {
         let mut ranges = Vec::new();
         let mut points = Vec::new();
         lidar.scan(&world.at(0.0), pose, rng, &mut ranges);
@@ -414,7 +413,7 @@ mod tests {
         // A cylinder of radius 0.2 m crosses 3 m ahead of a robot at rest, from y = -2 to
         // y = +2 at 1 m/s, scanned at 20 Hz.
         let lidar = noisy_lidar();
-        let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(1);
+        let mut rng = LidarRng::new(1);
         let mut tracker = Tracker::new(TrackerConfig::default());
         let robot = Pose::default();
         let dt = 0.05;
@@ -445,7 +444,7 @@ mod tests {
     fn a_static_obstacle_stays_still_while_the_robot_drives() {
         // The robot drives past a post at 1 m/s; in the believed frame the post does not move.
         let lidar = noisy_lidar();
-        let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(2);
+        let mut rng = LidarRng::new(2);
         let mut tracker = Tracker::new(TrackerConfig::default());
         let world = one_cylinder(Vec2::new(3.0, 1.0), 0.15);
         for k in 0..=40 {
@@ -461,7 +460,7 @@ mod tests {
     #[test]
     fn walls_are_not_tracked_and_lost_tracks_die() {
         let lidar = noisy_lidar();
-        let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(3);
+        let mut rng = LidarRng::new(3);
         let mut tracker = Tracker::new(TrackerConfig::default());
         // A corridor's walls are long segments near the robot: no cluster there. (Far along
         // a wall, at grazing incidence, its points spread apart and break into fragments,

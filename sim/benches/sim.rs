@@ -2,15 +2,14 @@
 //! global path) of an episode. Run with `cargo bench -p adp-sim`.
 
 use criterion::{black_box, criterion_group, criterion_main, Criterion};
-use rand::SeedableRng;
 use sim::geometry::Pose;
-use sim::lidar::{Lidar, LidarConfig};
+use sim::lidar::{Lidar, LidarConfig, LidarRng};
 use sim::{Episode, EpisodeConfig, Twist};
 
 fn scan(c: &mut Criterion) {
     let world = sim::barn::world(250).expect("embedded world");
     let lidar = Lidar::new(LidarConfig::default());
-    let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(1);
+    let mut rng = LidarRng::new(1);
     let mut ranges = Vec::new();
     let scene = world.at(0.0);
     // Inside the obstacle field, where rays are shortest and the index busiest.

@@ -12,7 +12,7 @@ use crate::costmap::{Costmap, CostmapConfig};
 use crate::dynamics::{Drive, Dynamics, Localization, Profile};
 use crate::error::ConfigError;
 use crate::geometry::{Pose, Vec2};
-use crate::lidar::{Lidar, LidarConfig};
+use crate::lidar::{Lidar, LidarConfig, LidarRng};
 use crate::navigation::{point_at_arc_length, smooth, GlobalPlanner};
 use crate::robot::{RobotLimits, RobotState, Twist};
 use crate::score::barn_score;
@@ -234,7 +234,7 @@ pub struct Episode<'w> {
     phase: f64,
     cfg: EpisodeConfig,
     lidar: Lidar,
-    rng: Pcg64Mcg,
+    lidar_rng: LidarRng,
     drift_rng: Pcg64Mcg,
     drive: Drive,
     localization: Localization,
@@ -283,7 +283,7 @@ impl<'w> Episode<'w> {
             phase,
             cfg,
             lidar,
-            rng: Pcg64Mcg::seed_from_u64(seed),
+            lidar_rng: LidarRng::new(seed),
             drift_rng: Pcg64Mcg::seed_from_u64(seed ^ DRIFT_STREAM),
             drive: Drive::new(dynamics, cfg.robot, cfg.physics_dt),
             localization: Localization::default(),
@@ -337,6 +337,11 @@ impl<'w> Episode<'w> {
     /// The configuration.
     pub fn config(&self) -> &EpisodeConfig {
         &self.cfg
+    }
+
+    /// The robot's lidar (its beam angles order [`Perception::ranges`]).
+    pub fn lidar(&self) -> &Lidar {
+        &self.lidar
     }
 
     /// Ground-truth robot state (world frame). Planners must not use it; it is for the
@@ -501,8 +506,12 @@ impl<'w> Episode<'w> {
     /// Scan (from the true pose), then, from the believed pose: mark the map, replan when due,
     /// and recompute the local goal.
     fn sense(&mut self) {
-        self.lidar
-            .scan(&self.scene, &self.state.pose, &mut self.rng, &mut self.ranges);
+        self.lidar.scan(
+            &self.scene,
+            &self.state.pose,
+            &mut self.lidar_rng,
+            &mut self.ranges,
+        );
         let dynamics = *self.drive.dynamics();
         self.localization
             .drift(&dynamics, self.undrifted, &mut self.drift_rng);

@@ -319,7 +319,7 @@ fn collect_steps(
     let eval = EvalConfig::load(None)?;
     let space = cfg.run.action_space;
     let kind = cfg.run.planner;
-    let n = actor::observation::obs_dim(space, env.observe_tracks);
+    let n = actor::observation::obs_dim(env.observation, space, env.observe_tracks);
     let (mut obs, mut action) = (vec![0.0f32; n], vec![0.0f32; space.dim()]);
     let mut scratch = Scratch::default();
     let mut done = 0u64;
@@ -516,7 +516,7 @@ mod tests {
         let cfg = TrainConfig::load(None).unwrap();
         let space = cfg.run.action_space;
         let dims = [
-            actor::observation::obs_dim(space, cfg.env.observe_tracks),
+            actor::observation::obs_dim(cfg.env.observation, space, cfg.env.observe_tracks),
             8,
             space.dim(),
         ];

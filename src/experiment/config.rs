@@ -625,8 +625,8 @@ impl Experiment {
     }
 
     /// The training configuration of `arm`'s seed `seed` (0-based): `[train]` with the arm's
-    /// planner, action space (and the observation and action sizes it needs), speed cap and
-    /// training worlds, and `[td3] seed = first_seed + seed`.
+    /// planner, action space (and the observation, laser and action sizes it and `[train.env]
+    /// observation` need), speed cap and training worlds, and `[td3] seed = first_seed + seed`.
     pub fn train_config(&self, arm: &Arm, seed: usize) -> TrainConfig {
         let mut cfg = self.train.clone();
         cfg.run.name = format!("{}-seed{seed}", arm.id());
@@ -634,7 +634,8 @@ impl Experiment {
         cfg.run.action_space = arm.space;
         cfg.run.max_speed = arm.speed;
         cfg.run.worlds = arm.train_worlds.clone();
-        cfg.td3.obs_dim = actor::obs_dim(arm.space, cfg.env.observe_tracks);
+        cfg.td3.obs_dim = actor::obs_dim(cfg.env.observation, arm.space, cfg.env.observe_tracks);
+        cfg.td3.laser_dim = cfg.env.observation.size();
         cfg.td3.act_dim = arm.space.dim();
         cfg.td3.seed = self.section.first_seed + seed as u64;
         cfg

@@ -26,7 +26,7 @@ use std::time::Instant;
 use anyhow::{bail, Context};
 use serde::Serialize;
 
-use actor::{AdpEnv, End, EnvConfig, Scratch};
+use actor::{AdpEnv, End, Scratch};
 use planner::{ActionSpace, Schedule};
 use sim::World;
 
@@ -720,10 +720,7 @@ struct ArmResults {
 fn drive(ctx: &Ctx<'_>, a: &Arm, p: &LearnedPolicy, world: usize) -> anyhow::Result<figures::Drive> {
     let seed = run_seed(ctx.ex.eval.seed, world, 0);
     let planner = a.planner.build(&ctx.cfg, seed ^ 0x5eed_91a2);
-    let env = EnvConfig {
-        max_agent_steps: u32::MAX,
-        ..p.env
-    };
+    let env = p.env.for_evaluation();
     let mut e = AdpEnv::new(
         &ctx.worlds[world],
         ctx.cfg.episode,

@@ -249,9 +249,8 @@ fn run_one(
         } => (*net, *env, *space, Some((*pool, SplitMix64::new(*s ^ seed)))),
     };
     let eval_env = EnvConfig {
-        max_agent_steps: u32::MAX,
         compute: spec.cfg.compute,
-        ..env
+        ..env.for_evaluation()
     };
     let mut e = AdpEnv::new(
         world,

@@ -1,6 +1,6 @@
 //! The JSON card of an exported policy: what it holds, how it is made, and how it is read back.
 
-use actor::observation::{self, DEFAULT_LASER_CLIP_M, LASER_BEAMS};
+use actor::observation::{self, LaserLayout, DEFAULT_LASER_CLIP_M, MAX_SECTORS};
 use planner::ActionSpace;
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
@@ -28,7 +28,8 @@ pub struct PolicyCard {
     /// What the network's output means.
     pub action: ActionCard,
     /// The environment settings the policy was trained with (the `[env]` table of the run
-    /// config: `agent_period_cycles` planner cycles per action, `laser_clip_m`, rewards), so it
+    /// config: `agent_period_cycles` planner cycles per action, `laser_clip_m`, the laser
+    /// layout `observation`, rewards), so it
     /// can be run as it was trained; `null` when the checkpoint did not record them (the
     /// defaults applied).
     #[serde(default)]
@@ -148,21 +149,27 @@ pub struct ActionDimension {
     pub integer: bool,
 }
 
-/// The observation layout of DESIGN §5 for `space`: 720 laser values (ranges clipped at
-/// `laser_clip_m`), the previous action, v, w, (bearing, distance) to the local and the
-/// global goal, and, when `tracks > 0`, the nearest `tracks` moving tracks.
-pub fn observation_layout(space: ActionSpace, laser_clip_m: f64, tracks: usize) -> ObservationLayout {
-    let segments = observation::segments(space, tracks)
+/// The observation layout of DESIGN §5 for the laser layout `laser` and `space`: the laser
+/// values (720 ranges, or one per sector; clipped at `laser_clip_m`), the previous action, v,
+/// w, (bearing, distance) to the local and the global goal, and, when `tracks > 0`, the
+/// nearest `tracks` moving tracks.
+pub fn observation_layout(
+    laser: LaserLayout,
+    space: ActionSpace,
+    laser_clip_m: f64,
+    tracks: usize,
+) -> ObservationLayout {
+    let segments = observation::segments(laser, space, tracks)
         .iter()
         .map(|s| ObservationSegment {
             name: s.name.into(),
             offset: s.offset,
             size: s.size,
-            encoding: s.encoding(laser_clip_m),
+            encoding: s.encoding(laser, laser_clip_m),
         })
         .collect();
     ObservationLayout {
-        dim: observation::obs_dim(space, tracks),
+        dim: observation::obs_dim(laser, space, tracks),
         segments,
     }
 }
@@ -247,7 +254,7 @@ pub enum CardMismatch {
     /// The actor's input does not match the space's observation layout.
     #[error(
         "obs_dim = {obs_dim} with laser_dim = {laser_dim} does not fit the observation layout of the \
-         {space} action space ({dim} values, {LASER_BEAMS} of them laser)"
+         {space} action space with the {laser} laser layout ({dim} values, {laser_size} of them laser)"
     )]
     ObsDim {
         /// The checkpoint's `obs_dim`.
@@ -256,8 +263,12 @@ pub enum CardMismatch {
         laser_dim: usize,
         /// The action space.
         space: String,
+        /// The recorded laser layout.
+        laser: LaserLayout,
         /// Its observation size.
         dim: usize,
+        /// Its laser values.
+        laser_size: usize,
     },
     /// The recorded environment settings are not a table.
     #[error("the recorded environment settings are not a table: {0}")]
@@ -271,6 +282,12 @@ pub enum CardMismatch {
         max = observation::MAX_OBSERVED_TRACKS
     )]
     ObserveTracks(serde_json::Value),
+    /// The recorded laser layout is not one.
+    #[error(
+        "the recorded environment's observation = {0} is not a laser layout (\"scan\" or \"sectors:N\" \
+         with N in 1..={MAX_SECTORS})"
+    )]
+    Observation(serde_json::Value),
 }
 
 impl PolicyCard {
@@ -289,15 +306,22 @@ impl PolicyCard {
 
     /// The card for an actor trained in `space` with the environment settings `environment`
     /// (see [`checkpoint::RunState::environment`]), from the checkpoint whose manifest is `manifest`. Fails
-    /// when the checkpoint's observation or action size does not fit `space`, or the settings
-    /// are not a table with a positive `laser_clip_m`.
+    /// when the checkpoint's observation or action size does not fit `space` and the recorded
+    /// laser layout (`observation`, `scan` when absent), or the settings are not a table with a
+    /// positive `laser_clip_m`.
     pub fn new(
         space: ActionSpace,
         manifest: &Manifest,
         environment: &serde_json::Value,
     ) -> Result<Self, CardMismatch> {
         let config = &manifest.config;
-        let layout = observation_layout(space, laser_clip_m(environment)?, observe_tracks(environment)?);
+        let laser = laser_layout(environment)?;
+        let layout = observation_layout(
+            laser,
+            space,
+            laser_clip_m(environment)?,
+            observe_tracks(environment)?,
+        );
         if config.act_dim != space.dim() {
             return Err(CardMismatch::ActDim {
                 act_dim: config.act_dim,
@@ -305,12 +329,14 @@ impl PolicyCard {
                 dim: space.dim(),
             });
         }
-        if config.obs_dim != layout.dim || config.laser_dim != LASER_BEAMS {
+        if config.obs_dim != layout.dim || config.laser_dim != laser.size() {
             return Err(CardMismatch::ObsDim {
                 obs_dim: config.obs_dim,
                 laser_dim: config.laser_dim,
                 space: space_name(space),
+                laser,
                 dim: layout.dim,
+                laser_size: laser.size(),
             });
         }
         let layer_sizes = std::iter::once(config.obs_dim)
@@ -402,5 +428,18 @@ fn observe_tracks(environment: &serde_json::Value) -> Result<usize, CardMismatch
             .map(|k| k as usize)
             .filter(|&k| k <= observation::MAX_OBSERVED_TRACKS)
             .ok_or_else(|| CardMismatch::ObserveTracks(v.clone())),
+    }
+}
+
+/// The recorded environment's laser layout `observation` (`scan` when absent, as in settings
+/// recorded before layouts existed). `environment` is a table or null ([`laser_clip_m`]
+/// checks it).
+fn laser_layout(environment: &serde_json::Value) -> Result<LaserLayout, CardMismatch> {
+    match environment.get("observation") {
+        None => Ok(LaserLayout::Scan),
+        Some(v) => v
+            .as_str()
+            .and_then(|s| s.parse().ok())
+            .ok_or_else(|| CardMismatch::Observation(v.clone())),
     }
 }

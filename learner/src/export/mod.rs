@@ -178,7 +178,7 @@ mod tests {
         assert_eq!(
             (c.obs_dim, c.laser_dim, c.act_dim),
             (
-                observation::obs_dim(ActionSpace::Decremental, 0),
+                observation::obs_dim(observation::LaserLayout::Scan, ActionSpace::Decremental, 0),
                 observation::LASER_BEAMS,
                 ActionSpace::Decremental.dim()
             )
@@ -192,19 +192,23 @@ mod tests {
             ActionSpace::DecrementalWeights(planner::Gains::Dwa),
             ActionSpace::Velocity,
         ] {
-            for tracks in [0, 4] {
-                let card = observation_layout(space, observation::DEFAULT_LASER_CLIP_M, tracks);
+            for (tracks, laser) in [
+                (0, observation::LaserLayout::Scan),
+                (4, observation::LaserLayout::Scan),
+                (4, observation::LaserLayout::Sectors(15)),
+            ] {
+                let card = observation_layout(laser, space, observation::DEFAULT_LASER_CLIP_M, tracks);
                 let card_segments: Vec<(&str, usize, usize)> = card
                     .segments
                     .iter()
                     .map(|s| (s.name.as_str(), s.offset, s.size))
                     .collect();
-                let actor_segments: Vec<(&str, usize, usize)> = observation::segments(space, tracks)
+                let actor_segments: Vec<(&str, usize, usize)> = observation::segments(laser, space, tracks)
                     .iter()
                     .map(|s| (s.name, s.offset, s.size))
                     .collect();
                 assert_eq!(card_segments, actor_segments, "{space:?}");
-                assert_eq!(card.dim, observation::obs_dim(space, tracks), "{space:?}");
+                assert_eq!(card.dim, observation::obs_dim(laser, space, tracks), "{space:?}");
             }
         }
     }
@@ -505,6 +509,51 @@ mod tests {
         assert!(err.contains("observe_tracks = -1"), "{err}");
     }
 
+    /// A run with the `sectors:25` laser layout records it; its card's laser segment has 25
+    /// values documented as sector minima, and a checkpoint sized for another layout, or a
+    /// layout that is none, is refused by name.
+    #[test]
+    fn card_records_the_laser_layout() {
+        let sectors = Td3Config {
+            obs_dim: 35,
+            laser_dim: 25,
+            ..Td3Config::default()
+        };
+        let env = serde_json::json!({ "observation": "sectors:25" });
+        let card = PolicyCard::new(ActionSpace::Decremental, &manifest(sectors.clone()), &env).unwrap();
+        assert_eq!(card.observation.dim, 35);
+        let laser = &card.observation.segments[0];
+        assert_eq!((laser.name.as_str(), laser.size), ("laser", 25));
+        assert!(laser.encoding.contains("25 equal sectors"), "{}", laser.encoding);
+        assert_eq!(card.observation.segments[1].offset, 25);
+        assert_eq!(card.environment, env);
+        // The 730-input checkpoint does not fit it, nor the 35-input one the default layout.
+        let err = PolicyCard::new(ActionSpace::Decremental, &manifest(Td3Config::default()), &env)
+            .unwrap_err()
+            .to_string();
+        assert_eq!(
+            err,
+            "obs_dim = 730 with laser_dim = 720 does not fit the observation layout of the decremental \
+             action space with the sectors:25 laser layout (35 values, 25 of them laser)"
+        );
+        let err = PolicyCard::new(
+            ActionSpace::Decremental,
+            &manifest(sectors.clone()),
+            &serde_json::Value::Null,
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(err.contains("with the scan laser layout (730 values"), "{err}");
+        let bad = serde_json::json!({ "observation": "sectors:0" });
+        let err = PolicyCard::new(ActionSpace::Decremental, &manifest(sectors), &bad)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("observation = \"sectors:0\" is not a laser layout"),
+            "{err}"
+        );
+    }
+
     #[test]
     fn card_refuses_sizes_that_do_not_fit_the_space() {
         let err = PolicyCard::new(
@@ -573,7 +622,7 @@ mod tests {
     fn card_names_gains_and_the_velocity_command() {
         let card_of = |space: ActionSpace| {
             let config = Td3Config {
-                obs_dim: actor::observation::obs_dim(space, 0),
+                obs_dim: actor::observation::obs_dim(actor::LaserLayout::Scan, space, 0),
                 act_dim: space.dim(),
                 ..Td3Config::default()
             };

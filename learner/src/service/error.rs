@@ -135,21 +135,29 @@ pub enum ServiceError {
     /// The actor could not be fitted to the DDP schedule.
     #[error("DDP initialization: {0}")]
     DdpInit(#[source] crate::ddp_init::FitError),
-    /// `[td3]` sizes that do not fit the run's action space.
+    /// `[td3]` sizes that do not fit the run's action space and laser layout.
     #[error(
-        "[td3] obs_dim {obs_dim} / act_dim {act_dim} do not fit the {space} action space ({space_obs_dim} / {space_act_dim})"
+        "[td3] obs_dim {obs_dim} / act_dim {act_dim} / laser_dim {laser_dim} do not fit the {space} action \
+         space with the {laser} laser layout ({space_obs_dim} / {space_act_dim} / at most {laser_size})"
     )]
     SpaceMismatch {
         /// `[td3] obs_dim`.
         obs_dim: usize,
         /// `[td3] act_dim`.
         act_dim: usize,
+        /// `[td3] laser_dim`.
+        laser_dim: usize,
         /// The action space.
         space: String,
+        /// The laser layout (`env.observation`).
+        laser: actor::LaserLayout,
         /// Its observation size.
         space_obs_dim: usize,
         /// Its action size.
         space_act_dim: usize,
+        /// Its laser values: `laser_dim` may not exceed them (the replay stores that many
+        /// leading values as laser).
+        laser_size: usize,
     },
     /// The environment settings are not a TOML table.
     #[error("the environment settings (env_toml) are not a TOML table: {0}")]
@@ -160,6 +168,12 @@ pub enum ServiceError {
         max = actor::observation::MAX_OBSERVED_TRACKS
     )]
     ObserveTracks(toml::Value),
+    /// `env.observation` is not a laser layout.
+    #[error(
+        "env.observation = {0} must be \"scan\" or \"sectors:N\" with N in 1..={max}",
+        max = actor::observation::MAX_SECTORS
+    )]
+    Observation(toml::Value),
     /// `env.action_map` is not a string.
     #[error("env.action_map = {0} must be a string")]
     ActionMapType(toml::Value),

@@ -615,14 +615,18 @@ impl Learner {
         };
         let (state, resume_warnings, resumed_from) = run.training_state(&opts, &registry_cfg)?;
         let cfg = state.td3.config().clone();
-        let space_obs_dim = actor::obs_dim(opts.space, observe_tracks(&opts.env_toml)?);
-        if cfg.obs_dim != space_obs_dim || cfg.act_dim != opts.space.dim() {
+        let laser = laser_layout(&opts.env_toml)?;
+        let space_obs_dim = actor::obs_dim(laser, opts.space, observe_tracks(&opts.env_toml)?);
+        if cfg.obs_dim != space_obs_dim || cfg.act_dim != opts.space.dim() || cfg.laser_dim > laser.size() {
             return Err(ServiceError::SpaceMismatch {
                 obs_dim: cfg.obs_dim,
                 act_dim: cfg.act_dim,
+                laser_dim: cfg.laser_dim,
                 space: space_name(opts.space),
+                laser,
                 space_obs_dim,
                 space_act_dim: opts.space.dim(),
+                laser_size: laser.size(),
             });
         }
         let incarnation = fresh_incarnation();
@@ -860,6 +864,19 @@ fn observe_tracks(env_toml: &str) -> Result<usize, ServiceError> {
             .and_then(|k| usize::try_from(k).ok())
             .filter(|&k| k <= actor::observation::MAX_OBSERVED_TRACKS)
             .ok_or_else(|| ServiceError::ObserveTracks(v.clone())),
+    }
+}
+
+/// The laser layout of the actors' observations (`observation` in `env_toml`; `scan` when
+/// absent), which sizes the observation with the action space.
+fn laser_layout(env_toml: &str) -> Result<actor::LaserLayout, ServiceError> {
+    let table: toml::Table = toml::from_str(env_toml).map_err(ServiceError::EnvToml)?;
+    match table.get("observation") {
+        None => Ok(actor::LaserLayout::Scan),
+        Some(v) => v
+            .as_str()
+            .and_then(|s| s.parse().ok())
+            .ok_or_else(|| ServiceError::Observation(v.clone())),
     }
 }
 
