@@ -840,6 +840,34 @@ mod tests {
     use super::*;
     use actor::LaserLayout;
 
+    /// One DWA row at 1.5 m/s: one run of `world`, seed 1, the decremental space at DDP's
+    /// action, no prediction, the configured lidar; each test overrides what it tests.
+    fn dwa_plan(
+        world: usize,
+        fidelities: Vec<Fidelity>,
+        policy: Option<MlpPolicy>,
+        policy_env: EnvConfig,
+    ) -> EvalPlan {
+        let space = ActionSpace::Decremental;
+        EvalPlan {
+            planners: vec![PlannerKind::Dwa],
+            fidelities,
+            speeds: vec![1.5],
+            worlds: vec![world],
+            runs: 1,
+            trim: 0,
+            seed: 1,
+            adp: AdpSetting {
+                space,
+                action: space.ddp_action(),
+            },
+            policy,
+            policy_env,
+            predictions: vec![ObstaclePrediction::Off],
+            lidars: vec![LidarOverride::default()],
+        }
+    }
+
     fn res(status: Status, time_s: f64, score: f64) -> EpisodeResult {
         EpisodeResult {
             world: 0,
@@ -876,28 +904,19 @@ mod tests {
     #[test]
     fn a_policy_that_observes_tracks_runs_with_the_tracker() {
         let cfg = EvalConfig::load(None).unwrap();
-        let space = ActionSpace::Decremental;
         let mut flat = vec![0.0; 746 * 4];
         flat.extend([0.0f32; 4]);
         let plan = |prediction| EvalPlan {
-            planners: vec![PlannerKind::Dwa],
-            fidelities: vec![Fidelity::Adp],
-            speeds: vec![1.5],
-            worlds: vec![300],
-            runs: 1,
-            trim: 0,
-            seed: 1,
-            adp: AdpSetting {
-                space,
-                action: space.ddp_action(),
-            },
-            policy: Some(MlpPolicy::from_flat(&[746, 4], flat.clone()).unwrap()),
-            policy_env: EnvConfig {
-                observe_tracks: 4,
-                ..EnvConfig::default()
-            },
             predictions: vec![prediction],
-            lidars: vec![LidarOverride::default()],
+            ..dwa_plan(
+                300,
+                vec![Fidelity::Adp],
+                Some(MlpPolicy::from_flat(&[746, 4], flat.clone()).unwrap()),
+                EnvConfig {
+                    observe_tracks: 4,
+                    ..EnvConfig::default()
+                },
+            )
         };
         let worlds = sim::catalog::worlds();
         let err = run(&plan(ObstaclePrediction::Off), &cfg, worlds)
@@ -918,28 +937,18 @@ mod tests {
     fn policy_rows_run_the_policys_profile_and_rows_report_their_cost() {
         let cfg = EvalConfig::load(None).unwrap();
         assert_eq!(cfg.episode.profile, sim::Profile::GazeboJackal, "the default");
-        let space = ActionSpace::Decremental;
         let mut flat = vec![0.0; 730 * 4];
         flat.extend([0.0f32; 4]);
-        let plan = |profile| EvalPlan {
-            planners: vec![PlannerKind::Dwa],
-            fidelities: vec![Fidelity::Vanilla, Fidelity::Adp],
-            speeds: vec![1.5],
-            worlds: vec![0],
-            runs: 1,
-            trim: 0,
-            seed: 1,
-            adp: AdpSetting {
-                space,
-                action: space.ddp_action(),
-            },
-            policy: Some(MlpPolicy::from_flat(&[730, 4], flat.clone()).unwrap()),
-            policy_env: EnvConfig {
-                profile,
-                ..EnvConfig::default()
-            },
-            predictions: vec![ObstaclePrediction::Off],
-            lidars: vec![LidarOverride::default()],
+        let plan = |profile| {
+            dwa_plan(
+                0,
+                vec![Fidelity::Vanilla, Fidelity::Adp],
+                Some(MlpPolicy::from_flat(&[730, 4], flat.clone()).unwrap()),
+                EnvConfig {
+                    profile,
+                    ..EnvConfig::default()
+                },
+            )
         };
         let worlds = sim::barn::worlds();
         let err = run(&plan(sim::Profile::Ideal), &cfg, worlds)
@@ -1056,21 +1065,8 @@ mod tests {
             "--lidar-beams 1 --lidar-dropout 0.5: lidar.beams = 1 must be at least 2"
         );
         let plan = |lidars: Vec<LidarOverride>| EvalPlan {
-            planners: vec![PlannerKind::Dwa],
-            fidelities: vec![Fidelity::Ddp],
-            speeds: vec![1.5],
-            worlds: vec![1],
-            runs: 1,
-            trim: 0,
-            seed: 1,
-            adp: AdpSetting {
-                space: ActionSpace::Decremental,
-                action: ActionSpace::Decremental.ddp_action(),
-            },
-            policy: None,
-            policy_env: EnvConfig::default(),
-            predictions: vec![ObstaclePrediction::Off],
             lidars,
+            ..dwa_plan(1, vec![Fidelity::Ddp], None, EnvConfig::default())
         };
         let worlds = sim::barn::worlds();
         let rows = run(
@@ -1103,31 +1099,22 @@ mod tests {
     #[test]
     fn a_policy_runs_under_every_sensing_condition() {
         let cfg = EvalConfig::load(None).unwrap();
-        let space = ActionSpace::Decremental;
         let net = |inputs: usize| {
             let mut flat = vec![0.0; inputs * 4];
             flat.extend([0.2f32, -0.3, 0.1, -0.6]);
             MlpPolicy::from_flat(&[inputs, 4], flat).unwrap()
         };
         let plan = |net: MlpPolicy, observation, lidars| EvalPlan {
-            planners: vec![PlannerKind::Dwa],
-            fidelities: vec![Fidelity::Adp],
-            speeds: vec![1.5],
-            worlds: vec![1],
-            runs: 1,
-            trim: 0,
-            seed: 1,
-            adp: AdpSetting {
-                space,
-                action: space.ddp_action(),
-            },
-            policy: Some(net),
-            policy_env: EnvConfig {
-                observation,
-                ..EnvConfig::default()
-            },
-            predictions: vec![ObstaclePrediction::Off],
             lidars,
+            ..dwa_plan(
+                1,
+                vec![Fidelity::Adp],
+                Some(net),
+                EnvConfig {
+                    observation,
+                    ..EnvConfig::default()
+                },
+            )
         };
         let worlds = sim::barn::worlds();
         let conditions = [
