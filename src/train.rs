@@ -138,9 +138,30 @@ impl TrainConfig {
     }
 
     /// Parses and checks the TOML `text`; errors are one line and start with `name`.
+    ///
+    /// `[td3] obs_dim`, `act_dim` and `laser_dim` that the text leaves out are derived from
+    /// `[run] action_space` and `[env] observation` / `observe_tracks`; values it gives are
+    /// kept (and the learner refuses them if they do not fit, naming both sizes).
     pub fn parse(name: &str, text: &str) -> anyhow::Result<Self> {
-        let cfg: Self =
+        let mut cfg: Self =
             toml::from_str(text).map_err(|e| anyhow::anyhow!("{name}: {}", one_line(&e.to_string())))?;
+        let raw: toml::Table =
+            toml::from_str(text).map_err(|e| anyhow::anyhow!("{name}: {}", one_line(&e.to_string())))?;
+        let given = |key: &str| {
+            raw.get("td3")
+                .and_then(toml::Value::as_table)
+                .is_some_and(|t| t.contains_key(key))
+        };
+        if !given("obs_dim") {
+            cfg.td3.obs_dim =
+                actor::obs_dim(cfg.env.observation, cfg.run.action_space, cfg.env.observe_tracks);
+        }
+        if !given("act_dim") {
+            cfg.td3.act_dim = cfg.run.action_space.dim();
+        }
+        if !given("laser_dim") {
+            cfg.td3.laser_dim = cfg.env.observation.size();
+        }
         cfg.td3.validate().with_context(|| format!("{name}: [td3]"))?;
         cfg.env
             .validate()
@@ -543,5 +564,27 @@ mod tests {
         assert!(e.contains("needs the planner: write `weights:dwa`"), "{e}");
         let e = parse("log-mppi", "weights:log-mppi").unwrap_err().to_string();
         assert!(e.contains("`log-mppi` has no objective gains"), "{e}");
+    }
+
+    /// The network sizes follow the action space and the observation layout unless the file
+    /// gives them; a given size that does not fit is kept for the learner to refuse.
+    #[test]
+    fn td3_sizes_follow_the_space_and_the_layout_unless_given() {
+        let dims = |text: &str| {
+            let c = TrainConfig::parse("t.toml", text).unwrap();
+            (c.td3.obs_dim, c.td3.act_dim, c.td3.laser_dim)
+        };
+        // 720 laser values + the previous action + v, w and two goal pairs.
+        assert_eq!(dims(""), (730, 4, 720));
+        assert_eq!(dims("[run]\naction_space = \"velocity\"\n"), (728, 2, 720));
+        assert_eq!(dims("[env]\nobservation = \"sectors:25\"\n"), (35, 4, 25));
+        // Four tracks of four floats each.
+        assert_eq!(dims("[env]\nobserve_tracks = 4\n"), (746, 4, 720));
+        // DWA's four gains after the four schedule values.
+        assert_eq!(
+            dims("[run]\nplanner = \"dwa\"\naction_space = \"decremental+weights:dwa\"\n"),
+            (734, 8, 720)
+        );
+        assert_eq!(dims("[td3]\nobs_dim = 731\n"), (731, 4, 720));
     }
 }
