@@ -439,6 +439,20 @@ impl Experiment {
         if planners.is_empty() || spaces.is_empty() || ex.speeds.is_empty() || ex.train_worlds.is_empty() {
             bail!("{name}: [experiment] planners, action_spaces, speeds and train_worlds must not be empty");
         }
+        // A space that sets a planner's objective gains pairs only with that planner.
+        for s in &spaces {
+            if let Some(g) = s.gains() {
+                if !planners.iter().any(|p| p.name() == g.planner()) {
+                    return Err(err(
+                        "action_spaces",
+                        format!(
+                            "`{s}` sets the gains of {}, which is not in planners",
+                            g.planner()
+                        ),
+                    ));
+                }
+            }
+        }
         for &v in &ex.speeds {
             if !(v.is_finite() && v > 0.0 && v <= 2.0) {
                 return Err(err("speeds", format!("{v} must be in (0, 2] m/s")));
@@ -552,10 +566,10 @@ impl Experiment {
             .iter()
             .filter(|p| restrict.planners.is_empty() || restrict.planners.contains(p))
         {
-            for &space in spaces
-                .iter()
-                .filter(|s| restrict.spaces.is_empty() || restrict.spaces.contains(s))
-            {
+            for &space in spaces.iter().filter(|s| {
+                (restrict.spaces.is_empty() || restrict.spaces.contains(s))
+                    && s.gains().is_none_or(|g| g.planner() == planner.name())
+            }) {
                 for &speed in ex.speeds.iter().filter(|v| {
                     restrict.speeds.is_empty() || restrict.speeds.iter().any(|x| (x - *v).abs() < 1e-9)
                 }) {
@@ -781,5 +795,32 @@ mod tests {
         };
         let ex = Experiment::parse("x.toml", MINIMAL, &r).unwrap();
         assert_eq!((ex.seeds, ex.train.run.steps), (1, 50));
+    }
+
+    /// A space that sets a planner's gains makes arms with that planner only, and a space
+    /// whose planner is not in the experiment is refused by name.
+    #[test]
+    fn weight_spaces_pair_with_their_planner() {
+        let text = "[experiment]\nname = \"t\"\nplanners = [\"dwa\", \"system\"]\nspeeds = [1.5]\n\
+                    action_spaces = [\"decremental\", \"weights:dwa\", \"decremental+weights:system\"]\n";
+        let ex = parse(text).unwrap();
+        let arms: Vec<(PlannerKind, String)> =
+            ex.arms.iter().map(|a| (a.planner, a.space.to_string())).collect();
+        assert_eq!(
+            arms,
+            [
+                (PlannerKind::Dwa, "decremental".to_string()),
+                (PlannerKind::Dwa, "weights:dwa".to_string()),
+                (PlannerKind::System, "decremental".to_string()),
+                (PlannerKind::System, "decremental+weights:system".to_string()),
+            ]
+        );
+        let e = parse(&text.replace("weights:dwa", "weights:mppi"))
+            .unwrap_err()
+            .to_string();
+        assert_eq!(
+            e,
+            "x.toml: [experiment] action_spaces: `weights:mppi` sets the gains of mppi, which is not in planners"
+        );
     }
 }

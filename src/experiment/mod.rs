@@ -489,8 +489,8 @@ fn run_stage(ctx: &Ctx<'_>, stage: &Stage, out: &Path) -> anyhow::Result<()> {
                         trace: false,
                         track: ctx.ex.train.env.observe_tracks > 0,
                     };
-                    let schedule = a.space.schedule_only(&found[i].action, points)?;
-                    let ev = evaluate(&spec, &Controller::Schedule(schedule))?;
+                    let ctrl = Controller::constant(a.space, &found[i].action, points, ctx.ex.train.env)?;
+                    let ev = evaluate(&spec, &ctrl)?;
                     let c = &mut found[i];
                     for r in ev.per_world.iter().flat_map(|w| w.runs.iter()) {
                         sums[i].0 += r.score;
@@ -553,7 +553,7 @@ fn run_stage(ctx: &Ctx<'_>, stage: &Stage, out: &Path) -> anyhow::Result<()> {
                 ),
                 SweepWho::Constant => {
                     let action = best_action(ctx, arm)?;
-                    let ctrl = Controller::Schedule(a.space.schedule_only(&action, points)?);
+                    let ctrl = Controller::constant(a.space, &action, points, ctx.ex.train.env)?;
                     ("constant", evaluate(&spec, &ctrl)?, Some(action), None)
                 }
                 SweepWho::Adp { seed } => {
@@ -583,7 +583,7 @@ fn run_stage(ctx: &Ctx<'_>, stage: &Stage, out: &Path) -> anyhow::Result<()> {
             let action = best_action(ctx, arm)?;
             let ev = evaluate(
                 &test_spec(ctx, a, false),
-                &Controller::Schedule(a.space.schedule_only(&action, points)?),
+                &Controller::constant(a.space, &action, points, ctx.ex.train.env)?,
             )?;
             let mut rec = record(ctx, a, "constant", ev);
             rec.action = Some(action);

@@ -37,6 +37,18 @@ pub fn chosen_params(space: ActionSpace, env: &EnvConfig, u: &[f32]) -> anyhow::
 pub enum Controller<'a> {
     /// One schedule for the whole run.
     Schedule(Schedule),
+    /// One action of a space that sets more than the schedule (objective gains, or the
+    /// velocity space's command), applied at every agent step through the ADP environment
+    /// with the affine map (so the action is the box action itself). Built by
+    /// [`Controller::constant`].
+    Constant {
+        /// The box action.
+        action: Vec<f32>,
+        /// Its action space.
+        space: ActionSpace,
+        /// The environment settings the arm trains with.
+        env: EnvConfig,
+    },
     /// A network run greedily on each step's observation.
     Policy {
         /// The network.
@@ -63,6 +75,31 @@ pub enum Controller<'a> {
 }
 
 impl<'a> Controller<'a> {
+    /// The constant `action` of `space`: its schedule when the space only sets schedules
+    /// (`points` boundary points, as every schedule of the experiment); otherwise the action
+    /// itself, applied each agent step in an environment of `env` (gains and commands are
+    /// set per agent step, which a schedule cannot carry).
+    pub fn constant(
+        space: ActionSpace,
+        action: &[f64],
+        points: usize,
+        env: EnvConfig,
+    ) -> anyhow::Result<Self> {
+        if space.gains().is_none() && space != ActionSpace::Velocity {
+            return Ok(Controller::Schedule(space.schedule_only(action, points)?));
+        }
+        // Refuses a wrong length or a non-finite value before any run starts.
+        space.to_params(action)?;
+        Ok(Controller::Constant {
+            action: action.iter().map(|&x| x as f32).collect(),
+            space,
+            env: EnvConfig {
+                action_map: planner::ActionMap::Affine,
+                ..env
+            },
+        })
+    }
+
     /// A trained (or untrained) policy run greedily on each step's own observation.
     pub fn of(p: &'a crate::policy::LearnedPolicy) -> Self {
         Controller::Policy {
@@ -239,6 +276,25 @@ fn run_one(
             );
             return Ok((res, tally, Vec::new(), Vec::new()));
         }
+        Controller::Constant { action, space, env } => {
+            let eval_env = EnvConfig {
+                compute: spec.cfg.compute,
+                ..env.for_evaluation()
+            };
+            let mut e = AdpEnv::new(
+                world,
+                spec.cfg.episode,
+                planner,
+                *space,
+                spec.speed,
+                eval_env,
+                seed,
+            )?;
+            while e.end() == End::Continue {
+                e.step(action)?;
+            }
+            return Ok((e.result().episode, *e.compute(), Vec::new(), Vec::new()));
+        }
         Controller::Policy { net, env, space } => (*net, *env, *space, None),
         Controller::Shuffled {
             net,
@@ -379,5 +435,43 @@ mod tests {
         assert!(b.iter().all(|&x| (x - want).abs() < 1e-4), "{b:?}");
         assert!(a.iter().all(|&x| (x - want).abs() > 0.05), "{a:?}");
         assert_eq!(real.per_world[0].runs.len(), 1);
+    }
+
+    /// A constant action of an objective-weight space runs through the environment: at the
+    /// gains' centre it is DDP's run exactly; a heavier obstacle gain drives another run.
+    #[test]
+    fn constant_weight_actions_run_and_the_centre_is_ddp() {
+        let cfg = EvalConfig::load(None).unwrap();
+        let spec = RunSpec {
+            cfg: &cfg,
+            worlds: sim::catalog::worlds(),
+            planner: PlannerKind::Dwa,
+            speed: 1.5,
+            world_ids: &[3, 120],
+            runs: 1,
+            pairs: &[],
+            seed: 9,
+            trace: false,
+            track: false,
+        };
+        let space = ActionSpace::Weights(planner::Gains::Dwa);
+        let env = EnvConfig::default();
+        let ddp = evaluate(&spec, &Controller::Schedule(Schedule::ddp_default())).unwrap();
+        let centre = Controller::constant(space, &space.ddp_action(), 20, env).unwrap();
+        assert!(matches!(centre, Controller::Constant { .. }));
+        let same = evaluate(&spec, &centre).unwrap();
+        assert_eq!(same.per_world, ddp.per_world);
+        // The obstacle gain (the third of DWA's goal, path, obstacle, speed) at its top, 2.
+        let mut heavy = space.ddp_action();
+        heavy[2] = 1.0;
+        let other = evaluate(&spec, &Controller::constant(space, &heavy, 20, env).unwrap()).unwrap();
+        assert_ne!(other.per_world, ddp.per_world);
+        // A schedule-only space still evaluates its schedule directly; a bad action is refused.
+        let d = ActionSpace::Decremental;
+        assert!(matches!(
+            Controller::constant(d, &d.ddp_action(), 20, env).unwrap(),
+            Controller::Schedule(_)
+        ));
+        assert!(Controller::constant(space, &[0.0; 3], 20, env).is_err());
     }
 }
