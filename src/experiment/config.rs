@@ -693,6 +693,32 @@ mod tests {
         assert_eq!(ex.train_config(&ex.arms[0], 0).td3.obs_dim, 746);
     }
 
+    /// The RL-DWA experiment has one DWA arm per action space, and sizes each arm's networks
+    /// from its space.
+    #[test]
+    fn the_rl_dwa_experiment_parses() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/experiments/rl-dwa.toml");
+        let ex = Experiment::load(&path, &Restrict::default()).unwrap();
+        let ids: Vec<String> = ex.arms.iter().map(|a| a.id()).collect();
+        assert_eq!(
+            ids,
+            [
+                "dwa-decremental-1.5-fit",
+                "dwa-weights:dwa-1.5-fit",
+                "dwa-decremental+weights:dwa-1.5-fit",
+                "dwa-velocity-1.5-fit"
+            ]
+        );
+        let dims: Vec<(usize, usize)> = (0..4)
+            .map(|k| {
+                let c = ex.train_config(&ex.arms[k], 0);
+                (c.td3.obs_dim, c.td3.act_dim)
+            })
+            .collect();
+        assert_eq!(dims, [(730, 4), (730, 4), (734, 8), (728, 2)]);
+        assert_eq!(ex.test_worlds.len(), 225);
+    }
+
     #[test]
     fn minimal_file_takes_the_defaults() {
         let ex = parse(MINIMAL).unwrap();

@@ -333,7 +333,8 @@ pub fn render(ex: &Experiment, data: &[ArmData], figures: &[(String, String)], n
         "Controls: **DDP** (p = 1.7, T = 2 s, N = 20); the **best constant** action of a successive-halving \
          search of {} candidates (finalists: {} run(s) of each of {} training worlds, `{}`), ranked by \
          mean score; the \
-         **untrained** DDP-initialized policy (the learner at step 0); the **state-shuffled** \
+         **untrained** DDP-initialized policy (the learner at step 0; in the velocity space, which \
+         has no DDP, its seeded random initialization); the **state-shuffled** \
          trained policy, whose every action is computed from an observation drawn from a seeded \
          reservoir of {} observations of its own runs on training worlds. ADP cells are mean ± sd \
          over seeds.\n",
