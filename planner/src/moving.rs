@@ -14,6 +14,7 @@
 
 use serde::{Deserialize, Serialize};
 use sim::geometry::{Footprint, Pose, Vec2};
+use sim::predictive_cost::MovingObstacle;
 use sim::Episode;
 
 use crate::tracker::{Track, Tracker, TrackerConfig};
@@ -140,7 +141,7 @@ fn segment_meets_box(a: Vec2, b: Vec2, hl: f64, hw: f64) -> bool {
 }
 
 /// Distance from `q` to the segment `a`-`b`.
-fn point_segment_distance(q: Vec2, a: Vec2, b: Vec2) -> f64 {
+pub(crate) fn point_segment_distance(q: Vec2, a: Vec2, b: Vec2) -> f64 {
     let ab = b - a;
     let len2 = ab.dot(ab);
     let f = if len2 > 0.0 {
@@ -180,6 +181,8 @@ pub struct Tracking {
     tracker: Tracker,
     min_speed: f64,
     moving: Vec<Predicted>,
+    /// The same obstacles in the believed frame of the robot's map.
+    in_map: Vec<MovingObstacle>,
 }
 
 impl Tracking {
@@ -189,6 +192,7 @@ impl Tracking {
             tracker: Tracker::new(cfg.tracker),
             min_speed: cfg.min_speed,
             moving: Vec::new(),
+            in_map: Vec::new(),
         }
     }
 
@@ -199,12 +203,24 @@ impl Tracking {
         let believed = ep.believed_pose();
         self.tracker.update(now, &believed, ep.perception().points);
         self.moving.clear();
+        self.in_map.clear();
         for tr in self.tracker.confirmed() {
             if tr.velocity.norm() >= self.min_speed {
                 self.moving.push(Predicted::from_track(tr, &believed, now));
+                self.in_map.push(MovingObstacle {
+                    position: tr.predict(now - tr.time),
+                    velocity: tr.velocity,
+                });
             }
         }
         &self.moving
+    }
+
+    /// The moving obstacles of the last [`Tracking::update`] (the same as
+    /// [`Tracking::moving`], in the same order) in the believed frame of the robot's map, at
+    /// the time of that update.
+    pub fn moving_in_map(&self) -> &[MovingObstacle] {
+        &self.in_map
     }
 
     /// The moving obstacles of the last [`Tracking::update`], in the robot frame of that

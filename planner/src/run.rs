@@ -6,6 +6,7 @@ use sim::World;
 
 use crate::compute::{periods, Budget, Compute, ComputeTally, CycleWork};
 use crate::moving::{Tracking, TrackingConfig};
+use crate::padp::{Padp, PadpConfig, PadpParts};
 use crate::{PlanInput, Planner, Prediction, Schedule};
 
 /// The planning loop of one episode: every control period either runs a planning cycle or,
@@ -19,7 +20,9 @@ use crate::{PlanInput, Planner, Prediction, Schedule};
 ///
 /// With [`CycleDriver::with_tracking`], every planning cycle first runs the obstacle tracker
 /// on the episode's scan and hands the planner the moving obstacles it predicts
-/// ([`crate::moving`]); without it the planner is told of none. One per episode.
+/// ([`crate::moving`]); without it the planner is told of none. With
+/// [`CycleDriver::with_padp`] PADP then runs on the tracks before the planner
+/// ([`crate::padp`]). One per episode.
 #[derive(Clone, Debug)]
 pub struct CycleDriver {
     compute: Option<Compute>,
@@ -28,6 +31,7 @@ pub struct CycleDriver {
     holding: u32,
     tally: ComputeTally,
     tracking: Option<Tracking>,
+    padp: Option<Padp>,
 }
 
 impl CycleDriver {
@@ -39,6 +43,7 @@ impl CycleDriver {
             holding: 0,
             tally: ComputeTally::default(),
             tracking: None,
+            padp: None,
         }
     }
 
@@ -46,6 +51,19 @@ impl CycleDriver {
     pub fn with_tracking(mut self, cfg: TrackingConfig) -> Self {
         self.tracking = Some(Tracking::new(cfg));
         self
+    }
+
+    /// The same driver running the `parts` of PADP with `cfg` (validated by the caller:
+    /// [`PadpConfig::validate`]) on the tracker's forecast: it runs only with tracking
+    /// ([`CycleDriver::with_tracking`]).
+    pub fn with_padp(mut self, cfg: PadpConfig, parts: PadpParts) -> Self {
+        self.padp = Some(Padp::new(cfg, parts));
+        self
+    }
+
+    /// PADP, when on.
+    pub fn padp(&self) -> Option<&Padp> {
+        self.padp.as_ref()
     }
 
     /// The obstacle tracking, when on.
@@ -75,8 +93,17 @@ impl CycleDriver {
             self.holding -= 1;
             return ep.hold();
         }
-        let moving = match &mut self.tracking {
-            Some(t) => t.update(ep),
+        if let Some(t) = &mut self.tracking {
+            t.update(ep);
+        }
+        if let (Some(p), Some(t)) = (&mut self.padp, &self.tracking) {
+            p.cycle(ep, t, planner);
+            if p.parts().adapt {
+                self.tally.pressure_cycles[p.mode().index()] += 1;
+            }
+        }
+        let moving = match &self.tracking {
+            Some(t) => t.moving(),
             None => &[],
         };
         let cmd = planner.plan(&PlanInput {
