@@ -20,8 +20,8 @@ use serde::{Deserialize, Serialize};
 use actor::{AdpEnv, End, EnvConfig, MlpPolicy, Scratch};
 use planner::{
     run::{drive_episode, CycleDriver},
-    ActionSpace, ComputeConfig, ComputeModel, ComputeTally, Dwa, LogMppi, Mppi, NavSystem, PlanInput,
-    Planner, Schedule, Trace, TrackingConfig,
+    ActionSpace, ComputeConfig, ComputeModel, ComputeTally, Dwa, LogMppi, Mppi, NavSystem, PadpParts,
+    PlanInput, Planner, Schedule, Trace, TrackingConfig,
 };
 use sim::lidar::LidarConfig;
 use sim::robot::Twist;
@@ -43,6 +43,31 @@ pub enum ObstaclePrediction {
     /// track) forecasts each moving obstacle; every rollout point is checked against the
     /// forecast at its time (`planner::moving`).
     Kf,
+    /// kf, and the global path search weighs PADP's predictive cost field of the forecast
+    /// (Eqs. 4-6; `[prediction] predictive_cost_weight`, `[prediction.field]`).
+    PadpPath,
+    /// padp-path, and PADP's complexity score switches the planner's weights and the
+    /// replanning interval between three modes (Eqs. 7-8; `[prediction.complexity]`,
+    /// `[prediction.modes]`).
+    Padp,
+}
+
+impl ObstaclePrediction {
+    /// The parts of PADP the row runs.
+    pub fn padp(self) -> PadpParts {
+        PadpParts {
+            path: matches!(self, ObstaclePrediction::PadpPath | ObstaclePrediction::Padp),
+            adapt: self == ObstaclePrediction::Padp,
+        }
+    }
+
+    /// The suffix of the row's fidelity label: none, `+kf`, `+padp-path`, `+padp`.
+    pub fn label_suffix(self) -> String {
+        match self {
+            ObstaclePrediction::Off => String::new(),
+            p => format!("+{}", kebab(&p)),
+        }
+    }
 }
 
 /// A fidelity strategy selectable on the command line.
@@ -305,6 +330,10 @@ pub struct Row {
     /// Planning cycles whose modelled compute ran past the control period, so that the next
     /// cycle started late and the robot kept its command meanwhile (%).
     pub late_cycles_pct: f64,
+    /// Planning cycles in PADP's pressure modes A, B, C (%; rows of `--prediction padp`
+    /// only).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub pressure_modes_pct: Option<[f64; 3]>,
     /// Every run of every world, untrimmed.
     pub per_world: Vec<WorldRuns>,
 }
@@ -505,6 +534,13 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
     // policy observes tracks; the rows it makes must say so.
     if plan.fidelities.contains(&Fidelity::Adp) && plan.policy.is_some() {
         let tracks = plan.policy_env.observe_tracks;
+        if plan.predictions.iter().any(|p| p.padp() != PadpParts::default()) {
+            bail!(
+                "--prediction padp-path and padp run with the planning loop of --fidelity vanilla, \
+                 ddp or a constant adp action, not with a learned policy (its environment runs \
+                 the tracker alone): use --prediction kf"
+            );
+        }
         if tracks == 0 && plan.predictions.contains(&ObstaclePrediction::Kf) {
             bail!(
                 "--prediction kf with --fidelity adp needs a policy that observes tracks ([env] \
@@ -610,6 +646,9 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
                     let driver = match pr {
                         ObstaclePrediction::Off => driver,
                         ObstaclePrediction::Kf => driver.with_tracking(TrackingConfig::default()),
+                        ObstaclePrediction::PadpPath | ObstaclePrediction::Padp => driver
+                            .with_tracking(TrackingConfig::default())
+                            .with_padp(cfg.prediction, pr.padp()),
                     };
                     drive_episode(
                         &worlds[w],
@@ -672,10 +711,9 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
         rows.push(Row {
             planner: p,
             fidelity: f,
-            fidelity_label: match (f, pr) {
-                (Fidelity::Adp, _) => format!("adp-{}", kebab(&plan.adp.space)),
-                (_, ObstaclePrediction::Off) => kebab(&f),
-                (_, ObstaclePrediction::Kf) => format!("{}+kf", kebab(&f)),
+            fidelity_label: match f {
+                Fidelity::Adp => format!("adp-{}", kebab(&plan.adp.space)),
+                _ => format!("{}{}", kebab(&f), pr.label_suffix()),
             },
             prediction: pr,
             max_speed: s,
@@ -694,6 +732,10 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
             samples_evaluated_pct: 100.0 * tally.evaluated_share(),
             truncated_cycles_pct: 100.0 * tally.truncated_cycles as f64 / cycles,
             late_cycles_pct: 100.0 * tally.late_cycles as f64 / cycles,
+            pressure_modes_pct: pr
+                .padp()
+                .adapt
+                .then(|| tally.pressure_cycles.map(|n| 100.0 * n as f64 / cycles)),
             per_world,
         });
     }
@@ -746,10 +788,7 @@ pub fn table(rows: &[Row]) -> String {
                 .expect("enum")
                 .as_str()
                 .unwrap_or("?"),
-            match r.prediction {
-                ObstaclePrediction::Off => kebab(&r.fidelity),
-                ObstaclePrediction::Kf => format!("{}+kf", kebab(&r.fidelity)),
-            },
+            kebab(&r.fidelity) + &r.prediction.label_suffix(),
             r.max_speed,
             r.success_pct,
             r.avg_time_s,
