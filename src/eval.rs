@@ -1135,6 +1135,82 @@ mod tests {
         assert!(!table(&rows).contains("lidar"));
     }
 
+    /// PADP's rows run the tracker and their parts of PADP on a DynaBARN world: labelled by
+    /// their prediction, only the adaptive one reports its mode shares; a learned policy
+    /// cannot run them, and a bad `[prediction]` setting is named.
+    #[test]
+    fn padp_rows_run_their_parts_and_report_their_modes() {
+        let cfg = EvalConfig::load(None).unwrap();
+        let plan = EvalPlan {
+            planners: vec![PlannerKind::Dwa],
+            fidelities: vec![Fidelity::Ddp],
+            speeds: vec![1.5],
+            worlds: vec![330],
+            runs: 1,
+            trim: 0,
+            seed: 1,
+            adp: AdpSetting {
+                space: ActionSpace::Decremental,
+                action: ActionSpace::Decremental.ddp_action(),
+            },
+            policy: None,
+            policy_env: EnvConfig::default(),
+            predictions: vec![
+                ObstaclePrediction::Kf,
+                ObstaclePrediction::PadpPath,
+                ObstaclePrediction::Padp,
+            ],
+            lidars: vec![LidarOverride::default()],
+        };
+        let rows = run(&plan, &cfg, sim::catalog::worlds()).unwrap();
+        let labels: Vec<&str> = rows.iter().map(|r| r.fidelity_label.as_str()).collect();
+        assert_eq!(labels, ["ddp+kf", "ddp+padp-path", "ddp+padp"]);
+        assert!(rows[..2].iter().all(|r| r.pressure_modes_pct.is_none()));
+        let shares = rows[2].pressure_modes_pct.expect("padp reports its modes");
+        assert!((shares.iter().sum::<f64>() - 100.0).abs() < 1e-9, "{shares:?}");
+        assert!(
+            table(&rows).contains("| dwa | ddp+padp-path |"),
+            "{}",
+            table(&rows)
+        );
+        let json = serde_json::to_value(&rows[1]).unwrap();
+        assert_eq!(json["prediction"], "padp-path");
+        assert!(json.get("pressure_modes_pct").is_none());
+        // A learned policy runs the tracker alone.
+        let space = ActionSpace::Decremental;
+        let mut flat = vec![0.0; 746 * 4];
+        flat.extend([0.0f32; 4]);
+        let with_policy = EvalPlan {
+            fidelities: vec![Fidelity::Adp],
+            policy: Some(MlpPolicy::from_flat(&[746, 4], flat).unwrap()),
+            policy_env: EnvConfig {
+                observe_tracks: 4,
+                ..EnvConfig::default()
+            },
+            adp: AdpSetting {
+                space,
+                action: space.ddp_action(),
+            },
+            predictions: vec![ObstaclePrediction::Padp],
+            ..plan.clone()
+        };
+        let err = run(&with_policy, &cfg, sim::catalog::worlds())
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("--prediction padp-path and padp") && err.contains("use --prediction kf"),
+            "{err}"
+        );
+        // A bad setting of the table is refused with its table and key.
+        let dir = std::env::temp_dir().join(format!("adp-padp-config-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = dir.join("eval.toml");
+        std::fs::write(&file, "[prediction.complexity]\nlow = 0.7\n").unwrap();
+        let err = EvalConfig::load(Some(&file)).unwrap_err().to_string();
+        assert!(err.contains("[prediction.complexity] low: low 0.7"), "{err}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
     /// A trained policy evaluates under any lidar: its observation is built in its own
     /// layout from whatever the sensor gives. A `scan` policy and a `sectors:25` policy each run
     /// on 720-, 360- and 90-beam lidars, noisy and dropping beams; a policy whose input does not
