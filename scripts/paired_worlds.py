@@ -2,12 +2,15 @@
 """Paired comparison of two rows of an `adp eval --out` JSON over worlds.
 
     python3 scripts/paired_worlds.py eval.json ddp:ddp+kf ddp+kf:ddp+padp-path [--planner dwa]
+        [--worlds 320..340]
 
-Each `A:B` names two rows by their fidelity label (the table's fidelity column). For every
-planner that has both rows (or only `--planner`), each world's value is the mean over its
-runs (success as 0/1, in percent; the BARN score), and the difference B - A is averaged over
-the worlds the two rows share. Rows of one evaluation run the same seeds per world and run,
-so the worlds are paired. Prints, per planner and pair: the worlds, both means, the mean
+Each `A:B` names two rows by their fidelity label (the table's fidelity column); a label
+may name another file's row as `label@other.json` (an evaluation of another build with the
+same seed, worlds and runs). For every planner that has both rows (or only `--planner`),
+each world's value is the mean over its runs (success as 0/1, in percent; the BARN score),
+and the difference B - A is averaged over the worlds the two rows share (or those of
+`--worlds`, a range `a..b` of ids). Rows of evaluations with the same seed run the same
+seeds per world and run, so the worlds are paired. Prints, per planner and pair: the worlds, both means, the mean
 difference with a 95 % Student t interval over worlds and a 95 % percentile bootstrap
 interval (10,000 resamples of the worlds, seeded: the output repeats), and the worlds where
 B did better and worse.
@@ -88,29 +91,46 @@ def main():
     ap.add_argument("json")
     ap.add_argument("pairs", nargs="+", help="A:B fidelity labels, e.g. ddp:ddp+kf")
     ap.add_argument("--planner", help="only this planner (default: every planner with both rows)")
+    ap.add_argument("--worlds", help="only the worlds of this range a..b (b excluded)")
     args = ap.parse_args()
-    rows = json.load(open(args.json))
-    if isinstance(rows, dict):
-        rows = rows["rows"]
+    keep = None
+    if args.worlds:
+        lo, hi = (int(x) for x in args.worlds.split(".."))
+        keep = set(range(lo, hi))
+    files = {}
+
+    def rows_of(path):
+        if path not in files:
+            rows = json.load(open(path))
+            files[path] = rows["rows"] if isinstance(rows, dict) else rows
+        return files[path]
+
+    def find(planner, spec):
+        label, _, path = spec.partition("@")
+        return [r for r in rows_of(path or args.json) if r["planner"] == planner and r["fidelity_label"] == label]
+
+    def values(row, metric):
+        v = per_world(row, metric)
+        return {w: x for w, x in v.items() if keep is None or w in keep}
+
     print("| planner | A | B | metric | worlds | A | B | B - A | 95 % t interval | 95 % bootstrap | B better / worse |")
     print("|---|---|---|---|---|---|---|---|---|---|---|")
     for spec in args.pairs:
         if spec.count(":") != 1:
             raise SystemExit(f"pair `{spec}`: expected A:B, two fidelity labels")
         la, lb = spec.split(":")
-        planners = sorted({r["planner"] for r in rows})
+        planners = sorted({r["planner"] for r in rows_of(args.json)})
         for planner in planners:
             if args.planner and planner != args.planner:
                 continue
-            ra = [r for r in rows if r["planner"] == planner and r["fidelity_label"] == la]
-            rb = [r for r in rows if r["planner"] == planner and r["fidelity_label"] == lb]
+            ra, rb = find(planner, la), find(planner, lb)
             if not ra or not rb:
                 continue
             if len(ra) > 1 or len(rb) > 1:
                 raise SystemExit(f"{planner}: more than one row labelled {la} or {lb} (speeds or lidars?)")
             for metric in ("success", "score"):
                 rng = random.Random(0)
-                p = paired(per_world(ra[0], metric), per_world(rb[0], metric), rng)
+                p = paired(values(ra[0], metric), values(rb[0], metric), rng)
                 f = "{:.1f}" if metric == "success" else "{:.3f}"
                 iv = lambda x: "[" + ", ".join(f.format(v) for v in x) + "]"
                 print(

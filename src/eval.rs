@@ -18,10 +18,11 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use actor::{AdpEnv, End, EnvConfig, MlpPolicy, Scratch};
+use planner::moving::FORECAST_HORIZONS;
 use planner::{
-    run::{drive_episode, CycleDriver},
-    ActionSpace, ComputeConfig, ComputeModel, ComputeTally, Dwa, LogMppi, Mppi, NavSystem, PadpParts,
-    PlanInput, Planner, Schedule, Trace, TrackingConfig,
+    run::{drive_episode_with, CycleDriver},
+    ActionSpace, ComputeConfig, ComputeModel, ComputeTally, Dwa, ForecastErrors, LogMppi, Mppi, NavSystem,
+    PadpParts, PlanInput, Planner, Schedule, Trace, TrackingConfig,
 };
 use sim::lidar::LidarConfig;
 use sim::robot::Twist;
@@ -334,9 +335,38 @@ pub struct Row {
     /// only).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub pressure_modes_pct: Option<[f64; 3]>,
+    /// The tracker's forecast against the truth over the row's runs (rows that run the
+    /// tracker with the plain planning loop: kf, padp-path, padp).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub forecast: Option<ForecastRmse>,
     /// Every run of every world, untrimmed.
     pub per_world: Vec<WorldRuns>,
 }
+
+/// The tracker's forecast error against the truth ([`planner::ForecastErrors`]).
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct ForecastRmse {
+    /// Forecast horizons (s; 0: the estimate now).
+    pub horizons_s: [f64; 5],
+    /// Root mean square error per horizon (m; null where nothing was compared).
+    pub rmse_m: [Option<f64>; 5],
+    /// The same for a forecast that each obstacle stands still where it is estimated (m).
+    pub still_rmse_m: [Option<f64>; 5],
+    /// Forecasts compared per horizon.
+    pub forecasts: [u64; 5],
+}
+
+/// One run's outcome: its row, world and run index, result, what its planning cycles did and
+/// cost, the wall time they took, and the tracker's forecast errors (rows with a tracker).
+type RunOut = (
+    usize,
+    usize,
+    usize,
+    EpisodeResult,
+    ComputeTally,
+    Arc<PlanCost>,
+    Option<ForecastErrors>,
+);
 
 /// Mean work per planning cycle, by unit ([`planner::Work`]).
 #[derive(Clone, Copy, Debug, Default, Serialize)]
@@ -614,7 +644,7 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
         .expect("static template"),
     );
     let t0 = Instant::now();
-    let results: Vec<(usize, usize, usize, EpisodeResult, ComputeTally, Arc<PlanCost>)> = jobs
+    let results: Vec<RunOut> = jobs
         .par_iter()
         .map_init(PolicyBuffers::default, |buf, &(ri, p, f, s, pr, li, w, r)| {
             let seed = run_seed(plan.seed, w, r);
@@ -627,7 +657,7 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
                 inner: p.build(cfg, seed ^ 0x5eed_91a2),
                 cost: Arc::clone(&cost),
             });
-            let (res, tally) = match policy.filter(|_| f == Fidelity::Adp) {
+            let (res, tally, forecast) = match policy.filter(|_| f == Fidelity::Adp) {
                 Some(net) => {
                     let env = AdpEnv::new(
                         &worlds[w],
@@ -638,32 +668,36 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
                         eval_env_config(plan.policy_env, cfg.compute),
                         seed,
                     )?;
-                    run_policy(env, net, buf, |_, _, _| Ok(()))
-                        .with_context(|| format!("world {w}, run {r}"))?
+                    let (res, tally) = run_policy(env, net, buf, |_, _, _| Ok(()))
+                        .with_context(|| format!("world {w}, run {r}"))?;
+                    (res, tally, None)
                 }
                 None => {
                     let driver = CycleDriver::new(cfg.compute.resolve(p.name())?, cfg.episode.control_dt);
-                    let driver = match pr {
+                    let mut driver = match pr {
                         ObstaclePrediction::Off => driver,
                         ObstaclePrediction::Kf => driver.with_tracking(TrackingConfig::default()),
                         ObstaclePrediction::PadpPath | ObstaclePrediction::Padp => driver
                             .with_tracking(TrackingConfig::default())
                             .with_padp(cfg.prediction, pr.padp()),
-                    };
-                    drive_episode(
+                    }
+                    .with_forecast_errors();
+                    let res = drive_episode_with(
                         &worlds[w],
                         episode,
                         planner.as_mut(),
                         &f.schedule(&plan.adp)?,
                         s,
                         seed,
-                        driver,
+                        &mut driver,
                         |_, _, _| {},
-                    )
+                    );
+                    let forecast = driver.tracking().and(driver.forecast_errors().copied());
+                    (res, *driver.tally(), forecast)
                 }
             };
             bar.inc(1);
-            Ok((ri, w, r, res, tally, cost))
+            Ok((ri, w, r, res, tally, cost, forecast))
         })
         .collect::<anyhow::Result<_>>()?;
     bar.finish_and_clear();
@@ -703,9 +737,13 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
             summarize(&per_world, plan.trim);
         let mut tally = ComputeTally::default();
         let mut nanos = 0;
+        let mut forecast: Option<ForecastErrors> = None;
         for x in results.iter().filter(|x| x.0 == ri) {
             tally += x.4;
             nanos += x.5.nanos.load(Ordering::Relaxed);
+            if let Some(e) = x.6 {
+                *forecast.get_or_insert_default() += e;
+            }
         }
         let cycles = tally.cycles.max(1) as f64;
         rows.push(Row {
@@ -736,6 +774,12 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
                 .padp()
                 .adapt
                 .then(|| tally.pressure_cycles.map(|n| 100.0 * n as f64 / cycles)),
+            forecast: forecast.map(|e| ForecastRmse {
+                horizons_s: FORECAST_HORIZONS,
+                rmse_m: e.rmse(),
+                still_rmse_m: e.rmse_still(),
+                forecasts: e.count,
+            }),
             per_world,
         });
     }
@@ -1166,6 +1210,11 @@ mod tests {
         let labels: Vec<&str> = rows.iter().map(|r| r.fidelity_label.as_str()).collect();
         assert_eq!(labels, ["ddp+kf", "ddp+padp-path", "ddp+padp"]);
         assert!(rows[..2].iter().all(|r| r.pressure_modes_pct.is_none()));
+        // Every row runs the tracker and measures its forecast.
+        for r in &rows {
+            let f = r.forecast.expect("a tracker row measures its forecast");
+            assert!(f.forecasts[0] > 0 && f.rmse_m[0].unwrap() < 1.0, "{f:?}");
+        }
         let shares = rows[2].pressure_modes_pct.expect("padp reports its modes");
         assert!((shares.iter().sum::<f64>() - 100.0).abs() < 1e-9, "{shares:?}");
         assert!(

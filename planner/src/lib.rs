@@ -28,7 +28,7 @@ pub use compute::{Budget, Compute, ComputeConfig, ComputeModel, ComputeTally, Cy
 pub use dwa::{Dwa, DwaConfig};
 pub use gains::{GainRole, Gains, GainsError};
 pub use log_mppi::{LogMppi, LogMppiConfig};
-pub use moving::{Predicted, Tracking, TrackingConfig};
+pub use moving::{ForecastErrors, Predicted, Tracking, TrackingConfig};
 pub use mppi::{Mppi, MppiConfig};
 pub use padp::{Padp, PadpConfig, PadpParts};
 pub use prediction::{CheckMode, Integrator, Prediction};

@@ -5,7 +5,7 @@ use sim::robot::Twist;
 use sim::World;
 
 use crate::compute::{periods, Budget, Compute, ComputeTally, CycleWork};
-use crate::moving::{Tracking, TrackingConfig};
+use crate::moving::{ForecastErrors, Tracking, TrackingConfig};
 use crate::padp::{Padp, PadpConfig, PadpParts};
 use crate::{PlanInput, Planner, Prediction, Schedule};
 
@@ -32,6 +32,8 @@ pub struct CycleDriver {
     tally: ComputeTally,
     tracking: Option<Tracking>,
     padp: Option<Padp>,
+    /// The tracker's forecast against the truth, when measured.
+    forecast_errors: Option<ForecastErrors>,
 }
 
 impl CycleDriver {
@@ -44,6 +46,7 @@ impl CycleDriver {
             tally: ComputeTally::default(),
             tracking: None,
             padp: None,
+            forecast_errors: None,
         }
     }
 
@@ -59,6 +62,19 @@ impl CycleDriver {
     pub fn with_padp(mut self, cfg: PadpConfig, parts: PadpParts) -> Self {
         self.padp = Some(Padp::new(cfg, parts));
         self
+    }
+
+    /// The same driver measuring the tracker's forecast against the episode's ground truth
+    /// every cycle ([`ForecastErrors`]; a harness metric: the planner sees none of it). It
+    /// measures only with tracking.
+    pub fn with_forecast_errors(mut self) -> Self {
+        self.forecast_errors = Some(ForecastErrors::default());
+        self
+    }
+
+    /// The forecast errors so far, when measured.
+    pub fn forecast_errors(&self) -> Option<&ForecastErrors> {
+        self.forecast_errors.as_ref()
     }
 
     /// PADP, when on.
@@ -95,6 +111,9 @@ impl CycleDriver {
         }
         if let Some(t) = &mut self.tracking {
             t.update(ep);
+            if let Some(e) = &mut self.forecast_errors {
+                e.record(ep, t);
+            }
         }
         if let (Some(p), Some(t)) = (&mut self.padp, &self.tracking) {
             p.cycle(ep, t, planner);
@@ -174,14 +193,40 @@ pub fn drive_episode(
     max_speed: f64,
     seed: u64,
     mut driver: CycleDriver,
-    mut on_cycle: impl FnMut(&Episode<'_>, &mut dyn Planner, Twist),
+    on_cycle: impl FnMut(&Episode<'_>, &mut dyn Planner, Twist),
 ) -> (EpisodeResult, ComputeTally) {
+    let result = drive_episode_with(
+        world,
+        cfg,
+        planner,
+        schedule,
+        max_speed,
+        seed,
+        &mut driver,
+        on_cycle,
+    );
+    (result, *driver.tally())
+}
+
+/// [`drive_episode`] with a driver the caller keeps, to read what it measured afterwards
+/// (its tally, its forecast errors); returns the result.
+#[allow(clippy::too_many_arguments)]
+pub fn drive_episode_with(
+    world: &World,
+    cfg: EpisodeConfig,
+    planner: &mut dyn Planner,
+    schedule: &Schedule,
+    max_speed: f64,
+    seed: u64,
+    driver: &mut CycleDriver,
+    mut on_cycle: impl FnMut(&Episode<'_>, &mut dyn Planner, Twist),
+) -> EpisodeResult {
     let mut ep = Episode::new(world, cfg, seed);
     let prediction = Prediction::for_profile(cfg.profile);
     while ep.status() == Status::Running {
         driver.period(&mut ep, planner, schedule, max_speed, prediction, &mut on_cycle);
     }
-    (ep.result(), *driver.tally())
+    ep.result()
 }
 
 #[cfg(test)]
