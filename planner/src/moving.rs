@@ -434,8 +434,8 @@ mod tests {
         assert_eq!(twice.count, errors.count.map(|n| 2 * n));
         assert_eq!(twice.rmse(), errors.rmse());
         // Without moving obstacles nothing is compared.
-        let still = World::new(0, vec![], Pose::default(), Vec2::new(-9.0, 0.0), 9.0, vec![]);
-        let ep = Episode::new(&still, cfg, 2);
+        let static_world = World::new(0, vec![], Pose::default(), Vec2::new(-9.0, 0.0), 9.0, vec![]);
+        let ep = Episode::new(&static_world, cfg, 2);
         let mut none = ForecastErrors::default();
         none.record(&ep, &tracking);
         assert_eq!(none.rmse(), [None; 5]);
