@@ -251,7 +251,9 @@ pub struct EvalArgs {
     #[arg(long, value_delimiter = ',', default_value = "1.5")]
     pub max_speed: Vec<f64>,
     /// Moving-obstacle prediction(s), comma-separated: one row per value (`off`: none; `kf`:
-    /// the tracker's constant-velocity forecast; with --fidelity adp and a learned policy, kf exactly when the policy observes tracks).
+    /// the tracker's constant-velocity forecast; `padp-path`: kf and PADP's predictive cost in
+    /// the global path; `padp`: that and PADP's complexity-adaptive weights, see the
+    /// `[prediction]` table; with --fidelity adp and a learned policy, kf exactly when the policy observes tracks).
     #[arg(long, value_enum, value_delimiter = ',', default_value = "off")]
     pub prediction: Vec<ObstaclePrediction>,
     /// Lidar beam count(s) over the field of view, comma-separated: one row per value

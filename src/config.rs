@@ -3,7 +3,7 @@
 use anyhow::Context;
 use serde::Deserialize;
 
-use planner::{ComputeConfig, DwaConfig, LogMppiConfig, MppiConfig, SystemConfig};
+use planner::{ComputeConfig, DwaConfig, LogMppiConfig, MppiConfig, PadpConfig, SystemConfig};
 use sim::EpisodeConfig;
 
 /// The embedded default.
@@ -25,6 +25,8 @@ pub struct EvalConfig {
     pub system: SystemConfig,
     /// The onboard compute model every planner runs under (`[compute]`).
     pub compute: ComputeConfig,
+    /// PADP's settings for the rows of `--prediction padp-path` and `padp` (`[prediction]`).
+    pub prediction: PadpConfig,
 }
 
 impl EvalConfig {
@@ -43,6 +45,9 @@ impl EvalConfig {
             .validate()
             .map_err(|e| anyhow::anyhow!("{name}: [episode] {e}"))?;
         cfg.compute
+            .validate()
+            .map_err(|e| anyhow::anyhow!("{name}: {e}"))?;
+        cfg.prediction
             .validate()
             .map_err(|e| anyhow::anyhow!("{name}: {e}"))?;
         Ok(cfg)

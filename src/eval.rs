@@ -18,10 +18,11 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use actor::{AdpEnv, End, EnvConfig, MlpPolicy, Scratch};
+use planner::moving::FORECAST_HORIZONS;
 use planner::{
-    run::{drive_episode, CycleDriver},
-    ActionSpace, ComputeConfig, ComputeModel, ComputeTally, Dwa, LogMppi, Mppi, NavSystem, PlanInput,
-    Planner, Schedule, Trace, TrackingConfig,
+    run::{drive_episode_with, CycleDriver},
+    ActionSpace, ComputeConfig, ComputeModel, ComputeTally, Dwa, ForecastErrors, LogMppi, Mppi, NavSystem,
+    PadpParts, PlanInput, Planner, Schedule, Trace, TrackingConfig,
 };
 use sim::lidar::LidarConfig;
 use sim::robot::Twist;
@@ -43,6 +44,31 @@ pub enum ObstaclePrediction {
     /// track) forecasts each moving obstacle; every rollout point is checked against the
     /// forecast at its time (`planner::moving`).
     Kf,
+    /// kf, and the global path search weighs PADP's predictive cost field of the forecast
+    /// (Eqs. 4-6; `[prediction] predictive_cost_weight`, `[prediction.field]`).
+    PadpPath,
+    /// padp-path, and PADP's complexity score switches the planner's weights and the
+    /// replanning interval between three modes (Eqs. 7-8; `[prediction.complexity]`,
+    /// `[prediction.modes]`).
+    Padp,
+}
+
+impl ObstaclePrediction {
+    /// The parts of PADP the row runs.
+    pub fn padp(self) -> PadpParts {
+        PadpParts {
+            path: matches!(self, ObstaclePrediction::PadpPath | ObstaclePrediction::Padp),
+            adapt: self == ObstaclePrediction::Padp,
+        }
+    }
+
+    /// The suffix of the row's fidelity label: none, `+kf`, `+padp-path`, `+padp`.
+    pub fn label_suffix(self) -> String {
+        match self {
+            ObstaclePrediction::Off => String::new(),
+            p => format!("+{}", kebab(&p)),
+        }
+    }
 }
 
 /// A fidelity strategy selectable on the command line.
@@ -305,9 +331,42 @@ pub struct Row {
     /// Planning cycles whose modelled compute ran past the control period, so that the next
     /// cycle started late and the robot kept its command meanwhile (%).
     pub late_cycles_pct: f64,
+    /// Planning cycles in PADP's pressure modes A, B, C (%; rows of `--prediction padp`
+    /// only).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub pressure_modes_pct: Option<[f64; 3]>,
+    /// The tracker's forecast against the truth over the row's runs (rows that run the
+    /// tracker with the plain planning loop: kf, padp-path, padp).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub forecast: Option<ForecastRmse>,
     /// Every run of every world, untrimmed.
     pub per_world: Vec<WorldRuns>,
 }
+
+/// The tracker's forecast error against the truth ([`planner::ForecastErrors`]).
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct ForecastRmse {
+    /// Forecast horizons (s; 0: the estimate now).
+    pub horizons_s: [f64; 5],
+    /// Root mean square error per horizon (m; null where nothing was compared).
+    pub rmse_m: [Option<f64>; 5],
+    /// The same for a forecast that each obstacle stands still where it is estimated (m).
+    pub still_rmse_m: [Option<f64>; 5],
+    /// Forecasts compared per horizon.
+    pub forecasts: [u64; 5],
+}
+
+/// One run's outcome: its row, world and run index, result, what its planning cycles did and
+/// cost, the wall time they took, and the tracker's forecast errors (rows with a tracker).
+type RunOut = (
+    usize,
+    usize,
+    usize,
+    EpisodeResult,
+    ComputeTally,
+    Arc<PlanCost>,
+    Option<ForecastErrors>,
+);
 
 /// Mean work per planning cycle, by unit ([`planner::Work`]).
 #[derive(Clone, Copy, Debug, Default, Serialize)]
@@ -505,6 +564,13 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
     // policy observes tracks; the rows it makes must say so.
     if plan.fidelities.contains(&Fidelity::Adp) && plan.policy.is_some() {
         let tracks = plan.policy_env.observe_tracks;
+        if plan.predictions.iter().any(|p| p.padp() != PadpParts::default()) {
+            bail!(
+                "--prediction padp-path and padp run with the planning loop of --fidelity vanilla, \
+                 ddp or a constant adp action, not with a learned policy (its environment runs \
+                 the tracker alone): use --prediction kf"
+            );
+        }
         if tracks == 0 && plan.predictions.contains(&ObstaclePrediction::Kf) {
             bail!(
                 "--prediction kf with --fidelity adp needs a policy that observes tracks ([env] \
@@ -578,7 +644,7 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
         .expect("static template"),
     );
     let t0 = Instant::now();
-    let results: Vec<(usize, usize, usize, EpisodeResult, ComputeTally, Arc<PlanCost>)> = jobs
+    let results: Vec<RunOut> = jobs
         .par_iter()
         .map_init(PolicyBuffers::default, |buf, &(ri, p, f, s, pr, li, w, r)| {
             let seed = run_seed(plan.seed, w, r);
@@ -591,7 +657,7 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
                 inner: p.build(cfg, seed ^ 0x5eed_91a2),
                 cost: Arc::clone(&cost),
             });
-            let (res, tally) = match policy.filter(|_| f == Fidelity::Adp) {
+            let (res, tally, forecast) = match policy.filter(|_| f == Fidelity::Adp) {
                 Some(net) => {
                     let env = AdpEnv::new(
                         &worlds[w],
@@ -602,29 +668,36 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
                         eval_env_config(plan.policy_env, cfg.compute),
                         seed,
                     )?;
-                    run_policy(env, net, buf, |_, _, _| Ok(()))
-                        .with_context(|| format!("world {w}, run {r}"))?
+                    let (res, tally) = run_policy(env, net, buf, |_, _, _| Ok(()))
+                        .with_context(|| format!("world {w}, run {r}"))?;
+                    (res, tally, None)
                 }
                 None => {
                     let driver = CycleDriver::new(cfg.compute.resolve(p.name())?, cfg.episode.control_dt);
-                    let driver = match pr {
+                    let mut driver = match pr {
                         ObstaclePrediction::Off => driver,
                         ObstaclePrediction::Kf => driver.with_tracking(TrackingConfig::default()),
-                    };
-                    drive_episode(
+                        ObstaclePrediction::PadpPath | ObstaclePrediction::Padp => driver
+                            .with_tracking(TrackingConfig::default())
+                            .with_padp(cfg.prediction, pr.padp()),
+                    }
+                    .with_forecast_errors();
+                    let res = drive_episode_with(
                         &worlds[w],
                         episode,
                         planner.as_mut(),
                         &f.schedule(&plan.adp)?,
                         s,
                         seed,
-                        driver,
+                        &mut driver,
                         |_, _, _| {},
-                    )
+                    );
+                    let forecast = driver.tracking().and(driver.forecast_errors().copied());
+                    (res, *driver.tally(), forecast)
                 }
             };
             bar.inc(1);
-            Ok((ri, w, r, res, tally, cost))
+            Ok((ri, w, r, res, tally, cost, forecast))
         })
         .collect::<anyhow::Result<_>>()?;
     bar.finish_and_clear();
@@ -664,18 +737,21 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
             summarize(&per_world, plan.trim);
         let mut tally = ComputeTally::default();
         let mut nanos = 0;
+        let mut forecast: Option<ForecastErrors> = None;
         for x in results.iter().filter(|x| x.0 == ri) {
             tally += x.4;
             nanos += x.5.nanos.load(Ordering::Relaxed);
+            if let Some(e) = x.6 {
+                *forecast.get_or_insert_default() += e;
+            }
         }
         let cycles = tally.cycles.max(1) as f64;
         rows.push(Row {
             planner: p,
             fidelity: f,
-            fidelity_label: match (f, pr) {
-                (Fidelity::Adp, _) => format!("adp-{}", kebab(&plan.adp.space)),
-                (_, ObstaclePrediction::Off) => kebab(&f),
-                (_, ObstaclePrediction::Kf) => format!("{}+kf", kebab(&f)),
+            fidelity_label: match f {
+                Fidelity::Adp => format!("adp-{}", kebab(&plan.adp.space)),
+                _ => format!("{}{}", kebab(&f), pr.label_suffix()),
             },
             prediction: pr,
             max_speed: s,
@@ -694,6 +770,16 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
             samples_evaluated_pct: 100.0 * tally.evaluated_share(),
             truncated_cycles_pct: 100.0 * tally.truncated_cycles as f64 / cycles,
             late_cycles_pct: 100.0 * tally.late_cycles as f64 / cycles,
+            pressure_modes_pct: pr
+                .padp()
+                .adapt
+                .then(|| tally.pressure_cycles.map(|n| 100.0 * n as f64 / cycles)),
+            forecast: forecast.map(|e| ForecastRmse {
+                horizons_s: FORECAST_HORIZONS,
+                rmse_m: e.rmse(),
+                still_rmse_m: e.rmse_still(),
+                forecasts: e.count,
+            }),
             per_world,
         });
     }
@@ -746,10 +832,7 @@ pub fn table(rows: &[Row]) -> String {
                 .expect("enum")
                 .as_str()
                 .unwrap_or("?"),
-            match r.prediction {
-                ObstaclePrediction::Off => kebab(&r.fidelity),
-                ObstaclePrediction::Kf => format!("{}+kf", kebab(&r.fidelity)),
-            },
+            kebab(&r.fidelity) + &r.prediction.label_suffix(),
             r.max_speed,
             r.success_pct,
             r.avg_time_s,
@@ -1090,6 +1173,87 @@ mod tests {
         let json = serde_json::to_value(&rows[0]).unwrap();
         assert!(json.get("lidar").is_none(), "the default rows' JSON is as before");
         assert!(!table(&rows).contains("lidar"));
+    }
+
+    /// PADP's rows run the tracker and their parts of PADP on a DynaBARN world: labelled by
+    /// their prediction, only the adaptive one reports its mode shares; a learned policy
+    /// cannot run them, and a bad `[prediction]` setting is named.
+    #[test]
+    fn padp_rows_run_their_parts_and_report_their_modes() {
+        let cfg = EvalConfig::load(None).unwrap();
+        let plan = EvalPlan {
+            planners: vec![PlannerKind::Dwa],
+            fidelities: vec![Fidelity::Ddp],
+            speeds: vec![1.5],
+            worlds: vec![330],
+            runs: 1,
+            trim: 0,
+            seed: 1,
+            adp: AdpSetting {
+                space: ActionSpace::Decremental,
+                action: ActionSpace::Decremental.ddp_action(),
+            },
+            policy: None,
+            policy_env: EnvConfig::default(),
+            predictions: vec![
+                ObstaclePrediction::Kf,
+                ObstaclePrediction::PadpPath,
+                ObstaclePrediction::Padp,
+            ],
+            lidars: vec![LidarOverride::default()],
+        };
+        let rows = run(&plan, &cfg, sim::catalog::worlds()).unwrap();
+        let labels: Vec<&str> = rows.iter().map(|r| r.fidelity_label.as_str()).collect();
+        assert_eq!(labels, ["ddp+kf", "ddp+padp-path", "ddp+padp"]);
+        assert!(rows[..2].iter().all(|r| r.pressure_modes_pct.is_none()));
+        // Every row runs the tracker and measures its forecast.
+        for r in &rows {
+            let f = r.forecast.expect("a tracker row measures its forecast");
+            assert!(f.forecasts[0] > 0 && f.rmse_m[0].unwrap() < 1.0, "{f:?}");
+        }
+        let shares = rows[2].pressure_modes_pct.expect("padp reports its modes");
+        assert!((shares.iter().sum::<f64>() - 100.0).abs() < 1e-9, "{shares:?}");
+        assert!(
+            table(&rows).contains("| dwa | ddp+padp-path |"),
+            "{}",
+            table(&rows)
+        );
+        let json = serde_json::to_value(&rows[1]).unwrap();
+        assert_eq!(json["prediction"], "padp-path");
+        assert!(json.get("pressure_modes_pct").is_none());
+        // A learned policy runs the tracker alone.
+        let space = ActionSpace::Decremental;
+        let mut flat = vec![0.0; 746 * 4];
+        flat.extend([0.0f32; 4]);
+        let with_policy = EvalPlan {
+            fidelities: vec![Fidelity::Adp],
+            policy: Some(MlpPolicy::from_flat(&[746, 4], flat).unwrap()),
+            policy_env: EnvConfig {
+                observe_tracks: 4,
+                ..EnvConfig::default()
+            },
+            adp: AdpSetting {
+                space,
+                action: space.ddp_action(),
+            },
+            predictions: vec![ObstaclePrediction::Padp],
+            ..plan.clone()
+        };
+        let err = run(&with_policy, &cfg, sim::catalog::worlds())
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("--prediction padp-path and padp") && err.contains("use --prediction kf"),
+            "{err}"
+        );
+        // A bad setting of the table is refused with its table and key.
+        let dir = std::env::temp_dir().join(format!("adp-padp-config-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = dir.join("eval.toml");
+        std::fs::write(&file, "[prediction.complexity]\nlow = 0.7\n").unwrap();
+        let err = EvalConfig::load(Some(&file)).unwrap_err().to_string();
+        assert!(err.contains("[prediction.complexity] low: low 0.7"), "{err}");
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     /// A trained policy evaluates under any lidar: its observation is built in its own

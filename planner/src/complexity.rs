@@ -1,11 +1,13 @@
 //! PADP's complexity indicator and its hysteresis mode switch (Eqs. 7-8 of the PADP paper).
 //!
 //! The score `Phi = l1 rho + l2 beta + l3 H` (Eq. 7) combines three nondimensional terms in
-//! [0, 1]: `rho`, the density of moving obstacles within sensing range (moving tracks over
-//! [`ComplexityConfig::dense_count`], capped at 1); `beta`, the blocked share of the global
-//! path ahead; and `H`, the entropy of the local costs over `B` bins, divided by `ln B` (the
-//! paper's `H_k` in nats, normalised so that a uniform spread scores 1). The paper reads the
-//! sum as a coordination score, not a definition of complexity; so do we.
+//! [0, 1]: `rho`, the density of moving obstacles within sensing range (moving tracks within
+//! [`ComplexityConfig::range`], over [`ComplexityConfig::dense_count`], capped at 1); `beta`,
+//! the blocked share of the global path's next [`ComplexityConfig::ahead`] metres; and `H`,
+//! the entropy of the local costs over `B` bins, divided by `ln B` (the paper's `H_k` in
+//! nats, normalised so that a uniform spread scores 1). The paper reads the sum as a
+//! coordination score, not a definition of complexity; so do we. `crate::padp` measures
+//! the three terms on the robot's own map, path and tracks.
 //!
 //! The mode (Eq. 8) moves between A (low pressure: plan for efficiency), B (balanced) and C
 //! (high pressure: weight local risk) with thresholds `theta_L < theta_H` and a hysteresis
@@ -14,6 +16,16 @@
 //! `Phi < theta_H - delta` (to A at once when `Phi < theta_L - delta`), down from B when
 //! `Phi < theta_L - delta`. The paper's values are the defaults: `l = [0.38, 0.37, 0.25]`,
 //! `[theta_L, theta_H] = [0.38, 0.64]`, `delta = 0.05`.
+//!
+//! What a mode changes ([`ModeEffects`]): the paper's mode A has "a longer global replanning
+//! interval and a stronger preference for efficiency", mode C "shortens the replanning
+//! interval and increases the weight of local risk constraints", B balances them; its
+//! replanning intervals are 12 / 5 / 2 steps (and its local rollout horizons 4 / 6 / 7
+//! steps, which we leave to the schedule: choosing the horizon is the fidelity strategy's
+//! job, DDP's or an ADP policy's). Here B is the configured planner (every gain factor 1,
+//! `[episode] replan_every`); A and C scale the planner's efficiency gains (goal progress,
+//! speed) and risk gains (obstacle clearance, the forecast's included) by the factors of
+//! [`ModeEffects`], and the replanning interval by 12/5 and 2/5.
 //!
 //! Pure functions and a two-word state; no allocation.
 
@@ -28,6 +40,10 @@ pub struct ComplexityConfig {
     pub weights: [f64; 3],
     /// Moving obstacles in sensing range that make the density term 1.
     pub dense_count: f64,
+    /// Sensing range of the density and entropy terms (m): the robot's mapping range.
+    pub range: f64,
+    /// Length of the global path ahead whose blocked share is `beta` (m).
+    pub ahead: f64,
     /// Cost bins `B` of the entropy term (at least 2).
     pub bins: usize,
     /// Lower threshold `theta_L`.
@@ -43,6 +59,8 @@ impl Default for ComplexityConfig {
         Self {
             weights: [0.38, 0.37, 0.25],
             dense_count: 5.0,
+            range: 6.0,
+            ahead: 3.0,
             bins: 8,
             low: 0.38,
             high: 0.64,
@@ -77,6 +95,11 @@ impl ComplexityConfig {
                 format!("{}: must be finite and > 0", self.dense_count),
             );
         }
+        for (key, value) in [("range", self.range), ("ahead", self.ahead)] {
+            if !(value.is_finite() && value > 0.0) {
+                return bad(key, format!("{value}: must be finite and > 0"));
+            }
+        }
         if self.bins < 2 {
             return bad("bins", format!("{}: must be at least 2", self.bins));
         }
@@ -102,11 +125,11 @@ impl ComplexityConfig {
     }
 
     /// `Phi` (Eq. 7) of `moving` obstacles in range, the `blocked` share of the path ahead
-    /// (in [0, 1]) and the local `costs` (each in [0, 1]; see [`entropy`]).
-    pub fn score(&self, moving: usize, blocked: f64, costs: &[f64]) -> f64 {
+    /// and the normalized `entropy` of the local costs (see [`entropy`]; both in [0, 1]).
+    pub fn score(&self, moving: usize, blocked: f64, entropy: f64) -> f64 {
         let rho = (moving as f64 / self.dense_count).min(1.0);
         let beta = blocked.clamp(0.0, 1.0);
-        let h = entropy(costs, self.bins);
+        let h = entropy.clamp(0.0, 1.0);
         self.weights[0] * rho + self.weights[1] * beta + self.weights[2] * h
     }
 }
@@ -146,6 +169,75 @@ pub enum PressureMode {
     B,
     /// High pressure: shorter replanning interval, local risk weighted up.
     C,
+}
+
+impl PressureMode {
+    /// Every mode, in the order of [`PressureMode::index`].
+    pub const ALL: [PressureMode; 3] = [PressureMode::A, PressureMode::B, PressureMode::C];
+
+    /// 0 for A, 1 for B, 2 for C: the index of the mode's entry in [`ModeEffects`].
+    pub fn index(self) -> usize {
+        match self {
+            PressureMode::A => 0,
+            PressureMode::B => 1,
+            PressureMode::C => 2,
+        }
+    }
+}
+
+/// What each mode changes: factors on the planner's gains by their role, and on the global
+/// replanning interval; one entry per mode, A, B, C. Every field is optional in a TOML table;
+/// unknown keys are refused.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ModeEffects {
+    /// Factor on the efficiency gains (goal progress, speed) in modes A, B, C.
+    pub efficiency: [f64; 3],
+    /// Factor on the local-risk gains (obstacle clearance) in modes A, B, C.
+    pub risk: [f64; 3],
+    /// Global replanning interval in modes A, B, C, as a multiple of `[episode]
+    /// replan_every` (rounded, at least one period).
+    pub replan_scale: [f64; 3],
+}
+
+impl Default for ModeEffects {
+    /// B is the configured planner; A leans to efficiency, C to risk (our factors: the paper
+    /// gives none); the replanning intervals keep the paper's 12 : 5 : 2.
+    fn default() -> Self {
+        Self {
+            efficiency: [1.25, 1.0, 0.8],
+            risk: [0.8, 1.0, 1.5],
+            replan_scale: [2.4, 1.0, 0.4],
+        }
+    }
+}
+
+impl ModeEffects {
+    /// Checks every factor; the error names the key.
+    pub fn validate(&self) -> Result<(), ComplexityConfigError> {
+        for (key, values, zero_ok) in [
+            ("efficiency", self.efficiency, true),
+            ("risk", self.risk, true),
+            ("replan_scale", self.replan_scale, false),
+        ] {
+            if values
+                .iter()
+                .any(|v| !(v.is_finite() && (*v > 0.0 || (zero_ok && *v == 0.0))))
+            {
+                let need = if zero_ok { ">= 0" } else { "> 0" };
+                return Err(ComplexityConfigError {
+                    key,
+                    why: format!("{values:?}: each must be finite and {need}"),
+                });
+            }
+        }
+        Ok(())
+    }
+
+    /// The replanning interval of `mode` for a configured interval of `periods`.
+    pub fn replan_every(&self, mode: PressureMode, periods: u32) -> u32 {
+        ((periods as f64 * self.replan_scale[mode.index()]).round() as u32).max(1)
+    }
 }
 
 /// The hysteresis switch of Eq. 8: the mode, updated with each score.
@@ -196,11 +288,12 @@ mod tests {
         let cfg = ComplexityConfig::default();
         // 2 of 5 moving obstacles, 50 % blocked, and costs in two of 8 bins, two each:
         // entropy ln 2 / ln 8 = 1/3.
-        let phi = cfg.score(2, 0.5, &[0.05, 0.05, 0.95, 0.95]);
+        let h = entropy(&[0.05, 0.05, 0.95, 0.95], cfg.bins);
+        let phi = cfg.score(2, 0.5, h);
         let want = 0.38 * 0.4 + 0.37 * 0.5 + 0.25 / 3.0;
         assert!((phi - want).abs() < 1e-12, "{phi} vs {want}");
         // Density and blockage saturate at 1.
-        assert!((cfg.score(50, 3.0, &[]) - 0.75).abs() < 1e-12);
+        assert!((cfg.score(50, 3.0, 0.0) - 0.75).abs() < 1e-12);
     }
 
     #[test]
@@ -223,7 +316,31 @@ mod tests {
     }
 
     #[test]
+    fn the_modes_scale_the_replanning_interval_as_the_paper_does() {
+        let fx = ModeEffects::default();
+        let every: Vec<u32> = PressureMode::ALL.iter().map(|&m| fx.replan_every(m, 5)).collect();
+        assert_eq!(every, [12, 5, 2]);
+        assert_eq!(fx.replan_every(PressureMode::C, 1), 1, "at least one period");
+        fx.validate().unwrap();
+        let bad = ModeEffects {
+            replan_scale: [1.0, 0.0, 1.0],
+            ..fx
+        };
+        assert_eq!(bad.validate().unwrap_err().key, "replan_scale");
+        let bad = ModeEffects {
+            risk: [1.0, f64::NAN, 1.0],
+            ..fx
+        };
+        assert!(bad.validate().unwrap_err().to_string().contains("risk"));
+    }
+
+    #[test]
     fn bad_settings_are_named() {
+        let bad = ComplexityConfig {
+            range: 0.0,
+            ..ComplexityConfig::default()
+        };
+        assert_eq!(bad.validate().unwrap_err().key, "range");
         let bad = ComplexityConfig {
             low: 0.6,
             high: 0.62,

@@ -683,6 +683,14 @@ pub struct ComputeTally {
     pub truncated_cycles: u64,
     /// Cycles whose compute ran past the control period (the next cycle started late).
     pub late_cycles: u64,
+    /// Cycles in PADP's pressure modes A, B and C ([`crate::padp`]; all 0 unless its
+    /// adaptive part runs, and then left out of the JSON).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub pressure_cycles: [u64; 3],
+}
+
+fn is_zero(counts: &[u64; 3]) -> bool {
+    *counts == [0; 3]
 }
 
 impl AddAssign for ComputeTally {
@@ -694,6 +702,9 @@ impl AddAssign for ComputeTally {
         self.evaluated_samples += o.evaluated_samples;
         self.truncated_cycles += o.truncated_cycles;
         self.late_cycles += o.late_cycles;
+        for (a, b) in self.pressure_cycles.iter_mut().zip(o.pressure_cycles) {
+            *a += b;
+        }
     }
 }
 

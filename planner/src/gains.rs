@@ -36,6 +36,22 @@ const DWA: &[&str] = &["w_goal", "w_path", "w_obstacle", "w_speed"];
 const MPPI: &[&str] = &["w_goal", "w_path", "w_obstacle", "w_heading", "w_smooth"];
 const SYSTEM: &[&str] = &["goal", "obstacle", "heading", "space"];
 
+/// What a gain weighs, as PADP's pressure modes see it ([`crate::complexity::ModeEffects`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum GainRole {
+    /// Efficiency: progress to the goal, speed.
+    Efficiency,
+    /// Local risk: clearance to obstacles (the forecast of moving ones included).
+    Risk,
+    /// Anything else (following the path, heading, smoothness, free space): left alone.
+    Other,
+}
+
+use GainRole::{Efficiency, Other, Risk};
+const DWA_ROLES: &[GainRole] = &[Efficiency, Other, Risk, Efficiency];
+const MPPI_ROLES: &[GainRole] = &[Efficiency, Other, Risk, Other, Other];
+const SYSTEM_ROLES: &[GainRole] = &[Efficiency, Risk, Other, Other];
+
 impl Gains {
     /// Every gain set.
     pub const ALL: [Gains; 3] = [Gains::Dwa, Gains::Mppi, Gains::System];
@@ -55,6 +71,15 @@ impl Gains {
             Gains::Dwa => DWA,
             Gains::Mppi => MPPI,
             Gains::System => SYSTEM,
+        }
+    }
+
+    /// The gains' roles, in the order of their factors.
+    pub fn roles(self) -> &'static [GainRole] {
+        match self {
+            Gains::Dwa => DWA_ROLES,
+            Gains::Mppi => MPPI_ROLES,
+            Gains::System => SYSTEM_ROLES,
         }
     }
 
@@ -150,5 +175,10 @@ mod tests {
         );
         let e = Gains::Dwa.check(&[1.0; 5]).unwrap_err();
         assert_eq!(e.to_string(), "dwa takes 4 gain factors, got 5");
+        for g in Gains::ALL {
+            assert_eq!(g.roles().len(), g.len(), "{g:?}");
+        }
+        assert_eq!(Gains::Dwa.roles()[3], GainRole::Efficiency, "w_speed");
+        assert_eq!(Gains::System.roles()[1], GainRole::Risk, "obstacle");
     }
 }

@@ -14,6 +14,7 @@
 
 use serde::{Deserialize, Serialize};
 use sim::geometry::{Footprint, Pose, Vec2};
+use sim::predictive_cost::MovingObstacle;
 use sim::Episode;
 
 use crate::tracker::{Track, Tracker, TrackerConfig};
@@ -140,7 +141,7 @@ fn segment_meets_box(a: Vec2, b: Vec2, hl: f64, hw: f64) -> bool {
 }
 
 /// Distance from `q` to the segment `a`-`b`.
-fn point_segment_distance(q: Vec2, a: Vec2, b: Vec2) -> f64 {
+pub(crate) fn point_segment_distance(q: Vec2, a: Vec2, b: Vec2) -> f64 {
     let ab = b - a;
     let len2 = ab.dot(ab);
     let f = if len2 > 0.0 {
@@ -180,6 +181,8 @@ pub struct Tracking {
     tracker: Tracker,
     min_speed: f64,
     moving: Vec<Predicted>,
+    /// The same obstacles in the believed frame of the robot's map.
+    in_map: Vec<MovingObstacle>,
 }
 
 impl Tracking {
@@ -189,6 +192,7 @@ impl Tracking {
             tracker: Tracker::new(cfg.tracker),
             min_speed: cfg.min_speed,
             moving: Vec::new(),
+            in_map: Vec::new(),
         }
     }
 
@@ -199,12 +203,24 @@ impl Tracking {
         let believed = ep.believed_pose();
         self.tracker.update(now, &believed, ep.perception().points);
         self.moving.clear();
+        self.in_map.clear();
         for tr in self.tracker.confirmed() {
             if tr.velocity.norm() >= self.min_speed {
                 self.moving.push(Predicted::from_track(tr, &believed, now));
+                self.in_map.push(MovingObstacle {
+                    position: tr.predict(now - tr.time),
+                    velocity: tr.velocity,
+                });
             }
         }
         &self.moving
+    }
+
+    /// The moving obstacles of the last [`Tracking::update`] (the same as
+    /// [`Tracking::moving`], in the same order) in the believed frame of the robot's map, at
+    /// the time of that update.
+    pub fn moving_in_map(&self) -> &[MovingObstacle] {
+        &self.in_map
     }
 
     /// The moving obstacles of the last [`Tracking::update`], in the robot frame of that
@@ -216,6 +232,94 @@ impl Tracking {
     /// The tracker.
     pub fn tracker(&self) -> &Tracker {
         &self.tracker
+    }
+}
+
+/// Horizons of [`ForecastErrors`] (s): now (the estimate's own error), and PADP's
+/// prediction steps 1, 3, 5 and 7 of 0.4 s.
+pub const FORECAST_HORIZONS: [f64; 5] = [0.0, 0.4, 1.2, 2.0, 2.8];
+
+/// A track follows the moving cylinder whose centre is nearest its own, within this (m).
+pub const FORECAST_MATCH_M: f64 = 1.0;
+
+/// The tracker's forecast against the truth (a harness metric: PADP's prediction RMSE).
+///
+/// Each cycle every moving track's constant-velocity forecast `h` seconds ahead, for each of
+/// [`FORECAST_HORIZONS`], is compared with where the moving cylinder it follows really is at
+/// that time. The cylinder a track follows is the one whose centre is nearest the track's
+/// position now, within [`FORECAST_MATCH_M`]; a track on none is left out, and so is a
+/// forecast across the end of its cylinder's loop, where a DynaBARN obstacle jumps back to
+/// its first keyframe. The tracks live in the robot's believed frame; they are moved into
+/// the world frame by the cycle's believed-to-true pose correction (localization drift).
+///
+/// For scale, the same comparison is made for the forecast that the obstacle stays where it
+/// is estimated now (`sum_sq_still`).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct ForecastErrors {
+    /// Sum of the squared errors per horizon (m^2).
+    pub sum_sq: [f64; 5],
+    /// The same for a forecast that the obstacle stands still (m^2).
+    pub sum_sq_still: [f64; 5],
+    /// Forecasts compared per horizon.
+    pub count: [u64; 5],
+}
+
+impl std::ops::AddAssign for ForecastErrors {
+    fn add_assign(&mut self, o: ForecastErrors) {
+        for k in 0..FORECAST_HORIZONS.len() {
+            self.sum_sq[k] += o.sum_sq[k];
+            self.sum_sq_still[k] += o.sum_sq_still[k];
+            self.count[k] += o.count[k];
+        }
+    }
+}
+
+impl ForecastErrors {
+    /// Compares the forecasts of `tracking`'s last update, made at the episode's current
+    /// time, with the episode's ground truth.
+    pub fn record(&mut self, ep: &Episode<'_>, tracking: &Tracking) {
+        let cylinders = &ep.world().moving;
+        if cylinders.is_empty() {
+            return;
+        }
+        let now = ep.scene().time();
+        let (truth, believed) = (ep.state().pose, ep.believed_pose());
+        for o in tracking.moving_in_map() {
+            let p = truth.to_world(believed.to_local(o.position));
+            let v = o.velocity.rotated(truth.yaw - believed.yaw);
+            let nearest = cylinders
+                .iter()
+                .map(|c| (c, c.at(now).c.dist(p)))
+                .min_by(|a, b| a.1.total_cmp(&b.1));
+            let Some((cylinder, _)) = nearest.filter(|n| n.1 <= FORECAST_MATCH_M) else {
+                continue;
+            };
+            let period = cylinder.trajectory.period();
+            for (k, &h) in FORECAST_HORIZONS.iter().enumerate() {
+                if ((now + h) / period).floor() != (now / period).floor() {
+                    continue;
+                }
+                let truth = cylinder.at(now + h).c;
+                let (error, still) = ((p + v * h).dist(truth), p.dist(truth));
+                self.sum_sq[k] += error * error;
+                self.sum_sq_still[k] += still * still;
+                self.count[k] += 1;
+            }
+        }
+    }
+
+    /// The root mean square error per horizon (m; `None` where nothing was compared).
+    pub fn rmse(&self) -> [Option<f64>; 5] {
+        self.root_mean(&self.sum_sq)
+    }
+
+    /// The same for the forecast that the obstacle stands still.
+    pub fn rmse_still(&self) -> [Option<f64>; 5] {
+        self.root_mean(&self.sum_sq_still)
+    }
+
+    fn root_mean(&self, sums: &[f64; 5]) -> [Option<f64>; 5] {
+        std::array::from_fn(|k| (self.count[k] > 0).then(|| (sums[k] / self.count[k] as f64).sqrt()))
     }
 }
 
@@ -282,6 +386,59 @@ mod tests {
             hold_clearance(&fp, &Pose::default(), 0.0, 1.0, &[], &mut n),
             f64::INFINITY
         );
+    }
+
+    #[test]
+    fn the_forecast_of_a_steady_crossing_is_measured_against_the_truth() {
+        use sim::motion::{MovingCylinder, Trajectory};
+        use sim::{EpisodeConfig, Twist, World};
+        // A cylinder (r = 0.5) crossing 3 m ahead of a standing robot at 1 m/s, from y = -6
+        // to y = 6 in 12 s, then jumping back: evenly spaced collinear keys, so it moves at
+        // constant velocity between its second and second-to-last keys.
+        let keys: Vec<[f64; 3]> = (0..=12).map(|k| [k as f64, 3.0, k as f64 - 6.0]).collect();
+        let world =
+            World::new(0, vec![], Pose::default(), Vec2::new(-9.0, 0.0), 9.0, vec![]).with_moving(vec![
+                MovingCylinder {
+                    radius: 0.5,
+                    trajectory: Trajectory::new(&keys, 12.0).unwrap(),
+                },
+            ]);
+        let cfg = EpisodeConfig::default().with_profile(sim::Profile::Ideal, None);
+        let mut ep = Episode::new(&world, cfg, 2);
+        let mut tracking = Tracking::new(TrackingConfig::default());
+        let mut errors = ForecastErrors::default();
+        for _ in 0..400 {
+            ep.step(Twist::default());
+            tracking.update(&ep);
+            errors.record(&ep, &tracking);
+        }
+        let rmse = errors.rmse().map(Option::unwrap);
+        assert!(errors.count.iter().all(|&n| n > 100), "{:?}", errors.count);
+        // Forecasts across the jump are left out: fewer the further ahead.
+        assert!(errors.count[4] < errors.count[0], "{:?}", errors.count);
+        assert!(rmse[1] < 0.2 && rmse[4] < 0.5, "{rmse:?}");
+        assert!(
+            rmse.windows(2).all(|w| w[0] <= w[1]),
+            "the error grows with the horizon: {rmse:?}"
+        );
+        // Standing still is the worse forecast of a steady crossing: 2.8 m off after 2.8 s.
+        let still = errors.rmse_still().map(Option::unwrap);
+        assert_eq!(still[0], rmse[0]);
+        assert!(
+            still[4] > 2.0 && still[4] > 4.0 * rmse[4],
+            "{still:?} vs {rmse:?}"
+        );
+        // Errors add up.
+        let mut twice = errors;
+        twice += errors;
+        assert_eq!(twice.count, errors.count.map(|n| 2 * n));
+        assert_eq!(twice.rmse(), errors.rmse());
+        // Without moving obstacles nothing is compared.
+        let static_world = World::new(0, vec![], Pose::default(), Vec2::new(-9.0, 0.0), 9.0, vec![]);
+        let ep = Episode::new(&static_world, cfg, 2);
+        let mut none = ForecastErrors::default();
+        none.record(&ep, &tracking);
+        assert_eq!(none.rmse(), [None; 5]);
     }
 
     #[test]

@@ -5,7 +5,8 @@ use sim::robot::Twist;
 use sim::World;
 
 use crate::compute::{periods, Budget, Compute, ComputeTally, CycleWork};
-use crate::moving::{Tracking, TrackingConfig};
+use crate::moving::{ForecastErrors, Tracking, TrackingConfig};
+use crate::padp::{Padp, PadpConfig, PadpParts};
 use crate::{PlanInput, Planner, Prediction, Schedule};
 
 /// The planning loop of one episode: every control period either runs a planning cycle or,
@@ -19,7 +20,9 @@ use crate::{PlanInput, Planner, Prediction, Schedule};
 ///
 /// With [`CycleDriver::with_tracking`], every planning cycle first runs the obstacle tracker
 /// on the episode's scan and hands the planner the moving obstacles it predicts
-/// ([`crate::moving`]); without it the planner is told of none. One per episode.
+/// ([`crate::moving`]); without it the planner is told of none. With
+/// [`CycleDriver::with_padp`] PADP then runs on the tracks before the planner
+/// ([`crate::padp`]). One per episode.
 #[derive(Clone, Debug)]
 pub struct CycleDriver {
     compute: Option<Compute>,
@@ -28,6 +31,9 @@ pub struct CycleDriver {
     holding: u32,
     tally: ComputeTally,
     tracking: Option<Tracking>,
+    padp: Option<Padp>,
+    /// The tracker's forecast against the truth, when measured.
+    forecast_errors: Option<ForecastErrors>,
 }
 
 impl CycleDriver {
@@ -39,6 +45,8 @@ impl CycleDriver {
             holding: 0,
             tally: ComputeTally::default(),
             tracking: None,
+            padp: None,
+            forecast_errors: None,
         }
     }
 
@@ -46,6 +54,32 @@ impl CycleDriver {
     pub fn with_tracking(mut self, cfg: TrackingConfig) -> Self {
         self.tracking = Some(Tracking::new(cfg));
         self
+    }
+
+    /// The same driver running the `parts` of PADP with `cfg` (validated by the caller:
+    /// [`PadpConfig::validate`]) on the tracker's forecast: it runs only with tracking
+    /// ([`CycleDriver::with_tracking`]).
+    pub fn with_padp(mut self, cfg: PadpConfig, parts: PadpParts) -> Self {
+        self.padp = Some(Padp::new(cfg, parts));
+        self
+    }
+
+    /// The same driver measuring the tracker's forecast against the episode's ground truth
+    /// every cycle ([`ForecastErrors`]; a harness metric: the planner sees none of it). It
+    /// measures only with tracking.
+    pub fn with_forecast_errors(mut self) -> Self {
+        self.forecast_errors = Some(ForecastErrors::default());
+        self
+    }
+
+    /// The forecast errors so far, when measured.
+    pub fn forecast_errors(&self) -> Option<&ForecastErrors> {
+        self.forecast_errors.as_ref()
+    }
+
+    /// PADP, when on.
+    pub fn padp(&self) -> Option<&Padp> {
+        self.padp.as_ref()
     }
 
     /// The obstacle tracking, when on.
@@ -75,8 +109,20 @@ impl CycleDriver {
             self.holding -= 1;
             return ep.hold();
         }
-        let moving = match &mut self.tracking {
-            Some(t) => t.update(ep),
+        if let Some(t) = &mut self.tracking {
+            t.update(ep);
+            if let Some(e) = &mut self.forecast_errors {
+                e.record(ep, t);
+            }
+        }
+        if let (Some(p), Some(t)) = (&mut self.padp, &self.tracking) {
+            p.cycle(ep, t, planner);
+            if p.parts().adapt {
+                self.tally.pressure_cycles[p.mode().index()] += 1;
+            }
+        }
+        let moving = match &self.tracking {
+            Some(t) => t.moving(),
             None => &[],
         };
         let cmd = planner.plan(&PlanInput {
@@ -147,14 +193,40 @@ pub fn drive_episode(
     max_speed: f64,
     seed: u64,
     mut driver: CycleDriver,
-    mut on_cycle: impl FnMut(&Episode<'_>, &mut dyn Planner, Twist),
+    on_cycle: impl FnMut(&Episode<'_>, &mut dyn Planner, Twist),
 ) -> (EpisodeResult, ComputeTally) {
+    let result = drive_episode_with(
+        world,
+        cfg,
+        planner,
+        schedule,
+        max_speed,
+        seed,
+        &mut driver,
+        on_cycle,
+    );
+    (result, *driver.tally())
+}
+
+/// [`drive_episode`] with a driver the caller keeps, to read what it measured afterwards
+/// (its tally, its forecast errors); returns the result.
+#[allow(clippy::too_many_arguments)]
+pub fn drive_episode_with(
+    world: &World,
+    cfg: EpisodeConfig,
+    planner: &mut dyn Planner,
+    schedule: &Schedule,
+    max_speed: f64,
+    seed: u64,
+    driver: &mut CycleDriver,
+    mut on_cycle: impl FnMut(&Episode<'_>, &mut dyn Planner, Twist),
+) -> EpisodeResult {
     let mut ep = Episode::new(world, cfg, seed);
     let prediction = Prediction::for_profile(cfg.profile);
     while ep.status() == Status::Running {
         driver.period(&mut ep, planner, schedule, max_speed, prediction, &mut on_cycle);
     }
-    (ep.result(), *driver.tally())
+    ep.result()
 }
 
 #[cfg(test)]

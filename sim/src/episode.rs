@@ -13,7 +13,8 @@ use crate::dynamics::{Drive, Dynamics, Localization, Profile};
 use crate::error::ConfigError;
 use crate::geometry::{Pose, Vec2};
 use crate::lidar::{Lidar, LidarConfig, LidarRng};
-use crate::navigation::{point_at_arc_length, smooth, GlobalPlanner};
+use crate::navigation::{point_at_arc_length, smooth, GlobalPlanner, PathRisk};
+use crate::predictive_cost::MovingObstacle;
 use crate::robot::{RobotLimits, RobotState, Twist};
 use crate::score::barn_score;
 use crate::world::{Scene, World};
@@ -259,6 +260,19 @@ pub struct Episode<'w> {
     path: Vec<Vec2>,
     path_robot: Vec<Vec2>,
     local_goal_world: Vec2,
+    /// Replan the global path every this many control periods ([`Episode::set_replan_every`];
+    /// `[episode] replan_every` at the start).
+    replan_every: u32,
+    /// The control period of the last replan.
+    last_replan: u64,
+    /// The predictive cost the global path search weighs, when set
+    /// ([`Episode::forecast_moving`]).
+    path_risk: Option<PathRisk>,
+    /// Moving obstacles as predicted at `forecast_time` (believed frame).
+    forecast: Vec<MovingObstacle>,
+    forecast_time: f64,
+    /// `forecast` moved on to the time of a replan.
+    forecast_now: Vec<MovingObstacle>,
 }
 
 impl<'w> Episode<'w> {
@@ -308,6 +322,12 @@ impl<'w> Episode<'w> {
             path: Vec::new(),
             path_robot: Vec::new(),
             local_goal_world: world.goal,
+            replan_every: cfg.replan_every,
+            last_replan: 0,
+            path_risk: None,
+            forecast: Vec::new(),
+            forecast_time: 0.0,
+            forecast_now: Vec::new(),
         };
         ep.sense();
         ep
@@ -373,6 +393,41 @@ impl<'w> Episode<'w> {
     /// The robot's costmap.
     pub fn costmap(&self) -> &Costmap {
         &self.costmap
+    }
+
+    /// Replans the global path every `periods` control periods from now on (instead of
+    /// `[episode] replan_every`): the next replan comes `periods` after the last one.
+    ///
+    /// # Panics
+    /// If `periods` is 0.
+    pub fn set_replan_every(&mut self, periods: u32) {
+        assert!(
+            periods > 0,
+            "the global path must be replanned every 1 or more periods"
+        );
+        self.replan_every = periods;
+    }
+
+    /// The current replanning interval (control periods).
+    pub fn replan_every(&self) -> u32 {
+        self.replan_every
+    }
+
+    /// Makes the global path search weigh PADP's predictive cost `risk` of the `moving`
+    /// obstacles (their positions at simulated time `time` and their velocities, in the
+    /// believed frame of the costmap) from the next replan on, each moved on at its velocity
+    /// to the time of that replan ([`GlobalPlanner::plan_among`]). No obstacle (the default)
+    /// plans on the costmap alone.
+    pub fn forecast_moving(
+        &mut self,
+        risk: PathRisk,
+        time: f64,
+        moving: impl IntoIterator<Item = MovingObstacle>,
+    ) {
+        self.path_risk = Some(risk);
+        self.forecast_time = time;
+        self.forecast.clear();
+        self.forecast.extend(moving);
     }
 
     /// The pose the robot believes it has (world frame): the truth plus localization drift.
@@ -528,14 +583,37 @@ impl<'w> Episode<'w> {
         }
         let pts = &self.points;
         self.costmap.mark(origin, pts.iter().map(to_world));
-        let due = self.cycles.is_multiple_of(self.cfg.replan_every as u64);
+        // Due `replan_every` periods after the last replan: with the configured interval, every
+        // multiple of it (the first sense is period 0).
+        let due = self.cycles - self.last_replan >= self.replan_every as u64;
         if self.path.is_empty() || due {
-            if self.global.plan(
-                &self.costmap,
-                pose.position(),
-                self.world.goal,
-                &mut self.raw_path,
-            ) {
+            self.last_replan = self.cycles;
+            let found = match self.path_risk.filter(|_| !self.forecast.is_empty()) {
+                Some(risk) => {
+                    let ahead = self.sim_time - self.forecast_time;
+                    self.forecast_now.clear();
+                    self.forecast_now
+                        .extend(self.forecast.iter().map(|o| MovingObstacle {
+                            position: o.position + o.velocity * ahead,
+                            velocity: o.velocity,
+                        }));
+                    self.global.plan_among(
+                        &self.costmap,
+                        pose.position(),
+                        self.world.goal,
+                        &self.forecast_now,
+                        &risk,
+                        &mut self.raw_path,
+                    )
+                }
+                None => self.global.plan(
+                    &self.costmap,
+                    pose.position(),
+                    self.world.goal,
+                    &mut self.raw_path,
+                ),
+            };
+            if found {
                 smooth(&self.raw_path, self.cfg.smoothing_window, &mut self.path);
             } else {
                 self.path.clear();
@@ -775,6 +853,48 @@ mod tests {
         assert!((0..50).all(|s| (0.0..4.0).contains(&obstacle_phase(&w, s))));
         // A static world has no phase.
         assert_eq!(obstacle_phase(&corridor(false), 7), 0.0);
+    }
+
+    #[test]
+    fn a_forecast_bends_the_global_path_from_the_next_replan_on() {
+        use crate::predictive_cost::PredictiveCostConfig;
+        // Open space, the goal 8 m ahead along +x; an obstacle (as a tracker would report it)
+        // 1.6 m right of the route at x = 4, moving left at 1 m/s.
+        let w = World::new(0, vec![], Pose::default(), Vec2::new(8.0, 0.0), 8.0, vec![]);
+        let mut ep = Episode::new(&w, ideal(), 1);
+        let crossing = |ep: &Episode<'_>| {
+            ep.global_path()
+                .iter()
+                .min_by(|a, b| (a.x - 4.0).abs().total_cmp(&(b.x - 4.0).abs()))
+                .unwrap()
+                .y
+        };
+        assert!(crossing(&ep).abs() < 0.1, "straight at first");
+        assert_eq!(ep.replan_every(), 5);
+        let risk = PathRisk {
+            weight: 5.0,
+            field: PredictiveCostConfig::default(),
+        };
+        let obstacle = MovingObstacle {
+            position: Vec2::new(4.0, -1.6),
+            velocity: Vec2::new(0.0, 1.0),
+        };
+        ep.forecast_moving(risk, ep.sim_time(), [obstacle]);
+        for _ in 0..4 {
+            ep.step(Twist::default());
+            assert!(crossing(&ep).abs() < 0.1, "not before the replan");
+        }
+        // The replan at period 5 moves the obstacle on by 0.25 s: at y = -1.35 it sweeps
+        // the route; the path passes behind it.
+        ep.step(Twist::default());
+        assert!(crossing(&ep) < -1.35, "{}", crossing(&ep));
+        // A shorter interval replans sooner; an empty forecast plans straight again.
+        ep.set_replan_every(2);
+        ep.forecast_moving(risk, ep.sim_time(), []);
+        ep.step(Twist::default());
+        assert!(crossing(&ep) < -1.35, "one period after the last replan");
+        ep.step(Twist::default());
+        assert!(crossing(&ep).abs() < 0.1, "{}", crossing(&ep));
     }
 
     #[test]

@@ -1,10 +1,16 @@
 //! Global path on the robot's costmap (A*), path smoothing, and the local goal handed to the
 //! planners, as move_base's NavfnROS + the authors' local-goal rule do.
+//!
+//! Among moving obstacles the search may also weigh PADP's predictive cost field
+//! ([`GlobalPlanner::plan_among`], [`PathRisk`]): the unified cost of PADP Eq. 6, static
+//! inflation plus `kappa_d J_dyn`, so the path bends away from where tracked obstacles are
+//! going before the robot reaches them.
 
 use std::collections::BinaryHeap;
 
 use crate::costmap::{Costmap, LETHAL, OBSTACLE};
 use crate::geometry::Vec2;
+use crate::predictive_cost::{add_to_grid, Grid, MovingObstacle, PredictiveCostConfig};
 
 /// Extra path cost per metre at the highest inflation cost (cost 253); a path through free
 /// space costs 1 per metre.
@@ -12,6 +18,20 @@ const INFLATION_WEIGHT: f32 = 3.0;
 /// Extra cost per metre for crossing a lethal cell (the robot may be inside one already,
 /// and a path must still exist).
 const LETHAL_PENALTY: f32 = 50.0;
+
+/// PADP's predictive cost in the global path search (Eq. 6, `J = kappa_s J_sta + kappa_d
+/// J_dyn`): a step into a cell costs its length times `1 + INFLATION_WEIGHT c / 253 +
+/// weight J_dyn`, with `c` the cell's inflation cost and `J_dyn` the field of Eq. 5
+/// ([`crate::predictive_cost`]) at the cell's centre. `INFLATION_WEIGHT` (3.0) plays
+/// `kappa_s` on the normalized inflation cost, so `weight = 3.0 x kappa_d / kappa_s` keeps
+/// the paper's balance (its `kappa_d / kappa_s = 2.35 / 1.40`: weight 5.0).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PathRisk {
+    /// `kappa_d` in the scale of the search's costs (0: the static search).
+    pub weight: f64,
+    /// The field's parameters (Eq. 5).
+    pub field: PredictiveCostConfig,
+}
 
 /// A* over a [`Costmap`] with 8-connectivity. Keeps its buffers between calls, so replanning
 /// does not allocate once warmed up. Not `Sync`-shared: one per episode.
@@ -22,6 +42,8 @@ pub struct GlobalPlanner {
     stamp: Vec<u32>,
     epoch: u32,
     heap: BinaryHeap<OpenEntry>,
+    /// `weight J_dyn` per cell of the last [`GlobalPlanner::plan_among`].
+    risk: Vec<f32>,
 }
 
 #[derive(Clone, Debug, PartialEq, Eq, PartialOrd, Ord)]
@@ -32,6 +54,49 @@ impl GlobalPlanner {
     /// Returns false (and leaves `path` empty) if either end is outside the map or the goal
     /// is unreachable (only observed obstacle cells are walls; unknown space is free).
     pub fn plan(&mut self, map: &Costmap, from: Vec2, to: Vec2, path: &mut Vec<Vec2>) -> bool {
+        self.search(map, from, to, None, path)
+    }
+
+    /// [`GlobalPlanner::plan`] among `moving` obstacles (their positions now and velocities,
+    /// in the map's frame): each cell also costs `risk.weight x J_dyn` at its centre
+    /// ([`PathRisk`]). With no moving obstacle (or a zero weight) it is [`GlobalPlanner::plan`]
+    /// exactly.
+    pub fn plan_among(
+        &mut self,
+        map: &Costmap,
+        from: Vec2,
+        to: Vec2,
+        moving: &[MovingObstacle],
+        risk: &PathRisk,
+        path: &mut Vec<Vec2>,
+    ) -> bool {
+        if moving.is_empty() || risk.weight == 0.0 {
+            return self.plan(map, from, to, path);
+        }
+        let grid = Grid {
+            first: map.center(0, 0),
+            resolution: map.resolution(),
+            nx: map.nx(),
+            ny: map.ny(),
+        };
+        let mut layer = std::mem::take(&mut self.risk);
+        layer.clear();
+        layer.resize(grid.nx * grid.ny, 0.0);
+        add_to_grid(moving, &risk.field, &grid, risk.weight, &mut layer);
+        let found = self.search(map, from, to, Some(&layer), path);
+        self.risk = layer;
+        found
+    }
+
+    /// The A* search, each cell's step cost raised by `risk` (per cell) when given.
+    fn search(
+        &mut self,
+        map: &Costmap,
+        from: Vec2,
+        to: Vec2,
+        risk: Option<&[f32]>,
+        path: &mut Vec<Vec2>,
+    ) -> bool {
         path.clear();
         let (Some(s), Some(t)) = (map.cell_of(from), map.cell_of(to)) else {
             return false;
@@ -103,8 +168,10 @@ impl GlobalPlanner {
                 } else {
                     INFLATION_WEIGHT * cost as f32 / 253.0
                 };
-                let ng = gc + step * (1.0 + penalty);
                 let nc = idx(x as usize, y as usize);
+                // Without a risk layer the sum is `1 + penalty` bit for bit (x + 0.0 == x).
+                let extra = risk.map_or(0.0, |r| r[nc as usize]);
+                let ng = gc + step * (1.0 + penalty + extra);
                 let seen = self.stamp[nc as usize] == self.epoch;
                 if !seen || ng < self.g[nc as usize] {
                     self.stamp[nc as usize] = self.epoch;
@@ -194,6 +261,67 @@ mod tests {
         // Outside the map: no path.
         assert!(!gp.plan(&m, Vec2::new(50.0, 0.0), Vec2::new(0.0, 6.0), &mut again));
         assert!(again.is_empty());
+    }
+
+    #[test]
+    fn a_predicted_crossing_bends_the_path_behind_the_obstacle() {
+        use crate::predictive_cost::predictive_cost;
+        let m = Costmap::around(CostmapConfig::default(), Vec2::new(0.0, 0.0), Vec2::new(0.0, 6.0));
+        let (from, to) = (Vec2::new(0.0, 0.0), Vec2::new(0.0, 6.0));
+        let mut gp = GlobalPlanner::default();
+        let mut straight = Vec::new();
+        assert!(gp.plan(&m, from, to, &mut straight));
+        assert!(straight.iter().all(|p| p.x.abs() < 0.1), "open space: straight");
+        // An obstacle 1.5 m left of the route at y = 3, moving right at 1 m/s: over the
+        // field's 2.8 s it will sweep across the route from x = -1.1 to x = 1.3.
+        let moving = [MovingObstacle {
+            position: Vec2::new(-1.5, 3.0),
+            velocity: Vec2::new(1.0, 0.0),
+        }];
+        let risk = PathRisk {
+            weight: 5.0,
+            field: PredictiveCostConfig::default(),
+        };
+        let mut bent = Vec::new();
+        assert!(gp.plan_among(&m, from, to, &moving, &risk, &mut bent));
+        assert_eq!((bent[0], *bent.last().unwrap()), (from, to));
+        let crossing = |path: &[Vec2]| {
+            *path
+                .iter()
+                .min_by(|a, b| (a.y - 3.0).abs().total_cmp(&(b.y - 3.0).abs()))
+                .unwrap()
+        };
+        let c = crossing(&bent);
+        // It crosses y = 3 behind the obstacle, where the field is a small part of what it
+        // is on the straight route.
+        let field = |p| predictive_cost(p, &moving, &risk.field);
+        assert!(c.x < -1.5, "crosses at {c:?}");
+        assert!(
+            field(c) < 0.1 * field(Vec2::new(0.0, 3.0)),
+            "{} at {c:?}",
+            field(c)
+        );
+        // The same obstacle moving the other way bends the path the other way.
+        let leftward = [MovingObstacle {
+            position: Vec2::new(1.5, 3.0),
+            velocity: Vec2::new(-1.0, 0.0),
+        }];
+        let mut mirrored = Vec::new();
+        assert!(gp.plan_among(&m, from, to, &leftward, &risk, &mut mirrored));
+        assert!(crossing(&mirrored).x > 1.5, "{:?}", crossing(&mirrored));
+        // No moving obstacle, a zero weight or an obstacle at rest: the static path exactly.
+        let mut again = Vec::new();
+        assert!(gp.plan_among(&m, from, to, &[], &risk, &mut again));
+        assert_eq!(again, straight);
+        let off = PathRisk { weight: 0.0, ..risk };
+        assert!(gp.plan_among(&m, from, to, &moving, &off, &mut again));
+        assert_eq!(again, straight);
+        let post = [MovingObstacle {
+            position: Vec2::new(0.0, 3.0),
+            velocity: Vec2::default(),
+        }];
+        assert!(gp.plan_among(&m, from, to, &post, &risk, &mut again));
+        assert_eq!(again, straight);
     }
 
     #[test]

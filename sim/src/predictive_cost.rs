@@ -19,6 +19,11 @@
 //! A stationary obstacle (speed below [`PredictiveCostConfig::min_speed`]) has no direction
 //! of motion and no future to predict: it contributes nothing (it is in the static costmap).
 //! Pure functions of plain data; no allocation.
+//!
+//! [`add_to_grid`] lays the field over a grid of cells, as the global path search weighs it
+//! (`crate::navigation::GlobalPlanner::plan_among`, PADP Eq. 6): each kernel is cut off
+//! where it falls below 1.1 % of its peak, so a field over a whole costmap costs a few
+//! thousand kernel evaluations per obstacle and step.
 
 use serde::{Deserialize, Serialize};
 
@@ -120,30 +125,140 @@ pub struct MovingObstacle {
     pub velocity: Vec2,
 }
 
+/// One term of Eq. 5: the kernel of one obstacle at one prediction step.
+#[derive(Clone, Copy, Debug)]
+struct Kernel {
+    /// The predicted centre `o_i(tau)`.
+    centre: Vec2,
+    /// `cos psi_i`, `sin psi_i`: the direction of motion.
+    cos: f64,
+    sin: f64,
+    /// `2 s_par(tau)^2` and `2 s_perp(tau)^2`.
+    two_par2: f64,
+    two_perp2: f64,
+    /// The larger of the two scales (m), for bounding the kernel.
+    reach: f64,
+    /// `gamma^tau`.
+    weight: f64,
+}
+
+impl Kernel {
+    /// The kernel's exponent at `p` (Eq. 4 then the exponent of Eq. 5; at most 0).
+    #[inline]
+    fn exponent(&self, p: Vec2) -> f64 {
+        let d = p - self.centre;
+        let dx = self.cos * d.x + self.sin * d.y;
+        let dy = -self.sin * d.x + self.cos * d.y;
+        -(dx * dx) / self.two_par2 - (dy * dy) / self.two_perp2
+    }
+}
+
+/// The kernels of Eq. 5 of every moving obstacle, step after step.
+fn kernels<'a>(
+    obstacles: &'a [MovingObstacle],
+    cfg: &'a PredictiveCostConfig,
+) -> impl Iterator<Item = Kernel> + 'a {
+    obstacles
+        .iter()
+        .filter(move |o| o.velocity.norm() >= cfg.min_speed)
+        .flat_map(move |o| {
+            let speed = o.velocity.norm();
+            // R(-psi) with cos psi = vx / |v|, sin psi = vy / |v|.
+            let (cos, sin) = (o.velocity.x / speed, o.velocity.y / speed);
+            let mut weight = 1.0;
+            (1..=cfg.steps).map(move |tau| {
+                weight *= cfg.gamma;
+                let t = tau as f64;
+                let grow = t / cfg.steps as f64;
+                let s_par = cfg.sigma_par * (1.0 + cfg.growth_par * grow);
+                let s_perp = cfg.sigma_perp * (1.0 + cfg.growth_perp * grow);
+                Kernel {
+                    centre: o.position + o.velocity * (t * cfg.step_s),
+                    cos,
+                    sin,
+                    two_par2: 2.0 * s_par * s_par,
+                    two_perp2: 2.0 * s_perp * s_perp,
+                    reach: s_par.max(s_perp),
+                    weight,
+                }
+            })
+        })
+}
+
 /// `J_dyn(p)` of Eq. 5 over `obstacles`.
 pub fn predictive_cost(p: Vec2, obstacles: &[MovingObstacle], cfg: &PredictiveCostConfig) -> f64 {
-    let mut total = 0.0;
-    for o in obstacles {
-        let speed = o.velocity.norm();
-        if speed < cfg.min_speed {
+    kernels(obstacles, cfg)
+        .map(|k| k.weight * k.exponent(p).exp())
+        .sum()
+}
+
+/// Where [`add_to_grid`] cuts each kernel off: beyond this many of its scales (an ellipse),
+/// where the kernel is below `exp(-3^2 / 2)`, 1.1 % of its peak.
+pub const GRID_CUTOFF_SIGMAS: f64 = 3.0;
+
+/// A regular grid of cells, row after row (`x` fastest): cell `(ix, iy)` is centred at
+/// `first + resolution (ix, iy)`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Grid {
+    /// Centre of cell (0, 0) (m).
+    pub first: Vec2,
+    /// Cell size (m).
+    pub resolution: f64,
+    /// Cells along x.
+    pub nx: usize,
+    /// Cells along y.
+    pub ny: usize,
+}
+
+/// Adds `scale x J_dyn` (Eq. 5) at every cell centre of `grid` into `out` (`nx x ny` values,
+/// row after row), each kernel cut off beyond [`GRID_CUTOFF_SIGMAS`] of its scales, so only
+/// the cells near a predicted position are visited. Returns the number of kernel evaluations.
+///
+/// # Panics
+/// If `out` is shorter than the grid.
+pub fn add_to_grid(
+    obstacles: &[MovingObstacle],
+    cfg: &PredictiveCostConfig,
+    grid: &Grid,
+    scale: f64,
+    out: &mut [f32],
+) -> u64 {
+    assert!(
+        out.len() >= grid.nx * grid.ny,
+        "predictive cost grid: {} values for {} x {} cells",
+        out.len(),
+        grid.nx,
+        grid.ny
+    );
+    let cutoff = -0.5 * GRID_CUTOFF_SIGMAS * GRID_CUTOFF_SIGMAS;
+    let mut evaluations = 0;
+    for k in kernels(obstacles, cfg) {
+        // The cells whose centres lie within the cutoff's bounding square.
+        let r = GRID_CUTOFF_SIGMAS * k.reach;
+        let range = |lo: f64, hi: f64, first: f64, n: usize| {
+            let a = ((lo - first) / grid.resolution).ceil().max(0.0);
+            let b = ((hi - first) / grid.resolution).floor().min(n as f64 - 1.0);
+            (a <= b).then_some((a as usize, b as usize))
+        };
+        let (Some((x0, x1)), Some((y0, y1))) = (
+            range(k.centre.x - r, k.centre.x + r, grid.first.x, grid.nx),
+            range(k.centre.y - r, k.centre.y + r, grid.first.y, grid.ny),
+        ) else {
             continue;
-        }
-        // R(-psi) with cos psi = vx / |v|, sin psi = vy / |v|.
-        let (c, s) = (o.velocity.x / speed, o.velocity.y / speed);
-        let mut decay = 1.0;
-        for tau in 1..=cfg.steps {
-            decay *= cfg.gamma;
-            let t = tau as f64;
-            let d = p - (o.position + o.velocity * (t * cfg.step_s));
-            let dx = c * d.x + s * d.y;
-            let dy = -s * d.x + c * d.y;
-            let grow = t / cfg.steps as f64;
-            let s_par = cfg.sigma_par * (1.0 + cfg.growth_par * grow);
-            let s_perp = cfg.sigma_perp * (1.0 + cfg.growth_perp * grow);
-            total += decay * (-(dx * dx) / (2.0 * s_par * s_par) - (dy * dy) / (2.0 * s_perp * s_perp)).exp();
+        };
+        for iy in y0..=y1 {
+            let y = grid.first.y + iy as f64 * grid.resolution;
+            let row = &mut out[iy * grid.nx..(iy + 1) * grid.nx];
+            for (ix, cell) in row.iter_mut().enumerate().take(x1 + 1).skip(x0) {
+                let e = k.exponent(Vec2::new(grid.first.x + ix as f64 * grid.resolution, y));
+                evaluations += 1;
+                if e >= cutoff {
+                    *cell += (scale * k.weight * e.exp()) as f32;
+                }
+            }
         }
     }
-    total
+    evaluations
 }
 
 #[cfg(test)]
@@ -200,6 +315,54 @@ mod tests {
         }];
         assert_eq!(predictive_cost(Vec2::new(1.0, 0.0), &post, &cfg), 0.0);
         assert_eq!(predictive_cost(Vec2::new(1.0, 0.0), &[], &cfg), 0.0);
+    }
+
+    #[test]
+    fn the_grid_holds_the_field_at_its_cell_centres_up_to_the_cutoff() {
+        let cfg = PredictiveCostConfig::default();
+        let o = [
+            MovingObstacle {
+                position: Vec2::new(1.0, 0.5),
+                velocity: Vec2::new(0.8, -0.6),
+            },
+            MovingObstacle {
+                position: Vec2::new(-1.0, -1.0),
+                velocity: Vec2::new(0.0, 1.2),
+            },
+        ];
+        let grid = Grid {
+            first: Vec2::new(-4.0, -5.0),
+            resolution: 0.1,
+            nx: 101,
+            ny: 91,
+        };
+        let mut out = vec![0.5f32; grid.nx * grid.ny];
+        let evaluations = add_to_grid(&o, &cfg, &grid, 2.0, &mut out);
+        assert!(evaluations > 0 && evaluations < (2 * cfg.steps * grid.nx * grid.ny) as u64);
+        // Each kernel loses at most exp(-4.5) of its weight beyond the cutoff.
+        let tolerance = 2.0 * 2.0 * cfg.peak() * (-4.5f64).exp() + 1e-5;
+        let mut worst = 0.0f64;
+        for iy in 0..grid.ny {
+            for ix in 0..grid.nx {
+                let p = grid.first + Vec2::new(ix as f64, iy as f64) * grid.resolution;
+                let want = 0.5 + 2.0 * predictive_cost(p, &o, &cfg);
+                let got = f64::from(out[iy * grid.nx + ix]);
+                assert!(got <= want + 1e-5, "({ix}, {iy}): {got} above {want}");
+                worst = worst.max(want - got);
+            }
+        }
+        assert!(worst < tolerance, "{worst}");
+        // Far from every prediction the cells keep their value; an empty list adds nothing.
+        assert_eq!(out[0], 0.5);
+        let before = out.clone();
+        assert_eq!(add_to_grid(&[], &cfg, &grid, 2.0, &mut out), 0);
+        assert_eq!(out, before);
+        // A kernel beyond the grid's edge visits nothing.
+        let away = [MovingObstacle {
+            position: Vec2::new(50.0, 0.0),
+            velocity: Vec2::new(1.0, 0.0),
+        }];
+        assert_eq!(add_to_grid(&away, &cfg, &grid, 2.0, &mut out), 0);
     }
 
     #[test]

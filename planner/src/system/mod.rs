@@ -29,7 +29,14 @@
 //!   within the robot's width, so narrow gaps beside the robot do not trigger it; after
 //!   backing up the robot turns toward the local path before driving on;
 //! - brake commands a stop: the simulated controller decelerates at 20 m/s^2, so the
-//!   authors' negative brake commands would drive backwards blind.
+//!   authors' negative brake commands would drive backwards blind;
+//! - among moving obstacles the fallbacks (brake, rotate, back up) are also checked against
+//!   the forecast: each command, held from the measured velocity for `moving_hold_time`, must
+//!   keep the footprint clear of every obstacle's swept forecast ([`NavSystem::fallback_clear`]).
+//!   A rotation or back-up that fails counts as blocked (the mode machine moves on to the
+//!   next behaviour); a stop that fails is replaced by a clear back-up, else a clear
+//!   rotation, else the behaviours of the recovery cycle, and when nothing is clear the
+//!   robot stops.
 //!
 //! Files: [`config`] (the parameters), [`mode`] (the mode machine), [`sampling`] (sample
 //! weights, rollout and costs of one sample); this file holds the planner that drives them.
@@ -265,9 +272,51 @@ impl NavSystem {
             .fold(far, f64::min)
     }
 
+    /// True when the command `cmd`, held from the velocity `start` for `moving_hold_time`
+    /// (the planner's acceleration limits, one pose per control period), keeps the footprint
+    /// clear by `low_margin` of the forecast of every `moving` obstacle: each pose is checked
+    /// against the segments the obstacles sweep over its period
+    /// ([`crate::moving::hold_clearance`]). Always true without moving obstacles (nothing is
+    /// checked or counted).
+    fn fallback_clear(&mut self, cmd: Twist, start: Twist, moving: &[crate::Predicted]) -> bool {
+        if moving.is_empty() {
+            return true;
+        }
+        let c = self.cfg;
+        let dt = c.control_dt;
+        let periods = (c.moving_hold_time / dt).ceil().max(1.0) as usize;
+        let (mut vel, mut pose) = (start, Pose::default());
+        for k in 0..periods {
+            vel.v = approach(vel.v, cmd.v, c.accel_v * dt);
+            vel.w = approach(vel.w, cmd.w, c.accel_w * dt);
+            pose = integrate_arc(pose, vel, dt);
+            let (t0, t1) = (k as f64 * dt, (k + 1) as f64 * dt);
+            let fp = self.map.footprint();
+            if crate::moving::hold_clearance(fp, &pose, t0, t1, moving, &mut self.trace.evaluated)
+                < c.low_margin
+            {
+                return false;
+            }
+        }
+        true
+    }
+
+    /// Stop, where the stop stays clear of the moving obstacles' forecast; otherwise the
+    /// next fallback that is clear: back up, or rotate toward `heading_error`. `None` when
+    /// none is.
+    fn brake(&mut self, heading_error: f64, vel: Twist, moving: &[crate::Predicted]) -> Option<Twist> {
+        let stop = Twist::default();
+        if self.fallback_clear(stop, vel, moving) {
+            return Some(stop);
+        }
+        self.backup(vel, moving)
+            .or_else(|| self.rotate(heading_error, vel, moving))
+    }
+
     /// Rotate in place toward `heading_error`, or the other way round if that side is
-    /// blocked; a rotation keeps its direction until that direction is blocked.
-    fn rotate(&mut self, heading_error: f64) -> Option<Twist> {
+    /// blocked (by the scan, or by the `moving` obstacles' forecast from the velocity
+    /// `vel`); a rotation keeps its direction until that direction is blocked.
+    fn rotate(&mut self, heading_error: f64, vel: Twist, moving: &[crate::Predicted]) -> Option<Twist> {
         let w = heading_error
             .abs()
             .clamp(self.cfg.rotate_min_w, self.cfg.rotate_max_w);
@@ -283,7 +332,8 @@ impl NavSystem {
             if self.clear_at(
                 (1..=3).map(|i| Pose::new(0.0, 0.0, dir * 0.05 * i as f64)),
                 margin,
-            ) {
+            ) && self.fallback_clear(Twist::new(0.0, dir * w), vel, moving)
+            {
                 if self.rotate_dir != 0.0 && dir != self.rotate_dir {
                     // Blocked on both sides of the reachable arc: give up rotating.
                     if self.rotate_flipped {
@@ -298,11 +348,14 @@ impl NavSystem {
         None
     }
 
-    /// Back up straight if the (partly unseen) space behind looks clear.
-    fn backup(&mut self) -> Option<Twist> {
+    /// Back up straight if the (partly unseen) space behind looks clear and the back-up,
+    /// from the velocity `vel`, stays clear of the `moving` obstacles' forecast.
+    fn backup(&mut self, vel: Twist, moving: &[crate::Predicted]) -> Option<Twist> {
         let margin = self.cfg.low_margin;
-        self.clear_at((1..=3).map(|i| Pose::new(-0.05 * i as f64, 0.0, 0.0)), margin)
-            .then(|| Twist::new(-self.cfg.backup_speed, 0.0))
+        let cmd = Twist::new(-self.cfg.backup_speed, 0.0);
+        (self.clear_at((1..=3).map(|i| Pose::new(-0.05 * i as f64, 0.0, 0.0)), margin)
+            && self.fallback_clear(cmd, vel, moving))
+        .then_some(cmd)
     }
 
     /// One sampling cycle in `mode`; `None` when no sample is collision-free.
@@ -652,19 +705,24 @@ impl NavSystem {
             self.rotate_dir = 0.0;
             self.rotate_flipped = false;
         }
-        // Try the mode's action; on failure the machine moves on and the next mode acts.
+        // Try the mode's action; on failure the machine moves on and the next mode acts (a
+        // failed brake stays in brake: then the robot stops).
         let mut cmd = Twist::default();
+        let (vel, moving) = (per.vel, input.moving);
         for _ in 0..3 {
             let mode = self.machine.mode();
             let action = match mode {
                 Mode::Normal | Mode::LowSpeed | Mode::Recovery => self.sample(input, mode),
-                Mode::Brake => Some(Twist::default()),
-                Mode::Rotate => self.rotate(heading_error),
-                Mode::Backup => self.backup(),
+                Mode::Brake => self.brake(heading_error, vel, moving),
+                Mode::Rotate => self.rotate(heading_error, vel, moving),
+                Mode::Backup => self.backup(vel, moving),
             };
-            self.machine.report(action.is_some());
             if let Some(a) = action {
+                self.machine.report(true);
                 cmd = a;
+                break;
+            }
+            if self.machine.report(false) == mode {
                 break;
             }
         }
@@ -702,11 +760,16 @@ mod tests {
 
     /// Normal -> low-speed -> brake -> recovery, standing still.
     fn into_recovery(m: &mut ModeMachine) {
+        into_brake(m);
+        assert_eq!(m.update(&at(0.0)), Mode::Recovery);
+    }
+
+    /// Normal -> low-speed -> brake, standing still.
+    fn into_brake(m: &mut ModeMachine) {
         drive(m, &[0.0; 10]);
         assert_eq!(m.mode(), Mode::LowSpeed);
         drive(m, &[0.0; 11]);
         assert_eq!(m.mode(), Mode::Brake);
-        assert_eq!(m.update(&at(0.0)), Mode::Recovery);
     }
 
     #[test]
@@ -842,6 +905,104 @@ mod tests {
         // Fewer feasible samples than ten still sum to one.
         top_weights(&[0.2, 0.4], 10, 1.0, &mut w);
         assert!((w.iter().sum::<f64>() - 1.0).abs() < 1e-12);
+    }
+
+    /// A standing robot (nothing scanned near it) checks its fallbacks against hand-built
+    /// forecasts: each meets the forecast or not as worked out from the footprint (0.508 x
+    /// 0.430 m) and the obstacle's sweep, and a stop that would be hit gives way to the next
+    /// fallback that stays clear.
+    #[test]
+    fn the_fallbacks_give_way_to_a_forecast_obstacle() {
+        let obstacle = |x: f64, y: f64, vx: f64, vy: f64, radius: f64| crate::Predicted {
+            position: Vec2::new(x, y),
+            velocity: Vec2::new(vx, vy),
+            radius,
+        };
+        let still = Twist::default();
+        let mut sys = NavSystem::new(SystemConfig::default(), 1);
+        let backup = Twist::new(-0.1, 0.0);
+        // Without a forecast every fallback is clear, and nothing is counted.
+        assert_eq!(sys.backup(still, &[]), Some(backup));
+        assert!(sys.rotate(0.5, still, &[]).is_some());
+        assert_eq!(sys.brake(0.5, still, &[]), Some(still));
+        let counted = sys.trace.evaluated;
+        assert!(sys.fallback_clear(still, still, &[]));
+        assert_eq!(sys.trace.evaluated, counted);
+
+        // An obstacle (r = 0.3) coming from behind at 1 m/s, 1.5 m away: within the second
+        // of the check it reaches the rear (x = -0.254) of a robot backing up at 0.1 m/s.
+        let chaser = [obstacle(-1.5, 0.0, 1.0, 0.0, 0.3)];
+        assert_eq!(sys.backup(still, &chaser), None);
+        assert!(sys.trace.evaluated > counted, "each checked period counts");
+        // The same obstacle moving away: clear.
+        let leaving = [obstacle(-1.5, 0.0, -1.0, 0.0, 0.3)];
+        assert_eq!(sys.backup(still, &leaving), Some(backup));
+
+        // An obstacle (r = 0.02) sliding along the left side 0.268 m from the centre line:
+        // 0.033 m clear of the standing footprint, but a rotation either way lifts a left
+        // corner across its line (by 0.3 rad the front-left one is at y = 0.280).
+        let sliding = [obstacle(-1.0, 0.268, 1.0, 0.0, 0.02)];
+        assert!(sys.fallback_clear(still, still, &sliding), "standing is clear");
+        assert_eq!(sys.rotate(0.5, still, &sliding), None);
+        assert_eq!(sys.rotate(-0.5, still, &sliding), None);
+
+        // An obstacle (r = 0.2) crossing 0.005 m in front of the bumper at 2 m/s: a stop is
+        // within the margin (0.01 m) when it passes at t = 0.5 s, so brake backs up instead
+        // (by then 0.05 m further from it); a rotation would swing a front corner into it.
+        let grazing = [obstacle(0.254 + 0.2 + 0.005, -1.0, 0.0, 2.0, 0.2)];
+        assert!(!sys.fallback_clear(still, still, &grazing));
+        assert_eq!(sys.rotate(0.5, still, &grazing), None);
+        assert_eq!(sys.brake(0.5, still, &grazing), Some(backup));
+        // Head-on at 1 m/s from 1.2 m: nothing is clear, and brake has nothing to give.
+        let head_on = [obstacle(1.2, 0.0, -1.0, 0.0, 0.2)];
+        assert_eq!(sys.brake(0.0, still, &head_on), None);
+    }
+
+    /// In brake mode with nothing clear the cycle stops the robot (a failed brake stays in
+    /// brake instead of trying it again); with a clear back-up it backs up.
+    #[test]
+    fn a_braking_robot_backs_up_out_of_a_crossing_or_stops() {
+        let world = World::new(
+            0,
+            vec![],
+            sim::geometry::Pose::default(),
+            Vec2::new(8.0, 0.0),
+            8.0,
+            vec![],
+        );
+        let ep = Episode::new(&world, EpisodeConfig::default(), 1);
+        let sched = Schedule::ddp_default();
+        let plan = |sys: &mut NavSystem, moving: &[crate::Predicted]| {
+            sys.machine = machine();
+            into_brake(&mut sys.machine);
+            // Moving at 0.15 m/s: brake holds (the robot has not stopped).
+            let mut per = ep.perception();
+            per.vel = Twist::new(0.15, 0.0);
+            sys.cycle(&PlanInput {
+                perception: per,
+                schedule: &sched,
+                max_speed: 1.5,
+                prediction: crate::Prediction::PAPERS,
+                budget: crate::Budget::UNLIMITED,
+                moving,
+            })
+        };
+        let mut sys = NavSystem::new(SystemConfig::default(), 1);
+        assert_eq!(plan(&mut sys, &[]), Twist::default());
+        let grazing = [crate::Predicted {
+            position: Vec2::new(0.254 + 0.2 + 0.005, -1.0),
+            velocity: Vec2::new(0.0, 2.0),
+            radius: 0.2,
+        }];
+        assert_eq!(plan(&mut sys, &grazing), Twist::new(-0.1, 0.0));
+        assert_eq!(sys.mode(), Mode::Brake);
+        let head_on = [crate::Predicted {
+            position: Vec2::new(1.2, 0.0),
+            velocity: Vec2::new(-1.0, 0.0),
+            radius: 0.2,
+        }];
+        assert_eq!(plan(&mut sys, &head_on), Twist::default());
+        assert_eq!(sys.mode(), Mode::Brake);
     }
 
     /// Walls 2 m apart along +y and a 0.25 m cylinder on the centre line.
