@@ -242,6 +242,13 @@ fn run_all(spec: &RunSpec<'_>, ctrl: &Controller<'_>, collect: bool) -> anyhow::
 /// observations.
 type RunOut = (EpisodeResult, ComputeTally, Vec<TracePoint>, Vec<Vec<f32>>);
 
+/// What chooses a run's actions in the ADP environment: a constant, or a network (fed the
+/// step's observation, or one drawn from a pool with its seeded stream).
+enum Acts<'a> {
+    Constant(&'a [f32]),
+    Net(&'a MlpPolicy, Option<(&'a [Vec<f32>], SplitMix64)>),
+}
+
 /// One run; returns its result, its planning cycles' compute, its trace (run 0 with
 /// `spec.trace`) and, with `collect`, its observations.
 fn run_one(
@@ -255,7 +262,7 @@ fn run_one(
     let seed = run_seed(spec.seed, w, r);
     let world = &spec.worlds[w];
     let mut planner = spec.planner.build(spec.cfg, seed ^ 0x5eed_91a2);
-    let (net, env, space, pool) = match ctrl {
+    let (env, space, acts) = match ctrl {
         Controller::Schedule(s) => {
             let mut driver = CycleDriver::new(
                 spec.cfg.compute.resolve(spec.planner.name())?,
@@ -276,33 +283,19 @@ fn run_one(
             );
             return Ok((res, tally, Vec::new(), Vec::new()));
         }
-        Controller::Constant { action, space, env } => {
-            let eval_env = EnvConfig {
-                compute: spec.cfg.compute,
-                ..env.for_evaluation()
-            };
-            let mut e = AdpEnv::new(
-                world,
-                spec.cfg.episode,
-                planner,
-                *space,
-                spec.speed,
-                eval_env,
-                seed,
-            )?;
-            while e.end() == End::Continue {
-                e.step(action)?;
-            }
-            return Ok((e.result().episode, *e.compute(), Vec::new(), Vec::new()));
-        }
-        Controller::Policy { net, env, space } => (*net, *env, *space, None),
+        Controller::Constant { action, space, env } => (*env, *space, Acts::Constant(action)),
+        Controller::Policy { net, env, space } => (*env, *space, Acts::Net(net, None)),
         Controller::Shuffled {
             net,
             env,
             space,
             pool,
             seed: s,
-        } => (*net, *env, *space, Some((*pool, SplitMix64::new(*s ^ seed)))),
+        } => (
+            *env,
+            *space,
+            Acts::Net(net, Some((*pool, SplitMix64::new(*s ^ seed)))),
+        ),
     };
     let eval_env = EnvConfig {
         compute: spec.cfg.compute,
@@ -317,6 +310,15 @@ fn run_one(
         eval_env,
         seed,
     )?;
+    let (net, pool) = match acts {
+        Acts::Constant(action) => {
+            while e.end() == End::Continue {
+                e.step(action)?;
+            }
+            return Ok((e.result().episode, *e.compute(), Vec::new(), Vec::new()));
+        }
+        Acts::Net(net, pool) => (net, pool),
+    };
     let mut obs = vec![0.0f32; e.obs_dim()];
     let mut action = vec![0.0f32; space.dim()];
     let mut trace = Vec::new();
