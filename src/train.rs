@@ -152,15 +152,15 @@ impl TrainConfig {
                 .and_then(toml::Value::as_table)
                 .is_some_and(|t| t.contains_key(key))
         };
+        let (obs_dim, act_dim, laser_dim) = cfg.td3_sizes();
         if !given("obs_dim") {
-            cfg.td3.obs_dim =
-                actor::obs_dim(cfg.env.observation, cfg.run.action_space, cfg.env.observe_tracks);
+            cfg.td3.obs_dim = obs_dim;
         }
         if !given("act_dim") {
-            cfg.td3.act_dim = cfg.run.action_space.dim();
+            cfg.td3.act_dim = act_dim;
         }
         if !given("laser_dim") {
-            cfg.td3.laser_dim = cfg.env.observation.size();
+            cfg.td3.laser_dim = laser_dim;
         }
         cfg.td3.validate().with_context(|| format!("{name}: [td3]"))?;
         cfg.env
@@ -181,6 +181,17 @@ impl TrainConfig {
             }
         }
         Ok(cfg)
+    }
+
+    /// The `[td3]` sizes `(obs_dim, act_dim, laser_dim)` that `[run] action_space` and `[env]
+    /// observation` / `observe_tracks` need.
+    pub fn td3_sizes(&self) -> (usize, usize, usize) {
+        let (space, env) = (self.run.action_space, &self.env);
+        (
+            actor::obs_dim(env.observation, space, env.observe_tracks),
+            space.dim(),
+            env.observation.size(),
+        )
     }
 
     /// The training worlds of `[run] worlds`.

@@ -195,6 +195,16 @@ impl PlannerCosts {
         }
     }
 
+    /// Every planner's costs multiplied by `k`.
+    pub fn scaled(&self, k: f64) -> PlannerCosts {
+        PlannerCosts {
+            dwa: self.dwa.scaled(k),
+            mppi: self.mppi.scaled(k),
+            log_mppi: self.log_mppi.scaled(k),
+            system: self.system.scaled(k),
+        }
+    }
+
     /// The costs of the planner called `name`, if it is one of this crate's.
     pub fn of(&self, name: &str) -> Option<UnitCosts> {
         match name {

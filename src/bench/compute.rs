@@ -306,12 +306,7 @@ pub fn run(worlds: usize) -> anyhow::Result<Vec<Figure>> {
         percentile(ddp_calls(k).map(|call| c.cycle_ns(&call.work)).collect(), 0.95)
     };
     let scale = SYSTEM_DDP_P95_MS * 1e6 / ddp_p95(PlannerKind::System, &here).max(1.0);
-    let costs = PlannerCosts {
-        dwa: here.dwa.scaled(scale),
-        mppi: here.mppi.scaled(scale),
-        log_mppi: here.log_mppi.scaled(scale),
-        system: here.system.scaled(scale),
-    };
+    let costs = here.scaled(scale);
     let budget = |k| (ddp_p95(k, &costs) / 1e6 * 100.0).round() / 100.0;
     let platform = Platform {
         costs,

@@ -648,9 +648,7 @@ impl Experiment {
         cfg.run.action_space = arm.space;
         cfg.run.max_speed = arm.speed;
         cfg.run.worlds = arm.train_worlds.clone();
-        cfg.td3.obs_dim = actor::obs_dim(cfg.env.observation, arm.space, cfg.env.observe_tracks);
-        cfg.td3.laser_dim = cfg.env.observation.size();
-        cfg.td3.act_dim = arm.space.dim();
+        (cfg.td3.obs_dim, cfg.td3.act_dim, cfg.td3.laser_dim) = cfg.td3_sizes();
         cfg.td3.seed = self.section.first_seed + seed as u64;
         cfg
     }
