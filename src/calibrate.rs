@@ -8,9 +8,10 @@
 //! standalone DDP system. The Log-MPPI rows are printed but not fitted: the paper attributes
 //! their low numbers to its own costmap-based Python implementation.
 
+use planner::PlannerKind;
 use serde::Serialize;
 
-use crate::eval::{Fidelity, PlannerKind, Row};
+use crate::eval::{Fidelity, Row};
 
 /// One cell of the paper's Table I.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]

@@ -2,6 +2,7 @@
 //! options several commands share defined once ([`Setup`], [`EvalRunArgs`], [`WorldData`]),
 //! and the dispatch to each command's code ([`run`]).
 
+use planner::PlannerKind;
 use std::borrow::Cow;
 use std::path::PathBuf;
 
@@ -13,7 +14,7 @@ use sim::{Profile, World};
 
 use crate::config::{EvalConfig, UnknownName};
 use crate::eval::{AdpSetting, EvalPlan};
-use crate::eval::{Fidelity, ObstaclePrediction, PlannerKind};
+use crate::eval::{Fidelity, ObstaclePrediction};
 use crate::{bench, calibrate, experiment, export, slurm, train};
 
 /// `adp`.

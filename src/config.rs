@@ -3,7 +3,9 @@
 use anyhow::Context;
 use serde::Deserialize;
 
-use planner::{ComputeConfig, DwaConfig, LogMppiConfig, MppiConfig, PadpConfig, SystemConfig};
+use planner::{
+    ComputeConfig, DwaConfig, LogMppiConfig, MppiConfig, PadpConfig, PlannerConfigs, SystemConfig,
+};
 use sim::EpisodeConfig;
 
 /// The embedded default.
@@ -30,6 +32,16 @@ pub struct EvalConfig {
 }
 
 impl EvalConfig {
+    /// Every planner's tunables, for [`planner::PlannerKind::build`].
+    pub fn planners(&self) -> PlannerConfigs {
+        PlannerConfigs {
+            dwa: self.dwa,
+            mppi: self.mppi,
+            log_mppi: self.log_mppi,
+            system: self.system,
+        }
+    }
+
     /// Reads `path`, or the embedded default when `None`.
     pub fn load(path: Option<&std::path::Path>) -> anyhow::Result<Self> {
         let (name, text) = match path {

@@ -15,20 +15,20 @@ use std::time::Instant;
 use anyhow::{bail, Context};
 use indicatif::{ProgressBar, ProgressStyle};
 use rayon::prelude::*;
-use serde::{Deserialize, Serialize};
+use serde::Serialize;
 
-use actor::{AdpEnv, End, EnvConfig, MlpPolicy, Scratch};
+use actor::closed_loop::{self, planner_seed, Chooser, Greedy, Run, Step};
+use actor::{EnvConfig, MlpPolicy};
 use planner::moving::FORECAST_HORIZONS;
 use planner::{
-    run::{drive_episode_with, CycleDriver},
-    ActionSpace, ComputeConfig, ComputeModel, ComputeTally, Dwa, ForecastErrors, LogMppi, Mppi, NavSystem,
-    PadpParts, PlanInput, Planner, Schedule, Trace, TrackingConfig,
+    run::CycleDriver, ActionSpace, ComputeConfig, ComputeModel, ComputeTally, ForecastErrors, PadpParts,
+    PlanInput, Planner, PlannerKind, Schedule, Trace, TrackingConfig,
 };
 use sim::lidar::LidarConfig;
 use sim::robot::Twist;
 use sim::{EpisodeConfig, EpisodeResult, Status, World};
 
-use crate::config::{EvalConfig, UnknownName};
+use crate::config::EvalConfig;
 
 /// Time charged to a failed run when averaging times (s), as in the ADP paper.
 pub const FAILED_RUN_TIME: f64 = 50.0;
@@ -104,64 +104,6 @@ impl Fidelity {
                 .space
                 .schedule_only(&adp.action, planner::schedule::DEFAULT_BOUNDARY_POINTS)?,
         })
-    }
-}
-
-/// A planner selectable on the command line.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
-#[serde(rename_all = "kebab-case")]
-pub enum PlannerKind {
-    /// Dynamic Window Approach.
-    Dwa,
-    /// Model Predictive Path Integral control.
-    Mppi,
-    /// MPPI with normal + log-normal mixture sampling (Mohamed et al. 2022).
-    LogMppi,
-    /// The standalone DDP/ADP navigation system (modes, recovery).
-    System,
-}
-
-impl std::str::FromStr for PlannerKind {
-    type Err = UnknownName;
-
-    /// A planner by [`PlannerKind::name`] (how the learner names it to its actors).
-    fn from_str(name: &str) -> Result<Self, UnknownName> {
-        <PlannerKind as clap::ValueEnum>::from_str(name, false).map_err(|_| UnknownName {
-            kind: "planner",
-            name: name.to_string(),
-            expected: "dwa, mppi, log-mppi or system",
-        })
-    }
-}
-
-impl PlannerKind {
-    /// Every planner, in table order.
-    pub const ALL: [PlannerKind; 4] = [
-        PlannerKind::Dwa,
-        PlannerKind::Mppi,
-        PlannerKind::LogMppi,
-        PlannerKind::System,
-    ];
-
-    /// The planner's name in configuration files, on the command line and in tables (`dwa`,
-    /// `mppi`, `log-mppi`, `system`).
-    pub fn name(self) -> &'static str {
-        match self {
-            PlannerKind::Dwa => "dwa",
-            PlannerKind::Mppi => "mppi",
-            PlannerKind::LogMppi => "log-mppi",
-            PlannerKind::System => "system",
-        }
-    }
-
-    /// A fresh planner for one episode; `seed` drives its sampling.
-    pub fn build(self, cfg: &EvalConfig, seed: u64) -> Box<dyn Planner> {
-        match self {
-            PlannerKind::Dwa => Box::new(Dwa::new(cfg.dwa)),
-            PlannerKind::Mppi => Box::new(Mppi::new(cfg.mppi, seed)),
-            PlannerKind::LogMppi => Box::new(LogMppi::new(cfg.log_mppi, seed)),
-            PlannerKind::System => Box::new(NavSystem::new(cfg.system, seed)),
-        }
     }
 }
 
@@ -484,35 +426,6 @@ fn eval_env_config(trained: EnvConfig, compute: ComputeConfig) -> EnvConfig {
     }
 }
 
-/// Per-thread buffers of closed-loop runs, reused from episode to episode.
-#[derive(Default)]
-pub struct PolicyBuffers {
-    obs: Vec<f32>,
-    action: Vec<f32>,
-    scratch: Scratch,
-}
-
-/// The closed loop: runs `env` to its end with `net` choosing the action every agent step
-/// (deterministic: no exploration noise); `on_step(env, observation, action)` sees every step
-/// before its action is applied. Returns the result and what the planning cycles did and
-/// cost. Allocates nothing per step beyond what [`AdpEnv::step`] and `on_step` do.
-pub fn run_policy(
-    mut env: AdpEnv<'_>,
-    net: &MlpPolicy,
-    buf: &mut PolicyBuffers,
-    mut on_step: impl FnMut(&AdpEnv<'_>, &[f32], &[f32]) -> anyhow::Result<()>,
-) -> anyhow::Result<(EpisodeResult, ComputeTally)> {
-    buf.obs.resize(env.obs_dim(), 0.0);
-    buf.action.resize(env.space().dim(), 0.0);
-    while env.end() == End::Continue {
-        env.observation(&mut buf.obs);
-        net.act(&buf.obs, &mut buf.action, &mut buf.scratch);
-        on_step(&env, &buf.obs, &buf.action)?;
-        env.step(&buf.action)?;
-    }
-    Ok((env.result().episode, *env.compute()))
-}
-
 fn charged_time(r: &EpisodeResult) -> f64 {
     if r.status == Status::Succeeded {
         r.time_s
@@ -646,31 +559,33 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
     let t0 = Instant::now();
     let results: Vec<RunOut> = jobs
         .par_iter()
-        .map_init(PolicyBuffers::default, |buf, &(ri, p, f, s, pr, li, w, r)| {
+        .map(|&(ri, p, f, s, pr, li, w, r)| {
             let seed = run_seed(plan.seed, w, r);
-            let episode = EpisodeConfig {
-                lidar: lidars[li],
-                ..cfg.episode
-            };
             let cost = Arc::new(PlanCost::default());
-            let mut planner: Box<dyn Planner> = Box::new(Metered {
-                inner: p.build(cfg, seed ^ 0x5eed_91a2),
-                cost: Arc::clone(&cost),
-            });
-            let (res, tally, forecast) = match policy.filter(|_| f == Fidelity::Adp) {
+            let run = Run {
+                world: &worlds[w],
+                episode: EpisodeConfig {
+                    lidar: lidars[li],
+                    ..cfg.episode
+                },
+                planner: Box::new(Metered {
+                    inner: p.build(&cfg.planners(), planner_seed(seed)),
+                    cost: Arc::clone(&cost),
+                }),
+                max_speed: s,
+                seed,
+            };
+            let no_steps = |_: &Step<'_>| Ok::<(), anyhow::Error>(());
+            let (out, forecast) = match policy.filter(|_| f == Fidelity::Adp) {
                 Some(net) => {
-                    let env = AdpEnv::new(
-                        &worlds[w],
-                        episode,
-                        planner,
-                        plan.adp.space,
-                        s,
-                        eval_env_config(plan.policy_env, cfg.compute),
-                        seed,
-                    )?;
-                    let (res, tally) = run_policy(env, net, buf, |_, _, _| Ok(()))
+                    let chooser = Chooser::Env {
+                        space: plan.adp.space,
+                        env: eval_env_config(plan.policy_env, cfg.compute),
+                        act: &mut Greedy::new(net),
+                    };
+                    let out = closed_loop::run(run, chooser, no_steps)
                         .with_context(|| format!("world {w}, run {r}"))?;
-                    (res, tally, None)
+                    (out, None)
                 }
                 None => {
                     let driver = CycleDriver::new(cfg.compute.resolve(p.name())?, cfg.episode.control_dt);
@@ -682,20 +597,17 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
                             .with_padp(cfg.prediction, pr.padp()),
                     }
                     .with_forecast_errors();
-                    let res = drive_episode_with(
-                        &worlds[w],
-                        episode,
-                        planner.as_mut(),
-                        &f.schedule(&plan.adp)?,
-                        s,
-                        seed,
-                        &mut driver,
-                        |_, _, _| {},
-                    );
+                    let schedule = f.schedule(&plan.adp)?;
+                    let chooser = Chooser::Fixed {
+                        schedule: &schedule,
+                        driver: &mut driver,
+                    };
+                    let out = closed_loop::run(run, chooser, no_steps)?;
                     let forecast = driver.tracking().and(driver.forecast_errors().copied());
-                    (res, *driver.tally(), forecast)
+                    (out, forecast)
                 }
             };
+            let (res, tally) = (out.episode, out.compute);
             bar.inc(1);
             Ok((ri, w, r, res, tally, cost, forecast))
         })
@@ -1076,7 +988,7 @@ mod tests {
                 ..cfg.episode
             };
             let seed = run_seed(5, w, 0);
-            let planner = PlannerKind::Dwa.build(&cfg, seed);
+            let planner = PlannerKind::Dwa.build(&cfg.planners(), seed);
             let env = AdpEnv::new(
                 world,
                 episode,
@@ -1088,7 +1000,7 @@ mod tests {
             )
             .unwrap();
             let closed = run_policy(env, &net, &mut buf, |_, _, _| Ok(())).unwrap();
-            let mut planner = PlannerKind::Dwa.build(&cfg, seed);
+            let mut planner = PlannerKind::Dwa.build(&cfg.planners(), seed);
             let plain = planner::run::run_episode(
                 world,
                 episode,

@@ -11,6 +11,7 @@
 //! evaluation to `greedy_eval.jsonl` in the run directory. Evaluations run on one background
 //! thread, so the actors keep (almost) both cores; DDP is evaluated once.
 
+use planner::PlannerKind;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -19,16 +20,15 @@ use std::thread::JoinHandle;
 use anyhow::Context;
 use serde::{Deserialize, Serialize};
 
-use actor::{AdpEnv, EnvConfig, MlpPolicy};
+use actor::closed_loop::{self, planner_seed, Chooser, Greedy, Run};
+use actor::{EnvConfig, MlpPolicy};
 use learner::service::ServiceError;
 use learner::tensorboard::EventWriter;
 use planner::{ActionSpace, Schedule};
 use sim::Status;
 
 use crate::config::EvalConfig;
-use crate::eval::{run_policy, run_seed, PlannerKind, PolicyBuffers};
-
-use actor::observation::clutter;
+use crate::eval::run_seed;
 
 /// `[greedy]` of a training config: how the run's greedy policy is monitored.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -174,32 +174,29 @@ impl Setup {
     /// The greedy policy closed-loop through the training environment (no step cap: the BARN
     /// clock of `[episode]` ends runs, as in `adp eval`; no domain randomization).
     fn policy(&self, net: &MlpPolicy) -> anyhow::Result<Outcome> {
-        let env_cfg = self.env.for_evaluation();
-        let ddp_box = self.space.ddp_action();
-        let mut buf = PolicyBuffers::default();
-        let (mut u, mut boxed) = (vec![0.0; self.space.dim()], vec![0.0; self.space.dim()]);
+        let env = self.env.for_evaluation();
         let (mut wins, mut score, mut n) = (0usize, 0.0, 0usize);
         let mut records = Vec::new();
         for (w, seed) in self.seeds() {
             let world = sim::catalog::world(w).with_context(|| format!("world {w}"))?;
-            let env = AdpEnv::new(
+            let run = Run {
                 world,
-                self.eval.episode,
-                self.planner.build(&self.eval, seed),
-                self.space,
-                self.max_speed,
-                env_cfg,
+                episode: self.eval.episode,
+                planner: self.planner.build(&self.eval.planners(), planner_seed(seed)),
+                max_speed: self.max_speed,
                 seed,
-            )?;
-            let (r, _) = run_policy(env, net, &mut buf, |env, _, out| {
-                for (x, &a) in u.iter_mut().zip(out) {
-                    *x = f64::from(a);
-                }
-                self.env.action_map.map_into(&u, &ddp_box, &mut boxed);
-                let c = clutter(env.episode().perception().ranges);
-                records.push((c, self.space.to_params(&boxed)?));
-                Ok(())
-            })?;
+            };
+            let chooser = Chooser::Env {
+                space: self.space,
+                env,
+                act: &mut Greedy::new(net),
+            };
+            let r = closed_loop::run(run, chooser, |step| {
+                let params = step.env.chosen_params().context("a step without its schedule")?;
+                records.push((step.clutter, params));
+                anyhow::Ok(())
+            })?
+            .episode;
             wins += usize::from(r.status == Status::Succeeded);
             score += r.score;
             n += 1;
@@ -224,7 +221,7 @@ impl Setup {
             let Ok(world) = sim::catalog::world(w) else {
                 continue;
             };
-            let mut planner = self.planner.build(&self.eval, seed);
+            let mut planner = self.planner.build(&self.eval.planners(), planner_seed(seed));
             let (r, _) = planner::run::run_episode(
                 world,
                 episode,

@@ -557,7 +557,7 @@ pub fn command(a: &crate::cli::RenderArgs) -> anyhow::Result<()> {
     let job = RenderJob {
         world: w,
         episode: cfg.episode,
-        planner: a.planner.build(&cfg, a.seed),
+        planner: a.planner.build(&cfg.planners(), a.seed),
         schedule: a.fidelity.schedule(&adp)?,
         max_speed: a.max_speed,
         seed: a.seed,

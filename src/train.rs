@@ -23,9 +23,9 @@ use scheduler::{
 };
 
 use crate::config::{error_line, one_line, EvalConfig};
-use crate::eval::PlannerKind;
 use crate::greedy::{GreedyMonitor, GreedySection};
 use crate::slurm::SlurmSection;
+use planner::PlannerKind;
 
 /// The embedded default of `configs/local.toml`.
 const LOCAL_TOML: &str = include_str!("../configs/local.toml");
@@ -521,7 +521,7 @@ pub fn actor(a: ActorArgs) -> anyhow::Result<()> {
     let eval_cfg = EvalConfig::load(None)?;
     let factory =
         move |name: &str, seed: u64| -> Result<Box<dyn planner::Planner>, actor::run::FactoryError> {
-            Ok(name.parse::<PlannerKind>()?.build(&eval_cfg, seed))
+            Ok(name.parse::<PlannerKind>()?.build(&eval_cfg.planners(), seed))
         };
     let tls = a.tls_ca.is_some().then(|| TlsFiles {
         cert: a.tls_cert.clone(),

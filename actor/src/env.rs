@@ -622,6 +622,17 @@ impl<'w> AdpEnv<'w> {
         })
     }
 
+    /// The physical parameters of the last step's action ([`ActionSpace::to_params`] of the
+    /// box action the action map made of it: the schedule's p, T, N, alpha, then gain factors
+    /// or the velocity command, per the space), or `None` before the first step.
+    pub fn chosen_params(&self) -> Option<Vec<f64>> {
+        if self.agent_steps == 0 {
+            return None;
+        }
+        // The step refused any action its space cannot map, so this cannot fail here.
+        self.space.to_params(&self.action_f64).ok()
+    }
+
     /// The outcome so far (final once a step returned [`End::Terminal`] or [`End::Truncated`]).
     pub fn result(&self) -> EnvResult {
         EnvResult {

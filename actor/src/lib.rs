@@ -13,6 +13,10 @@
 //!   the flat weight vector the learner publishes, without allocating per call;
 //!   [`exploration::Exploration`] adds seeded Gaussian noise for data collection.
 //!
+//! * [`closed_loop`] runs one episode whatever chooses its schedule (a fixed schedule, a
+//!   constant action, a network greedily or with exploration noise): the one closed loop
+//!   that evaluation, training's greedy evaluation, experiments and the actor process share.
+//!
 //! * [`run`] is the actor process loop (register, take assignments, stream steps, report
 //!   episodes) over the learner's planes.
 //!
@@ -21,6 +25,7 @@
 
 #![warn(missing_docs)]
 
+pub mod closed_loop;
 pub mod env;
 pub mod exploration;
 pub mod observation;

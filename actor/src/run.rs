@@ -27,9 +27,10 @@ use sim::episode::{EpisodeConfig, Status};
 use thiserror::Error;
 use tracing::Instrument;
 
-use crate::env::{AdpEnv, End, EnvConfig};
+use crate::closed_loop::{self, Chooser, Explore, Run};
+use crate::env::{End, EnvConfig, EnvError};
 use crate::exploration::Exploration;
-use crate::policy::{MlpPolicy, Scratch};
+use crate::policy::MlpPolicy;
 
 /// Which data plane the actor uses for steps and policies.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -649,6 +650,12 @@ enum EpisodeError {
     Fatal(SessionError),
 }
 
+impl From<EnvError> for EpisodeError {
+    fn from(e: EnvError) -> Self {
+        EpisodeError::Fatal(e.into())
+    }
+}
+
 /// What every episode of a session shares.
 struct EpisodeCtx<'a> {
     setup: &'a ActorSetup<'a>,
@@ -680,53 +687,43 @@ impl EpisodeCtx<'_> {
         let world = sim::catalog::world(a.world as usize).map_err(|e| EpisodeError::Fatal(e.into()))?;
         let planner = (self.setup.make_planner)(&self.spec.planner, seed)
             .map_err(|e| EpisodeError::Fatal(SessionError::Planner(e)))?;
-        let mut env = AdpEnv::new(
+        if self.flags.lease_lost.load(Ordering::Acquire) {
+            return Err(EpisodeError::LeaseLost);
+        }
+        let run = Run {
             world,
-            self.setup.episode,
+            episode: self.setup.episode,
             planner,
-            self.space,
-            self.spec.max_speed,
-            *self.env_cfg,
+            max_speed: self.spec.max_speed,
             seed,
-        )
-        .map_err(|e| EpisodeError::Fatal(e.into()))?;
-        let n = env.obs_dim();
-        let (mut obs, mut next) = (vec![0.0f32; n], vec![0.0f32; n]);
-        let mut action = vec![0.0f32; self.space.dim()];
-        let mut scratch = Scratch::default();
-        let mut exploration = Exploration::new(sigma, exploration_seed(seed));
+        };
+        let chooser = Chooser::Env {
+            space: self.space,
+            env: *self.env_cfg,
+            act: &mut Explore::new(net, Exploration::new(sigma, exploration_seed(seed))),
+        };
         let mut checksum = 0u64;
-        let mut index = 0u32;
-        env.observation(&mut obs);
-        loop {
-            if self.flags.lease_lost.load(Ordering::Acquire) {
-                return Err(EpisodeError::LeaseLost);
-            }
-            net.act(&obs, &mut action, &mut scratch);
-            exploration.perturb(&mut action);
-            let out = env.step(&action).map_err(|e| EpisodeError::Fatal(e.into()))?;
-            env.observation(&mut next);
-            let truncated = out.end == End::Truncated;
+        let r = closed_loop::run(run, chooser, |s| {
+            let truncated = s.outcome.end == End::Truncated;
             let step = StepView {
                 episode_id,
-                step_index: index,
+                step_index: s.index,
                 policy_version: version,
-                obs: &obs,
-                action: &action,
-                reward: out.reward,
-                terminal: out.end == End::Terminal,
+                obs: s.obs,
+                action: s.action,
+                reward: s.outcome.reward,
+                terminal: s.outcome.end == End::Terminal,
                 truncated,
-                final_obs: if truncated { &next } else { &[] },
+                final_obs: if truncated { s.next_obs } else { &[] },
             };
             sink.send(header, &step).map_err(EpisodeError::Plane)?;
             checksum = checksum.wrapping_add(step_checksum(&step));
-            index += 1;
-            if out.end != End::Continue {
-                break;
+            // As before every step: a lost lease ends the episode unreported.
+            if s.outcome.end == End::Continue && self.flags.lease_lost.load(Ordering::Acquire) {
+                return Err(EpisodeError::LeaseLost);
             }
-            std::mem::swap(&mut obs, &mut next);
-        }
-        let r = env.result();
+            Ok(())
+        })?;
         let outcome = match r.episode.status {
             Status::Succeeded => pb::Outcome::Success,
             Status::Collided => pb::Outcome::Collision,
@@ -739,7 +736,7 @@ impl EpisodeCtx<'_> {
             time_s: r.episode.time_s,
             score: r.episode.score,
             episode_return: r.episode_return,
-            steps: index,
+            steps: r.agent_steps,
             steps_checksum: checksum,
             ..Default::default()
         })

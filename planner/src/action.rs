@@ -442,6 +442,24 @@ impl ActionMap {
         }
     }
 
+    /// The physical parameters ([`ActionSpace::to_params`]) that the policy output `u` of
+    /// `space` chooses under this map: what an agent step with that output runs. Refuses an
+    /// output of the wrong length or with a non-finite value.
+    pub fn params(self, space: ActionSpace, u: &[f32]) -> Result<Vec<f64>, ActionError> {
+        let ddp = space.ddp_action();
+        if u.len() != ddp.len() {
+            return Err(ActionError::Dim {
+                space,
+                expected: ddp.len(),
+                got: u.len(),
+            });
+        }
+        let u: Vec<f64> = u.iter().map(|&x| f64::from(x)).collect();
+        let mut a = vec![0.0; u.len()];
+        self.map_into(&u, &ddp, &mut a);
+        space.to_params(&a)
+    }
+
     /// The policy output that selects the DDP schedule in `space`: zeros for
     /// [`ActionMap::DdpCentred`], [`ActionSpace::ddp_action`] for [`ActionMap::Affine`].
     pub fn ddp_policy_action(self, space: ActionSpace) -> Vec<f64> {

@@ -21,7 +21,7 @@ use planner::{PlanInput, Planner, Schedule, Trace, Work};
 use sim::robot::Twist;
 
 use crate::config::EvalConfig;
-use crate::eval::PlannerKind;
+use planner::PlannerKind;
 
 use super::{figure, Figure};
 
@@ -247,7 +247,7 @@ pub(super) fn measure_calls(
                         let world = sim::catalog::world(w).with_context(|| format!("world {w}"))?;
                         let seed = crate::eval::run_seed(7, w, 0);
                         let mut timed = Timed {
-                            inner: kind.build(&cfg, seed),
+                            inner: kind.build(&cfg.planners(), seed),
                             kind,
                             ddp: *ddp,
                             axis_scale,

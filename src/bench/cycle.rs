@@ -12,7 +12,7 @@
 
 use planner::{Schedule, Work};
 
-use crate::eval::PlannerKind;
+use planner::PlannerKind;
 
 use super::compute::{measure_calls, percentile, Call};
 use super::{figure, Figure};

@@ -330,7 +330,7 @@ fn collect_steps(
         let mut env = AdpEnv::new(
             world,
             eval.episode,
-            kind.build(&eval, seed),
+            kind.build(&eval.planners(), seed),
             space,
             cfg.run.max_speed,
             env,

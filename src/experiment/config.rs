@@ -17,8 +17,8 @@ use serde::{Deserialize, Serialize};
 use planner::ActionSpace;
 
 use crate::config::one_line;
-use crate::eval::PlannerKind;
 use crate::train::TrainConfig;
+use planner::PlannerKind;
 
 /// The embedded training defaults that `[train]` is laid over.
 const LOCAL_TOML: &str = include_str!("../../configs/local.toml");

@@ -321,7 +321,7 @@ mod tests {
         let obs = vec![0.1f32; 730];
         let mut out = vec![0.0f32; 4];
         p.net.act(&obs, &mut out, &mut actor::Scratch::default());
-        let got = crate::experiment::runner::chosen_params(ActionSpace::Decremental, &p.env, &out).unwrap();
+        let got = p.env.action_map.params(ActionSpace::Decremental, &out).unwrap();
         let ddp = ActionSpace::Decremental.ddp_action();
         let want = ActionSpace::Decremental.to_params(&ddp).unwrap();
         for (g, w) in got.iter().zip(&want) {

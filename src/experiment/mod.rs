@@ -26,7 +26,7 @@ use std::time::Instant;
 use anyhow::{bail, Context};
 use serde::Serialize;
 
-use actor::{AdpEnv, End, Scratch};
+use actor::closed_loop::{self, planner_seed, Chooser, Greedy, Run};
 use planner::{ActionSpace, Schedule};
 use sim::World;
 
@@ -719,32 +719,30 @@ struct ArmResults {
 /// schedule it chose at every agent step.
 fn drive(ctx: &Ctx<'_>, a: &Arm, p: &LearnedPolicy, world: usize) -> anyhow::Result<figures::Drive> {
     let seed = run_seed(ctx.ex.eval.seed, world, 0);
-    let planner = a.planner.build(&ctx.cfg, seed ^ 0x5eed_91a2);
-    let env = p.env.for_evaluation();
-    let mut e = AdpEnv::new(
-        &ctx.worlds[world],
-        ctx.cfg.episode,
-        planner,
-        p.space,
-        a.speed,
-        env,
+    let run = Run {
+        world: &ctx.worlds[world],
+        episode: ctx.cfg.episode,
+        planner: a.planner.build(&ctx.cfg.planners(), planner_seed(seed)),
+        max_speed: a.speed,
         seed,
-    )?;
-    let mut obs = vec![0.0f32; e.obs_dim()];
-    let mut act = vec![0.0f32; p.space.dim()];
-    let mut scratch = Scratch::default();
+    };
+    let chooser = Chooser::Env {
+        space: p.space,
+        env: p.env.for_evaluation(),
+        act: &mut Greedy::new(&p.net),
+    };
     let mut steps = Vec::new();
-    while e.end() == End::Continue {
-        e.observation(&mut obs);
-        p.net.act(&obs, &mut act, &mut scratch);
-        let params = runner::chosen_params(p.space, &p.env, &act)?;
-        steps.push((e.episode().state().pose.position(), params));
-        e.step(&act)?;
-    }
+    let mut end = Default::default();
+    let out = closed_loop::run(run, chooser, |step| {
+        let params = step.env.chosen_params().context("a step without its schedule")?;
+        steps.push((step.position, params));
+        end = step.env.episode().state().pose.position();
+        anyhow::Ok(())
+    })?;
     if let Some(last) = steps.last().map(|s| s.1.clone()) {
-        steps.push((e.episode().state().pose.position(), last));
+        steps.push((end, last));
     }
-    let r = e.result().episode;
+    let r = out.episode;
     Ok(figures::Drive {
         steps,
         outcome: format!("world {world}: {:?} after {:.1} s", r.status, r.time_s),

@@ -16,7 +16,7 @@
 
 use std::path::{Path, PathBuf};
 
-use crate::eval::PlannerKind;
+use planner::PlannerKind;
 
 use super::config::{planner_name, speed_label, Arm};
 

@@ -9,29 +9,20 @@
 //! observation drawn from a pool of other steps' ([`Controller::Shuffled`]).
 
 use anyhow::Context;
+use planner::PlannerKind;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use actor::{AdpEnv, End, EnvConfig, MlpPolicy, Scratch};
-use planner::run::{drive_episode, CycleDriver};
+use actor::closed_loop::{self, planner_seed, Act, Chooser, Constant, Greedy, Run};
+use actor::{EnvConfig, MlpPolicy};
+use planner::run::CycleDriver;
 use planner::{ActionSpace, ComputeTally, Schedule, TrackingConfig};
 use sim::{EpisodeResult, World};
 
 use crate::config::EvalConfig;
-use crate::eval::{run_seed, PlannerKind, WorldRuns};
+use crate::eval::{run_seed, WorldRuns};
 
 use super::stats::SplitMix64;
-pub use actor::observation::clutter;
-
-/// The physical parameters of the schedule a network output `u` chooses under the
-/// environment's action map (the output is mapped to the box action the environment runs,
-/// then [`ActionSpace::to_params`]).
-pub fn chosen_params(space: ActionSpace, env: &EnvConfig, u: &[f32]) -> anyhow::Result<Vec<f64>> {
-    let u: Vec<f64> = u.iter().map(|&x| f64::from(x)).collect();
-    let mut a = vec![0.0; u.len()];
-    env.action_map.map_into(&u, &space.ddp_action(), &mut a);
-    Ok(space.to_params(&a)?)
-}
 
 /// What chooses the schedule.
 pub enum Controller<'a> {
@@ -162,7 +153,7 @@ impl WorldOutcome {
 pub struct TracePoint {
     /// World id.
     pub world: usize,
-    /// Local clutter of the step's observation ([`clutter`]).
+    /// Local clutter of the step's observation ([`actor::observation::clutter`]).
     pub clutter: f64,
     /// The chosen schedule's physical parameters ([`ActionSpace::to_params`]).
     pub params: Vec<f64>,
@@ -210,9 +201,7 @@ fn run_all(spec: &RunSpec<'_>, ctrl: &Controller<'_>, collect: bool) -> anyhow::
     }
     let results: Vec<RunOut> = jobs
         .par_iter()
-        .map_init(Scratch::default, |scratch, &(w, r)| {
-            run_one(spec, ctrl, w, r, collect, scratch).with_context(|| format!("world {w}, run {r}"))
-        })
+        .map(|&(w, r)| run_one(spec, ctrl, w, r, collect).with_context(|| format!("world {w}, run {r}")))
         .collect::<anyhow::Result<_>>()?;
     let mut per_world: Vec<WorldOutcome> = Vec::new();
     let mut trace = Vec::new();
@@ -242,27 +231,44 @@ fn run_all(spec: &RunSpec<'_>, ctrl: &Controller<'_>, collect: bool) -> anyhow::
 /// observations.
 type RunOut = (EpisodeResult, ComputeTally, Vec<TracePoint>, Vec<Vec<f32>>);
 
-/// What chooses a run's actions in the ADP environment: a constant, or a network (fed the
-/// step's observation, or one drawn from a pool with its seeded stream).
-enum Acts<'a> {
-    Constant(&'a [f32]),
-    Net(&'a MlpPolicy, Option<(&'a [Vec<f32>], SplitMix64)>),
+/// A network fed, every agent step, an observation drawn from `pool` with its seeded stream
+/// instead of the step's own (the state-shuffled control).
+struct Drawn<'a> {
+    greedy: Greedy<'a>,
+    pool: &'a [Vec<f32>],
+    rng: SplitMix64,
 }
 
-/// One run; returns its result, its planning cycles' compute, its trace (run 0 with
-/// `spec.trace`) and, with `collect`, its observations.
+impl Act for Drawn<'_> {
+    fn act(&mut self, obs: &[f32], action: &mut [f32]) {
+        let input = if self.pool.is_empty() {
+            obs
+        } else {
+            &self.pool[self.rng.below(self.pool.len())]
+        };
+        self.greedy.act(input, action);
+    }
+}
+
+/// One run; returns its result, its planning cycles' compute, its trace (run 0 of a network
+/// controller with `spec.trace`) and, with `collect`, its observations.
 fn run_one(
     spec: &RunSpec<'_>,
     ctrl: &Controller<'_>,
     w: usize,
     r: usize,
     collect: bool,
-    scratch: &mut Scratch,
 ) -> anyhow::Result<RunOut> {
     let seed = run_seed(spec.seed, w, r);
-    let world = &spec.worlds[w];
-    let mut planner = spec.planner.build(spec.cfg, seed ^ 0x5eed_91a2);
-    let (env, space, acts) = match ctrl {
+    let run = Run {
+        world: &spec.worlds[w],
+        episode: spec.cfg.episode,
+        planner: spec.planner.build(&spec.cfg.planners(), planner_seed(seed)),
+        max_speed: spec.speed,
+        seed,
+    };
+    let (mut constant, mut greedy, mut drawn);
+    let (space, env, act, network): (_, _, &mut dyn Act, _) = match ctrl {
         Controller::Schedule(s) => {
             let mut driver = CycleDriver::new(
                 spec.cfg.compute.resolve(spec.planner.name())?,
@@ -271,80 +277,60 @@ fn run_one(
             if spec.track {
                 driver = driver.with_tracking(TrackingConfig::default());
             }
-            let (res, tally) = drive_episode(
-                world,
-                spec.cfg.episode,
-                planner.as_mut(),
-                s,
-                spec.speed,
-                seed,
-                driver,
-                |_, _, _| {},
-            );
-            return Ok((res, tally, Vec::new(), Vec::new()));
+            let chooser = Chooser::Fixed {
+                schedule: s,
+                driver: &mut driver,
+            };
+            let out = closed_loop::run(run, chooser, |_| anyhow::Ok(()))?;
+            return Ok((out.episode, out.compute, Vec::new(), Vec::new()));
         }
-        Controller::Constant { action, space, env } => (*env, *space, Acts::Constant(action)),
-        Controller::Policy { net, env, space } => (*env, *space, Acts::Net(net, None)),
+        Controller::Constant { action, space, env } => {
+            constant = Constant(action);
+            (*space, *env, &mut constant, false)
+        }
+        Controller::Policy { net, env, space } => {
+            greedy = Greedy::new(net);
+            (*space, *env, &mut greedy, true)
+        }
         Controller::Shuffled {
             net,
             env,
             space,
             pool,
             seed: s,
-        } => (
-            *env,
-            *space,
-            Acts::Net(net, Some((*pool, SplitMix64::new(*s ^ seed)))),
-        ),
-    };
-    let eval_env = EnvConfig {
-        compute: spec.cfg.compute,
-        ..env.for_evaluation()
-    };
-    let mut e = AdpEnv::new(
-        world,
-        spec.cfg.episode,
-        planner,
-        space,
-        spec.speed,
-        eval_env,
-        seed,
-    )?;
-    let (net, pool) = match acts {
-        Acts::Constant(action) => {
-            while e.end() == End::Continue {
-                e.step(action)?;
-            }
-            return Ok((e.result().episode, *e.compute(), Vec::new(), Vec::new()));
+        } => {
+            drawn = Drawn {
+                greedy: Greedy::new(net),
+                pool,
+                rng: SplitMix64::new(*s ^ seed),
+            };
+            (*space, *env, &mut drawn, true)
         }
-        Acts::Net(net, pool) => (net, pool),
     };
-    let mut obs = vec![0.0f32; e.obs_dim()];
-    let mut action = vec![0.0f32; space.dim()];
-    let mut trace = Vec::new();
-    let mut seen = Vec::new();
-    let mut pool = pool;
-    let record = spec.trace && r == 0;
-    while e.end() == End::Continue {
-        e.observation(&mut obs);
-        let input: &[f32] = match &mut pool {
-            Some((p, rng)) if !p.is_empty() => &p[rng.below(p.len())],
-            _ => &obs,
-        };
-        net.act(input, &mut action, scratch);
+    let chooser = Chooser::Env {
+        space,
+        env: EnvConfig {
+            compute: spec.cfg.compute,
+            ..env.for_evaluation()
+        },
+        act,
+    };
+    let record = network && spec.trace && r == 0;
+    let (mut trace, mut seen) = (Vec::new(), Vec::new());
+    let out = closed_loop::run(run, chooser, |step| {
         if record {
             trace.push(TracePoint {
                 world: w,
-                clutter: clutter(e.episode().perception().ranges),
-                params: chosen_params(space, &env, &action)?,
+                clutter: step.clutter,
+                params: step.env.chosen_params().context("a step without its schedule")?,
             });
         }
-        if collect {
-            seen.push(obs.clone());
+        if collect && network {
+            seen.push(step.obs.to_vec());
         }
-        e.step(&action)?;
-    }
-    Ok((e.result().episode, *e.compute(), trace, seen))
+        anyhow::Ok(())
+    })?;
+    Ok((out.episode, out.compute, trace, seen))
 }
 
 /// A seeded reservoir sample (algorithm R) of at most `k` of `items`, in draw order.
@@ -433,7 +419,10 @@ mod tests {
         let (a, b) = (t(&real), t(&shuffled));
         assert!(!a.is_empty() && !b.is_empty());
         // Fed only the pool's observation, every step's output is tanh(-1.44) on T.
-        let want = chosen_params(space, &env, &[0.0, (-1.44f32).tanh(), 0.0, 0.0]).unwrap()[1];
+        let want = env
+            .action_map
+            .params(space, &[0.0, (-1.44f32).tanh(), 0.0, 0.0])
+            .unwrap()[1];
         assert!(b.iter().all(|&x| (x - want).abs() < 1e-4), "{b:?}");
         assert!(a.iter().all(|&x| (x - want).abs() > 0.05), "{a:?}");
         assert_eq!(real.per_world[0].runs.len(), 1);

@@ -124,7 +124,7 @@ pub fn script(name: &str, job: &SlurmJob, dir: &Path, adp: &Path, args: &[String
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::eval::PlannerKind;
+    use planner::PlannerKind;
 
     #[test]
     fn script_runs_train_shards_and_merge_and_is_valid_bash() {
