@@ -8,6 +8,8 @@
 //! picks the schedule of the next agent step. Both produce the same per-run
 //! [`EpisodeResult`]s, so rows, table and JSON do not depend on which one ran.
 
+use crate::args::EvalRunArgs;
+use std::path::PathBuf;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::Instant;
@@ -580,7 +582,7 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
                 Some(net) => {
                     let chooser = Chooser::Env {
                         space: plan.adp.space,
-                        env: eval_env_config(plan.policy_env, cfg.compute),
+                        env: &eval_env_config(plan.policy_env, cfg.compute),
                         act: &mut Greedy::new(net),
                     };
                     let out = closed_loop::run(run, chooser, no_steps)
@@ -763,9 +765,65 @@ pub fn table(rows: &[Row]) -> String {
     out
 }
 
+/// `adp eval`.
+#[derive(clap::Args, Debug)]
+pub struct EvalArgs {
+    /// Planner(s), comma-separated.
+    #[arg(long, value_enum, value_delimiter = ',', default_value = "dwa")]
+    pub planner: Vec<PlannerKind>,
+    /// Fidelity strategy (or strategies), comma-separated.
+    #[arg(long, value_enum, value_delimiter = ',', default_value = "ddp")]
+    pub fidelity: Vec<Fidelity>,
+    /// ADP action space (with --fidelity adp; default: the policy's, else decremental). When
+    /// given, the policy's space must be the same.
+    #[arg(long)]
+    pub action: Option<ActionSpace>,
+    /// ADP policy (with --fidelity adp): a trained policy, i.e. the export directory of
+    /// `adp export` or `adp train` (or its policy.json), run closed-loop; or a TOML file
+    /// with a constant normalized `action = [...]`. Default: the constant action that
+    /// reproduces DDP, ADP's initialization.
+    #[arg(long)]
+    pub policy: Option<PathBuf>,
+    /// Speed cap(s) in m/s, comma-separated: one row per value.
+    #[arg(long, value_delimiter = ',', default_value = "1.5")]
+    pub max_speed: Vec<f64>,
+    /// Moving-obstacle prediction(s), comma-separated: one row per value (`off`: none; `kf`:
+    /// the tracker's constant-velocity forecast; `padp-path`: kf and PADP's predictive cost in
+    /// the global path; `padp`: that and PADP's complexity-adaptive weights, see the
+    /// `[prediction]` table; with --fidelity adp and a learned policy, kf exactly when the policy observes tracks).
+    #[arg(long, value_enum, value_delimiter = ',', default_value = "off")]
+    pub prediction: Vec<ObstaclePrediction>,
+    /// Lidar beam count(s) over the field of view, comma-separated: one row per value
+    /// (overrides [episode.lidar] beams). A trained policy reads any beam count, resampled to
+    /// its own layout (README "Sensing conditions").
+    #[arg(long, value_delimiter = ',')]
+    pub lidar_beams: Vec<usize>,
+    /// Lidar range noise as a fraction of each scan's mean range (replaces [episode.lidar]
+    /// noise_sigma), comma-separated: one row per value, e.g. 0.05,0.1,0.2.
+    #[arg(long, value_delimiter = ',')]
+    pub lidar_noise_fraction: Vec<f64>,
+    /// Probability that a lidar beam returns nothing (reads max range), comma-separated: one
+    /// row per value (overrides [episode.lidar] dropout).
+    #[arg(long, value_delimiter = ',')]
+    pub lidar_dropout: Vec<f64>,
+    /// Worlds: comma-separated splits (BARN: train, test, hardest50, all; DynaBARN: dynabarn,
+    /// dynabarn-easy|medium|hard, dynabarn-train, dynabarn-test, ...), ranges (0..50, 300..320)
+    /// and ids (3,7,305).
+    #[arg(long, default_value = "test")]
+    pub worlds: String,
+    /// Runs per world.
+    #[arg(long, default_value_t = 1)]
+    pub runs: usize,
+    /// Drop this many best and worst runs (by time) of each world before averaging.
+    #[arg(long, default_value_t = 0)]
+    pub trim: usize,
+    #[command(flatten)]
+    pub run: EvalRunArgs,
+}
+
 /// `adp eval`: runs the plan the arguments describe and prints its table (and writes the rows
 /// as JSON with `--out`).
-pub fn command(a: &crate::cli::EvalArgs) -> anyhow::Result<()> {
+pub fn command(a: &EvalArgs) -> anyhow::Result<()> {
     let mut cfg = a.run.setup.eval_config()?;
     let ids = sim::splits::select(&a.worlds)?;
     if a.runs == 0 {
@@ -945,7 +1003,7 @@ mod tests {
                 },
             )
         };
-        let worlds = sim::barn::worlds();
+        let worlds = sim::catalog::barn_worlds();
         let err = run(&plan(sim::Profile::Ideal), &cfg, worlds)
             .unwrap_err()
             .to_string();
@@ -979,27 +1037,29 @@ mod tests {
         let schedule = space
             .schedule(&action, planner::schedule::DEFAULT_BOUNDARY_POINTS)
             .unwrap();
-        let mut buf = PolicyBuffers::default();
         let mut statuses = Vec::new();
         for (w, timeout_s) in [(1, 100.0), (2, 3.33)] {
-            let world = sim::barn::world(w).unwrap();
+            let world = sim::catalog::world(w).unwrap();
             let episode = sim::EpisodeConfig {
                 timeout_s,
                 ..cfg.episode
             };
             let seed = run_seed(5, w, 0);
             let planner = PlannerKind::Dwa.build(&cfg.planners(), seed);
-            let env = AdpEnv::new(
+            let run = Run {
                 world,
                 episode,
                 planner,
-                space,
-                1.5,
-                eval_env_config(EnvConfig::default(), cfg.compute),
+                max_speed: 1.5,
                 seed,
-            )
-            .unwrap();
-            let closed = run_policy(env, &net, &mut buf, |_, _, _| Ok(())).unwrap();
+            };
+            let chooser = Chooser::Env {
+                space,
+                env: &eval_env_config(EnvConfig::default(), cfg.compute),
+                act: &mut Greedy::new(&net),
+            };
+            let out = closed_loop::run(run, chooser, |_| anyhow::Ok(())).unwrap();
+            let closed = (out.episode, out.compute);
             let mut planner = PlannerKind::Dwa.build(&cfg.planners(), seed);
             let plain = planner::run::run_episode(
                 world,
@@ -1063,7 +1123,7 @@ mod tests {
             lidars,
             ..dwa_plan(1, vec![Fidelity::Ddp], None, EnvConfig::default())
         };
-        let worlds = sim::barn::worlds();
+        let worlds = sim::catalog::barn_worlds();
         let rows = run(
             &plan(LidarOverride::combinations(&[90], &[0.07], &[])),
             &cfg,
@@ -1192,7 +1252,7 @@ mod tests {
                 },
             )
         };
-        let worlds = sim::barn::worlds();
+        let worlds = sim::catalog::barn_worlds();
         let conditions = [
             LidarOverride::combinations(&[720, 360, 90], &[], &[]),
             LidarOverride::combinations(&[360], &[0.1], &[0.05]),

@@ -1,10 +1,24 @@
 //! `adp export`: write a checkpoint's policy as ONNX, safetensors and a JSON card (the work is
 //! done by `learner::export`; this prints what was written).
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use learner::export::{export_checkpoint, space_name};
 use planner::ActionSpace;
+
+/// `adp export`.
+#[derive(clap::Args, Debug)]
+pub struct ExportArgs {
+    /// Checkpoint directory written by the learner (verified before use).
+    #[arg(long)]
+    pub checkpoint: PathBuf,
+    /// Output directory (created if needed; existing policy files are replaced).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Action space the run trained in.
+    #[arg(long, default_value = "decremental")]
+    pub action: ActionSpace,
+}
 
 /// Export the policy of the checkpoint directory `checkpoint`, trained in `space`, into `out`.
 pub fn run(checkpoint: &Path, out: &Path, space: ActionSpace) -> anyhow::Result<()> {

@@ -1,6 +1,7 @@
 //! `adp`: train and ship adaptive-dynamics navigation planners on BARN.
 
-mod actor_sandbox;
+mod actor_process;
+mod args;
 mod bench;
 mod calibrate;
 mod cli;

@@ -585,7 +585,7 @@ mod tests {
         let mut steps = 0;
         for world in [0, 1, 20, 100, 250] {
             let mut env = AdpEnv::new(
-                sim::barn::world(world).unwrap(),
+                sim::catalog::world(world).unwrap(),
                 cfg.episode,
                 Box::new(planner::Dwa::new(cfg.dwa)),
                 space,

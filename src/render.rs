@@ -13,7 +13,12 @@
 //! path so far, its footprint, the moving obstacles and their last two seconds of motion.
 //! PNG or SVG by the output's extension.
 
+use crate::args::{Setup, WorldData};
+use crate::eval::Fidelity;
+use planner::ActionSpace;
+use planner::PlannerKind;
 use std::path::Path;
+use std::path::PathBuf;
 
 use anyhow::{bail, Context};
 use plotters::coord::Shift;
@@ -542,11 +547,52 @@ where
     Ok(())
 }
 
+/// `adp render`.
+#[derive(clap::Args, Debug)]
+pub struct RenderArgs {
+    /// World id.
+    #[arg(long)]
+    pub world: usize,
+    /// Planner.
+    #[arg(long, value_enum, default_value = "dwa")]
+    pub planner: PlannerKind,
+    /// Fidelity strategy.
+    #[arg(long, value_enum, default_value = "ddp")]
+    pub fidelity: Fidelity,
+    /// ADP action space (with --fidelity adp).
+    #[arg(long, default_value = "decremental")]
+    pub action: ActionSpace,
+    /// ADP constant-action policy file (see `adp eval --help`).
+    #[arg(long)]
+    pub policy: Option<PathBuf>,
+    /// Speed cap (m/s).
+    #[arg(long, default_value_t = 1.5)]
+    pub max_speed: f64,
+    /// Noise seed.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Draw the sampled rollouts every this many seconds.
+    #[arg(long, default_value_t = 2.0)]
+    pub rollouts_every: f64,
+    /// Draw the footprint every this many seconds.
+    #[arg(long, default_value_t = 0.5)]
+    pub footprint_every: f64,
+    /// Draw a frame strip instead of one picture: this many frames (2 to 24) side by side,
+    /// the world at evenly spaced moments from the start to the end of the episode.
+    #[arg(long)]
+    pub frames: Option<usize>,
+    /// Output picture (.png or .svg).
+    #[arg(long)]
+    pub out: PathBuf,
+    #[command(flatten)]
+    pub setup: Setup,
+}
+
 /// `adp render`: draws the episode the arguments describe and prints its outcome.
-pub fn command(a: &crate::cli::RenderArgs) -> anyhow::Result<()> {
+pub fn command(a: &RenderArgs) -> anyhow::Result<()> {
     let cfg = a.setup.eval_config()?;
     let all = a.setup.data.load()?;
-    let w = crate::cli::WorldData::get(&all, a.world)?;
+    let w = WorldData::get(&all, a.world)?;
     let adp = crate::eval::AdpSetting {
         space: a.action,
         action: match &a.policy {

@@ -4,6 +4,8 @@
 //! The worlds themselves come from `sim::generate`; this module parses the options, writes
 //! the files and prints the comparison.
 
+use crate::args::WorldData;
+use sim::splits::SplitSet;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -193,7 +195,7 @@ pub fn compare(args: &CompareArgs) -> anyhow::Result<()> {
     ));
     table.push((
         "field fill fraction".into(),
-        sim::barn::worlds()
+        sim::catalog::barn_worlds()
             .iter()
             .map(|w| Grid::from_barn_cylinders(&w.cylinders).field_fill_fraction())
             .collect(),
@@ -289,6 +291,88 @@ fn ks_distance(a: &[f64], b: &[f64]) -> f64 {
         d = d.max((i as f64 / a.len() as f64 - j as f64 / b.len() as f64).abs());
     }
     d
+}
+
+/// Parses a split-file set name.
+fn parse_split_set(s: &str) -> Result<SplitSet, String> {
+    match s {
+        "barn" => Ok(SplitSet::Barn),
+        "dynabarn" => Ok(SplitSet::Dynabarn),
+        _ => Err(format!("unknown world set {s:?} (barn, dynabarn)")),
+    }
+}
+
+/// `adp worlds`.
+#[derive(clap::Subcommand)]
+pub enum WorldsCmd {
+    /// Print the world ids of a selection, one per line.
+    List {
+        /// Comma-separated splits, ranges and ids, as for `adp eval --worlds`.
+        #[arg(long, default_value = "all")]
+        split: String,
+    },
+    /// Print one world's facts.
+    Show {
+        /// World id.
+        id: usize,
+        #[command(flatten)]
+        data: WorldData,
+    },
+    /// Print a split file drawn with another seed (the format of configs/splits/barn.toml, or
+    /// of configs/splits/dynabarn.toml with --set dynabarn).
+    Splits {
+        /// Seed for the training-world draw.
+        #[arg(long)]
+        seed: u64,
+        /// Which worlds: barn or dynabarn.
+        #[arg(long, default_value = "barn", value_parser = parse_split_set)]
+        set: SplitSet,
+    },
+    /// Generate procedural BARN worlds (the BARN paper's cellular automaton, solvable worlds
+    /// only, each with its A* path and five difficulty metrics) into DIR/obstacles.jsonl and
+    /// DIR/paths.jsonl, for `adp eval --obstacles DIR/obstacles.jsonl --paths DIR/paths.jsonl`.
+    Generate(GenerateArgs),
+    /// Print the difficulty metrics of generated worlds beside the 300 BARN worlds' (text
+    /// histograms, quantiles, Kolmogorov-Smirnov distance); nothing is written.
+    Compare(CompareArgs),
+}
+
+impl WorldsCmd {
+    /// Runs the subcommand.
+    pub fn run(self) -> anyhow::Result<()> {
+        match self {
+            WorldsCmd::List { split } => {
+                for id in sim::splits::select(&split)? {
+                    println!("{id}");
+                }
+            }
+            WorldsCmd::Show { id, data } => {
+                let all = data.load()?;
+                let w = WorldData::get(&all, id)?;
+                println!("world {}", w.id);
+                println!("cylinders {}", w.cylinders.len());
+                if !w.walls.is_empty() || !w.moving.is_empty() {
+                    println!("walls {}", w.walls.len());
+                    println!(
+                        "moving {} (longest loop {:.2} s)",
+                        w.moving.len(),
+                        w.longest_period()
+                    );
+                }
+                println!("start {:.3} {:.3} {:.4}", w.start.x, w.start.y, w.start.yaw);
+                println!(
+                    "goal {:.3} {:.3} (radius {} m)",
+                    w.goal.x, w.goal.y, w.goal_radius
+                );
+                println!("path_length_m {:.6}", w.path_length_m);
+                println!("optimal_time_s {:.6}", w.optimal_time_s);
+            }
+            WorldsCmd::Splits { seed, set } => print!("{}", set.render_toml(seed)),
+            WorldsCmd::Generate(args) => generate(&args)?,
+            WorldsCmd::Compare(args) => compare(&args)?,
+        }
+        Ok(())
+    }
 }
 
 #[cfg(test)]

@@ -62,7 +62,7 @@ pub enum Chooser<'a> {
         /// The action space.
         space: ActionSpace,
         /// The environment settings.
-        env: EnvConfig,
+        env: &'a EnvConfig,
         /// What chooses the actions.
         act: &'a mut dyn Act,
     },
@@ -199,7 +199,7 @@ pub fn run<E: From<EnvError>>(
         }
         Chooser::Env { space, env, act } => (space, env, act),
     };
-    let mut env = AdpEnv::new(world, episode, planner, space, max_speed, env, seed)?;
+    let mut env = AdpEnv::new(world, episode, planner, space, max_speed, *env, seed)?;
     let n = env.obs_dim();
     let (mut obs, mut next) = (vec![0.0f32; n], vec![0.0f32; n]);
     let mut action = vec![0.0f32; space.dim()];

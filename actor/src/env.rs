@@ -792,7 +792,7 @@ mod tests {
 
     #[test]
     fn initial_observation_layout_and_ranges() {
-        let world = sim::barn::world(0).unwrap();
+        let world = sim::catalog::world(0).unwrap();
         let e = env(world, dwa(), EnvConfig::default(), 7);
         assert_eq!(e.obs_dim(), 730);
         let mut obs = vec![f32::NAN; 730];
@@ -1189,7 +1189,7 @@ mod tests {
 
     #[test]
     fn same_seed_same_rewards() {
-        let world = sim::barn::world(20).unwrap();
+        let world = sim::catalog::world(20).unwrap();
         let run = |seed: u64| {
             let mut e = env(world, dwa(), EnvConfig::default(), seed);
             let mut rewards = Vec::new();
@@ -1214,7 +1214,7 @@ mod tests {
     fn ddp_with_dwa_reaches_the_goal_on_an_easy_world() {
         // World 1: DWA with the DDP grid at 1.5 m/s succeeds in about 7.5 s. (World 0 is not
         // usable here: DWA gets stuck in it and times out with any schedule driver.)
-        let world = sim::barn::world(1).unwrap();
+        let world = sim::catalog::world(1).unwrap();
         let cfg = EnvConfig {
             obstacle_scale: 0.0,
             ..unscaled()
@@ -1269,7 +1269,7 @@ mod tests {
         output: &[f32],
         steps: usize,
     ) -> Vec<[u64; 5]> {
-        let world = sim::barn::world(120).unwrap();
+        let world = sim::catalog::world(120).unwrap();
         let mut e = AdpEnv::new(
             world,
             EpisodeConfig::default(),
@@ -1302,7 +1302,7 @@ mod tests {
                 Gains::System => Box::new(NavSystem::new(SystemConfig::default(), 3)),
             }
         };
-        let world = sim::barn::world(120).unwrap();
+        let world = sim::catalog::world(120).unwrap();
         for g in Gains::ALL {
             // Today's DDP row: the plain driver on the DDP schedule, 5 periods an agent step.
             let cfg = EnvConfig::default();

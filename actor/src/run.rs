@@ -699,7 +699,7 @@ impl EpisodeCtx<'_> {
         };
         let chooser = Chooser::Env {
             space: self.space,
-            env: *self.env_cfg,
+            env: self.env_cfg,
             act: &mut Explore::new(net, Exploration::new(sigma, exploration_seed(seed))),
         };
         let mut checksum = 0u64;

@@ -35,7 +35,7 @@ fn warm_episode(world: &sim::World) -> Episode<'_> {
 }
 
 fn planning_cycles(c: &mut Criterion) {
-    let world = sim::barn::world(250).expect("embedded world");
+    let world = sim::catalog::world(250).expect("embedded world");
     let ep = warm_episode(world);
     type Make = fn() -> Box<dyn Planner>;
     let planners: [(&str, Make); 4] = [
@@ -55,7 +55,7 @@ fn planning_cycles(c: &mut Criterion) {
 }
 
 fn simulated_second(c: &mut Criterion) {
-    let world = sim::barn::world(250).expect("embedded world");
+    let world = sim::catalog::world(250).expect("embedded world");
     let sched = Schedule::ddp_default();
     c.bench_function("dwa-ddp one simulated second (20 cycles, everything)", |b| {
         let mut ep = warm_episode(world);

@@ -477,7 +477,7 @@ mod tests {
     /// check. Without recovery it stands there until the run times out.
     #[test]
     fn recovery_gets_a_parked_robot_out_of_a_pocket() {
-        let world = sim::barn::world(264).unwrap();
+        let world = sim::catalog::world(264).unwrap();
         let outcomes = |enabled: bool| -> Vec<Status> {
             (0..4)
                 .map(|seed| {
@@ -645,7 +645,7 @@ mod tests {
     #[test]
     fn ddp_checks_fewer_points_than_uniform_at_equal_horizon() {
         // Same scene, same 2 s horizon and 20 steps: uniform (full checks) vs DDP.
-        let w = sim::barn::world(250).unwrap();
+        let w = sim::catalog::world(250).unwrap();
         let mut ep = sim::Episode::new(w, EpisodeConfig::default(), 1);
         let mut driver = Dwa::new(DwaConfig::default());
         let ddp = Schedule::ddp_default();

@@ -325,7 +325,7 @@ mod tests {
 
     #[test]
     fn same_seed_same_trajectory_under_a_budget() {
-        let world = sim::barn::world(120).unwrap();
+        let world = sim::catalog::world(120).unwrap();
         let run = || {
             let mut dwa = crate::Dwa::new(crate::DwaConfig::default());
             let compute = crate::ComputeConfig::default().resolve("dwa").unwrap();

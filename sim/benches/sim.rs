@@ -7,7 +7,7 @@ use sim::lidar::{Lidar, LidarConfig, LidarRng};
 use sim::{Episode, EpisodeConfig, Twist};
 
 fn scan(c: &mut Criterion) {
-    let world = sim::barn::world(250).expect("embedded world");
+    let world = sim::catalog::world(250).expect("embedded world");
     let lidar = Lidar::new(LidarConfig::default());
     let mut rng = LidarRng::new(1);
     let mut ranges = Vec::new();
@@ -23,7 +23,7 @@ fn scan(c: &mut Criterion) {
 }
 
 fn control_period(c: &mut Criterion) {
-    let world = sim::barn::world(250).expect("embedded world");
+    let world = sim::catalog::world(250).expect("embedded world");
     c.bench_function("episode step 0.05 s (physics + scan + costmap + path)", |b| {
         let mut ep = Episode::new(world, EpisodeConfig::default(), 1);
         b.iter(|| {

@@ -47,9 +47,6 @@ pub enum DataError {
         /// What went wrong.
         msg: String,
     },
-    /// A world id outside the data set.
-    #[error("world {0} does not exist (BARN has worlds 0..{max})", max = NUM_WORLDS - 1)]
-    Unknown(usize),
 }
 
 /// A record that parses but holds values that cannot be right (the message names the field).
@@ -237,16 +234,6 @@ pub fn parse(
     Ok(worlds)
 }
 
-/// All embedded BARN worlds (their part of [`crate::catalog::worlds`]).
-pub fn worlds() -> &'static [World] {
-    &crate::catalog::worlds()[..NUM_WORLDS]
-}
-
-/// One embedded world by id.
-pub fn world(id: usize) -> Result<&'static World, DataError> {
-    worlds().get(id).ok_or(DataError::Unknown(id))
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -300,9 +287,5 @@ mod tests {
         let paths = first_lines(PATHS_JSONL, 2);
         let e = parse("o.jsonl", &obs, "p.jsonl", &paths).unwrap_err().to_string();
         assert_eq!(e, "p.jsonl: world 2: missing, but present in o.jsonl");
-        assert!(world(300)
-            .unwrap_err()
-            .to_string()
-            .contains("world 300 does not exist"));
     }
 }

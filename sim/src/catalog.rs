@@ -37,6 +37,17 @@ pub fn worlds() -> &'static [World] {
     })
 }
 
+/// The embedded BARN worlds (ids 0..299, the first part of [`worlds`]).
+pub fn barn_worlds() -> &'static [World] {
+    &worlds()[..crate::barn::NUM_WORLDS]
+}
+
+/// The embedded DynaBARN worlds, world `FIRST_ID + j` at index j (the last part of
+/// [`worlds`]).
+pub fn dynabarn_worlds() -> &'static [World] {
+    &worlds()[crate::dynabarn::FIRST_ID..]
+}
+
 /// One embedded world by id.
 pub fn world(id: usize) -> Result<&'static World, UnknownWorld> {
     worlds().get(id).ok_or(UnknownWorld(id))
@@ -52,8 +63,8 @@ mod tests {
         assert!(worlds().iter().enumerate().all(|(i, w)| w.id == i));
         assert!(world(299).unwrap().moving.is_empty());
         assert!(!world(300).unwrap().moving.is_empty());
-        assert_eq!(crate::barn::worlds().len(), 300);
-        assert_eq!(crate::dynabarn::worlds()[0].id, 300);
+        assert_eq!(barn_worlds().len(), 300);
+        assert_eq!(dynabarn_worlds()[0].id, 300);
         assert_eq!(
             world(360).unwrap_err().to_string(),
             "world 360 does not exist (BARN has worlds 0..299, DynaBARN 300..359)"

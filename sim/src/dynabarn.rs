@@ -219,12 +219,6 @@ pub fn parse(name: &str, text: &str) -> Result<Vec<World>, DataError> {
     Ok(worlds)
 }
 
-/// All embedded DynaBARN worlds, world `FIRST_ID + j` at index j (their part of
-/// [`crate::catalog::worlds`]).
-pub fn worlds() -> &'static [World] {
-    &crate::catalog::worlds()[FIRST_ID..]
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -281,7 +275,7 @@ mod tests {
 
     #[test]
     fn world_300_moves_as_computed_by_hand() {
-        let w = &worlds()[0];
+        let w = &crate::catalog::dynabarn_worlds()[0];
         // Its second obstacle (`easylibobs_110`) has the keyframes of the hand computation in
         // `motion::tests`; halfway between its keys at 11.57 s and 17.36 s it is at
         // (4.445, 1.335625), and one loop (39.05 s) later again.

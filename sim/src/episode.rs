@@ -729,7 +729,7 @@ mod tests {
 
     #[test]
     fn same_seed_same_trajectory() {
-        let w = crate::barn::world(10).unwrap();
+        let w = crate::catalog::world(10).unwrap();
         let run = |seed| {
             let mut ep = Episode::new(w, EpisodeConfig::default(), seed);
             let mut out = Vec::new();
@@ -776,7 +776,7 @@ mod tests {
     }
     #[test]
     fn start_jitter_is_seeded_bounded_and_off_by_default() {
-        let w = crate::barn::world(0).unwrap();
+        let w = crate::catalog::world(0).unwrap();
         let exact = Episode::new(w, EpisodeConfig::default(), 3);
         assert_eq!(exact.start(), w.start);
         assert_eq!(exact.state().pose, w.start);
@@ -797,7 +797,7 @@ mod tests {
         assert!(bad.validate().unwrap_err().to_string().contains("start_jitter_m"));
         // The largest accepted jitter keeps the footprint free in every BARN world.
         let (j, jy) = (MAX_START_JITTER_M, MAX_START_JITTER_YAW_RAD);
-        for world in crate::barn::worlds() {
+        for world in crate::catalog::barn_worlds() {
             for (sx, sy, sa) in [
                 (1.0, 1.0, 1.0),
                 (-1.0, 1.0, -1.0),

@@ -126,7 +126,7 @@ impl Metrics {
 pub fn barn_metrics() -> &'static [Metrics] {
     static METRICS: std::sync::OnceLock<Vec<Metrics>> = std::sync::OnceLock::new();
     METRICS.get_or_init(|| {
-        crate::barn::worlds()
+        crate::catalog::barn_worlds()
             .iter()
             .map(|w| {
                 let cspace = Grid::from_barn_cylinders(&w.cylinders).cspace(crate::grid::ROBOT_RADIUS_CELLS);

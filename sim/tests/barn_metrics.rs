@@ -155,7 +155,7 @@ fn cspace_is_the_grid_dilated_by_the_robot() {
 fn grids_rebuilt_from_the_cylinders_give_the_same_cspace() {
     let Some(dir) = data_dir() else { return };
     let mut exact = 0;
-    for (i, w) in sim::barn::worlds().iter().enumerate() {
+    for (i, w) in sim::catalog::barn_worlds().iter().enumerate() {
         let grid = grid_of(&read_npy(&dir.join(format!("grids/grid_{i}.npy"))));
         let rebuilt = Grid::from_barn_cylinders(&w.cylinders);
         let differ = grid.cells().filter(|&c| grid.get(c) != rebuilt.get(c)).count();

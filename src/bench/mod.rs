@@ -34,7 +34,7 @@ use learner::bench::{fitted_policy_weights, replay_full, td3_updates};
 use learner::service::read_status;
 
 use crate::config::EvalConfig;
-use crate::train::TrainConfig;
+use crate::config::TrainConfig;
 
 /// A part of the benchmark.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]

@@ -17,7 +17,7 @@ use serde::{Deserialize, Serialize};
 use planner::ActionSpace;
 
 use crate::config::one_line;
-use crate::train::TrainConfig;
+use crate::config::TrainConfig;
 use planner::PlannerKind;
 
 /// The embedded training defaults that `[train]` is laid over.

@@ -728,7 +728,7 @@ fn drive(ctx: &Ctx<'_>, a: &Arm, p: &LearnedPolicy, world: usize) -> anyhow::Res
     };
     let chooser = Chooser::Env {
         space: p.space,
-        env: p.env.for_evaluation(),
+        env: &p.env.for_evaluation(),
         act: &mut Greedy::new(&p.net),
     };
     let mut steps = Vec::new();

@@ -309,7 +309,7 @@ fn run_one(
     };
     let chooser = Chooser::Env {
         space,
-        env: EnvConfig {
+        env: &EnvConfig {
             compute: spec.cfg.compute,
             ..env.for_evaluation()
         },

@@ -1072,7 +1072,7 @@ mod tests {
 
     /// Commands of the first `n` cycles on a BARN world.
     fn commands(seed: u64, n: usize, record: bool) -> (Vec<Twist>, u64, usize) {
-        let world = sim::barn::world(120).unwrap();
+        let world = sim::catalog::world(120).unwrap();
         let mut ep = Episode::new(world, EpisodeConfig::default(), 1);
         let mut sys = NavSystem::new(SystemConfig::default(), seed);
         sys.set_recording(record);
@@ -1110,7 +1110,7 @@ mod tests {
 
     #[test]
     fn previous_solution_is_among_the_samples() {
-        let world = sim::barn::world(120).unwrap();
+        let world = sim::catalog::world(120).unwrap();
         let ep = Episode::new(world, EpisodeConfig::default(), 1);
         let cfg = SystemConfig::default();
         let mut sys = NavSystem::new(cfg, 1);

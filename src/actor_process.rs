@@ -1,5 +1,7 @@
-//! `adp actor --sandbox CONFIG`: an actor that somebody else started (a SLURM task, a user's
-//! own launcher) puts itself in the sandbox that `adp train` gives its local actors.
+//! `adp actor`: one actor process of a run, connected to its learner ([`command`]).
+//!
+//! With `--sandbox CONFIG`, an actor that somebody else started (a SLURM task, a user's own
+//! launcher) puts itself in the sandbox that `adp train` gives its local actors ([`run`]).
 //!
 //! The process reads `[sandbox]` of the training configuration `CONFIG`, re-executes this
 //! executable as a plain `adp actor` (same options, the rank made explicit, no `--sandbox`)
@@ -11,7 +13,13 @@
 //! The network stays shared: an actor started outside `adp train` reaches its learner over
 //! TCP, which a private network namespace would cut.
 
+use crate::config::EvalConfig;
+use actor::run::ActorSetup;
+use planner::PlannerKind;
+use proto::auth::{read_token_file, TlsFiles};
+use proto::grpc::LearnerAddress;
 use std::path::{Path, PathBuf};
+use std::time::Duration;
 
 use anyhow::{bail, Context};
 use tokio::signal::unix::{signal, SignalKind};
@@ -19,7 +27,94 @@ use tokio::signal::unix::{signal, SignalKind};
 use actor::run::PlaneChoice;
 use scheduler::{BwrapStatus, Sandbox};
 
-use crate::train::{ActorArgs, TrainConfig};
+use crate::config::TrainConfig;
+
+/// Options of `adp actor`.
+#[derive(clap::Args, Debug)]
+pub struct ActorArgs {
+    /// The learner's host:port, or unix:PATH for its Unix socket (<run dir>/learner.sock)
+    /// on the same host.
+    #[arg(long)]
+    pub learner: String,
+    /// The run's token file (mode 0600).
+    #[arg(long)]
+    pub token_file: PathBuf,
+    /// This actor's rank (default: --rank-offset + $SLURM_PROCID); seeds derive from it.
+    #[arg(long)]
+    pub rank: Option<u32>,
+    /// Added to $SLURM_PROCID to make the rank (for a second `srun` step of actors).
+    #[arg(long, default_value_t = 0, conflicts_with = "rank")]
+    pub rank_offset: u32,
+    /// Data plane: auto (shared memory when the learner is on this host), grpc or shm.
+    #[arg(long, default_value = "auto")]
+    pub data_plane: PlaneChoice,
+    /// CA certificate of the learner (PEM); enables TLS.
+    #[arg(long)]
+    pub tls_ca: Option<PathBuf>,
+    /// Server name in the learner's certificate (default: the host of --learner).
+    #[arg(long, requires = "tls_ca")]
+    pub tls_domain: Option<String>,
+    /// Client certificate for mutual TLS (PEM).
+    #[arg(long, requires_all = ["tls_ca", "tls_key"])]
+    pub tls_cert: Option<PathBuf>,
+    /// Client key for mutual TLS (PEM).
+    #[arg(long, requires_all = ["tls_ca", "tls_cert"])]
+    pub tls_key: Option<PathBuf>,
+    /// Give up after the learner has been unreachable this many seconds.
+    #[arg(long = "give-up-after", default_value_t = 600)]
+    pub give_up_after_s: u64,
+    /// Run in the sandbox of this training config's `[sandbox]` (limits, bubblewrap), as
+    /// `adp train` runs its actors: the process re-executes itself sandboxed and forwards
+    /// SIGTERM/SIGINT to it. `adp slurm` sets it.
+    #[arg(long, value_name = "CONFIG")]
+    pub sandbox: Option<PathBuf>,
+}
+
+/// `adp actor`: runs one actor process (in the sandbox of `--sandbox CONFIG` when given).
+pub fn command(a: ActorArgs) -> anyhow::Result<()> {
+    let token = read_token_file(&a.token_file)?;
+    let rank = match a.rank {
+        Some(r) => r,
+        None => {
+            let procid: u32 = match std::env::var("SLURM_PROCID") {
+                Ok(v) => v
+                    .parse()
+                    .map_err(|_| anyhow::anyhow!("SLURM_PROCID = {v:?} is not a task number"))?,
+                Err(_) => 0,
+            };
+            a.rank_offset
+                .checked_add(procid)
+                .context("--rank-offset + SLURM_PROCID overflows")?
+        }
+    };
+    if let Some(config) = &a.sandbox {
+        return run(&a, rank, config);
+    }
+    let eval_cfg = EvalConfig::load(None)?;
+    let factory =
+        move |name: &str, seed: u64| -> Result<Box<dyn planner::Planner>, actor::run::FactoryError> {
+            Ok(name.parse::<PlannerKind>()?.build(&eval_cfg.planners(), seed))
+        };
+    let tls = a.tls_ca.is_some().then(|| TlsFiles {
+        cert: a.tls_cert.clone(),
+        key: a.tls_key.clone(),
+        ca: a.tls_ca.clone(),
+        domain: a.tls_domain.clone(),
+    });
+    let setup = ActorSetup {
+        learner: LearnerAddress {
+            addr: a.learner.clone(),
+            token: Some(token),
+            tls,
+        },
+        rank,
+        plane: a.data_plane,
+        episode: EvalConfig::load(None)?.episode,
+        make_planner: &factory,
+        give_up_after: Duration::from_secs(a.give_up_after_s),
+    };
+    Ok(actor::run::run(&setup)?)
+}
 
 /// The `adp actor` options of the sandboxed child: `a` without `--sandbox`, with `rank`.
 pub fn child_args(a: &ActorArgs, rank: u32) -> Vec<String> {

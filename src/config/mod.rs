@@ -1,4 +1,14 @@
-//! The evaluation configuration file (`configs/eval.toml`, embedded as the default).
+//! The configuration files: the evaluation configuration (`configs/eval.toml`, embedded as
+//! the default; [`EvalConfig`]) and a training run's ([`TrainConfig`], with its `[greedy]` and
+//! `[slurm]` tables), and the one-line error helpers every command uses.
+
+mod greedy;
+mod slurm;
+mod train;
+
+pub use greedy::GreedySection;
+pub use slurm::{check_time, SlurmSection};
+pub use train::TrainConfig;
 
 use anyhow::Context;
 use serde::Deserialize;
@@ -9,7 +19,7 @@ use planner::{
 use sim::EpisodeConfig;
 
 /// The embedded default.
-pub const EVAL_TOML: &str = include_str!("../configs/eval.toml");
+pub const EVAL_TOML: &str = include_str!("../../configs/eval.toml");
 
 /// Settings for `adp eval` and friends.
 #[derive(Clone, Debug, Default, Deserialize)]
