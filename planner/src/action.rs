@@ -759,31 +759,4 @@ mod tests {
         assert_eq!(v.ddp_action(), vec![0.0, 0.0]);
         assert_eq!(ActionMap::DdpCentred.to_box(0.3, v.ddp_action()[0]), 0.3);
     }
-
-    #[test]
-    fn shared_vectors_with_the_python_client() {
-        let text = include_str!("../tests/data/action_vectors.json");
-        let doc: serde_json::Value = serde_json::from_str(text).unwrap();
-        let vectors = doc["vectors"].as_array().unwrap();
-        assert!(vectors.len() >= 10);
-        for v in vectors {
-            let space: ActionSpace = v["space"].as_str().unwrap().parse().unwrap();
-            let map: ActionMap = v["map"].as_str().unwrap().parse().unwrap();
-            let f = |k: &str| -> Vec<f64> {
-                v[k].as_array()
-                    .unwrap()
-                    .iter()
-                    .map(|x| x.as_f64().unwrap())
-                    .collect()
-            };
-            let (u, want) = (f("output"), f("params"));
-            let mut a = vec![0.0; space.dim()];
-            map.map_into(&u, &space.ddp_action(), &mut a);
-            let got = space.to_params(&a).unwrap();
-            assert_eq!(got.len(), want.len(), "{v}");
-            for (g, w) in got.iter().zip(&want) {
-                assert!((g - w).abs() < 1e-12, "{v}: got {got:?}");
-            }
-        }
-    }
 }

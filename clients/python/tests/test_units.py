@@ -152,17 +152,6 @@ def test_action_errors():
         ActionSpace("bogus")
 
 
-def test_shared_action_vectors_match_the_rust_port():
-    # planner/tests/data/action_vectors.json, also read by planner/src/action.rs's tests.
-    path = pathlib.Path(__file__).resolve().parents[3] / "planner" / "tests" / "data" / "action_vectors.json"
-    vectors = json.loads(path.read_text())["vectors"]
-    assert len(vectors) >= 10
-    for v in vectors:
-        sp, m = ActionSpace(v["space"]), ActionMap(v["map"])
-        got = sp.to_params(m.box_action(sp, v["output"]))
-        np.testing.assert_allclose(got, v["params"], atol=1e-12, err_msg=str(v))
-
-
 def test_weight_and_velocity_spaces():
     for planner, n in (("dwa", 4), ("mppi", 5), ("system", 4)):
         for name, dim in ((f"weights:{planner}", n), (f"decremental+weights:{planner}", 4 + n)):

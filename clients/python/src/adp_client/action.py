@@ -10,7 +10,7 @@ The objective-weight spaces are named with their planner (`weights:dwa`,
 `decremental+weights:mppi`): each gain value is a factor in [0, 2] on the planner's configured
 weight of that name (1, normalized 0, is the hand-tuned weight). `velocity` outputs the command:
 `v_frac` in [0, 1] of the run's speed cap and `w` in [-2, 2] rad/s; it has no schedule.
-The shared test vectors in planner/tests/data/action_vectors.json pin both ports.
+The shared test vectors in testdata/action_vectors.json pin both ports.
 """
 
 import math
