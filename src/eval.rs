@@ -460,6 +460,68 @@ pub fn summarize(per_world: &[WorldRuns], trim: usize) -> (f64, f64, f64, f64, f
 /// Runs the whole plan on `worlds` (indexed by id) and returns one row per
 /// (planner, fidelity, speed, prediction, sensing condition).
 pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Result<Vec<Row>> {
+    let lidars = check_plan(plan, cfg, worlds)?;
+    let policy = plan
+        .policy
+        .as_ref()
+        .filter(|_| plan.fidelities.contains(&Fidelity::Adp));
+    let mut jobs = Vec::new();
+    for (ri, (p, f, s, pr, li)) in combos(plan).enumerate() {
+        for &w in &plan.worlds {
+            for r in 0..plan.runs {
+                jobs.push(Job {
+                    row: ri,
+                    planner: p,
+                    fidelity: f,
+                    speed: s,
+                    prediction: pr,
+                    lidar: li,
+                    world: w,
+                    run: r,
+                });
+            }
+        }
+    }
+    let bar = ProgressBar::new(jobs.len() as u64).with_style(
+        ProgressStyle::with_template(
+            "{spinner} [{elapsed_precise}] {bar:40} {pos}/{len} episodes (eta {eta})",
+        )
+        .expect("static template"),
+    );
+    let t0 = Instant::now();
+    let results: Vec<RunOut> = jobs
+        .par_iter()
+        .map(|job| {
+            let out = run_one(plan, cfg, worlds, &lidars, policy, job);
+            bar.inc(1);
+            out
+        })
+        .collect::<anyhow::Result<_>>()?;
+    bar.finish_and_clear();
+    let cycles: u64 = results.iter().map(|x| x.4.cycles).sum();
+    let secs = t0.elapsed().as_secs_f64();
+    tracing::info!(
+        episodes = results.len(),
+        planner_cycles = cycles,
+        seconds = format_args!("{secs:.1}"),
+        cycles_per_s = format_args!("{:.0}", cycles as f64 / secs),
+        real_time_per_thread = format_args!(
+            "{:.0}x",
+            cycles as f64 * cfg.episode.control_dt / secs / rayon::current_num_threads() as f64
+        ),
+        "evaluation done"
+    );
+
+    Ok(combos(plan)
+        .enumerate()
+        .map(|(ri, combo)| row(plan, cfg, &lidars, ri, combo, &results))
+        .collect())
+}
+
+/// Checks `plan` against `cfg` and `worlds` (runs and trim, speeds, the policy's layout and
+/// profile, the predictions and sensing conditions a learned policy can run); returns the
+/// lidar of each sensing condition.
+fn check_plan(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Result<Vec<LidarConfig>> {
     if plan.runs == 0 {
         bail!("--runs must be at least 1");
     }
@@ -544,160 +606,169 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
             );
         }
     }
-    let mut jobs = Vec::new();
-    for (ri, (p, f, s, pr, li)) in combos(plan).enumerate() {
-        for &w in &plan.worlds {
-            for r in 0..plan.runs {
-                jobs.push((ri, p, f, s, pr, li, w, r));
-            }
-        }
-    }
-    let bar = ProgressBar::new(jobs.len() as u64).with_style(
-        ProgressStyle::with_template(
-            "{spinner} [{elapsed_precise}] {bar:40} {pos}/{len} episodes (eta {eta})",
-        )
-        .expect("static template"),
-    );
-    let t0 = Instant::now();
-    let results: Vec<RunOut> = jobs
-        .par_iter()
-        .map(|&(ri, p, f, s, pr, li, w, r)| {
-            let seed = run_seed(plan.seed, w, r);
-            let cost = Arc::new(PlanCost::default());
-            let run = Run {
-                world: &worlds[w],
-                episode: EpisodeConfig {
-                    lidar: lidars[li],
-                    ..cfg.episode
-                },
-                planner: Box::new(Metered {
-                    inner: p.build(&cfg.planners(), planner_seed(seed)),
-                    cost: Arc::clone(&cost),
-                }),
-                max_speed: s,
-                seed,
-            };
-            let no_steps = |_: &Step<'_>| Ok::<(), anyhow::Error>(());
-            let (out, forecast) = match policy.filter(|_| f == Fidelity::Adp) {
-                Some(net) => {
-                    let chooser = Chooser::Env {
-                        space: plan.adp.space,
-                        env: &eval_env_config(plan.policy_env, cfg.compute),
-                        act: &mut Greedy::new(net),
-                    };
-                    let out = closed_loop::run(run, chooser, no_steps)
-                        .with_context(|| format!("world {w}, run {r}"))?;
-                    (out, None)
-                }
-                None => {
-                    let driver = CycleDriver::new(cfg.compute.resolve(p.name())?, cfg.episode.control_dt);
-                    let mut driver = match pr {
-                        ObstaclePrediction::Off => driver,
-                        ObstaclePrediction::Kf => driver.with_tracking(TrackingConfig::default()),
-                        ObstaclePrediction::PadpPath | ObstaclePrediction::Padp => driver
-                            .with_tracking(TrackingConfig::default())
-                            .with_padp(cfg.prediction, pr.padp()),
-                    }
-                    .with_forecast_errors();
-                    let schedule = f.schedule(&plan.adp)?;
-                    let chooser = Chooser::Fixed {
-                        schedule: &schedule,
-                        driver: &mut driver,
-                    };
-                    let out = closed_loop::run(run, chooser, no_steps)?;
-                    let forecast = driver.tracking().and(driver.forecast_errors().copied());
-                    (out, forecast)
-                }
-            };
-            let (res, tally) = (out.episode, out.compute);
-            bar.inc(1);
-            Ok((ri, w, r, res, tally, cost, forecast))
-        })
-        .collect::<anyhow::Result<_>>()?;
-    bar.finish_and_clear();
-    let cycles: u64 = results.iter().map(|x| x.4.cycles).sum();
-    let secs = t0.elapsed().as_secs_f64();
-    tracing::info!(
-        episodes = results.len(),
-        planner_cycles = cycles,
-        seconds = format_args!("{secs:.1}"),
-        cycles_per_s = format_args!("{:.0}", cycles as f64 / secs),
-        real_time_per_thread = format_args!(
-            "{:.0}x",
-            cycles as f64 * cfg.episode.control_dt / secs / rayon::current_num_threads() as f64
-        ),
-        "evaluation done"
-    );
+    Ok(lidars)
+}
 
-    let mut rows = Vec::new();
-    for (ri, (p, f, s, pr, li)) in combos(plan).enumerate() {
-        let per_world: Vec<WorldRuns> = plan
-            .worlds
-            .iter()
-            .map(|&w| {
-                let mut runs: Vec<(usize, EpisodeResult)> = results
-                    .iter()
-                    .filter(|x| x.0 == ri && x.1 == w)
-                    .map(|x| (x.2, x.3))
-                    .collect();
-                runs.sort_by_key(|x| x.0);
-                WorldRuns {
-                    world: w,
-                    runs: runs.into_iter().map(|x| x.1).collect(),
-                }
-            })
-            .collect();
-        let (success_pct, avg_time_s, avg_score, collision_pct, timeout_pct, episodes) =
-            summarize(&per_world, plan.trim);
-        let mut tally = ComputeTally::default();
-        let mut nanos = 0;
-        let mut forecast: Option<ForecastErrors> = None;
-        for x in results.iter().filter(|x| x.0 == ri) {
-            tally += x.4;
-            nanos += x.5.nanos.load(Ordering::Relaxed);
-            if let Some(e) = x.6 {
-                *forecast.get_or_insert_default() += e;
-            }
+/// One episode of an evaluation.
+#[derive(Clone, Copy)]
+struct Job {
+    /// Index of its row in [`combos`] order.
+    row: usize,
+    planner: PlannerKind,
+    fidelity: Fidelity,
+    speed: f64,
+    prediction: ObstaclePrediction,
+    /// Index of its sensing condition.
+    lidar: usize,
+    world: usize,
+    run: usize,
+}
+
+/// Runs `job`: the planner (metered) on its world with its schedule, or closed-loop with the
+/// learned `policy` for an ADP row.
+fn run_one(
+    plan: &EvalPlan,
+    cfg: &EvalConfig,
+    worlds: &[World],
+    lidars: &[LidarConfig],
+    policy: Option<&MlpPolicy>,
+    job: &Job,
+) -> anyhow::Result<RunOut> {
+    let &Job {
+        row: ri,
+        planner: p,
+        fidelity: f,
+        speed: s,
+        prediction: pr,
+        lidar: li,
+        world: w,
+        run: r,
+    } = job;
+    let seed = run_seed(plan.seed, w, r);
+    let cost = Arc::new(PlanCost::default());
+    let run = Run {
+        world: &worlds[w],
+        episode: EpisodeConfig {
+            lidar: lidars[li],
+            ..cfg.episode
+        },
+        planner: Box::new(Metered {
+            inner: p.build(&cfg.planners(), planner_seed(seed)),
+            cost: Arc::clone(&cost),
+        }),
+        max_speed: s,
+        seed,
+    };
+    let no_steps = |_: &Step<'_>| Ok::<(), anyhow::Error>(());
+    let (out, forecast) = match policy.filter(|_| f == Fidelity::Adp) {
+        Some(net) => {
+            let chooser = Chooser::Env {
+                space: plan.adp.space,
+                env: &eval_env_config(plan.policy_env, cfg.compute),
+                act: &mut Greedy::new(net),
+            };
+            let out =
+                closed_loop::run(run, chooser, no_steps).with_context(|| format!("world {w}, run {r}"))?;
+            (out, None)
         }
-        let cycles = tally.cycles.max(1) as f64;
-        rows.push(Row {
-            planner: p,
-            fidelity: f,
-            fidelity_label: match f {
-                Fidelity::Adp => format!("adp-{}", kebab(&plan.adp.space)),
-                _ => format!("{}{}", kebab(&f), pr.label_suffix()),
-            },
-            prediction: pr,
-            max_speed: s,
-            lidar: (!plan.lidars[li].is_none()).then_some(lidars[li]),
-            success_pct,
-            avg_time_s,
-            avg_score,
-            collision_pct,
-            timeout_pct,
-            episodes,
-            check_points_per_cycle: tally.work.points as f64 / cycles,
-            plan_ms_per_cycle: nanos as f64 / cycles / 1e6,
-            compute_model: compute_label(&cfg.compute),
-            units_per_cycle: UnitsPerCycle::of(&tally),
-            modelled_ms_per_cycle: tally.ms_per_cycle(),
-            samples_evaluated_pct: 100.0 * tally.evaluated_share(),
-            truncated_cycles_pct: 100.0 * tally.truncated_cycles as f64 / cycles,
-            late_cycles_pct: 100.0 * tally.late_cycles as f64 / cycles,
-            pressure_modes_pct: pr
-                .padp()
-                .adapt
-                .then(|| tally.pressure_cycles.map(|n| 100.0 * n as f64 / cycles)),
-            forecast: forecast.map(|e| ForecastRmse {
-                horizons_s: FORECAST_HORIZONS,
-                rmse_m: e.rmse(),
-                still_rmse_m: e.rmse_still(),
-                forecasts: e.count,
-            }),
-            per_world,
-        });
+        None => {
+            let driver = CycleDriver::new(cfg.compute.resolve(p.name())?, cfg.episode.control_dt);
+            let mut driver = match pr {
+                ObstaclePrediction::Off => driver,
+                ObstaclePrediction::Kf => driver.with_tracking(TrackingConfig::default()),
+                ObstaclePrediction::PadpPath | ObstaclePrediction::Padp => driver
+                    .with_tracking(TrackingConfig::default())
+                    .with_padp(cfg.prediction, pr.padp()),
+            }
+            .with_forecast_errors();
+            let schedule = f.schedule(&plan.adp)?;
+            let chooser = Chooser::Fixed {
+                schedule: &schedule,
+                driver: &mut driver,
+            };
+            let out = closed_loop::run(run, chooser, no_steps)?;
+            let forecast = driver.tracking().and(driver.forecast_errors().copied());
+            (out, forecast)
+        }
+    };
+    let (res, tally) = (out.episode, out.compute);
+    Ok((ri, w, r, res, tally, cost, forecast))
+}
+
+/// The row of combination `ri` of `plan` from every run's result.
+fn row(
+    plan: &EvalPlan,
+    cfg: &EvalConfig,
+    lidars: &[LidarConfig],
+    ri: usize,
+    (p, f, s, pr, li): (PlannerKind, Fidelity, f64, ObstaclePrediction, usize),
+    results: &[RunOut],
+) -> Row {
+    let per_world: Vec<WorldRuns> = plan
+        .worlds
+        .iter()
+        .map(|&w| {
+            let mut runs: Vec<(usize, EpisodeResult)> = results
+                .iter()
+                .filter(|x| x.0 == ri && x.1 == w)
+                .map(|x| (x.2, x.3))
+                .collect();
+            runs.sort_by_key(|x| x.0);
+            WorldRuns {
+                world: w,
+                runs: runs.into_iter().map(|x| x.1).collect(),
+            }
+        })
+        .collect();
+    let (success_pct, avg_time_s, avg_score, collision_pct, timeout_pct, episodes) =
+        summarize(&per_world, plan.trim);
+    let mut tally = ComputeTally::default();
+    let mut nanos = 0;
+    let mut forecast: Option<ForecastErrors> = None;
+    for x in results.iter().filter(|x| x.0 == ri) {
+        tally += x.4;
+        nanos += x.5.nanos.load(Ordering::Relaxed);
+        if let Some(e) = x.6 {
+            *forecast.get_or_insert_default() += e;
+        }
     }
-    Ok(rows)
+    let cycles = tally.cycles.max(1) as f64;
+    Row {
+        planner: p,
+        fidelity: f,
+        fidelity_label: match f {
+            Fidelity::Adp => format!("adp-{}", kebab(&plan.adp.space)),
+            _ => format!("{}{}", kebab(&f), pr.label_suffix()),
+        },
+        prediction: pr,
+        max_speed: s,
+        lidar: (!plan.lidars[li].is_none()).then_some(lidars[li]),
+        success_pct,
+        avg_time_s,
+        avg_score,
+        collision_pct,
+        timeout_pct,
+        episodes,
+        check_points_per_cycle: tally.work.points as f64 / cycles,
+        plan_ms_per_cycle: nanos as f64 / cycles / 1e6,
+        compute_model: compute_label(&cfg.compute),
+        units_per_cycle: UnitsPerCycle::of(&tally),
+        modelled_ms_per_cycle: tally.ms_per_cycle(),
+        samples_evaluated_pct: 100.0 * tally.evaluated_share(),
+        truncated_cycles_pct: 100.0 * tally.truncated_cycles as f64 / cycles,
+        late_cycles_pct: 100.0 * tally.late_cycles as f64 / cycles,
+        pressure_modes_pct: pr
+            .padp()
+            .adapt
+            .then(|| tally.pressure_cycles.map(|n| 100.0 * n as f64 / cycles)),
+        forecast: forecast.map(|e| ForecastRmse {
+            horizons_s: FORECAST_HORIZONS,
+            rmse_m: e.rmse(),
+            still_rmse_m: e.rmse_still(),
+            forecasts: e.count,
+        }),
+        per_world,
+    }
 }
 
 /// The rows of `plan` in table order: planner, then fidelity, then speed, then prediction,
