@@ -371,6 +371,25 @@ pub fn run_seed(base: u64, world: usize, run: usize) -> u64 {
     z ^ (z >> 31)
 }
 
+/// Run `seed` of `world` at speed cap `speed` with a fresh `planner` seeded from the run seed
+/// ([`planner_seed`]): how every evaluation path (eval, greedy evaluation, experiment stages
+/// and figures) sets up a run.
+pub fn eval_run<'w>(
+    cfg: &EvalConfig,
+    world: &'w World,
+    planner: PlannerKind,
+    speed: f64,
+    seed: u64,
+) -> Run<'w> {
+    Run {
+        world,
+        episode: cfg.episode,
+        planner: planner.build(&cfg.planners(), planner_seed(seed)),
+        max_speed: speed,
+        seed,
+    }
+}
+
 /// The wall time one episode's planning calls took (ns); the work they did is in the run's
 /// [`ComputeTally`].
 #[derive(Debug, Default)]
@@ -471,11 +490,7 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
             for r in 0..plan.runs {
                 jobs.push(Job {
                     row: ri,
-                    planner: p,
-                    fidelity: f,
-                    speed: s,
-                    prediction: pr,
-                    lidar: li,
+                    combo: (p, f, s, pr, li),
                     world: w,
                     run: r,
                 });
@@ -614,13 +629,11 @@ fn check_plan(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Re
 struct Job {
     /// Index of its row in [`combos`] order.
     row: usize,
-    planner: PlannerKind,
-    fidelity: Fidelity,
-    speed: f64,
-    prediction: ObstaclePrediction,
-    /// Index of its sensing condition.
-    lidar: usize,
+    /// The row's planner, fidelity, speed cap, prediction and sensing condition (index).
+    combo: Combo,
+    /// World id.
     world: usize,
+    /// Run index within the world.
     run: usize,
 }
 
@@ -634,16 +647,12 @@ fn run_one(
     policy: Option<&MlpPolicy>,
     job: &Job,
 ) -> anyhow::Result<RunOut> {
-    let &Job {
+    let Job {
         row: ri,
-        planner: p,
-        fidelity: f,
-        speed: s,
-        prediction: pr,
-        lidar: li,
+        combo: (p, f, s, pr, li),
         world: w,
         run: r,
-    } = job;
+    } = *job;
     let seed = run_seed(plan.seed, w, r);
     let cost = Arc::new(PlanCost::default());
     let run = Run {
@@ -701,7 +710,7 @@ fn row(
     cfg: &EvalConfig,
     lidars: &[LidarConfig],
     ri: usize,
-    (p, f, s, pr, li): (PlannerKind, Fidelity, f64, ObstaclePrediction, usize),
+    (p, f, s, pr, li): Combo,
     results: &[RunOut],
 ) -> Row {
     let per_world: Vec<WorldRuns> = plan
@@ -771,11 +780,13 @@ fn row(
     }
 }
 
+/// One row's planner, fidelity, speed cap (m/s), prediction and sensing condition (its index
+/// in `plan.lidars`).
+type Combo = (PlannerKind, Fidelity, f64, ObstaclePrediction, usize);
+
 /// The rows of `plan` in table order: planner, then fidelity, then speed, then prediction,
-/// then sensing condition (its index in `plan.lidars`).
-fn combos(
-    plan: &EvalPlan,
-) -> impl Iterator<Item = (PlannerKind, Fidelity, f64, ObstaclePrediction, usize)> + '_ {
+/// then sensing condition.
+fn combos(plan: &EvalPlan) -> impl Iterator<Item = Combo> + '_ {
     plan.planners.iter().flat_map(move |&p| {
         plan.fidelities.iter().flat_map(move |&f| {
             plan.speeds.iter().flat_map(move |&s| {

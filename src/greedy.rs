@@ -20,7 +20,7 @@ use std::thread::JoinHandle;
 use anyhow::Context;
 use serde::{Deserialize, Serialize};
 
-use actor::closed_loop::{self, planner_seed, Chooser, Greedy, Run};
+use actor::closed_loop::{self, planner_seed, Chooser, Greedy};
 use actor::{EnvConfig, MlpPolicy};
 use learner::service::ServiceError;
 use learner::tensorboard::EventWriter;
@@ -28,7 +28,7 @@ use planner::{ActionSpace, Schedule};
 use sim::Status;
 
 use crate::config::{EvalConfig, GreedySection};
-use crate::eval::run_seed;
+use crate::eval::{eval_run, run_seed};
 
 /// How one physical schedule parameter varied over an evaluation's agent steps.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -154,13 +154,7 @@ impl Setup {
         let mut records = Vec::new();
         for (w, seed) in self.seeds() {
             let world = sim::catalog::world(w).with_context(|| format!("world {w}"))?;
-            let run = Run {
-                world,
-                episode: self.eval.episode,
-                planner: self.planner.build(&self.eval.planners(), planner_seed(seed)),
-                max_speed: self.max_speed,
-                seed,
-            };
+            let run = eval_run(&self.eval, world, self.planner, self.max_speed, seed);
             let chooser = Chooser::Env {
                 space: self.space,
                 env: &env,

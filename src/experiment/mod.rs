@@ -26,12 +26,12 @@ use std::time::Instant;
 use anyhow::{bail, Context};
 use serde::Serialize;
 
-use actor::closed_loop::{self, planner_seed, Chooser, Greedy, Run};
+use actor::closed_loop::{self, Chooser, Greedy};
 use planner::{ActionSpace, Schedule};
 use sim::World;
 
 use crate::config::EvalConfig;
-use crate::eval::run_seed;
+use crate::eval::{eval_run, run_seed};
 use crate::policy::{EvalPolicy, LearnedPolicy};
 
 use config::{planner_name, space_label, speed_label, Arm, Experiment, Restrict};
@@ -719,13 +719,7 @@ struct ArmResults {
 /// schedule it chose at every agent step.
 fn drive(ctx: &Ctx<'_>, a: &Arm, p: &LearnedPolicy, world: usize) -> anyhow::Result<figures::Drive> {
     let seed = run_seed(ctx.ex.eval.seed, world, 0);
-    let run = Run {
-        world: &ctx.worlds[world],
-        episode: ctx.cfg.episode,
-        planner: a.planner.build(&ctx.cfg.planners(), planner_seed(seed)),
-        max_speed: a.speed,
-        seed,
-    };
+    let run = eval_run(&ctx.cfg, &ctx.worlds[world], a.planner, a.speed, seed);
     let chooser = Chooser::Env {
         space: p.space,
         env: &p.env.for_evaluation(),

@@ -13,14 +13,14 @@ use planner::PlannerKind;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use actor::closed_loop::{self, planner_seed, Act, Chooser, Constant, Greedy, Run};
+use actor::closed_loop::{self, Act, Chooser, Constant, Greedy};
 use actor::{EnvConfig, MlpPolicy};
 use planner::run::CycleDriver;
 use planner::{ActionSpace, ComputeTally, Schedule, TrackingConfig};
 use sim::{EpisodeResult, World};
 
 use crate::config::EvalConfig;
-use crate::eval::{run_seed, WorldRuns};
+use crate::eval::{eval_run, run_seed, WorldRuns};
 
 use super::stats::SplitMix64;
 
@@ -260,13 +260,7 @@ fn run_one(
     collect: bool,
 ) -> anyhow::Result<RunOut> {
     let seed = run_seed(spec.seed, w, r);
-    let run = Run {
-        world: &spec.worlds[w],
-        episode: spec.cfg.episode,
-        planner: spec.planner.build(&spec.cfg.planners(), planner_seed(seed)),
-        max_speed: spec.speed,
-        seed,
-    };
+    let run = eval_run(spec.cfg, &spec.worlds[w], spec.planner, spec.speed, seed);
     let (mut constant, mut greedy, mut drawn);
     let (space, env, act, network): (_, _, &mut dyn Act, _) = match ctrl {
         Controller::Schedule(s) => {
