@@ -176,15 +176,29 @@ pub struct ScriptInput<'a> {
 /// The sbatch script of `input`. Pure; the config must have passed [`SlurmSection::validate`].
 pub fn script(input: &ScriptInput<'_>) -> String {
     let cfg = input.config;
+    let mut o = String::new();
+    let w = &mut o;
+    sbatch_header(w, input);
+    preamble(w, input);
+    config_and_token(w, cfg);
+    learner_address_and_resume(w, cfg);
+    time_limit_trap(w, cfg);
+    learner_task(w, cfg);
+    actor_tasks(w, cfg);
+    wait_for_the_end(w, cfg);
+    o
+}
+
+/// The script's header: the comments on its origin, layout and progress, and the `#SBATCH`
+/// directives.
+fn sbatch_header(w: &mut String, input: &ScriptInput<'_>) {
+    let cfg = input.config;
     let s = &cfg.slurm;
     let run_dir = input.run_dir.display().to_string();
     let k0 = s.learner_node_actors();
     let node_cpus = (k0 * s.cpus_per_actor + s.learner_cpus).max(s.actors_per_node * s.cpus_per_actor);
     let node_mem = (u64::from(k0) * s.actor_mem_mb + s.learner_mem_mb)
         .max(u64::from(s.actors_per_node) * s.actor_mem_mb);
-    let config_toml = toml::to_string_pretty(cfg).expect("config serializes");
-    let mut o = String::new();
-    let w = &mut o;
     let _ = writeln!(w, "#!/bin/bash");
     let _ = writeln!(
         w,
@@ -238,6 +252,14 @@ pub fn script(input: &ScriptInput<'_>) -> String {
         "#SBATCH --signal=B:USR1@{}\n#SBATCH --open-mode=append\n#SBATCH --output={run_dir}/logs/job-%j.out",
         s.warning_s
     );
+}
+
+/// The shell set-up: strict mode, `[slurm] setup`, the job's variables and its log
+/// directory.
+fn preamble(w: &mut String, input: &ScriptInput<'_>) {
+    let s = &input.config.slurm;
+    let run_dir = input.run_dir.display().to_string();
+    let k0 = s.learner_node_actors();
     let _ = writeln!(w, "set -euo pipefail\n");
     if !s.setup.is_empty() {
         let _ = writeln!(w, "# Site set-up from [slurm] setup.");
@@ -253,7 +275,12 @@ pub fn script(input: &ScriptInput<'_>) -> String {
     let _ = writeln!(w, "LEARNER_CPUS={}", s.learner_cpus);
     let _ = writeln!(w, "CPUS_PER_ACTOR={}", s.cpus_per_actor);
     let _ = writeln!(w, "mkdir -p \"$RUN_DIR/logs\"\n");
+}
 
+/// Steps 1 and 2: the run configuration written into the run directory, and the run's
+/// secret token.
+fn config_and_token(w: &mut String, cfg: &TrainConfig) {
+    let config_toml = toml::to_string_pretty(cfg).expect("config serializes");
     let _ = writeln!(
         w,
         "# 1. The run configuration, written on every (re)start so the job is self-contained."
@@ -272,6 +299,12 @@ pub fn script(input: &ScriptInput<'_>) -> String {
         w,
         "if [ ! -s \"$RUN_DIR/token\" ]; then\n    (umask 077 && od -An -tx1 -N32 /dev/urandom | tr -d ' \\n' > \"$RUN_DIR/token\")\nfi\n"
     );
+}
+
+/// Steps 3 and 4: the learner's host and port, and `--resume` when the run directory has a
+/// complete checkpoint.
+fn learner_address_and_resume(w: &mut String, cfg: &TrainConfig) {
+    let s = &cfg.slurm;
     let _ = writeln!(
         w,
         "# 3. The learner runs on the first node of the allocation and listens on a port derived\n\
@@ -298,6 +331,11 @@ pub fn script(input: &ScriptInput<'_>) -> String {
         "RESUME=()\nif compgen -G \"$RUN_DIR/checkpoints/ckpt-*/COMPLETE\" > /dev/null; then\n    RESUME=(--resume)\nfi\n\
          echo \"adp job $SLURM_JOB_ID (restart ${{SLURM_RESTART_COUNT:-0}}): learner on $LEARNER_HOST:$PORT ${{RESUME[*]}}\"\n"
     );
+}
+
+/// Step 5: the trap of SLURM's time-limit warning (requeue the job, or stop the learner).
+fn time_limit_trap(w: &mut String, cfg: &TrainConfig) {
+    let s = &cfg.slurm;
     if s.requeue {
         let _ = writeln!(
             w,
@@ -321,6 +359,11 @@ pub fn script(input: &ScriptInput<'_>) -> String {
             "on_time_limit() {{\n    echo \"time limit near: stopping the learner\"\n    kill -TERM \"$LEARNER_PID\"\n}}\ntrap on_time_limit USR1\n"
         );
     }
+}
+
+/// Step 6: the learner task on the first node.
+fn learner_task(w: &mut String, cfg: &TrainConfig) {
+    let s = &cfg.slurm;
     let insecure = if cfg.service.tls.is_none() {
         let _ = writeln!(
             w,
@@ -340,6 +383,11 @@ pub fn script(input: &ScriptInput<'_>) -> String {
          --listen \"0.0.0.0:$PORT\"{insecure} --token-file \"$RUN_DIR/token\" \"${{RESUME[@]}}\" &\nLEARNER_PID=$!\n",
         s.learner_mem_mb
     );
+}
+
+/// Step 7: the actor tasks, on the learner's node and on the other nodes.
+fn actor_tasks(w: &mut String, cfg: &TrainConfig) {
+    let s = &cfg.slurm;
     let _ = writeln!(
         w,
         "# 7. The actors: ranks 0.. on the learner's node, then the other nodes. Each rank seeds\n\
@@ -381,6 +429,11 @@ pub fn script(input: &ScriptInput<'_>) -> String {
          \"$ADP\" \"${{ACTOR_ARGS[@]}}\" --rank-offset \"$LEARNER_NODE_ACTORS\" &\n    ACTOR_PIDS+=($!)\nfi\n",
         s.actor_mem_mb.div_ceil(u64::from(s.cpus_per_actor))
     );
+}
+
+/// Step 8: waiting for the learner, then for the actors to leave, and the job's exit status.
+fn wait_for_the_end(w: &mut String, cfg: &TrainConfig) {
+    let s = &cfg.slurm;
     let _ = writeln!(
         w,
         "# 8. Wait for the learner (the USR1 trap interrupts `wait`, so wait again while it runs),\n\
@@ -400,7 +453,6 @@ pub fn script(input: &ScriptInput<'_>) -> String {
          echo \"learner exited with status $LEARNER_STATUS\"\nexit \"$LEARNER_STATUS\"",
         s.actor_grace_s
     );
-    o
 }
 
 /// A SLURM job name from a run name (letters, digits, `-`, `_`, `.`).

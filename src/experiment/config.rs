@@ -389,6 +389,263 @@ fn merge(base: &mut toml::Table, over: toml::Table) {
     }
 }
 
+/// `[train]` laid over the embedded `configs/local.toml` and checked, with `--steps` applied;
+/// unknown keys of `[train]` are named as written.
+fn parse_train(name: &str, table: toml::Table, restrict: &Restrict) -> anyhow::Result<TrainConfig> {
+    // Unknown keys of [train] are named before the merge (whose text has other lines).
+    TrainConfig::deserialize(table.clone())
+        .map_err(|e| anyhow::anyhow!("{name}: [train]: {}", one_line(&e.to_string())))?;
+    let mut base: toml::Table = toml::from_str(LOCAL_TOML).expect("the embedded local.toml parses");
+    merge(&mut base, table);
+    let mut train = TrainConfig::parse(
+        &format!("{name}: [train]"),
+        &toml::to_string(&base).expect("a TOML table serializes"),
+    )?;
+    if let Some(steps) = restrict.steps {
+        train.run.steps = steps;
+    }
+    Ok(train)
+}
+
+/// The planners and action spaces of `[experiment]`, checked with its speeds and seeds.
+fn planners_and_spaces(
+    name: &str,
+    ex: &ExperimentSection,
+) -> anyhow::Result<(Vec<PlannerKind>, Vec<ActionSpace>)> {
+    let err = |key: &str, what: String| anyhow::anyhow!("{name}: [experiment] {key}: {what}");
+    let planners: Vec<PlannerKind> = ex
+        .planners
+        .iter()
+        .map(|p| {
+            <PlannerKind as clap::ValueEnum>::from_str(p, false).map_err(|_| {
+                err(
+                    "planners",
+                    format!("unknown planner `{p}` (dwa, mppi, log-mppi, system)"),
+                )
+            })
+        })
+        .collect::<anyhow::Result<_>>()?;
+    let spaces: Vec<ActionSpace> = ex
+        .action_spaces
+        .iter()
+        .map(|s| {
+            s.parse()
+                .map_err(|e: planner::NameError| err("action_spaces", e.to_string()))
+        })
+        .collect::<anyhow::Result<_>>()?;
+    if planners.is_empty() || spaces.is_empty() || ex.speeds.is_empty() || ex.train_worlds.is_empty() {
+        bail!("{name}: [experiment] planners, action_spaces, speeds and train_worlds must not be empty");
+    }
+    // A space that sets a planner's objective gains pairs only with that planner.
+    for s in &spaces {
+        if let Some(g) = s.gains() {
+            if !planners.iter().any(|p| p.name() == g.planner()) {
+                return Err(err(
+                    "action_spaces",
+                    format!(
+                        "`{s}` sets the gains of {}, which is not in planners",
+                        g.planner()
+                    ),
+                ));
+            }
+        }
+    }
+    for &v in &ex.speeds {
+        if !(v.is_finite() && v > 0.0 && v <= 2.0) {
+            return Err(err("speeds", format!("{v} must be in (0, 2] m/s")));
+        }
+    }
+    if ex.seeds == 0 {
+        return Err(err("seeds", "must be at least 1".into()));
+    }
+    Ok((planners, spaces))
+}
+
+/// The test, constant-search and shuffle-pool world ids, in that order; every selection
+/// other than the test worlds (also the training and greedy-evaluation worlds) must select
+/// at least one world and no test world.
+fn world_splits(
+    name: &str,
+    ex: &ExperimentSection,
+    train: &TrainConfig,
+    search: &SearchSection,
+    shuffle: &ShuffleSection,
+) -> anyhow::Result<(Vec<usize>, Vec<usize>, Vec<usize>)> {
+    let select = |section: &str, key: &str, sel: &str| {
+        sim::splits::select(sel).map_err(|e| anyhow::anyhow!("{name}: [{section}] {key} = {sel:?}: {e}"))
+    };
+    let test_worlds = select("experiment", "test_worlds", &ex.test_worlds)?;
+    let disjoint = |section: &str, key: &str, sel: &str| -> anyhow::Result<Vec<usize>> {
+        let ids = select(section, key, sel)?;
+        if let Some(w) = ids.iter().find(|w| test_worlds.contains(w)) {
+            bail!(
+                "{name}: [{section}] {key} = {sel:?} includes test world {w}: the test worlds \
+                 ({}) are never used for training or selection",
+                ex.test_worlds
+            );
+        }
+        if ids.is_empty() {
+            bail!("{name}: [{section}] {key} = {sel:?} selects no world");
+        }
+        Ok(ids)
+    };
+    for tw in &ex.train_worlds {
+        disjoint("experiment", "train_worlds", tw)?;
+    }
+    if train.greedy.every_steps > 0 {
+        disjoint("train.greedy", "worlds", &train.greedy.worlds)?;
+    }
+    let search_worlds = disjoint("constant_search", "worlds", &search.worlds)?;
+    let mut pool_worlds = disjoint("shuffle", "worlds", &shuffle.worlds)?;
+    pool_worlds.truncate(shuffle.max_worlds.max(1));
+    Ok((test_worlds, search_worlds, pool_worlds))
+}
+
+/// Checks `[eval]`, `[constant_search]`, `[slurm]`, `[shuffle]` and `[stats]`, in that order.
+fn check_tables(
+    name: &str,
+    ev: &EvalSection,
+    cs: &SearchSection,
+    sl: &SlurmJob,
+    shuffle: &ShuffleSection,
+    st: &StatsSection,
+) -> anyhow::Result<()> {
+    if ev.runs == 0 || 2 * ev.trim >= ev.runs {
+        bail!(
+            "{name}: [eval] runs = {} and trim = {}: runs must be at least 1 and trim less than \
+             half of runs",
+            ev.runs,
+            ev.trim
+        );
+    }
+    let jitter = sim::EpisodeConfig {
+        start_jitter_m: ev.start_jitter_m,
+        start_jitter_yaw_rad: ev.start_jitter_yaw_rad,
+        ..sim::EpisodeConfig::default()
+    };
+    jitter
+        .validate()
+        .map_err(|e| anyhow::anyhow!("{name}: [eval] {e}"))?;
+    if cs.candidates == 0 || cs.runs == 0 || cs.first_pairs == 0 || cs.eta < 2 {
+        bail!(
+            "{name}: [constant_search] candidates, runs and first_pairs must be at least 1 and \
+             eta at least 2"
+        );
+    }
+    if sl.nodes == 0 || sl.tasks == 0 || sl.cpus_per_task == 0 || sl.time.is_empty() {
+        bail!("{name}: [slurm] nodes, tasks and cpus_per_task must be at least 1 and time set");
+    }
+    if shuffle.pool == 0 {
+        bail!("{name}: [shuffle] pool must be at least 1");
+    }
+    if !(st.confidence > 0.0 && st.confidence < 1.0) || st.resamples == 0 {
+        bail!(
+            "{name}: [stats] confidence = {} must be in (0, 1) and resamples = {} at least 1",
+            st.confidence,
+            st.resamples
+        );
+    }
+    Ok(())
+}
+
+/// The seeds per arm after `--seeds`, once every restriction is checked to be a subset of
+/// what the file declares.
+fn restricted_seeds(
+    name: &str,
+    restrict: &Restrict,
+    planners: &[PlannerKind],
+    spaces: &[ActionSpace],
+    ex: &ExperimentSection,
+) -> anyhow::Result<usize> {
+    // Restrictions: each a subset of what the file declares.
+    let keep = |flag: &str, listed: bool, value: String| -> anyhow::Result<()> {
+        if listed {
+            Ok(())
+        } else {
+            bail!("{flag} {value}: not in the experiment's {name}")
+        }
+    };
+    for p in &restrict.planners {
+        keep("--planners", planners.contains(p), planner_name(*p))?;
+    }
+    for s in &restrict.spaces {
+        keep("--spaces", spaces.contains(s), space_label(*s))?;
+    }
+    for v in &restrict.speeds {
+        keep(
+            "--speeds",
+            ex.speeds.iter().any(|x| (x - v).abs() < 1e-9),
+            speed_label(*v),
+        )?;
+    }
+    let seeds = match restrict.seeds {
+        Some(0) => bail!("--seeds must be at least 1"),
+        Some(s) if s > ex.seeds => bail!("--seeds {s}: the experiment declares {} seeds", ex.seeds),
+        Some(s) => s,
+        None => ex.seeds,
+    };
+    Ok(seeds)
+}
+
+/// The arms, planner-major: every kept planner, action space (a gains space only with its
+/// planner), speed and training-world selection.
+fn restricted_arms(
+    restrict: &Restrict,
+    planners: &[PlannerKind],
+    spaces: &[ActionSpace],
+    ex: &ExperimentSection,
+) -> Vec<Arm> {
+    let mut arms = Vec::new();
+    for &planner in planners
+        .iter()
+        .filter(|p| restrict.planners.is_empty() || restrict.planners.contains(p))
+    {
+        for &space in spaces.iter().filter(|s| {
+            (restrict.spaces.is_empty() || restrict.spaces.contains(s))
+                && s.gains().is_none_or(|g| g.planner() == planner.name())
+        }) {
+            for &speed in ex.speeds.iter().filter(|v| {
+                restrict.speeds.is_empty() || restrict.speeds.iter().any(|x| (x - *v).abs() < 1e-9)
+            }) {
+                for tw in &ex.train_worlds {
+                    arms.push(Arm {
+                        planner,
+                        space,
+                        speed,
+                        train_worlds: tw.clone(),
+                    });
+                }
+            }
+        }
+    }
+    arms
+}
+
+/// Checks `[compute_sweep]` against the experiment's `arm_count` arms.
+fn check_sweep(name: &str, sweep: &SweepSection, arm_count: usize) -> anyhow::Result<()> {
+    if !sweep.budget_scales.is_empty() || sweep.free {
+        if sweep.arm >= arm_count {
+            bail!(
+                "{name}: [compute_sweep] arm = {} but the experiment has {} arm(s)",
+                sweep.arm,
+                arm_count
+            );
+        }
+        if sweep.runs == 0
+            || 2 * sweep.trim >= sweep.runs
+            || sweep.budget_scales.iter().any(|k| !(k.is_finite() && *k > 0.0))
+        {
+            bail!(
+                "{name}: [compute_sweep] runs = {} and trim = {}: runs must be at least 1, trim \
+                 less than half of runs, and every budget scale finite and > 0",
+                sweep.runs,
+                sweep.trim
+            );
+        }
+    }
+    Ok(())
+}
+
 impl Experiment {
     /// Reads and checks the experiment file `path`.
     pub fn load(path: &Path, restrict: &Restrict) -> anyhow::Result<Self> {
@@ -402,131 +659,19 @@ impl Experiment {
     pub fn parse(name: &str, text: &str, restrict: &Restrict) -> anyhow::Result<Self> {
         let raw: RawFile =
             toml::from_str(text).map_err(|e| anyhow::anyhow!("{name}: {}", one_line(&e.to_string())))?;
-        // Unknown keys of [train] are named before the merge (whose text has other lines).
-        TrainConfig::deserialize(raw.train.clone())
-            .map_err(|e| anyhow::anyhow!("{name}: [train]: {}", one_line(&e.to_string())))?;
-        let mut base: toml::Table = toml::from_str(LOCAL_TOML).expect("the embedded local.toml parses");
-        merge(&mut base, raw.train);
-        let mut train = TrainConfig::parse(
-            &format!("{name}: [train]"),
-            &toml::to_string(&base).expect("a TOML table serializes"),
-        )?;
-        if let Some(steps) = restrict.steps {
-            train.run.steps = steps;
-        }
+        let train = parse_train(name, raw.train, restrict)?;
         let ex = &raw.experiment;
-        let err = |key: &str, what: String| anyhow::anyhow!("{name}: [experiment] {key}: {what}");
-        let planners: Vec<PlannerKind> = ex
-            .planners
-            .iter()
-            .map(|p| {
-                <PlannerKind as clap::ValueEnum>::from_str(p, false).map_err(|_| {
-                    err(
-                        "planners",
-                        format!("unknown planner `{p}` (dwa, mppi, log-mppi, system)"),
-                    )
-                })
-            })
-            .collect::<anyhow::Result<_>>()?;
-        let spaces: Vec<ActionSpace> = ex
-            .action_spaces
-            .iter()
-            .map(|s| {
-                s.parse()
-                    .map_err(|e: planner::NameError| err("action_spaces", e.to_string()))
-            })
-            .collect::<anyhow::Result<_>>()?;
-        if planners.is_empty() || spaces.is_empty() || ex.speeds.is_empty() || ex.train_worlds.is_empty() {
-            bail!("{name}: [experiment] planners, action_spaces, speeds and train_worlds must not be empty");
-        }
-        // A space that sets a planner's objective gains pairs only with that planner.
-        for s in &spaces {
-            if let Some(g) = s.gains() {
-                if !planners.iter().any(|p| p.name() == g.planner()) {
-                    return Err(err(
-                        "action_spaces",
-                        format!(
-                            "`{s}` sets the gains of {}, which is not in planners",
-                            g.planner()
-                        ),
-                    ));
-                }
-            }
-        }
-        for &v in &ex.speeds {
-            if !(v.is_finite() && v > 0.0 && v <= 2.0) {
-                return Err(err("speeds", format!("{v} must be in (0, 2] m/s")));
-            }
-        }
-        if ex.seeds == 0 {
-            return Err(err("seeds", "must be at least 1".into()));
-        }
-        let select = |section: &str, key: &str, sel: &str| {
-            sim::splits::select(sel).map_err(|e| anyhow::anyhow!("{name}: [{section}] {key} = {sel:?}: {e}"))
-        };
-        let test_worlds = select("experiment", "test_worlds", &ex.test_worlds)?;
-        let disjoint = |section: &str, key: &str, sel: &str| -> anyhow::Result<Vec<usize>> {
-            let ids = select(section, key, sel)?;
-            if let Some(w) = ids.iter().find(|w| test_worlds.contains(w)) {
-                bail!(
-                    "{name}: [{section}] {key} = {sel:?} includes test world {w}: the test worlds \
-                     ({}) are never used for training or selection",
-                    ex.test_worlds
-                );
-            }
-            if ids.is_empty() {
-                bail!("{name}: [{section}] {key} = {sel:?} selects no world");
-            }
-            Ok(ids)
-        };
-        for tw in &ex.train_worlds {
-            disjoint("experiment", "train_worlds", tw)?;
-        }
-        if train.greedy.every_steps > 0 {
-            disjoint("train.greedy", "worlds", &train.greedy.worlds)?;
-        }
-        let search_worlds = disjoint("constant_search", "worlds", &raw.constant_search.worlds)?;
-        let mut pool_worlds = disjoint("shuffle", "worlds", &raw.shuffle.worlds)?;
-        pool_worlds.truncate(raw.shuffle.max_worlds.max(1));
-        let ev = &raw.eval;
-        if ev.runs == 0 || 2 * ev.trim >= ev.runs {
-            bail!(
-                "{name}: [eval] runs = {} and trim = {}: runs must be at least 1 and trim less than \
-                 half of runs",
-                ev.runs,
-                ev.trim
-            );
-        }
-        let jitter = sim::EpisodeConfig {
-            start_jitter_m: ev.start_jitter_m,
-            start_jitter_yaw_rad: ev.start_jitter_yaw_rad,
-            ..sim::EpisodeConfig::default()
-        };
-        jitter
-            .validate()
-            .map_err(|e| anyhow::anyhow!("{name}: [eval] {e}"))?;
-        let cs = &raw.constant_search;
-        if cs.candidates == 0 || cs.runs == 0 || cs.first_pairs == 0 || cs.eta < 2 {
-            bail!(
-                "{name}: [constant_search] candidates, runs and first_pairs must be at least 1 and \
-                 eta at least 2"
-            );
-        }
-        let sl = &raw.slurm;
-        if sl.nodes == 0 || sl.tasks == 0 || sl.cpus_per_task == 0 || sl.time.is_empty() {
-            bail!("{name}: [slurm] nodes, tasks and cpus_per_task must be at least 1 and time set");
-        }
-        if raw.shuffle.pool == 0 {
-            bail!("{name}: [shuffle] pool must be at least 1");
-        }
-        let st = &raw.stats;
-        if !(st.confidence > 0.0 && st.confidence < 1.0) || st.resamples == 0 {
-            bail!(
-                "{name}: [stats] confidence = {} must be in (0, 1) and resamples = {} at least 1",
-                st.confidence,
-                st.resamples
-            );
-        }
+        let (planners, spaces) = planners_and_spaces(name, ex)?;
+        let (test_worlds, search_worlds, pool_worlds) =
+            world_splits(name, ex, &train, &raw.constant_search, &raw.shuffle)?;
+        check_tables(
+            name,
+            &raw.eval,
+            &raw.constant_search,
+            &raw.slurm,
+            &raw.shuffle,
+            &raw.stats,
+        )?;
         let render_world = match raw.figures.render_world {
             Some(w) if !test_worlds.contains(&w) => {
                 bail!("{name}: [figures] render_world = {w} is not one of the test worlds")
@@ -534,77 +679,10 @@ impl Experiment {
             Some(w) => w,
             None => *test_worlds.last().context("no test worlds")?,
         };
-        // Restrictions: each a subset of what the file declares.
-        let keep = |flag: &str, listed: bool, value: String| -> anyhow::Result<()> {
-            if listed {
-                Ok(())
-            } else {
-                bail!("{flag} {value}: not in the experiment's {name}")
-            }
-        };
-        for p in &restrict.planners {
-            keep("--planners", planners.contains(p), planner_name(*p))?;
-        }
-        for s in &restrict.spaces {
-            keep("--spaces", spaces.contains(s), space_label(*s))?;
-        }
-        for v in &restrict.speeds {
-            keep(
-                "--speeds",
-                ex.speeds.iter().any(|x| (x - v).abs() < 1e-9),
-                speed_label(*v),
-            )?;
-        }
-        let seeds = match restrict.seeds {
-            Some(0) => bail!("--seeds must be at least 1"),
-            Some(s) if s > ex.seeds => bail!("--seeds {s}: the experiment declares {} seeds", ex.seeds),
-            Some(s) => s,
-            None => ex.seeds,
-        };
-        let mut arms = Vec::new();
-        for &planner in planners
-            .iter()
-            .filter(|p| restrict.planners.is_empty() || restrict.planners.contains(p))
-        {
-            for &space in spaces.iter().filter(|s| {
-                (restrict.spaces.is_empty() || restrict.spaces.contains(s))
-                    && s.gains().is_none_or(|g| g.planner() == planner.name())
-            }) {
-                for &speed in ex.speeds.iter().filter(|v| {
-                    restrict.speeds.is_empty() || restrict.speeds.iter().any(|x| (x - *v).abs() < 1e-9)
-                }) {
-                    for tw in &ex.train_worlds {
-                        arms.push(Arm {
-                            planner,
-                            space,
-                            speed,
-                            train_worlds: tw.clone(),
-                        });
-                    }
-                }
-            }
-        }
+        let seeds = restricted_seeds(name, restrict, &planners, &spaces, ex)?;
+        let arms = restricted_arms(restrict, &planners, &spaces, ex);
         let sweep = raw.compute_sweep;
-        if !sweep.budget_scales.is_empty() || sweep.free {
-            if sweep.arm >= arms.len() {
-                bail!(
-                    "{name}: [compute_sweep] arm = {} but the experiment has {} arm(s)",
-                    sweep.arm,
-                    arms.len()
-                );
-            }
-            if sweep.runs == 0
-                || 2 * sweep.trim >= sweep.runs
-                || sweep.budget_scales.iter().any(|k| !(k.is_finite() && *k > 0.0))
-            {
-                bail!(
-                    "{name}: [compute_sweep] runs = {} and trim = {}: runs must be at least 1, trim \
-                     less than half of runs, and every budget scale finite and > 0",
-                    sweep.runs,
-                    sweep.trim
-                );
-            }
-        }
+        check_sweep(name, &sweep, arms.len())?;
         Ok(Self {
             section: raw.experiment,
             eval: raw.eval,

@@ -153,42 +153,8 @@ pub fn run(args: &Args) -> anyhow::Result<Option<PathBuf>> {
     if args.emit_slurm {
         return emit_slurm(&ex, &text, &dir, args).map(|()| None);
     }
-    let copy = dir.join(CONFIG_COPY);
-    match (copy.exists(), args.resume || args.shard.is_some()) {
-        (true, false) => bail!(
-            "{} already holds an experiment: pass --resume to continue it or choose another --out",
-            dir.display()
-        ),
-        (false, true) => bail!(
-            "--resume: {} holds no experiment ({CONFIG_COPY} is missing)",
-            dir.display()
-        ),
-        (true, true) => {
-            let before =
-                std::fs::read_to_string(&copy).with_context(|| format!("cannot read {}", copy.display()))?;
-            if before != text {
-                bail!(
-                    "--resume: {} differs from the experiment file {} was started with ({}); \
-                     finished stages would mix settings: restore it or choose another --out",
-                    args.config.display(),
-                    dir.display(),
-                    copy.display()
-                );
-            }
-        }
-        (false, false) => write_atomic(&copy, text.as_bytes())?,
-    }
-    let mut cfg = EvalConfig::load(ex.eval.config.as_deref().map(Path::new))?;
-    cfg.episode = cfg
-        .episode
-        .with_profile(ex.train.env.profile, ex.train.env.dynamics);
-    // Every controller runs on the computer the policies train for.
-    cfg.compute = ex.train.env.compute;
-    cfg.episode.start_jitter_m = ex.eval.start_jitter_m;
-    cfg.episode.start_jitter_yaw_rad = ex.eval.start_jitter_yaw_rad;
-    cfg.episode
-        .validate()
-        .map_err(|e| anyhow::anyhow!("[eval] with [train.env] profile: {e}"))?;
+    claim_dir(args, &dir, &text)?;
+    let cfg = eval_config(&ex)?;
     let ctx = Ctx {
         ex: &ex,
         layout: Layout { dir: dir.clone() },
@@ -221,6 +187,68 @@ pub fn run(args: &Args) -> anyhow::Result<Option<PathBuf>> {
             describe(first, &ex.arms)
         );
     }
+    run_stages(&ctx, args, &pool, &todo)?;
+    if args.no_eval || args.shard.is_some() {
+        return Ok(None);
+    }
+    let report = pool.install(|| write_report(&ctx))?;
+    tracing::info!("report: {}", report.display());
+    Ok(Some(report))
+}
+
+/// Starts the experiment in `dir` (writes its `experiment.toml`), or with `--resume` or
+/// `--shard` continues the one there, which must have been started with `text`.
+fn claim_dir(args: &Args, dir: &Path, text: &str) -> anyhow::Result<()> {
+    let copy = dir.join(CONFIG_COPY);
+    match (copy.exists(), args.resume || args.shard.is_some()) {
+        (true, false) => bail!(
+            "{} already holds an experiment: pass --resume to continue it or choose another --out",
+            dir.display()
+        ),
+        (false, true) => bail!(
+            "--resume: {} holds no experiment ({CONFIG_COPY} is missing)",
+            dir.display()
+        ),
+        (true, true) => {
+            let before =
+                std::fs::read_to_string(&copy).with_context(|| format!("cannot read {}", copy.display()))?;
+            if before != text {
+                bail!(
+                    "--resume: {} differs from the experiment file {} was started with ({}); \
+                     finished stages would mix settings: restore it or choose another --out",
+                    args.config.display(),
+                    dir.display(),
+                    copy.display()
+                );
+            }
+        }
+        (false, false) => write_atomic(&copy, text.as_bytes())?,
+    }
+    Ok(())
+}
+
+/// The evaluation configuration of `ex`: `[eval] config` on the training environment's
+/// simulator profile, dynamics and compute model, with `[eval]`'s start jitter.
+fn eval_config(ex: &Experiment) -> anyhow::Result<EvalConfig> {
+    let mut cfg = EvalConfig::load(ex.eval.config.as_deref().map(Path::new))?;
+    cfg.episode = cfg
+        .episode
+        .with_profile(ex.train.env.profile, ex.train.env.dynamics);
+    // Every controller runs on the computer the policies train for.
+    cfg.compute = ex.train.env.compute;
+    cfg.episode.start_jitter_m = ex.eval.start_jitter_m;
+    cfg.episode.start_jitter_yaw_rad = ex.eval.start_jitter_yaw_rad;
+    cfg.episode
+        .validate()
+        .map_err(|e| anyhow::anyhow!("[eval] with [train.env] profile: {e}"))?;
+    Ok(cfg)
+}
+
+/// Runs the pending stages `todo` in order (training outside `pool`, the others in it):
+/// with `--no-eval` no evaluation, with `--shard` this shard's part of each evaluation, and
+/// without it an evaluation whose shards are all there is merged instead of run.
+fn run_stages(ctx: &Ctx<'_>, args: &Args, pool: &rayon::ThreadPool, todo: &[Stage]) -> anyhow::Result<()> {
+    let ex = ctx.ex;
     for (i, stage) in todo.iter().enumerate() {
         let t0 = Instant::now();
         let step = format!("[{}/{}]", i + 1, todo.len());
@@ -246,7 +274,7 @@ pub fn run(args: &Args) -> anyhow::Result<Option<PathBuf>> {
                     sh.index,
                     sh.count
                 );
-                pool.install(|| run_stage(&ctx, stage, &file))?;
+                pool.install(|| run_stage(ctx, stage, &file))?;
                 tracing::info!("{step} done in {:.0} s", t0.elapsed().as_secs_f64());
                 continue;
             }
@@ -268,17 +296,12 @@ pub fn run(args: &Args) -> anyhow::Result<Option<PathBuf>> {
         }
         tracing::info!("{step} {}", describe(stage, &ex.arms));
         match stage {
-            Stage::Train { arm, seed } => train(&ctx, *arm, *seed)?,
-            _ => pool.install(|| run_stage(&ctx, stage, &out))?,
+            Stage::Train { arm, seed } => train(ctx, *arm, *seed)?,
+            _ => pool.install(|| run_stage(ctx, stage, &out))?,
         }
         tracing::info!("{step} done in {:.0} s", t0.elapsed().as_secs_f64());
     }
-    if args.no_eval || args.shard.is_some() {
-        return Ok(None);
-    }
-    let report = pool.install(|| write_report(&ctx))?;
-    tracing::info!("report: {}", report.display());
-    Ok(Some(report))
+    Ok(())
 }
 
 /// A stage in words.
@@ -450,79 +473,7 @@ fn run_stage(ctx: &Ctx<'_>, stage: &Stage, out: &Path) -> anyhow::Result<()> {
     let points = planner::schedule::DEFAULT_BOUNDARY_POINTS;
     match *stage {
         Stage::Train { .. } => unreachable!("training runs outside the pool"),
-        Stage::Search { arm } => {
-            let a = &ex.arms[arm];
-            let s = &ex.search;
-            let mut found = candidates(a.space, s.candidates, s.seed)
-                .into_iter()
-                .map(|action| {
-                    Ok(Candidate {
-                        params: a.space.to_params(&action)?,
-                        action,
-                        score: 0.0,
-                        success_pct: 0.0,
-                        pairs: 0,
-                        compute_ms_per_cycle: 0.0,
-                        compute: Default::default(),
-                    })
-                })
-                .collect::<anyhow::Result<Vec<_>>>()?;
-            // Successive halving over (world, run) pairs shared by every candidate, so the
-            // candidates pair by seed at every rung.
-            let pairs = search_pairs(&ex.search_worlds, s.runs, s.seed);
-            let rungs = halving(found.len(), s.eta, s.first_pairs, pairs.len());
-            let mut sums = vec![(0.0, 0usize); found.len()];
-            let mut alive: Vec<usize> = (0..found.len()).collect();
-            let mut done = 0;
-            for (k, &(keep, upto)) in rungs.iter().enumerate() {
-                alive = keep_best(&found, &alive, keep);
-                for &i in &alive {
-                    let spec = RunSpec {
-                        cfg: &ctx.cfg,
-                        worlds: ctx.worlds,
-                        planner: a.planner,
-                        speed: a.speed,
-                        world_ids: &[],
-                        runs: 0,
-                        pairs: &pairs[done..upto],
-                        seed: s.seed,
-                        trace: false,
-                        track: ctx.ex.train.env.observe_tracks > 0,
-                    };
-                    let ctrl = Controller::constant(a.space, &found[i].action, points, ctx.ex.train.env)?;
-                    let ev = evaluate(&spec, &ctrl)?;
-                    let c = &mut found[i];
-                    for r in ev.per_world.iter().flat_map(|w| w.runs.iter()) {
-                        sums[i].0 += r.score;
-                        sums[i].1 += usize::from(r.status == sim::Status::Succeeded);
-                    }
-                    c.pairs = upto;
-                    c.score = sums[i].0 / upto as f64;
-                    c.success_pct = 100.0 * sums[i].1 as f64 / upto as f64;
-                    c.compute += ev.compute;
-                    c.compute_ms_per_cycle = c.compute.ms_per_cycle();
-                }
-                let top = &found[keep_best(&found, &alive, 1)[0]];
-                tracing::info!(
-                    "  rung {k}: {} candidates x {upto} (world, run) pairs; best score {:.4}, success \
-                     {:.1} %, {:.1} ms per cycle",
-                    alive.len(),
-                    top.score,
-                    top.success_pct,
-                    top.compute_ms_per_cycle
-                );
-                done = upto;
-            }
-            let result = SearchResult {
-                space: a.space,
-                worlds: ex.search_worlds.clone(),
-                runs: s.runs,
-                rungs,
-                best: best_constant(&found),
-                candidates: found,
-            };
-            write_atomic(out, &serde_json::to_vec_pretty(&result).expect("serializes"))
-        }
+        Stage::Search { arm } => search_stage(ctx, arm, out),
         Stage::EvalDdp { planner, speed } => {
             let a = ex
                 .arms
@@ -535,49 +486,7 @@ fn run_stage(ctx: &Ctx<'_>, stage: &Stage, out: &Path) -> anyhow::Result<()> {
             )?;
             record(ctx, a, "ddp", ev).save(out)
         }
-        Stage::Sweep { arm, point, who } => {
-            let a = &ex.arms[arm];
-            let mut cfg = ctx.cfg.clone();
-            cfg.compute = ex.sweep_points()[point];
-            let spec = RunSpec {
-                cfg: &cfg,
-                runs: ex.sweep.runs,
-                ..test_spec(ctx, a, false)
-            };
-            let (name, ev, action, policy) = match who {
-                SweepWho::Ddp => (
-                    "ddp",
-                    evaluate(&spec, &Controller::Schedule(Schedule::ddp_default()))?,
-                    None,
-                    None,
-                ),
-                SweepWho::Constant => {
-                    let action = best_action(ctx, arm)?;
-                    let ctrl = Controller::constant(a.space, &action, points, ctx.ex.train.env)?;
-                    ("constant", evaluate(&spec, &ctrl)?, Some(action), None)
-                }
-                SweepWho::Adp { seed } => {
-                    let dir = ctx.layout.run_dir(a, seed).join("export");
-                    let p = load_policy(&dir, a.space)?;
-                    let ctrl = Controller::of(&p);
-                    (
-                        "adp",
-                        evaluate(&spec, &ctrl)?,
-                        None,
-                        Some(dir.display().to_string()),
-                    )
-                }
-            };
-            let mut rec = record(ctx, a, name, ev);
-            rec.runs = ex.sweep.runs;
-            rec.trim = ex.sweep.trim;
-            rec.action = action;
-            rec.policy = policy;
-            if let SweepWho::Adp { seed } = who {
-                rec.seed_index = Some(seed);
-            }
-            rec.save(out)
-        }
+        Stage::Sweep { arm, point, who } => sweep_stage(ctx, arm, point, who, out),
         Stage::EvalConstant { arm } => {
             let a = &ex.arms[arm];
             let action = best_action(ctx, arm)?;
@@ -625,6 +534,133 @@ fn run_stage(ctx: &Ctx<'_>, stage: &Stage, out: &Path) -> anyhow::Result<()> {
             rec.save(out)
         }
     }
+}
+
+/// The constant search of arm `arm`: successive halving of the candidate constant actions
+/// over (world, run) pairs of the constant-search worlds; writes the [`SearchResult`] to
+/// `out`.
+fn search_stage(ctx: &Ctx<'_>, arm: usize, out: &Path) -> anyhow::Result<()> {
+    let ex = ctx.ex;
+    let points = planner::schedule::DEFAULT_BOUNDARY_POINTS;
+    let a = &ex.arms[arm];
+    let s = &ex.search;
+    let mut found = candidates(a.space, s.candidates, s.seed)
+        .into_iter()
+        .map(|action| {
+            Ok(Candidate {
+                params: a.space.to_params(&action)?,
+                action,
+                score: 0.0,
+                success_pct: 0.0,
+                pairs: 0,
+                compute_ms_per_cycle: 0.0,
+                compute: Default::default(),
+            })
+        })
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    // Successive halving over (world, run) pairs shared by every candidate, so the
+    // candidates pair by seed at every rung.
+    let pairs = search_pairs(&ex.search_worlds, s.runs, s.seed);
+    let rungs = halving(found.len(), s.eta, s.first_pairs, pairs.len());
+    let mut sums = vec![(0.0, 0usize); found.len()];
+    let mut alive: Vec<usize> = (0..found.len()).collect();
+    let mut done = 0;
+    for (k, &(keep, upto)) in rungs.iter().enumerate() {
+        alive = keep_best(&found, &alive, keep);
+        for &i in &alive {
+            let spec = RunSpec {
+                cfg: &ctx.cfg,
+                worlds: ctx.worlds,
+                planner: a.planner,
+                speed: a.speed,
+                world_ids: &[],
+                runs: 0,
+                pairs: &pairs[done..upto],
+                seed: s.seed,
+                trace: false,
+                track: ctx.ex.train.env.observe_tracks > 0,
+            };
+            let ctrl = Controller::constant(a.space, &found[i].action, points, ctx.ex.train.env)?;
+            let ev = evaluate(&spec, &ctrl)?;
+            let c = &mut found[i];
+            for r in ev.per_world.iter().flat_map(|w| w.runs.iter()) {
+                sums[i].0 += r.score;
+                sums[i].1 += usize::from(r.status == sim::Status::Succeeded);
+            }
+            c.pairs = upto;
+            c.score = sums[i].0 / upto as f64;
+            c.success_pct = 100.0 * sums[i].1 as f64 / upto as f64;
+            c.compute += ev.compute;
+            c.compute_ms_per_cycle = c.compute.ms_per_cycle();
+        }
+        let top = &found[keep_best(&found, &alive, 1)[0]];
+        tracing::info!(
+            "  rung {k}: {} candidates x {upto} (world, run) pairs; best score {:.4}, success \
+             {:.1} %, {:.1} ms per cycle",
+            alive.len(),
+            top.score,
+            top.success_pct,
+            top.compute_ms_per_cycle
+        );
+        done = upto;
+    }
+    let result = SearchResult {
+        space: a.space,
+        worlds: ex.search_worlds.clone(),
+        runs: s.runs,
+        rungs,
+        best: best_constant(&found),
+        candidates: found,
+    };
+    write_atomic(out, &serde_json::to_vec_pretty(&result).expect("serializes"))
+}
+
+/// One controller (`who`) of arm `arm` at budget-sweep point `point` on the test worlds;
+/// writes its record to `out`.
+fn sweep_stage(ctx: &Ctx<'_>, arm: usize, point: usize, who: SweepWho, out: &Path) -> anyhow::Result<()> {
+    let ex = ctx.ex;
+    let points = planner::schedule::DEFAULT_BOUNDARY_POINTS;
+    let a = &ex.arms[arm];
+    let mut cfg = ctx.cfg.clone();
+    cfg.compute = ex.sweep_points()[point];
+    let spec = RunSpec {
+        cfg: &cfg,
+        runs: ex.sweep.runs,
+        ..test_spec(ctx, a, false)
+    };
+    let (name, ev, action, policy) = match who {
+        SweepWho::Ddp => (
+            "ddp",
+            evaluate(&spec, &Controller::Schedule(Schedule::ddp_default()))?,
+            None,
+            None,
+        ),
+        SweepWho::Constant => {
+            let action = best_action(ctx, arm)?;
+            let ctrl = Controller::constant(a.space, &action, points, ctx.ex.train.env)?;
+            ("constant", evaluate(&spec, &ctrl)?, Some(action), None)
+        }
+        SweepWho::Adp { seed } => {
+            let dir = ctx.layout.run_dir(a, seed).join("export");
+            let p = load_policy(&dir, a.space)?;
+            let ctrl = Controller::of(&p);
+            (
+                "adp",
+                evaluate(&spec, &ctrl)?,
+                None,
+                Some(dir.display().to_string()),
+            )
+        }
+    };
+    let mut rec = record(ctx, a, name, ev);
+    rec.runs = ex.sweep.runs;
+    rec.trim = ex.sweep.trim;
+    rec.action = action;
+    rec.policy = policy;
+    if let SweepWho::Adp { seed } = who {
+        rec.seed_index = Some(seed);
+    }
+    rec.save(out)
 }
 
 /// The observation pool of the state-shuffled control: the policy's own observations on the
@@ -756,146 +792,13 @@ fn write_report(ctx: &Ctx<'_>) -> anyhow::Result<PathBuf> {
     let mut rendered = false;
     for (arm, d) in data.iter().enumerate() {
         let id = d.arm.id();
-        // (i) learning curves.
-        let curves: Vec<(String, Vec<figures::GreedyPoint>)> = (0..ex.seeds)
-            .filter_map(|s| {
-                figures::read_greedy(&ctx.layout.run_dir(&d.arm, s)).map(|g| (format!("seed {s}"), g))
-            })
-            .filter(|(_, g)| !g.is_empty())
-            .collect();
-        if curves.is_empty() {
-            notes.push(format!(
-                "{id}: no run wrote greedy_eval.jsonl (the learner's periodic greedy evaluation), so \
-                 there is no learning-curve figure"
-            ));
-        } else {
-            let file = format!("learning-{id}.png");
-            figures::learning_curves(
-                &curves,
-                &format!("{id}: greedy evaluation during training"),
-                &fig_dir.join(&file),
-            )?;
-            figs.push((
-                format!("{id}: greedy-evaluation learning curves"),
-                format!("figures/{file}"),
-            ));
-        }
-        // (ii) per-world scatter against DDP.
-        if let (Some(ddp), false) = (&d.ddp, d.adp.is_empty()) {
-            let base = ddp.per_world_values();
-            let seeds: Vec<Vec<(usize, f64, f64)>> = d.adp.iter().map(EvalRecord::per_world_values).collect();
-            let points: Vec<(usize, f64, f64)> = base
-                .iter()
-                .enumerate()
-                .map(|(i, &(w, _, s))| {
-                    (
-                        w,
-                        s,
-                        stats::mean(&seeds.iter().map(|v| v[i].2).collect::<Vec<_>>()),
-                    )
-                })
-                .collect();
-            let file = format!("scatter-{id}.png");
-            figures::world_scatter(
-                &points,
-                &format!("{id}: score per test world"),
-                &fig_dir.join(&file),
-            )?;
-            figs.push((
-                format!("{id}: per-world ADP against DDP score"),
-                format!("figures/{file}"),
-            ));
-        }
-        // (iv) success and score against modelled compute: the search and the controls.
-        if let Some(search) = &d.search {
-            let most = search.candidates.iter().map(|c| c.pairs).max().unwrap_or(0);
-            let points: Vec<figures::ComputePoint> = (search.candidates.iter().enumerate())
-                .map(|(i, c)| figures::ComputePoint {
-                    label: match i {
-                        0 => "DDP".into(),
-                        _ if i == search.best => "best constant".into(),
-                        _ => String::new(),
-                    },
-                    ms: c.compute_ms_per_cycle,
-                    score: c.score,
-                    success_pct: c.success_pct,
-                })
-                .collect();
-            let finalists: Vec<bool> = search.candidates.iter().map(|c| c.pairs == most).collect();
-            let named = |label: String, r: &EvalRecord| {
-                let s = r.summary();
-                figures::ComputePoint {
-                    label,
-                    ms: s.compute_ms,
-                    score: s.score,
-                    success_pct: s.success_pct,
-                }
-            };
-            let mut test: Vec<figures::ComputePoint> = Vec::new();
-            test.extend(d.ddp.iter().map(|r| named("DDP".into(), r)));
-            test.extend(d.constant.iter().map(|r| named("best constant".into(), r)));
-            test.extend(d.untrained.iter().map(|r| named("untrained".into(), r)));
-            test.extend(
-                d.adp
-                    .iter()
-                    .enumerate()
-                    .map(|(k, r)| named(format!("ADP seed {k}"), r)),
-            );
-            let file = format!("compute-{id}.png");
-            figures::compute_pareto(
-                &points,
-                &finalists,
-                &test,
-                &format!("{id}: success and score against modelled compute per cycle"),
-                &fig_dir.join(&file),
-            )?;
-            figs.push((
-                format!(
-                    "{id}: success and score against modelled compute per planning cycle (left: the {} \
-                     search candidates on the training worlds, finalists dark; right: the controls on \
-                     the test worlds)",
-                    search.candidates.len()
-                ),
-                format!("figures/{file}"),
-            ));
-        }
-        // (iii) schedule against clutter.
-        let trace: Vec<runner::TracePoint> = d.adp.iter().flat_map(|r| r.trace.iter().cloned()).collect();
-        if !trace.is_empty() {
-            let file = format!("clutter-{id}.png");
-            figures::schedule_vs_clutter(
-                &trace,
-                d.arm.space,
-                &format!(
-                    "{id}: chosen schedule vs local clutter ({} agent steps)",
-                    trace.len()
-                ),
-                &fig_dir.join(&file),
-            )?;
-            figs.push((
-                format!("{id}: the chosen schedule's parameters against local clutter (run 0 of every test world, every seed)"),
-                format!("figures/{file}"),
-            ));
-        }
-        // (iv) one rendered episode, of the first arm with a trained policy.
+        learning_figure(ctx, d, &fig_dir, &mut figs, &mut notes)?;
+        scatter_figure(d, &fig_dir, &mut figs)?;
+        compute_figure(d, &fig_dir, &mut figs)?;
+        clutter_figure(d, &fig_dir, &mut figs)?;
+        // One rendered episode, of the first arm with a trained policy.
         if !rendered && !d.adp.is_empty() {
-            let p = load_policy(&ctx.layout.run_dir(&d.arm, 0).join("export"), d.arm.space)?;
-            let dr = drive(ctx, &d.arm, &p, ex.render_world)?;
-            let file = format!("episode-{id}.png");
-            figures::episode(
-                &ctx.worlds[ex.render_world],
-                &dr,
-                d.arm.space,
-                &format!("{id} seed 0, world {}", ex.render_world),
-                &fig_dir.join(&file),
-            )?;
-            figs.push((
-                format!(
-                    "{id} seed 0 on test world {}: the path coloured by the chosen rollout horizon",
-                    ex.render_world
-                ),
-                format!("figures/{file}"),
-            ));
+            episode_figure(ctx, d, &fig_dir, &mut figs)?;
             rendered = true;
         }
         let missing = pending(
@@ -913,8 +816,202 @@ fn write_report(ctx: &Ctx<'_>) -> anyhow::Result<PathBuf> {
             ));
         }
     }
-    let results: Vec<ArmResults> = data
-        .iter()
+    let results = arm_results(&data, ex);
+    write_atomic(
+        &ctx.layout.dir.join("results.json"),
+        &serde_json::to_vec_pretty(&results).expect("serializes"),
+    )?;
+    let path = ctx.layout.dir.join("report.md");
+    write_atomic(&path, report::render(ex, &data, &figs, &notes).as_bytes())?;
+    Ok(path)
+}
+
+/// The learning-curve figure of `d` (each seed's greedy evaluations during training), or a
+/// note that no run wrote them.
+fn learning_figure(
+    ctx: &Ctx<'_>,
+    d: &ArmData,
+    fig_dir: &Path,
+    figs: &mut Vec<(String, String)>,
+    notes: &mut Vec<String>,
+) -> anyhow::Result<()> {
+    let id = d.arm.id();
+    let curves: Vec<(String, Vec<figures::GreedyPoint>)> = (0..ctx.ex.seeds)
+        .filter_map(|s| {
+            figures::read_greedy(&ctx.layout.run_dir(&d.arm, s)).map(|g| (format!("seed {s}"), g))
+        })
+        .filter(|(_, g)| !g.is_empty())
+        .collect();
+    if curves.is_empty() {
+        notes.push(format!(
+            "{id}: no run wrote greedy_eval.jsonl (the learner's periodic greedy evaluation), so \
+             there is no learning-curve figure"
+        ));
+    } else {
+        let file = format!("learning-{id}.png");
+        figures::learning_curves(
+            &curves,
+            &format!("{id}: greedy evaluation during training"),
+            &fig_dir.join(&file),
+        )?;
+        figs.push((
+            format!("{id}: greedy-evaluation learning curves"),
+            format!("figures/{file}"),
+        ));
+    }
+    Ok(())
+}
+
+/// The figure of `d`'s per-world scores, ADP's (mean over seeds) against DDP's (none without
+/// DDP or ADP records).
+fn scatter_figure(d: &ArmData, fig_dir: &Path, figs: &mut Vec<(String, String)>) -> anyhow::Result<()> {
+    let id = d.arm.id();
+    if let (Some(ddp), false) = (&d.ddp, d.adp.is_empty()) {
+        let base = ddp.per_world_values();
+        let seeds: Vec<Vec<(usize, f64, f64)>> = d.adp.iter().map(EvalRecord::per_world_values).collect();
+        let points: Vec<(usize, f64, f64)> = base
+            .iter()
+            .enumerate()
+            .map(|(i, &(w, _, s))| {
+                (
+                    w,
+                    s,
+                    stats::mean(&seeds.iter().map(|v| v[i].2).collect::<Vec<_>>()),
+                )
+            })
+            .collect();
+        let file = format!("scatter-{id}.png");
+        figures::world_scatter(
+            &points,
+            &format!("{id}: score per test world"),
+            &fig_dir.join(&file),
+        )?;
+        figs.push((
+            format!("{id}: per-world ADP against DDP score"),
+            format!("figures/{file}"),
+        ));
+    }
+    Ok(())
+}
+
+/// The figure of success and score against modelled compute per cycle: `d`'s search
+/// candidates on the training worlds and its controls on the test worlds (none without a
+/// search).
+fn compute_figure(d: &ArmData, fig_dir: &Path, figs: &mut Vec<(String, String)>) -> anyhow::Result<()> {
+    let id = d.arm.id();
+    if let Some(search) = &d.search {
+        let most = search.candidates.iter().map(|c| c.pairs).max().unwrap_or(0);
+        let points: Vec<figures::ComputePoint> = (search.candidates.iter().enumerate())
+            .map(|(i, c)| figures::ComputePoint {
+                label: match i {
+                    0 => "DDP".into(),
+                    _ if i == search.best => "best constant".into(),
+                    _ => String::new(),
+                },
+                ms: c.compute_ms_per_cycle,
+                score: c.score,
+                success_pct: c.success_pct,
+            })
+            .collect();
+        let finalists: Vec<bool> = search.candidates.iter().map(|c| c.pairs == most).collect();
+        let named = |label: String, r: &EvalRecord| {
+            let s = r.summary();
+            figures::ComputePoint {
+                label,
+                ms: s.compute_ms,
+                score: s.score,
+                success_pct: s.success_pct,
+            }
+        };
+        let mut test: Vec<figures::ComputePoint> = Vec::new();
+        test.extend(d.ddp.iter().map(|r| named("DDP".into(), r)));
+        test.extend(d.constant.iter().map(|r| named("best constant".into(), r)));
+        test.extend(d.untrained.iter().map(|r| named("untrained".into(), r)));
+        test.extend(
+            d.adp
+                .iter()
+                .enumerate()
+                .map(|(k, r)| named(format!("ADP seed {k}"), r)),
+        );
+        let file = format!("compute-{id}.png");
+        figures::compute_pareto(
+            &points,
+            &finalists,
+            &test,
+            &format!("{id}: success and score against modelled compute per cycle"),
+            &fig_dir.join(&file),
+        )?;
+        figs.push((
+            format!(
+                "{id}: success and score against modelled compute per planning cycle (left: the {} \
+                 search candidates on the training worlds, finalists dark; right: the controls on \
+                 the test worlds)",
+                search.candidates.len()
+            ),
+            format!("figures/{file}"),
+        ));
+    }
+    Ok(())
+}
+
+/// The figure of the schedules `d`'s ADP seeds chose against local clutter (none without
+/// traces).
+fn clutter_figure(d: &ArmData, fig_dir: &Path, figs: &mut Vec<(String, String)>) -> anyhow::Result<()> {
+    let id = d.arm.id();
+    let trace: Vec<runner::TracePoint> = d.adp.iter().flat_map(|r| r.trace.iter().cloned()).collect();
+    if !trace.is_empty() {
+        let file = format!("clutter-{id}.png");
+        figures::schedule_vs_clutter(
+            &trace,
+            d.arm.space,
+            &format!(
+                "{id}: chosen schedule vs local clutter ({} agent steps)",
+                trace.len()
+            ),
+            &fig_dir.join(&file),
+        )?;
+        figs.push((
+            format!("{id}: the chosen schedule's parameters against local clutter (run 0 of every test world, every seed)"),
+            format!("figures/{file}"),
+        ));
+    }
+    Ok(())
+}
+
+/// The figure of one episode of `d`'s seed 0 on the render world, its path coloured by the
+/// chosen rollout horizon.
+fn episode_figure(
+    ctx: &Ctx<'_>,
+    d: &ArmData,
+    fig_dir: &Path,
+    figs: &mut Vec<(String, String)>,
+) -> anyhow::Result<()> {
+    let ex = ctx.ex;
+    let id = d.arm.id();
+    let p = load_policy(&ctx.layout.run_dir(&d.arm, 0).join("export"), d.arm.space)?;
+    let dr = drive(ctx, &d.arm, &p, ex.render_world)?;
+    let file = format!("episode-{id}.png");
+    figures::episode(
+        &ctx.worlds[ex.render_world],
+        &dr,
+        d.arm.space,
+        &format!("{id} seed 0, world {}", ex.render_world),
+        &fig_dir.join(&file),
+    )?;
+    figs.push((
+        format!(
+            "{id} seed 0 on test world {}: the path coloured by the chosen rollout horizon",
+            ex.render_world
+        ),
+        format!("figures/{file}"),
+    ));
+    Ok(())
+}
+
+/// The machine-readable summary of every arm (`results.json`): its methods' table values and
+/// ADP's comparisons with the controls.
+fn arm_results(data: &[ArmData], ex: &Experiment) -> Vec<ArmResults> {
+    data.iter()
         .map(|d| {
             let mut methods = Vec::new();
             for (name, r) in [
@@ -935,14 +1032,7 @@ fn write_report(ctx: &Ctx<'_>) -> anyhow::Result<PathBuf> {
                 comparisons: comparisons(d, ex),
             }
         })
-        .collect();
-    write_atomic(
-        &ctx.layout.dir.join("results.json"),
-        &serde_json::to_vec_pretty(&results).expect("serializes"),
-    )?;
-    let path = ctx.layout.dir.join("report.md");
-    write_atomic(&path, report::render(ex, &data, &figs, &notes).as_bytes())?;
-    Ok(path)
+        .collect()
 }
 
 /// The arm a stage belongs to (a DDP stage to the first arm of its planner and speed).

@@ -304,6 +304,19 @@ const METRICS: [&str; 6] = [
 /// The report's markdown. `figures` are (caption, file name relative to the report).
 pub fn render(ex: &Experiment, data: &[ArmData], figures: &[(String, String)], notes: &[String]) -> String {
     let mut out = String::new();
+    protocol_section(&mut out, ex);
+    table_one(&mut out, data);
+    table_two(&mut out, data);
+    sweep_section(&mut out, data);
+    constants_section(&mut out, data);
+    statistics_section(&mut out, ex, data);
+    wins_section(&mut out, data);
+    figures_and_notes(&mut out, figures, notes);
+    out
+}
+
+/// The report's title and its protocol and controls paragraphs.
+fn protocol_section(out: &mut String, ex: &Experiment) {
     let sec = &ex.section;
     let _ = writeln!(out, "# Experiment `{}`\n", sec.name);
     let _ = writeln!(
@@ -344,6 +357,11 @@ pub fn render(ex: &Experiment, data: &[ArmData], figures: &[(String, String)], n
         ex.search.worlds,
         ex.shuffle.pool,
     );
+}
+
+/// The report's Table I: per planner, the methods' metrics at every speed, for the first
+/// action space and training worlds.
+fn table_one(out: &mut String, data: &[ArmData]) {
     // Table I: per planner, methods x (metric x speed), for the first action space.
     let mut planners: Vec<_> = data.iter().map(|d| d.arm.planner).collect();
     planners.dedup();
@@ -384,6 +402,11 @@ pub fn render(ex: &Experiment, data: &[ArmData], figures: &[(String, String)], n
         }
         out.push('\n');
     }
+}
+
+/// The report's Table II (only with more than one action space): per planner and speed, DDP
+/// and ADP in every action space side by side.
+fn table_two(out: &mut String, data: &[ArmData]) {
     // Table II: action spaces side by side per planner and speed.
     let mut spaces: Vec<_> = data.iter().map(|d| d.arm.space).collect();
     spaces.dedup();
@@ -424,6 +447,11 @@ pub fn render(ex: &Experiment, data: &[ArmData], figures: &[(String, String)], n
             out.push('\n');
         }
     }
+}
+
+/// The report's budget-sweep sections: per swept arm, DDP, the best constant and ADP under
+/// every compute model of the sweep.
+fn sweep_section(out: &mut String, data: &[ArmData]) {
     // The budget sweep.
     for d in data.iter().filter(|d| !d.sweep.is_empty()) {
         let _ = writeln!(
@@ -462,6 +490,11 @@ DDP, the best constant and ADP \
         }
         out.push('\n');
     }
+}
+
+/// The report's "Best constant schedules" table: per arm with a search, the constant it
+/// chose with its search results.
+fn constants_section(out: &mut String, data: &[ArmData]) {
     // The constants found.
     let _ = writeln!(out, "## Best constant schedules (searched on training worlds)\n");
     let _ = writeln!(
@@ -499,6 +532,11 @@ DDP, the best constant and ADP \
         }
     }
     out.push('\n');
+}
+
+/// The report's "Paired statistics" section: per arm, ADP against every control with
+/// bootstrap intervals and McNemar's tests.
+fn statistics_section(out: &mut String, ex: &Experiment, data: &[ArmData]) {
     // Paired statistics.
     let conf = ex.stats.confidence * 100.0;
     let _ = writeln!(out, "## Paired statistics (ADP − control)\n");
@@ -550,7 +588,10 @@ DDP, the best constant and ADP \
         }
         out.push('\n');
     }
-    wins_section(&mut out, data);
+}
+
+/// The report's "Figures" and "Notes" sections (each only when not empty).
+fn figures_and_notes(out: &mut String, figures: &[(String, String)], notes: &[String]) {
     if !figures.is_empty() {
         let _ = writeln!(out, "## Figures\n");
         for (caption, file) in figures {
@@ -563,7 +604,6 @@ DDP, the best constant and ADP \
             let _ = writeln!(out, "- {n}");
         }
     }
-    out
 }
 
 /// The report's "Where ADP wins and loses" section: per arm, ADP against DDP and the best
