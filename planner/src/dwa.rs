@@ -18,7 +18,7 @@ use crate::compute::{evaluation_order, Work};
 use crate::local_map::LocalMap;
 use crate::moving;
 use crate::recovery::{Recovery, RecoveryConfig};
-use crate::{Gains, GainsError, Integrator, PlanInput, Planner, Trace};
+use crate::{Gains, GainsError, Integrator, PlanInput, Planner, Schedule, Trace};
 
 /// DWA parameters (defaults used by `adp eval`).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -246,7 +246,74 @@ impl Dwa {
         // The profiles below: one step per sample and grid step of each axis.
         self.trace.cycle.work.steps = ((nv + nw) * steps) as u64;
 
-        // Velocity profiles are separable: v depends only on the v command, yaw only on w.
+        let window = Window {
+            v: (v_lo, v_hi),
+            w: (w_lo, w_hi),
+            n: (nv, nw),
+        };
+        self.build_profiles(sched, (v0, w0), &window);
+        let horizon = sched.horizon();
+        // First grid point of the goal term's tail (the end point at least).
+        let tail = (cfg.goal_tail * steps as f64).ceil() as usize;
+        let tail_start = steps.saturating_sub(tail.max(1));
+        self.margins.clear();
+        for m in 0..=self.map.boundary_points() {
+            let here = self.map.footprint_clearance(
+                &Pose::default(),
+                m,
+                cfg.detail_within,
+                &mut self.trace.evaluated,
+            );
+            self.margins.push(cfg.margin.min(here));
+        }
+
+        self.trace.rollouts.clear(sched.dts());
+        self.cost.clear();
+        let budget = input.budget;
+        evaluation_order(&budget, nv * nw, &mut self.order);
+        self.trace.cycle.samples = self.order.len() as u32;
+        // Counted in locals, written back after the loop (the hot loop stays in registers).
+        let mut work = self.trace.cycle.work;
+        let mut started = 0u32;
+        for k in 0..self.order.len() {
+            let cell = self.order[k];
+            if budget.is_limited() {
+                let spent = Work {
+                    points: self.trace.evaluated - points_at_start,
+                    ..work
+                };
+                if !budget.admits(&spent) {
+                    break;
+                }
+            }
+            work.samples += 1;
+            started += 1;
+            let rollout = RolloutSetup {
+                window: &window,
+                horizon,
+                tail_start,
+                euler,
+            };
+            if let Some(c) = self.roll_out(input, &rollout, cell, &mut work.steps) {
+                self.cost.push(c);
+            }
+        }
+        self.trace.cycle.work = work;
+        self.trace.cycle.evaluated = started;
+        if self.cost.is_empty() {
+            // Nothing is safe: stop and turn toward the local goal.
+            let bearing = per.local_goal.y.atan2(per.local_goal.x);
+            return Twist::new(0.0, bearing.clamp(-1.0, 1.0));
+        }
+        self.choose()
+    }
+
+    /// Fills the speed profiles (one per v sample) and the yaw profiles (one per w sample)
+    /// of the schedule `sched` from the measured velocity `(v0, w0)` over the `window`'s grid.
+    fn build_profiles(&mut self, sched: &Schedule, (v0, w0): (f64, f64), window: &Window) {
+        let cfg = self.cfg;
+        let ((v_lo, v_hi), (w_lo, w_hi), (nv, nw)) = (window.v, window.w, window.n);
+        // Separable: v depends only on the v command, yaw only on w.
         self.v_prof.clear();
         for i in 0..nv {
             let cmd = sample(v_lo, v_hi, nv, i);
@@ -273,156 +340,141 @@ impl Dwa {
                 });
             }
         }
+    }
 
-        let horizon = sched.horizon();
-        // First grid point of the goal term's tail (the end point at least).
-        let tail = (cfg.goal_tail * steps as f64).ceil() as usize;
-        let tail_start = steps.saturating_sub(tail.max(1));
-        self.margins.clear();
-        for m in 0..=self.map.boundary_points() {
-            let here = self.map.footprint_clearance(
-                &Pose::default(),
+    /// Rolls out grid cell `cell` (speed sample `cell / nw`, yaw sample `cell % nw`) over the
+    /// profiles and scores it; `None` when the rollout is not admissible. Adds its integration
+    /// steps to `work_steps` and its check points to `trace.evaluated`.
+    fn roll_out(
+        &mut self,
+        input: &PlanInput<'_>,
+        setup: &RolloutSetup<'_>,
+        cell: u32,
+        work_steps: &mut u64,
+    ) -> Option<Candidate> {
+        let cfg = self.cfg;
+        let per = &input.perception;
+        let sched = input.schedule;
+        let steps = sched.len();
+        let v0 = per.vel.v;
+        let RolloutSetup {
+            window,
+            horizon,
+            tail_start,
+            euler,
+        } = *setup;
+        let ((v_lo, v_hi), (w_lo, w_hi), (nv, nw)) = (window.v, window.w, window.n);
+        let (i, j) = (cell as usize / nw, cell as usize % nw);
+
+        let (mut x, mut y, mut s0, mut c0) = (0.0, 0.0, 0.0, 1.0);
+        let mut min_clear = cfg.clearance_cap;
+        // Distance driven up to the last clear grid point, and that point.
+        let (mut driven, mut last_clear) = (0.0, (0.0, 0.0));
+        // The rollout's point halfway through its steps (path cost).
+        let mut mid = Vec2::default();
+        // Sum and count of the tail's clear points' distances to the local goal.
+        let (mut goal_sum, mut goal_n) = (0.0, 0usize);
+        let mut hit = false;
+        let mut admissible = true;
+        let mut clear_time = horizon;
+        // Time at the end of step k (the moving obstacles' forecast).
+        let mut t = 0.0;
+        if self.trace.recording {
+            self.trace.rollouts.begin();
+        }
+        for k in 0..steps {
+            *work_steps += 1;
+            let v = self.v_prof[i * steps + k];
+            let step = self.w_prof[j * steps + k];
+            let (w, (s1, c1)) = (step.w, step.sin_cos);
+            let dt = sched.dts()[k];
+            if euler {
+                // Forward Euler along the heading after the step (the authors' motion()).
+                x += v * dt * c1;
+                y += v * dt * s1;
+            } else if (w * dt).abs() > 1e-9 {
+                x += v / w * (s1 - s0);
+                y -= v / w * (c1 - c0);
+            } else {
+                x += v * dt * c0;
+                y += v * dt * s0;
+            }
+            (s0, c0) = (s1, c1);
+            if self.trace.recording {
+                self.trace.rollouts.push(Pose::new(x, y, step.yaw));
+            }
+            let m = sched.checks()[k] as usize;
+            let mut clear = self.map.clearance_at(
+                Vec2::new(x, y),
+                || step.rot,
                 m,
                 cfg.detail_within,
                 &mut self.trace.evaluated,
             );
-            self.margins.push(cfg.margin.min(here));
+            t += dt;
+            if !input.moving.is_empty() {
+                clear = clear.min(moving::clearance(
+                    self.map.footprint(),
+                    &Pose::new(x, y, step.yaw),
+                    t,
+                    input.moving,
+                    &mut self.trace.evaluated,
+                ));
+            }
+            if clear < self.margins[m.min(self.margins.len() - 1)] {
+                // Admissible (Fox et al. 1997) when the planner's model can still stop
+                // before the obstacle: the rollout then ends at its last clear point.
+                let v_before = if k > 0 { self.v_prof[i * steps + k - 1] } else { v0 };
+                hit = true;
+                clear_time = sched.dts()[..k].iter().sum();
+                admissible = k > 0 && v_before * v_before <= 2.0 * cfg.accel_v * driven;
+                (x, y) = last_clear;
+                min_clear = 0.0;
+                break;
+            }
+            driven += v.abs() * dt;
+            last_clear = (x, y);
+            if k < steps.div_ceil(2) {
+                mid = Vec2::new(x, y);
+            }
+            if k >= tail_start {
+                goal_sum += Vec2::new(x, y).dist(per.local_goal);
+                goal_n += 1;
+            }
+            min_clear = min_clear.min(clear);
         }
+        if self.trace.recording {
+            self.trace.rollouts.end(!hit);
+        }
+        if !admissible {
+            return None;
+        }
+        let end = Vec2::new(x, y);
+        // A rollout that failed a check waits at its last clear point for the rest.
+        let tail_len = steps - tail_start;
+        goal_sum += end.dist(per.local_goal) * (tail_len - goal_n) as f64;
+        let cmd = Twist::new(sample(v_lo, v_hi, nv, i), sample(w_lo, w_hi, nw, j));
+        Some(Candidate {
+            cell,
+            cmd,
+            goal: goal_sum / tail_len.max(1) as f64,
+            path: 0.5
+                * (distance_to_path(per.local_path, mid, per.local_goal)
+                    + distance_to_path(per.local_path, end, per.local_goal)),
+            obstacle: (cfg.clearance_cap - min_clear) / cfg.clearance_cap,
+            speed: if input.max_speed > 0.0 {
+                (input.max_speed - cmd.v) / input.max_speed
+            } else {
+                0.0
+            },
+            clear_share: clear_time / horizon,
+        })
+    }
 
-        self.trace.rollouts.clear(sched.dts());
-        self.cost.clear();
-        let budget = input.budget;
-        evaluation_order(&budget, nv * nw, &mut self.order);
-        self.trace.cycle.samples = self.order.len() as u32;
-        // Counted in locals, written back after the loop (the hot loop stays in registers).
-        let mut work = self.trace.cycle.work;
-        let mut started = 0u32;
-        for &cell in &self.order {
-            if budget.is_limited() {
-                let spent = Work {
-                    points: self.trace.evaluated - points_at_start,
-                    ..work
-                };
-                if !budget.admits(&spent) {
-                    break;
-                }
-            }
-            work.samples += 1;
-            started += 1;
-            let (i, j) = (cell as usize / nw, cell as usize % nw);
-            {
-                let (mut x, mut y, mut s0, mut c0) = (0.0, 0.0, 0.0, 1.0);
-                let mut min_clear = cfg.clearance_cap;
-                // Distance driven up to the last clear grid point, and that point.
-                let (mut driven, mut last_clear) = (0.0, (0.0, 0.0));
-                // The rollout's point halfway through its steps (path cost).
-                let mut mid = Vec2::default();
-                // Sum and count of the tail's clear points' distances to the local goal.
-                let (mut goal_sum, mut goal_n) = (0.0, 0usize);
-                let mut hit = false;
-                let mut admissible = true;
-                let mut clear_time = horizon;
-                // Time at the end of step k (the moving obstacles' forecast).
-                let mut t = 0.0;
-                if self.trace.recording {
-                    self.trace.rollouts.begin();
-                }
-                for k in 0..steps {
-                    work.steps += 1;
-                    let v = self.v_prof[i * steps + k];
-                    let step = self.w_prof[j * steps + k];
-                    let (w, (s1, c1)) = (step.w, step.sin_cos);
-                    let dt = sched.dts()[k];
-                    if euler {
-                        // Forward Euler along the heading after the step (the authors' motion()).
-                        x += v * dt * c1;
-                        y += v * dt * s1;
-                    } else if (w * dt).abs() > 1e-9 {
-                        x += v / w * (s1 - s0);
-                        y -= v / w * (c1 - c0);
-                    } else {
-                        x += v * dt * c0;
-                        y += v * dt * s0;
-                    }
-                    (s0, c0) = (s1, c1);
-                    if self.trace.recording {
-                        self.trace.rollouts.push(Pose::new(x, y, step.yaw));
-                    }
-                    let m = sched.checks()[k] as usize;
-                    let mut clear = self.map.clearance_at(
-                        Vec2::new(x, y),
-                        || step.rot,
-                        m,
-                        cfg.detail_within,
-                        &mut self.trace.evaluated,
-                    );
-                    t += dt;
-                    if !input.moving.is_empty() {
-                        clear = clear.min(moving::clearance(
-                            self.map.footprint(),
-                            &Pose::new(x, y, step.yaw),
-                            t,
-                            input.moving,
-                            &mut self.trace.evaluated,
-                        ));
-                    }
-                    if clear < self.margins[m.min(self.margins.len() - 1)] {
-                        // Admissible (Fox et al. 1997) when the planner's model can still stop
-                        // before the obstacle: the rollout then ends at its last clear point.
-                        let v_before = if k > 0 { self.v_prof[i * steps + k - 1] } else { v0 };
-                        hit = true;
-                        clear_time = sched.dts()[..k].iter().sum();
-                        admissible = k > 0 && v_before * v_before <= 2.0 * cfg.accel_v * driven;
-                        (x, y) = last_clear;
-                        min_clear = 0.0;
-                        break;
-                    }
-                    driven += v.abs() * dt;
-                    last_clear = (x, y);
-                    if k < steps.div_ceil(2) {
-                        mid = Vec2::new(x, y);
-                    }
-                    if k >= tail_start {
-                        goal_sum += Vec2::new(x, y).dist(per.local_goal);
-                        goal_n += 1;
-                    }
-                    min_clear = min_clear.min(clear);
-                }
-                if self.trace.recording {
-                    self.trace.rollouts.end(!hit);
-                }
-                if !admissible {
-                    continue;
-                }
-                let end = Vec2::new(x, y);
-                // A rollout that failed a check waits at its last clear point for the rest.
-                let tail_len = steps - tail_start;
-                goal_sum += end.dist(per.local_goal) * (tail_len - goal_n) as f64;
-                let cmd = Twist::new(sample(v_lo, v_hi, nv, i), sample(w_lo, w_hi, nw, j));
-                self.cost.push(Candidate {
-                    cell,
-                    cmd,
-                    goal: goal_sum / tail_len.max(1) as f64,
-                    path: 0.5
-                        * (distance_to_path(per.local_path, mid, per.local_goal)
-                            + distance_to_path(per.local_path, end, per.local_goal)),
-                    obstacle: (cfg.clearance_cap - min_clear) / cfg.clearance_cap,
-                    speed: if input.max_speed > 0.0 {
-                        (input.max_speed - cmd.v) / input.max_speed
-                    } else {
-                        0.0
-                    },
-                    clear_share: clear_time / horizon,
-                });
-            }
-        }
-        self.trace.cycle.work = work;
-        self.trace.cycle.evaluated = started;
-        if self.cost.is_empty() {
-            // Nothing is safe: stop and turn toward the local goal.
-            let bearing = per.local_goal.y.atan2(per.local_goal.x);
-            return Twist::new(0.0, bearing.clamp(-1.0, 1.0));
-        }
+    /// The command of the cheapest admissible rollout: goal and path terms normalized over the
+    /// candidates, plus the obstacle, speed and hit terms (ties to the lower cell).
+    fn choose(&self) -> Twist {
+        let cfg = self.cfg;
         let span = |f: fn(&Candidate) -> f64, cs: &[Candidate]| {
             let (lo, hi) = cs
                 .iter()
@@ -451,6 +503,24 @@ impl Dwa {
             .map(|c| c.cmd)
             .unwrap_or_default()
     }
+}
+
+/// The dynamic window of a cycle: the speed and yaw-rate ranges and their sample counts.
+struct Window {
+    v: (f64, f64),
+    w: (f64, f64),
+    n: (usize, usize),
+}
+
+/// What every rollout of a cycle shares besides the input.
+#[derive(Clone, Copy)]
+struct RolloutSetup<'a> {
+    window: &'a Window,
+    horizon: f64,
+    /// First grid point of the goal term's tail.
+    tail_start: usize,
+    /// Forward Euler (the authors' motion model) instead of exact arcs.
+    euler: bool,
 }
 
 #[cfg(test)]

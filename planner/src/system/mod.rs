@@ -362,10 +362,7 @@ impl NavSystem {
     fn sample(&mut self, input: &PlanInput<'_>, mode: Mode) -> Option<Twist> {
         let cfg = self.cfg;
         let per = &input.perception;
-        let sched = input.schedule;
-        let dts = sched.dts();
-        let steps = dts.len();
-        let horizon = sched.horizon();
+        let steps = input.schedule.len();
         let mp = self.params(mode, input.max_speed);
 
         let (v0, w0) = (per.vel.v, per.vel.w);
@@ -374,9 +371,31 @@ impl NavSystem {
         let v_hi = (v0 + cfg.accel_v * cfg.window_dt).min(mp.v_cap).max(v_lo);
         let w_lo = (w0 - cfg.accel_w * cfg.window_dt).max(-w_max);
         let w_hi = (w0 + cfg.accel_w * cfg.window_dt).min(w_max).max(w_lo);
-        let clamp_window = |t: Twist| Twist::new(t.v.clamp(v_lo, v_hi), t.w.clamp(w_lo, w_hi));
+        self.nominal_commands(mode, steps, (v_lo, v_hi), (w_lo, w_hi));
+        let n = self.nominal.len();
+        if self.trace.recording {
+            self.trace.rollouts.clear(input.schedule.dts());
+        }
+        let v_top = mp.v_cap.max(v_hi);
+        self.draw_controls(steps, v_top, w_max);
+        self.roll_out(input, mode, &mp, n);
+        if !self.rank(&mp, n) {
+            return None;
+        }
+        Some(self.command(input, &mp, n, v_top, w_max))
+    }
 
-        // Nominal commands: the grid, the warm start, the mode's extras.
+    /// Fills `nominal` with the cycle's nominal commands in the window `v` x `w`: the grid, the
+    /// warm start, the mode's extras.
+    fn nominal_commands(
+        &mut self,
+        mode: Mode,
+        steps: usize,
+        (v_lo, v_hi): (f64, f64),
+        (w_lo, w_hi): (f64, f64),
+    ) {
+        let cfg = self.cfg;
+        let clamp_window = |t: Twist| Twist::new(t.v.clamp(v_lo, v_hi), t.w.clamp(w_lo, w_hi));
         self.nominal.clear();
         let (nv, nw) = (cfg.v_samples.max(1), cfg.w_samples.max(1));
         // The recovery mode's set (three extras) is the largest: sized for it once, a mode
@@ -410,13 +429,12 @@ impl NavSystem {
             self.nominal
                 .extend(std::iter::repeat_n(clamp_window(x), cfg.extra_samples));
         }
-        let n = self.nominal.len();
-        if self.trace.recording {
-            self.trace.rollouts.clear(dts);
-        }
+    }
 
-        // Per-step noise, drawn sequentially so the result does not depend on threads.
-        let v_top = mp.v_cap.max(v_hi);
+    /// Draws every sample's per-step controls around its nominal command (sequentially, so the
+    /// result does not depend on threads), within `[0, v_top]` x `[-w_max, w_max]`.
+    fn draw_controls(&mut self, steps: usize, v_top: f64, w_max: f64) {
+        let cfg = self.cfg;
         self.controls.clear();
         for nom in &self.nominal {
             for _ in 0..steps {
@@ -428,7 +446,17 @@ impl NavSystem {
                 ));
             }
         }
+    }
 
+    /// Rolls out and scores the `n` samples in parallel, applies the cycle's budget, and records
+    /// the rollouts when recording.
+    fn roll_out(&mut self, input: &PlanInput<'_>, mode: Mode, mp: &ModeParams, n: usize) {
+        let cfg = self.cfg;
+        let per = &input.perception;
+        let sched = input.schedule;
+        let dts = sched.dts();
+        let steps = dts.len();
+        let horizon = sched.horizon();
         // The local goal: the episode's in normal mode, a closer one along the path otherwise.
         let goal = if mode == Mode::Normal || per.local_path.len() < 2 {
             per.local_goal
@@ -474,7 +502,6 @@ impl NavSystem {
             .with_min_len(32)
             .for_each(|(i, e)| evaluate(&ctx, &controls[i * steps..(i + 1) * steps], e));
         self.admit(&input.budget, n, steps);
-        let controls = &self.controls;
         let evals = &mut self.evals[..n];
         if self.trace.recording {
             for e in evals.iter() {
@@ -490,7 +517,13 @@ impl NavSystem {
                 *s = !a;
             }
         }
+    }
 
+    /// Costs the feasible samples of the `n` and weighs the best `top_k` (`order`, `weights`);
+    /// false when no sample is feasible.
+    fn rank(&mut self, mp: &ModeParams, n: usize) -> bool {
+        let cfg = self.cfg;
+        let evals = &mut self.evals[..n];
         // Costs: goal and heading normalized over the feasible samples, the rest in [0, 1].
         let span = |f: fn(&SampleEval) -> f64, es: &[SampleEval]| {
             let (lo, hi) = es
@@ -515,7 +548,7 @@ impl NavSystem {
             }
         }
         if self.order.is_empty() {
-            return None;
+            return false;
         }
         let evals = &self.evals[..n];
         let by_cost = |a: &usize, b: &usize| evals[*a].cost.total_cmp(&evals[*b].cost).then(a.cmp(b));
@@ -529,6 +562,19 @@ impl NavSystem {
         self.top_costs.extend(self.order.iter().map(|&i| evals[i].cost));
         top_weights(&self.top_costs, cfg.top_k, cfg.lambda, &mut self.weights);
 
+        true
+    }
+
+    /// The command of a ranked cycle: the weighted mean of the top samples' controls, else the
+    /// best sample's mean, whichever passes the verification first; else the best sample's
+    /// first control.
+    fn command(&mut self, input: &PlanInput<'_>, mp: &ModeParams, n: usize, v_top: f64, w_max: f64) -> Twist {
+        let per = &input.perception;
+        let sched = input.schedule;
+        let dts = sched.dts();
+        let steps = dts.len();
+        let controls = &self.controls;
+        let evals = &self.evals[..n];
         // Each sample's controls averaged over the schedule, step j weighing dt_j / T with T
         // the horizon (or, for a rollout that stops early, the time it drives).
         let mean_control = |i: usize| {
@@ -558,10 +604,10 @@ impl NavSystem {
         for c in candidates {
             let c = Twist::new(c.v.clamp(0.0, v_top), c.w.clamp(-w_max, w_max));
             if self.verify(c, per.vel, (dts, sched.checks()), mp.margin, input.moving) {
-                return Some(c);
+                return c;
             }
         }
-        Some(first)
+        first
     }
 
     /// Sizes the per-sample buffers for `most` samples of `steps` steps (no-op once they are).
