@@ -20,8 +20,8 @@ use anyhow::Context;
 use serde::{Deserialize, Serialize};
 
 use actor::{AdpEnv, EnvConfig, MlpPolicy};
-use learner::service::ServiceError;
 use learner::tensorboard::EventWriter;
+use learner_service::ServiceError;
 use planner::{ActionSpace, Schedule};
 use sim::Status;
 

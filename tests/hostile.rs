@@ -54,7 +54,7 @@ fn learner(dir: &Path, service: &str) -> (Learner, PathBuf, String, String) {
     let learner = Learner(child);
     poll("learner.addr", || run.join("learner.addr").is_file());
     poll("the first status", || status(&run).is_some());
-    let addr = learner::service::read_addr(&run).unwrap();
+    let addr = learner_service::read_addr(&run).unwrap();
     let token = proto::auth::read_token_file(&run.join("token")).unwrap();
     (learner, run, addr, token)
 }
@@ -374,7 +374,7 @@ fn at_a_64_file_limit_an_honest_actor_is_served_and_the_sigterm_checkpoint_compl
     let mut learner = start(false);
     poll("learner.addr", || run.join("learner.addr").is_file());
     poll("the first status", || status(&run).is_some());
-    let addr = learner::service::read_addr(&run).unwrap();
+    let addr = learner_service::read_addr(&run).unwrap();
     let token = proto::auth::read_token_file(&run.join("token")).unwrap();
     // Far more silent connections than the learner has descriptors: the kernel queues them;
     // the learner takes what its cap allows and closes each after the handshake timeout.

@@ -1,21 +1,38 @@
+#![warn(missing_docs)]
 //! The learner process (`adp learner`, and the learner half of `adp train`): hosts the gRPC
-//! control plane and both data planes, the replay buffer and TD3, publishes a new policy
-//! version at each scheduler cycle, checkpoints on a timer, on SIGTERM/SIGINT and at the end,
-//! and resumes from the newest valid checkpoint of its run directory.
+//! control plane and both data planes, the replay buffer and TD3 (the `learner` crate),
+//! publishes a new policy version at each scheduler cycle, checkpoints on a timer, on
+//! SIGTERM/SIGINT and at the end, and resumes from the newest valid checkpoint of its run
+//! directory.
 //!
 //! Threads: a tokio runtime (gRPC server, lease expiry, signals), one shared-memory intake
-//! thread, and the training thread ([`trainer`]) which owns the networks. They share
-//! [`shared::Shared`].
+//! thread, and the training thread (`trainer`) which owns the networks. They share the state
+//! of `shared` ([`Status`] is its snapshot in `status.json`):
+//!
+//! - `state`: the mutable core behind its one mutex (registry, replay buffer, rate limiter,
+//!   registrations), `leases`: the open leases and their episodes, `totals`: the counters a
+//!   resume keeps;
+//! - `ingest`: what enters the replay buffer (steps from both data planes, episode reports),
+//!   `expiry`: leases that expire or are dropped;
+//! - `control`, `data`, `policy_streams`, `listen`, `size_status`: the gRPC services and the
+//!   connection handling around them.
 
 mod config;
 mod control;
 mod data;
 mod error;
+mod expiry;
+#[cfg(test)]
+mod fixture;
+mod ingest;
+mod leases;
 mod listen;
 mod policy_streams;
-pub mod shared;
+mod shared;
 mod size_status;
+mod state;
 pub mod status;
+mod totals;
 mod trainer;
 
 use std::net::SocketAddr;
@@ -38,16 +55,18 @@ pub use status::{
 };
 pub use trainer::TrainSummary;
 
-use self::shared::{Core, Shared, Totals};
-use crate::checkpoint;
-use crate::ddp_init::FitOptions;
-use crate::export::space_name;
-use crate::rate::RateLimiter;
-use crate::replay::ReplayBuffer;
-use crate::retention;
-use crate::td3::{seeded_rng, Td3};
-use crate::tensorboard::EventWriter;
-use crate::Device;
+use crate::shared::{Rates, Shared};
+use crate::state::Core;
+use crate::totals::Totals;
+use learner::checkpoint;
+use learner::ddp_init::FitOptions;
+use learner::export::space_name;
+use learner::rate::RateLimiter;
+use learner::replay::ReplayBuffer;
+use learner::retention;
+use learner::td3::{seeded_rng, Td3};
+use learner::tensorboard::EventWriter;
+use learner::Device;
 
 /// File in the run directory holding the learner's bound `host:port`.
 pub const ADDR_FILE: &str = "learner.addr";
@@ -616,7 +635,7 @@ impl Learner {
         let (state, resume_warnings, resumed_from) = run.training_state(&opts, &registry_cfg)?;
         let cfg = state.td3.config().clone();
         let laser = laser_layout(&opts.env_toml)?;
-        let space_obs_dim = actor::obs_dim(laser, opts.space, observe_tracks(&opts.env_toml)?);
+        let space_obs_dim = layout::obs_dim(laser, opts.space.dim(), observe_tracks(&opts.env_toml)?);
         if cfg.obs_dim != space_obs_dim || cfg.act_dim != opts.space.dim() || cfg.laser_dim > laser.size() {
             return Err(ServiceError::SpaceMismatch {
                 obs_dim: cfg.obs_dim,
@@ -687,7 +706,6 @@ impl Learner {
             spec,
             core,
             opts.budget_steps,
-            svc.episodes_per_assignment,
             svc.idle_retry_ms,
             svc.progress_timeout(),
         );
@@ -798,7 +816,7 @@ impl Learner {
     /// Current counters.
     pub fn status(&self) -> Status {
         let core = self.shared.lock();
-        Status::collect(&self.shared, &core, 0.0, 0.0, 0.0, 0.0)
+        self.shared.status(&core, Rates::default())
     }
 
     /// Whether the training thread has stopped.
@@ -862,17 +880,17 @@ fn observe_tracks(env_toml: &str) -> Result<usize, ServiceError> {
         Some(v) => v
             .as_integer()
             .and_then(|k| usize::try_from(k).ok())
-            .filter(|&k| k <= actor::observation::MAX_OBSERVED_TRACKS)
+            .filter(|&k| k <= layout::MAX_OBSERVED_TRACKS)
             .ok_or_else(|| ServiceError::ObserveTracks(v.clone())),
     }
 }
 
 /// The laser layout of the actors' observations (`observation` in `env_toml`; `scan` when
 /// absent), which sizes the observation with the action space.
-fn laser_layout(env_toml: &str) -> Result<actor::LaserLayout, ServiceError> {
+fn laser_layout(env_toml: &str) -> Result<layout::LaserLayout, ServiceError> {
     let table: toml::Table = toml::from_str(env_toml).map_err(ServiceError::EnvToml)?;
     match table.get("observation") {
-        None => Ok(actor::LaserLayout::Scan),
+        None => Ok(layout::LaserLayout::Scan),
         Some(v) => v
             .as_str()
             .and_then(|s| s.parse().ok())
@@ -891,11 +909,22 @@ pub fn read_addr(run_dir: &Path) -> Result<String, ServiceError> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::test_util::{random_batch, temp_dir, tiny_config};
+    use learner::bench::random_batch;
+    use learner::Td3Config;
+    use testkit::fresh_dir as temp_dir;
 
     #[test]
     fn a_corrupt_newest_checkpoint_falls_back_to_the_previous_one() {
-        let config = tiny_config();
+        let config = Td3Config {
+            obs_dim: 3,
+            act_dim: 1,
+            laser_dim: 0,
+            actor_hidden: vec![16],
+            critic_hidden: vec![16],
+            batch_size: 4,
+            replay_capacity: 64,
+            ..Td3Config::default()
+        };
         let registry_cfg = RegistryConfig {
             lease_ttl_ms: 1000,
             episodes_per_assignment: 2,
@@ -929,7 +958,7 @@ mod tests {
         assert_eq!(candidates.len(), 2, "the damage is only found by a full load");
         let (ckpt, state, warnings) = newest_usable(&root, &candidates, &registry_cfg).unwrap();
         assert_eq!(ckpt, root.join("ckpt-1"));
-        assert_eq!(state.td3.updates, 1);
+        assert_eq!(state.td3.updates(), 1);
         assert_eq!(warnings.len(), 1);
         assert!(warnings[0].contains("ckpt-2"), "{warnings:?}");
         // Nothing usable: the error names every checkpoint tried.

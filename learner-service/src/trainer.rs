@@ -14,16 +14,17 @@ use proto::shm::{ShmConfig, ShmPolicyPublisher};
 use rand_pcg::Pcg64Mcg;
 use tokio::sync::watch;
 
-use super::shared::{Shared, Totals};
-use super::status::{write_status, Status};
-use super::{ServiceConfig, ServiceError};
-use crate::batch::Batch;
-use crate::checkpoint::{self, RunState};
-use crate::exploration::ExplorationSchedule;
-use crate::export::export_checkpoint;
-use crate::retention;
-use crate::td3::Td3;
-use crate::tensorboard::EventWriter;
+use crate::shared::{Rates, Shared};
+use crate::status::write_status;
+use crate::totals::Totals;
+use crate::{ServiceConfig, ServiceError};
+use learner::batch::Batch;
+use learner::checkpoint::{self, RunState};
+use learner::exploration::ExplorationSchedule;
+use learner::export::export_checkpoint;
+use learner::retention;
+use learner::td3::Td3;
+use learner::tensorboard::EventWriter;
 
 /// What the training thread needs besides the shared state.
 pub struct Trainer {
@@ -239,13 +240,14 @@ impl Trainer {
             0.0
         };
         core.lag = (0, 0);
-        let status = Status::collect(
-            &self.shared,
+        let status = self.shared.status(
             &core,
-            (inserts - meter.inserts) as f64 / dt,
-            (updates - meter.updates) as f64 / dt,
-            lag,
-            exploration.sigma(inserts),
+            Rates {
+                inserts_per_s: (inserts - meter.inserts) as f64 / dt,
+                updates_per_s: (updates - meter.updates) as f64 / dt,
+                policy_lag: lag,
+                exploration_sigma: exploration.sigma(inserts),
+            },
         );
         drop(core);
         *meter = Meter {

@@ -6,8 +6,8 @@ use planner::ActionSpace;
 use proto::auth::TlsFiles;
 use serde::{Deserialize, Serialize};
 
-use super::ServiceError;
-use crate::config::Td3Config;
+use crate::error::ServiceError;
+use learner::config::Td3Config;
 
 /// How the learner process serves actors. Every field has a default; unknown keys are refused.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use thiserror::Error;
 
-use crate::checkpoint::CheckpointError;
+use learner::checkpoint::CheckpointError;
 
 /// Why the learner process failed. Each message is one line and names what was wrong and
 /// where, including the underlying OS, checkpoint or registry error, which is also the
@@ -131,10 +131,10 @@ pub enum ServiceError {
     Registry(#[from] scheduler::RegistryError),
     /// The networks could not be built.
     #[error(transparent)]
-    Td3(#[from] crate::td3::Td3Error),
+    Td3(#[from] learner::td3::Td3Error),
     /// The actor could not be fitted to the DDP schedule.
     #[error("DDP initialization: {0}")]
-    DdpInit(#[source] crate::ddp_init::FitError),
+    DdpInit(#[source] learner::ddp_init::FitError),
     /// `[td3]` sizes that do not fit the run's action space and laser layout.
     #[error(
         "[td3] obs_dim {obs_dim} / act_dim {act_dim} / laser_dim {laser_dim} do not fit the {space} action \
@@ -150,7 +150,7 @@ pub enum ServiceError {
         /// The action space.
         space: String,
         /// The laser layout (`env.observation`).
-        laser: actor::LaserLayout,
+        laser: layout::LaserLayout,
         /// Its observation size.
         space_obs_dim: usize,
         /// Its action size.
@@ -165,13 +165,13 @@ pub enum ServiceError {
     /// `env.observe_tracks` is not an integer in range.
     #[error(
         "env.observe_tracks = {0} must be an integer in 0..={max}",
-        max = actor::observation::MAX_OBSERVED_TRACKS
+        max = layout::MAX_OBSERVED_TRACKS
     )]
     ObserveTracks(toml::Value),
     /// `env.observation` is not a laser layout.
     #[error(
         "env.observation = {0} must be \"scan\" or \"sectors:N\" with N in 1..={max}",
-        max = actor::observation::MAX_SECTORS
+        max = layout::MAX_SECTORS
     )]
     Observation(toml::Value),
     /// `env.action_map` is not a string.
@@ -182,7 +182,7 @@ pub enum ServiceError {
     ActionMap(#[from] planner::NameError),
     /// The TensorBoard event file could not be created or resumed.
     #[error(transparent)]
-    TensorBoard(#[from] crate::tensorboard::TensorBoardError),
+    TensorBoard(#[from] learner::tensorboard::TensorBoardError),
     /// The TLS files could not be read.
     #[error(transparent)]
     Auth(#[from] proto::auth::AuthError),
@@ -191,10 +191,10 @@ pub enum ServiceError {
     Tls(#[source] tonic::transport::Error),
     /// Sampling the replay buffer failed.
     #[error("sampling the replay buffer: {0}")]
-    Sample(#[source] crate::replay::ReplayError),
+    Sample(#[source] learner::replay::ReplayError),
     /// A TD3 update failed.
     #[error("TD3 update: {0}")]
-    Update(#[source] crate::td3::Td3Error),
+    Update(#[source] learner::td3::Td3Error),
     /// The training thread panicked.
     #[error("the training thread panicked")]
     TrainerPanicked,
