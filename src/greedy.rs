@@ -21,7 +21,7 @@ use serde::{Deserialize, Serialize};
 
 use actor::{AdpEnv, EnvConfig, MlpPolicy};
 use learner::tensorboard::EventWriter;
-use learner_service::ServiceError;
+use learner_service::PolicyError;
 use planner::{ActionSpace, Schedule};
 use sim::Status;
 
@@ -307,7 +307,7 @@ impl GreedyMonitor {
     pub fn poll(
         &mut self,
         inserts: u64,
-        latest: impl FnOnce() -> Result<(u64, Vec<usize>, Vec<f32>), ServiceError>,
+        latest: impl FnOnce() -> Result<(u64, Vec<usize>, Vec<f32>), PolicyError>,
     ) -> Option<anyhow::Result<GreedyResult>> {
         let done = self.collect(false);
         if self.job.is_none() && inserts >= self.next_at {
@@ -324,7 +324,7 @@ impl GreedyMonitor {
     pub fn finish(
         mut self,
         inserts: u64,
-        latest: impl FnOnce() -> Result<(u64, Vec<usize>, Vec<f32>), ServiceError>,
+        latest: impl FnOnce() -> Result<(u64, Vec<usize>, Vec<f32>), PolicyError>,
     ) -> Vec<anyhow::Result<GreedyResult>> {
         let mut out: Vec<_> = self.collect(true).into_iter().collect();
         match self.start(inserts, latest) {
@@ -337,7 +337,7 @@ impl GreedyMonitor {
     fn start(
         &mut self,
         inserts: u64,
-        latest: impl FnOnce() -> Result<(u64, Vec<usize>, Vec<f32>), ServiceError>,
+        latest: impl FnOnce() -> Result<(u64, Vec<usize>, Vec<f32>), PolicyError>,
     ) -> anyhow::Result<()> {
         let (version, dims, weights) = latest()?;
         if version == 0 {

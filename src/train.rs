@@ -211,7 +211,7 @@ impl TrainConfig {
             planner: self.run.planner.name().into(),
             max_speed: self.run.max_speed,
             space: self.run.action_space,
-            env_toml: toml::to_string(&self.env).expect("EnvConfig serializes"),
+            env: self.env,
             worlds,
             budget_steps: self.run.steps,
             token,

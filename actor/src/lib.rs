@@ -13,6 +13,8 @@
 //!   the flat weight vector the learner publishes, without allocating per call;
 //!   [`exploration::Exploration`] adds seeded Gaussian noise for data collection.
 //!
+//! * [`spec`] converts the run's planner, action space and environment settings to and from
+//!   their `adp.v1` messages.
 //! * [`run`] is the actor process loop (register, take assignments, stream steps, report
 //!   episodes) over the learner's planes.
 //!
@@ -27,6 +29,7 @@ pub mod observation;
 pub mod policy;
 pub mod reward;
 pub mod run;
+pub mod spec;
 
 pub use env::{AdpEnv, End, EnvConfig, EnvError, EnvResult, StepOutcome};
 pub use exploration::Exploration;

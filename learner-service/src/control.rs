@@ -236,7 +236,7 @@ impl Control for ControlService {
                  <run dir>/{} (the run token that actors hold is not enough); `adp stop --run-dir \
                  DIR` sends it",
                 proto::auth::OPERATOR_METADATA,
-                crate::OPERATOR_TOKEN_FILE
+                crate::run_dir::OPERATOR_TOKEN_FILE
             )));
         }
         let r = request.into_inner();

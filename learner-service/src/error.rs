@@ -1,41 +1,39 @@
-//! What can stop the learner process from starting or finishing ([`ServiceError`]).
+//! What can go wrong in the learner process, one error type per operation a caller handles
+//! differently: the service settings ([`SettingsError`]), resuming a run ([`ResumeError`]),
+//! starting the learner ([`StartError`]), training ([`TrainError`]), reading the newest policy
+//! ([`PolicyError`]) and the run directory's files ([`FileError`], [`StatusFileError`]).
+//!
+//! Each message is one line and names what was wrong and where, including the underlying OS,
+//! checkpoint or registry error, which is also the [`std::error::Error::source`] where there is
+//! one.
 
 use std::path::PathBuf;
 
+use learner::checkpoint::CheckpointError;
 use thiserror::Error;
 
-use learner::checkpoint::CheckpointError;
-
-/// Why the learner process failed. Each message is one line and names what was wrong and
-/// where, including the underlying OS, checkpoint or registry error, which is also the
-/// [`std::error::Error::source`] where there is one.
+/// A file, socket, directory or thread operation that failed.
 #[derive(Debug, Error)]
-pub enum ServiceError {
-    /// A file, socket, directory or thread operation failed (`what` names it and the path).
-    #[error("{what}: {source}")]
-    Io {
-        /// What was attempted, e.g. `cannot write runs/x/learner.addr`.
-        what: String,
-        /// The OS error.
-        source: std::io::Error,
-    },
-    /// A Unix socket path longer than `sockaddr_un` holds.
-    #[error("{} is longer than a socket path may be", .0.display())]
-    SocketPath(PathBuf),
-    /// Another learner holds the run directory's lock.
-    #[error(
-        "{} is in use by another learner ({holder}; lock file {}): stop it first or choose another --out",
-        run_dir.display(),
-        lock.display()
-    )]
-    InUse {
-        /// The run directory.
-        run_dir: PathBuf,
-        /// The holder's host and pid, as it recorded them.
-        holder: String,
-        /// The lock file.
-        lock: PathBuf,
-    },
+#[error("{what}: {source}")]
+pub struct FileError {
+    /// What was attempted, e.g. `cannot write runs/x/learner.addr`.
+    pub what: String,
+    /// The OS error.
+    #[source]
+    pub source: std::io::Error,
+}
+
+impl FileError {
+    /// A [`FileError`] for `what`, to map an OS error with.
+    pub fn at(what: impl Into<String>) -> impl FnOnce(std::io::Error) -> Self {
+        let what = what.into();
+        move |source| Self { what, source }
+    }
+}
+
+/// `[service]` settings that cannot work ([`crate::ServiceConfig::check`]).
+#[derive(Debug, Error, PartialEq, Eq)]
+pub enum SettingsError {
     /// Shared memory is on with no port for actors.
     #[error("[service] shm_max_actors must be at least 1 while shared_memory = true")]
     ShmMaxActors,
@@ -67,6 +65,11 @@ pub enum ServiceError {
         /// `[service] listen`.
         listen: String,
     },
+}
+
+/// Why a run directory cannot be resumed (or, without `--resume`, started fresh).
+#[derive(Debug, Error)]
+pub enum ResumeError {
     /// `--resume` without a complete checkpoint in the run directory.
     #[error("--resume: no complete checkpoint under {}", dir.display())]
     NothingToResume {
@@ -107,31 +110,54 @@ pub enum ServiceError {
         /// The parser's error.
         source: serde_json::Error,
     },
+    /// A checkpoint's registry state does not fit the run's registry settings.
+    #[error("{}: registry state: {source}", checkpoint.display())]
+    Registry {
+        /// The checkpoint.
+        checkpoint: PathBuf,
+        /// The registry's refusal.
+        source: scheduler::RegistryError,
+    },
     /// A checkpoint could not be read.
     #[error(transparent)]
     Checkpoint(#[from] CheckpointError),
-    /// A checkpoint could not be written.
-    #[error("checkpoint {}: {source}", dir.display())]
-    Save {
-        /// The checkpoint directory.
-        dir: PathBuf,
-        /// Why.
-        source: CheckpointError,
-    },
-    /// The replay buffer could not be copied for a checkpoint.
-    #[error("copying the replay buffer for {}: {source}", dir.display())]
-    ReplayCopy {
-        /// The checkpoint directory.
-        dir: PathBuf,
-        /// Why.
-        source: std::io::Error,
-    },
-    /// The scheduler's registry refused its configuration or a restored state.
+}
+
+/// Why the learner did not start ([`crate::Learner::start`]).
+#[derive(Debug, Error)]
+pub enum StartError {
+    /// The `[service]` settings cannot work.
     #[error(transparent)]
-    Registry(#[from] scheduler::RegistryError),
+    Settings(#[from] SettingsError),
+    /// The run cannot be resumed or started fresh in its directory.
+    #[error(transparent)]
+    Resume(#[from] ResumeError),
+    /// A file, socket, directory, runtime or thread could not be made.
+    #[error(transparent)]
+    File(#[from] FileError),
+    /// A Unix socket path longer than `sockaddr_un` holds.
+    #[error("{} is longer than a socket path may be", .0.display())]
+    SocketPath(PathBuf),
+    /// Another learner holds the run directory's lock.
+    #[error(
+        "{} is in use by another learner ({holder}; lock file {}): stop it first or choose another --out",
+        run_dir.display(),
+        lock.display()
+    )]
+    InUse {
+        /// The run directory.
+        run_dir: PathBuf,
+        /// The holder's host and pid, as it recorded them.
+        holder: String,
+        /// The lock file.
+        lock: PathBuf,
+    },
+    /// The scheduler's registry refused its configuration (the training worlds).
+    #[error("[run] worlds: {0}")]
+    Registry(#[source] scheduler::RegistryError),
     /// The networks could not be built.
-    #[error(transparent)]
-    Td3(#[from] learner::td3::Td3Error),
+    #[error("[td3]: {0}")]
+    Td3(#[source] learner::td3::Td3Error),
     /// The actor could not be fitted to the DDP schedule.
     #[error("DDP initialization: {0}")]
     DdpInit(#[source] learner::ddp_init::FitError),
@@ -159,36 +185,45 @@ pub enum ServiceError {
         /// leading values as laser).
         laser_size: usize,
     },
-    /// The environment settings are not a TOML table.
-    #[error("the environment settings (env_toml) are not a TOML table: {0}")]
-    EnvToml(#[source] toml::de::Error),
-    /// `env.observe_tracks` is not an integer in range.
-    #[error(
-        "env.observe_tracks = {0} must be an integer in 0..={max}",
-        max = layout::MAX_OBSERVED_TRACKS
-    )]
-    ObserveTracks(toml::Value),
-    /// `env.observation` is not a laser layout.
-    #[error(
-        "env.observation = {0} must be \"scan\" or \"sectors:N\" with N in 1..={max}",
-        max = layout::MAX_SECTORS
-    )]
-    Observation(toml::Value),
-    /// `env.action_map` is not a string.
-    #[error("env.action_map = {0} must be a string")]
-    ActionMapType(toml::Value),
-    /// `env.action_map` names no action map.
-    #[error(transparent)]
-    ActionMap(#[from] planner::NameError),
+    /// The environment settings the actors would be sent are invalid.
+    #[error("[env]: {0}")]
+    Env(#[source] actor::EnvError),
+    /// The run's settings cannot be put on the wire (`RunSpec`).
+    #[error("the run spec: {0}")]
+    Spec(#[source] actor::spec::SpecError),
     /// The TensorBoard event file could not be created or resumed.
     #[error(transparent)]
     TensorBoard(#[from] learner::tensorboard::TensorBoardError),
-    /// The TLS files could not be read.
+    /// The token or TLS files could not be read.
     #[error(transparent)]
     Auth(#[from] proto::auth::AuthError),
     /// The server refused the TLS configuration.
     #[error("TLS: {0}")]
     Tls(#[source] tonic::transport::Error),
+}
+
+/// Why training stopped with an error ([`crate::Learner::wait`]).
+#[derive(Debug, Error)]
+pub enum TrainError {
+    /// The checkpoints directory could not be made.
+    #[error(transparent)]
+    File(#[from] FileError),
+    /// A checkpoint could not be written.
+    #[error("checkpoint {}: {source}", dir.display())]
+    Save {
+        /// The checkpoint directory.
+        dir: PathBuf,
+        /// Why.
+        source: CheckpointError,
+    },
+    /// The replay buffer could not be copied for a checkpoint.
+    #[error("copying the replay buffer for {}: {source}", dir.display())]
+    ReplayCopy {
+        /// The checkpoint directory.
+        dir: PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
     /// Sampling the replay buffer failed.
     #[error("sampling the replay buffer: {0}")]
     Sample(#[source] learner::replay::ReplayError),
@@ -197,29 +232,32 @@ pub enum ServiceError {
     Update(#[source] learner::td3::Td3Error),
     /// The training thread panicked.
     #[error("the training thread panicked")]
-    TrainerPanicked,
-    /// The newest policy's weights do not decode.
-    #[error("policy version {version}: {source}")]
-    Policy {
-        /// The version.
-        version: u64,
-        /// Why.
-        source: proto::floats::RaggedBytes,
-    },
-    /// `status.json` does not parse.
+    Panicked,
+}
+
+/// The newest published policy's weights do not decode ([`crate::Learner::latest_policy`]).
+#[derive(Debug, Error)]
+#[error("policy version {version}: {source}")]
+pub struct PolicyError {
+    /// The version.
+    pub version: u64,
+    /// Why.
+    #[source]
+    pub source: proto::floats::RaggedBytes,
+}
+
+/// `status.json` cannot be read ([`crate::status::read_status`]).
+#[derive(Debug, Error)]
+pub enum StatusFileError {
+    /// The file cannot be read.
+    #[error(transparent)]
+    File(#[from] FileError),
+    /// It does not parse.
     #[error("{}: {source}", path.display())]
-    Status {
+    Parse {
         /// The file.
         path: PathBuf,
         /// The parser's error.
         source: serde_json::Error,
     },
-}
-
-impl ServiceError {
-    /// A [`ServiceError::Io`] for `what`.
-    pub fn io(what: impl Into<String>) -> impl FnOnce(std::io::Error) -> Self {
-        let what = what.into();
-        move |source| Self::Io { what, source }
-    }
 }

@@ -8,7 +8,7 @@ use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
-use crate::error::ServiceError;
+use crate::error::{FileError, StatusFileError};
 use crate::totals::PrunedRanks;
 
 /// Name of the status file in the run directory.
@@ -205,21 +205,20 @@ impl Status {
 }
 
 /// Writes `status` to `run_dir/status.json` atomically (temporary file + rename).
-pub fn write_status(run_dir: &Path, status: &Status) -> Result<(), ServiceError> {
+pub fn write_status(run_dir: &Path, status: &Status) -> Result<(), FileError> {
     let tmp = run_dir.join(format!(".{STATUS_FILE}.tmp"));
     let text = serde_json::to_string_pretty(status).expect("status serializes");
     std::fs::write(&tmp, text)
         .and_then(|_| std::fs::rename(&tmp, run_dir.join(STATUS_FILE)))
-        .map_err(ServiceError::io(format!(
+        .map_err(FileError::at(format!(
             "cannot write {}",
             run_dir.join(STATUS_FILE).display()
         )))
 }
 
 /// Reads `run_dir/status.json`.
-pub fn read_status(run_dir: &Path) -> Result<Status, ServiceError> {
+pub fn read_status(run_dir: &Path) -> Result<Status, StatusFileError> {
     let p = run_dir.join(STATUS_FILE);
-    let text =
-        std::fs::read_to_string(&p).map_err(ServiceError::io(format!("cannot read {}", p.display())))?;
-    serde_json::from_str(&text).map_err(|source| ServiceError::Status { path: p, source })
+    let text = std::fs::read_to_string(&p).map_err(FileError::at(format!("cannot read {}", p.display())))?;
+    serde_json::from_str(&text).map_err(|source| StatusFileError::Parse { path: p, source })
 }
