@@ -90,11 +90,8 @@ pub fn command(a: ActorArgs) -> anyhow::Result<()> {
     if let Some(config) = &a.sandbox {
         return run(&a, rank, config);
     }
-    let eval_cfg = EvalConfig::load(None)?;
-    let factory =
-        move |name: &str, seed: u64| -> Result<Box<dyn planner::Planner>, actor::run::FactoryError> {
-            Ok(name.parse::<PlannerKind>()?.build(&eval_cfg.planners(), seed))
-        };
+    let planners = EvalConfig::load(None)?.planners();
+    let factory = move |kind: PlannerKind, seed: u64| kind.build(&planners, seed);
     let tls = a.tls_ca.is_some().then(|| TlsFiles {
         cert: a.tls_cert.clone(),
         key: a.tls_key.clone(),

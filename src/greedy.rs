@@ -22,8 +22,8 @@ use serde::{Deserialize, Serialize};
 
 use actor::closed_loop::{self, planner_seed, Chooser, Greedy};
 use actor::{EnvConfig, MlpPolicy};
-use learner::service::ServiceError;
 use learner::tensorboard::EventWriter;
+use learner_service::PolicyError;
 use planner::{ActionSpace, Schedule};
 use sim::Status;
 
@@ -273,7 +273,7 @@ impl GreedyMonitor {
     pub fn poll(
         &mut self,
         inserts: u64,
-        latest: impl FnOnce() -> Result<(u64, Vec<usize>, Vec<f32>), ServiceError>,
+        latest: impl FnOnce() -> Result<(u64, Vec<usize>, Vec<f32>), PolicyError>,
     ) -> Option<anyhow::Result<GreedyResult>> {
         let done = self.collect(false);
         if self.job.is_none() && inserts >= self.next_at {
@@ -290,7 +290,7 @@ impl GreedyMonitor {
     pub fn finish(
         mut self,
         inserts: u64,
-        latest: impl FnOnce() -> Result<(u64, Vec<usize>, Vec<f32>), ServiceError>,
+        latest: impl FnOnce() -> Result<(u64, Vec<usize>, Vec<f32>), PolicyError>,
     ) -> Vec<anyhow::Result<GreedyResult>> {
         let mut out: Vec<_> = self.collect(true).into_iter().collect();
         match self.start(inserts, latest) {
@@ -303,7 +303,7 @@ impl GreedyMonitor {
     fn start(
         &mut self,
         inserts: u64,
-        latest: impl FnOnce() -> Result<(u64, Vec<usize>, Vec<f32>), ServiceError>,
+        latest: impl FnOnce() -> Result<(u64, Vec<usize>, Vec<f32>), PolicyError>,
     ) -> anyhow::Result<()> {
         let (version, dims, weights) = latest()?;
         if version == 0 {

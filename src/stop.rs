@@ -5,7 +5,7 @@
 use std::path::PathBuf;
 
 use anyhow::Context;
-use learner::service::{read_status, OPERATOR_TOKEN_FILE, SOCKET_FILE};
+use learner_service::{read_status, OPERATOR_TOKEN_FILE, SOCKET_FILE};
 use proto::auth::{read_token_file, OPERATOR_METADATA};
 use proto::grpc::LearnerAddress;
 use proto::pb;

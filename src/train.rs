@@ -10,7 +10,7 @@ use std::time::{Duration, Instant};
 use anyhow::{bail, Context};
 
 use learner::export::space_name;
-use learner::service::{Learner, LearnerOptions, TrainSummary};
+use learner_service::{Learner, LearnerOptions, TrainSummary};
 use proto::auth::{read_or_create_token_file, read_token_file};
 use scheduler::{BackoffPolicy, Sandbox, Supervisor, SupervisorConfig, SupervisorEvent};
 
@@ -26,10 +26,10 @@ impl TrainConfig {
             run_id: run_id(&self.run.name),
             td3: self.td3.clone(),
             service: self.service.clone(),
-            planner: self.run.planner.name().into(),
+            planner: self.run.planner,
             max_speed: self.run.max_speed,
             space: self.run.action_space,
-            env_toml: toml::to_string(&self.env).expect("EnvConfig serializes"),
+            env: self.env,
             worlds,
             budget_steps: self.run.steps,
             token,

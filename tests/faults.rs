@@ -40,7 +40,7 @@ use std::process::{Child, Command, ExitStatus, Stdio};
 use std::sync::{Mutex, MutexGuard};
 use std::time::Duration;
 
-use learner::service::{read_addr, read_status, RankStatus, Status};
+use learner_service::{read_addr, read_status, RankStatus, Status};
 use proto::pb;
 
 mod common;

@@ -1,7 +1,9 @@
 //! Hostile peers (issue 30) against a real `adp learner`: raw TCP connections that never send
 //! the HTTP/2 preface are closed while an honest client is served; unread `WatchPolicy`
 //! streams share one copy of the policy; thousands of distinct ranks do not grow `status.json`
-//! without bound. Every wait is a bounded poll (a watchdog), never a timing assertion.
+//! without bound; a report with an enum value outside the contract is refused, naming the
+//! field, and the run goes on. Every wait is a bounded poll (a watchdog), never a timing
+//! assertion.
 
 use std::io::Read;
 use std::net::TcpStream;
@@ -13,7 +15,7 @@ use proto::grpc::LearnerAddress;
 use proto::pb;
 
 mod common;
-use common::{adp, fresh_dir, status};
+use common::{adp, fresh_dir, refused, status};
 
 /// Polls of a watchdog that should never fire (100 ms apart: about five minutes).
 const PATIENCE: u32 = 3000;
@@ -54,7 +56,7 @@ fn learner(dir: &Path, service: &str) -> (Learner, PathBuf, String, String) {
     let learner = Learner(child);
     poll("learner.addr", || run.join("learner.addr").is_file());
     poll("the first status", || status(&run).is_some());
-    let addr = learner::service::read_addr(&run).unwrap();
+    let addr = learner_service::read_addr(&run).unwrap();
     let token = proto::auth::read_token_file(&run.join("token")).unwrap();
     (learner, run, addr, token)
 }
@@ -322,6 +324,70 @@ fn oversized_requests_are_resource_exhausted() {
     });
 }
 
+/// The run spec is typed: an actor reads the planner, action space and environment settings
+/// from it (and they size the observation the learner trains on). A report whose `outcome` is
+/// no `Outcome` value is refused with INVALID_ARGUMENT naming the field; it is counted, the
+/// actor keeps its lease and the learner keeps serving.
+#[test]
+fn the_run_spec_is_typed_and_an_unknown_outcome_is_refused_while_the_run_goes_on() {
+    let dir = fresh_dir("hostile-enums");
+    let (_learner, run, addr, token) = learner(&dir, "");
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    rt.block_on(async {
+        let (mut control, _data, reply) = register(&addr, &token, 0).await;
+        let spec = reply.spec.clone().unwrap();
+        let space = actor::spec::action_space_from_wire(spec.action_space.as_ref().unwrap()).unwrap();
+        let env = actor::spec::env_from_wire(spec.env.as_ref().unwrap()).unwrap();
+        actor::spec::planner_from_wire("spec.planner", spec.planner).unwrap();
+        assert_eq!(
+            spec.obs_dim as usize,
+            actor::obs_dim(env.observation, space, env.observe_tracks)
+        );
+        assert_eq!(spec.act_dim as usize, space.dim());
+        let assignment = control
+            .next_assignment(pb::AssignmentRequest {
+                run: reply.run.clone(),
+                actor_id: reply.actor_id,
+                actor_secret: reply.actor_secret.clone(),
+            })
+            .await
+            .unwrap()
+            .into_inner();
+        let Some(pb::assignment_reply::Decision::Assign(a)) = assignment.decision else {
+            panic!("no assignment: {assignment:?}");
+        };
+        let bad = control
+            .report_episode(pb::EpisodeReport {
+                run: reply.run.clone(),
+                actor_id: reply.actor_id,
+                lease_id: a.lease_id,
+                actor_secret: reply.actor_secret.clone(),
+                episode_id: a.first_episode_id,
+                world: a.world,
+                outcome: 99,
+                ..Default::default()
+            })
+            .await
+            .unwrap_err();
+        assert_eq!(bad.code(), tonic::Code::InvalidArgument, "{bad}");
+        assert!(bad.message().contains("`outcome` = 99"), "{bad}");
+        let beat = control
+            .heartbeat(pb::HeartbeatRequest {
+                run: reply.run.clone(),
+                actor_id: reply.actor_id,
+                lease_id: a.lease_id,
+                actor_secret: reply.actor_secret.clone(),
+            })
+            .await
+            .unwrap()
+            .into_inner();
+        assert!(beat.lease_valid && !beat.shutdown, "{beat:?}");
+    });
+    poll("the refusal in status.json", || {
+        status(&run).is_some_and(|s| refused(&s, "out_of_range") == 1 && !s.finished)
+    });
+}
+
 /// With the open-file limit at 64 (soft and hard, so the learner cannot raise it) and silent
 /// connections queued far beyond it, the learner still serves an honest actor, and on SIGTERM
 /// its checkpoint completes: the run resumes from it.
@@ -374,7 +440,7 @@ fn at_a_64_file_limit_an_honest_actor_is_served_and_the_sigterm_checkpoint_compl
     let mut learner = start(false);
     poll("learner.addr", || run.join("learner.addr").is_file());
     poll("the first status", || status(&run).is_some());
-    let addr = learner::service::read_addr(&run).unwrap();
+    let addr = learner_service::read_addr(&run).unwrap();
     let token = proto::auth::read_token_file(&run.join("token")).unwrap();
     // Far more silent connections than the learner has descriptors: the kernel queues them;
     // the learner takes what its cap allows and closes each after the handshake timeout.

@@ -9,7 +9,7 @@
 use std::process::{Child, Stdio};
 use std::time::Duration;
 
-use learner::service::read_status;
+use learner_service::read_status;
 
 mod common;
 use common::{adp, fresh_dir, spawn_actor, status};
@@ -48,7 +48,7 @@ fn sixty_four_actors_over_both_planes_lose_nothing_and_keep_their_leases() {
         }
         std::thread::sleep(Duration::from_millis(100));
     }
-    let addr = learner::service::read_addr(&run).unwrap();
+    let addr = learner_service::read_addr(&run).unwrap();
     let token = run.join("token");
     let mut actors: Vec<(u32, Child)> = (0..ACTORS)
         .map(|r| {

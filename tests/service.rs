@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Stdio};
 use std::time::Duration;
 
-use learner::service::{read_status, Status};
+use learner_service::{read_status, Status};
 use proto::grpc::LearnerAddress;
 use proto::pb;
 
@@ -193,7 +193,7 @@ fn grpc_learner_survives_a_killed_actor_and_refuses_bad_requests() {
         .spawn()
         .unwrap();
     wait_for("learner.addr", 600, || run.join("learner.addr").is_file());
-    let addr = learner::service::read_addr(&run).unwrap();
+    let addr = learner_service::read_addr(&run).unwrap();
     let token_file = run.join("token");
     let mut actors: Vec<Child> = (0..3)
         .map(|r| spawn_actor(&addr, &token_file, r, "grpc"))
@@ -206,7 +206,7 @@ fn grpc_learner_survives_a_killed_actor_and_refuses_bad_requests() {
     // is abandoned (not terminal), and the learner keeps training. Mid-episode = its step
     // count just moved (an actor that has finished its two episodes idles without a lease).
     let rank2 =
-        |s: &learner::service::Status| s.rank_steps.iter().find(|(r, _)| *r == 2).map_or(0, |(_, n)| *n);
+        |s: &learner_service::Status| s.rank_steps.iter().find(|(r, _)| *r == 2).map_or(0, |(_, n)| *n);
     let mut last = status(&run).map_or(0, |s| rank2(&s));
     wait_for("actor 2 streaming steps", 1200, || {
         let now = status(&run).map_or(last, |s| rank2(&s));

@@ -11,7 +11,7 @@ use std::process::Command;
 use std::sync::Mutex;
 use std::time::Duration;
 
-use learner::service::{read_status, Status};
+use learner_service::{read_status, Status};
 
 mod common;
 use common::{cluster, fresh_dir};

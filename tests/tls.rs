@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::Duration;
 
-use learner::service::read_addr;
+use learner_service::read_addr;
 use proto::auth::TlsFiles;
 use proto::grpc::LearnerAddress;
 use proto::pb;

@@ -17,6 +17,9 @@
 //!   constant action, a network greedily or with exploration noise): the one closed loop
 //!   that evaluation, training's greedy evaluation, experiments and the actor process share.
 //!
+//! * [`spec`] converts the run's planner, action space and environment settings to and from
+//!   their `adp.v1` messages.
+//!
 //! * [`run`] is the actor process loop (register, take assignments, stream steps, report
 //!   episodes) over the learner's planes.
 //!
@@ -32,6 +35,7 @@ pub mod observation;
 pub mod policy;
 pub mod reward;
 pub mod run;
+pub mod spec;
 
 pub use env::{AdpEnv, End, EnvConfig, EnvError, EnvResult, StepOutcome};
 pub use exploration::Exploration;

@@ -22,92 +22,19 @@
 //! its 720 values takes the nearest beam), and a `sectors:N` policy takes each sector's least
 //! range from any beam count. A scan of the layout's own 720 beams passes unchanged.
 //!
-//! This module is the one definition of the layout: the learner sizes its networks with
-//! [`obs_dim`] and the exported policy card documents [`segments`] with [`Segment::encoding`]
-//! (`learner::export::observation_layout`).
-
-use std::fmt;
-use std::str::FromStr;
+//! The layout itself (the laser layouts, the segments, their sizes and encodings) is defined
+//! once, in the `layout` crate, which the learner also reads (network sizes, the exported
+//! policy card); it is re-exported here, with [`segments`] and [`obs_dim`] taking the action
+//! space. This module builds observations in it.
 
 use planner::{ActionSpace, Predicted};
-use serde::{Deserialize, Serialize};
 use sim::episode::Perception;
 use sim::geometry::Vec2;
 
-/// Lidar beams in the `scan` layout (the Hokuyo UST-10's 720 over 270 degrees).
-pub const LASER_BEAMS: usize = 720;
-/// The angular field every laser layout covers (degrees), centred on the heading.
-pub const LASER_FIELD_DEG: f64 = 270.0;
-/// Most sectors of a `sectors:N` layout (one per beam of the `scan` layout).
-pub const MAX_SECTORS: usize = LASER_BEAMS;
-
-/// How the observation's laser segment is laid out (`[env] observation`).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
-#[serde(try_from = "String", into = "String")]
-pub enum LaserLayout {
-    /// `"scan"` (the default): [`LASER_BEAMS`] ranges in beam order, beam k at `-135 + k *
-    /// 270/719` degrees from the heading.
-    #[default]
-    Scan,
-    /// `"sectors:N"`: the 270-degree field split into `N` equal sectors (1 to
-    /// [`MAX_SECTORS`]), from -135 degrees counter-clockwise; each value is the least range
-    /// the lidar measured in its sector (the N nearest-obstacle distances of the 3D RL-DWA
-    /// paper's sensing resolutions, 15, 25 and 50).
-    Sectors(usize),
-}
-
-impl LaserLayout {
-    /// Floats of the laser segment: [`LASER_BEAMS`] or `N`.
-    pub fn size(self) -> usize {
-        match self {
-            LaserLayout::Scan => LASER_BEAMS,
-            LaserLayout::Sectors(n) => n,
-        }
-    }
-}
-
-impl fmt::Display for LaserLayout {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            LaserLayout::Scan => f.write_str("scan"),
-            LaserLayout::Sectors(n) => write!(f, "sectors:{n}"),
-        }
-    }
-}
-
-/// Why a laser layout name was refused.
-#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-#[error("observation = {0:?} is not a laser layout: \"scan\" or \"sectors:N\" with N in 1..={MAX_SECTORS}")]
-pub struct LayoutError(pub String);
-
-impl FromStr for LaserLayout {
-    type Err = LayoutError;
-
-    fn from_str(s: &str) -> Result<Self, LayoutError> {
-        if s == "scan" {
-            return Ok(LaserLayout::Scan);
-        }
-        s.strip_prefix("sectors:")
-            .and_then(|n| n.parse::<usize>().ok())
-            .filter(|n| (1..=MAX_SECTORS).contains(n))
-            .map(LaserLayout::Sectors)
-            .ok_or_else(|| LayoutError(s.to_string()))
-    }
-}
-
-impl TryFrom<String> for LaserLayout {
-    type Error = LayoutError;
-
-    fn try_from(s: String) -> Result<Self, LayoutError> {
-        s.parse()
-    }
-}
-
-impl From<LaserLayout> for String {
-    fn from(l: LaserLayout) -> String {
-        l.to_string()
-    }
-}
+pub use layout::{
+    LaserLayout, LayoutError, Segment, DEFAULT_LASER_CLIP_M, LASER_BEAMS, LASER_FIELD_DEG,
+    MAX_OBSERVED_TRACKS, MAX_SECTORS, SEGMENT_NAMES, STATE_TAIL, TRACK_FLOATS,
+};
 
 /// Angles (rad) closer than this count as equal when placing beams in sectors: a beam at the
 /// field's edge, computed with rounding, still falls in the field.
@@ -223,110 +150,18 @@ fn nearest(angles: &[f64], a: f64) -> usize {
         i
     }
 }
-/// Default laser clip (m): ranges beyond it read as the clip.
-pub const DEFAULT_LASER_CLIP_M: f64 = 3.0;
-/// Floats after the previous action: v, w, local goal (2), global goal (2).
-pub const STATE_TAIL: usize = 6;
-
-/// Floats per observed track: x, y, vx, vy.
-pub const TRACK_FLOATS: usize = 4;
-/// Most tracks an observation may hold (`[env] observe_tracks`).
-pub const MAX_OBSERVED_TRACKS: usize = 16;
-
-/// Names of the observation segments, in order (as in the policy card); `tracks` is present
-/// only when tracks are observed.
-pub const SEGMENT_NAMES: [&str; 7] = [
-    "laser",
-    "previous_action",
-    "v",
-    "w",
-    "local_goal",
-    "global_goal",
-    "tracks",
-];
-
-/// One contiguous part of the observation vector.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Segment {
-    /// Name, one of [`SEGMENT_NAMES`].
-    pub name: &'static str,
-    /// Index of its first float.
-    pub offset: usize,
-    /// Number of floats.
-    pub size: usize,
-}
-
-impl Segment {
-    /// How the segment's values are computed from the robot's state and sensors, for the
-    /// laser layout `laser` with ranges clipped at `laser_clip_m`: the `encoding` the exported
-    /// policy card states.
-    pub fn encoding(&self, laser: LaserLayout, laser_clip_m: f64) -> String {
-        match (self.name, laser) {
-            ("laser", LaserLayout::Scan) => format!(
-                "lidar ranges r (m) in beam order, beam k at -135 + k * 270/{} degrees from the \
-                 heading (counter-clockwise positive); x = 2 * min(r, {laser_clip_m}) / \
-                 {laser_clip_m} - 1, in [-1, 1]",
-                LASER_BEAMS - 1
-            ),
-            ("laser", LaserLayout::Sectors(n)) => format!(
-                "the 270-degree field split into {n} equal sectors, sector i spanning -135 + i * \
-                 270/{n} to -135 + (i + 1) * 270/{n} degrees from the heading (counter-clockwise \
-                 positive); r (m) is the least lidar range of the beams in the sector (a sector \
-                 without a beam takes the beam nearest its centre); x = 2 * min(r, \
-                 {laser_clip_m}) / {laser_clip_m} - 1, in [-1, 1]"
-            ),
-            (name, _) => self.state_encoding(name),
-        }
-    }
-
-    /// The encoding of a segment other than the laser's.
-    fn state_encoding(&self, name: &str) -> String {
-        match name {
-            "previous_action" => "the policy's previous action, normalized to [-1, 1] like its output".into(),
-            "v" => "measured linear velocity (m/s), not normalized".into(),
-            "w" => "measured angular velocity (rad/s, counter-clockwise positive), not normalized".into(),
-            "local_goal" => {
-                "bearing (rad, in [-pi, pi], relative to the heading) and distance (m) of the local \
-                             goal, not normalized"
-                    .into()
-            }
-            "global_goal" => "bearing (rad, in [-pi, pi], relative to the heading) and distance (m) of the \
-                              global goal, not normalized"
-                .into(),
-            "tracks" => format!(
-                "the {} nearest confirmed moving tracks of the obstacle tracker (as the planner is \
-                 told of them), nearest first, each as x, y (m, robot frame: x ahead, y left) of \
-                 its centre and vx, vy (m/s, robot frame) of its velocity, not normalized; slots \
-                 without a track are 0, 0, 0, 0",
-                self.size / TRACK_FLOATS
-            ),
-            other => unreachable!("segment names are SEGMENT_NAMES, not {other}"),
-        }
-    }
-}
 
 /// The observation segments of the laser layout `laser` and `space` with `tracks` observed
-/// tracks, in order, contiguous from offset 0 (the `tracks` segment only when `tracks > 0`).
+/// tracks, in order, contiguous from offset 0 ([`layout::segments`] of `space.dim()`).
 pub fn segments(laser: LaserLayout, space: ActionSpace, tracks: usize) -> Vec<Segment> {
-    let sizes = [laser.size(), space.dim(), 1, 1, 2, 2, TRACK_FLOATS * tracks];
-    let mut offset = 0;
-    SEGMENT_NAMES
-        .iter()
-        .zip(sizes)
-        .filter(|&(&name, _)| name != "tracks" || tracks > 0)
-        .map(|(&name, size)| {
-            let s = Segment { name, offset, size };
-            offset += size;
-            s
-        })
-        .collect()
+    layout::segments(laser, space.dim(), tracks)
 }
 
 /// Length of an observation for the laser layout `laser` and `space` with `tracks` observed
-/// tracks: `laser.size() + space.dim() + 6 + 4 tracks` (730 for the `scan` layout and the
-/// decremental space without tracks; 35 for `sectors:25`).
+/// tracks ([`layout::obs_dim`] of `space.dim()`: 730 for the `scan` layout and the decremental
+/// space without tracks).
 pub fn obs_dim(laser: LaserLayout, space: ActionSpace, tracks: usize) -> usize {
-    laser.size() + space.dim() + STATE_TAIL + TRACK_FLOATS * tracks
+    layout::obs_dim(laser, space.dim(), tracks)
 }
 
 /// Beams closer than this (m) count as clutter ([`clutter`]).
@@ -543,29 +378,6 @@ mod tests {
         write(&p, &scan, &[0.0; 4], 3.0, &[], &mut out);
         assert_eq!(&out[..730], &without[..]);
         assert!(out[730..].iter().all(|&x| x == 0.0));
-    }
-
-    #[test]
-    fn layouts_parse_and_print() {
-        for (text, layout) in [
-            ("scan", LaserLayout::Scan),
-            ("sectors:15", LaserLayout::Sectors(15)),
-            ("sectors:720", LaserLayout::Sectors(720)),
-        ] {
-            assert_eq!(text.parse::<LaserLayout>().unwrap(), layout);
-            assert_eq!(layout.to_string(), text);
-        }
-        for bad in ["sectors:0", "sectors:721", "sectors:", "sectors:x", "beams", ""] {
-            let e = bad.parse::<LaserLayout>().unwrap_err().to_string();
-            assert_eq!(
-                e,
-                format!(
-                    "observation = {bad:?} is not a laser layout: \"scan\" or \"sectors:N\" with N in 1..=720"
-                )
-            );
-        }
-        assert_eq!(LaserLayout::default().size(), 720);
-        assert_eq!(LaserLayout::Sectors(50).size(), 50);
     }
 
     #[test]

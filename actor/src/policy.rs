@@ -34,10 +34,9 @@ pub enum PolicyError {
     },
 }
 
-/// Number of parameters of an MLP with layer sizes `dims`: sum of `in * out + out`.
-pub fn param_count(dims: &[usize]) -> usize {
-    dims.windows(2).map(|w| w[0] * w[1] + w[1]).sum()
-}
+/// Number of parameters of an MLP with layer sizes `dims` (defined with the observation layout
+/// in the `layout` crate, which the learner reads too).
+pub use layout::param_count;
 
 /// The actor MLP with its weights in the flat layout of the module docs. Immutable and
 /// `Sync`: one instance may serve many threads, each with its own [`Scratch`].

@@ -16,7 +16,7 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use planner::{ActionSpace, Planner};
+use planner::{ActionSpace, Planner, PlannerKind};
 use proto::checksum::step_checksum;
 use proto::grpc::{ControlClient, GrpcPolicySource, GrpcStepSink, LearnerAddress};
 use proto::pb;
@@ -61,10 +61,8 @@ impl std::str::FromStr for PlaneChoice {
 }
 
 /// Why a [`PlannerFactory`] could not build a planner.
-pub type FactoryError = Box<dyn std::error::Error + Send + Sync>;
-
-/// Builds the run's planner for one episode from its name and seed.
-pub type PlannerFactory = dyn Fn(&str, u64) -> Result<Box<dyn Planner>, FactoryError> + Sync;
+/// Builds the run's planner for one episode from its kind and seed.
+pub type PlannerFactory = dyn Fn(PlannerKind, u64) -> Box<dyn Planner> + Sync;
 
 /// Why the actor process stopped with an error ([`run`]).
 #[derive(Debug, Error)]
@@ -103,12 +101,10 @@ pub enum SessionError {
     /// The registration reply lacks a part.
     #[error("register: the reply {0}")]
     Reply(&'static str),
-    /// The run's action space is unknown to this build.
-    #[error("{0}")]
-    Space(#[source] Box<planner::NameError>),
-    /// The run's environment settings do not parse.
-    #[error("the learner's environment settings: {0}")]
-    Env(toml::de::Error),
+    /// The run spec names a planner, action space or environment settings this build cannot
+    /// use (an unknown enum value, an out-of-range field).
+    #[error("register: the learner's run spec: {0}")]
+    Spec(#[from] crate::spec::SpecError),
     /// The actor asked for shared memory and the learner does not offer it on this host.
     #[error("--data-plane shm: the learner offers `{offered}`, not shared memory on this host ({host})")]
     NoSharedMemory {
@@ -131,9 +127,6 @@ pub enum SessionError {
     /// The assigned world does not exist.
     #[error(transparent)]
     World(#[from] sim::catalog::UnknownWorld),
-    /// The run's planner could not be built.
-    #[error("{0}")]
-    Planner(FactoryError),
     /// The environment refused its settings or an action.
     #[error(transparent)]
     Environment(#[from] crate::env::EnvError),
@@ -343,17 +336,23 @@ fn session(
         .map_err(|_| SessionError::Reply("has no 16-byte actor secret"))?;
     let wire_secret = reply.actor_secret.clone();
     span.record("actor_id", actor_id);
-    let space: ActionSpace = spec
-        .action_space
-        .parse()
-        .map_err(|e| SessionError::Space(Box::new(e)))?;
-    let env_cfg: EnvConfig = toml::from_str(&spec.env_toml).map_err(SessionError::Env)?;
+    let space = crate::spec::action_space_from_wire(
+        spec.action_space
+            .as_ref()
+            .ok_or(SessionError::Reply("has no action space"))?,
+    )?;
+    let planner = crate::spec::planner_from_wire("spec.planner", spec.planner)?;
+    let env_cfg = crate::spec::env_from_wire(
+        spec.env
+            .as_ref()
+            .ok_or(SessionError::Reply("has no environment settings"))?,
+    )?;
     let dims: Vec<usize> = spec.policy_dims.iter().map(|&d| d as usize).collect();
     let mut planes = open_planes(rt, setup, &spec, data.clone(), &run, actor_id, &secret)?;
     tracing::info!(
         run_id = %run.run_id,
-        planner = %spec.planner,
-        action_space = %spec.action_space,
+        planner = %planner,
+        action_space = %space,
         plane = planes.name,
         "registered"
     );
@@ -376,6 +375,7 @@ fn session(
     let ctx = EpisodeCtx {
         setup,
         spec: &spec,
+        planner,
         space,
         env_cfg: &env_cfg,
         flags: &flags,
@@ -660,6 +660,8 @@ impl From<EnvError> for EpisodeError {
 struct EpisodeCtx<'a> {
     setup: &'a ActorSetup<'a>,
     spec: &'a pb::RunSpec,
+    /// The run's planner by name.
+    planner: PlannerKind,
     space: ActionSpace,
     env_cfg: &'a EnvConfig,
     flags: &'a Flags,
@@ -685,8 +687,7 @@ impl EpisodeCtx<'_> {
         sink: &mut dyn StepSink,
     ) -> Result<pb::EpisodeReport, EpisodeError> {
         let world = sim::catalog::world(a.world as usize).map_err(|e| EpisodeError::Fatal(e.into()))?;
-        let planner = (self.setup.make_planner)(&self.spec.planner, seed)
-            .map_err(|e| EpisodeError::Fatal(SessionError::Planner(e)))?;
+        let planner = (self.setup.make_planner)(self.planner, seed);
         if self.flags.lease_lost.load(Ordering::Acquire) {
             return Err(EpisodeError::LeaseLost);
         }

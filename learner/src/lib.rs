@@ -21,7 +21,6 @@ pub mod nets;
 pub mod rate;
 pub mod replay;
 pub mod retention;
-pub mod service;
 pub mod td3;
 pub mod tensorboard;
 #[cfg(test)]

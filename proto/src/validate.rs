@@ -486,6 +486,13 @@ pub fn check_report(r: &pb::EpisodeReport) -> Result<(), Refusal> {
             });
         }
     }
+    if pb::Outcome::try_from(r.outcome).is_err() {
+        return Err(Refusal::Report {
+            field: "outcome",
+            value: f64::from(r.outcome),
+            expected: "not an Outcome (1 success, 2 collision, 3 timeout)",
+        });
+    }
     Ok(())
 }
 
@@ -617,7 +624,15 @@ mod tests {
             ..Default::default()
         };
         check_report(&good).unwrap();
-        let cases: [(pb::EpisodeReport, &str, RefusalKind); 6] = [
+        let cases: [(pb::EpisodeReport, &str, RefusalKind); 7] = [
+            (
+                pb::EpisodeReport {
+                    outcome: 9,
+                    ..good.clone()
+                },
+                "outcome",
+                RefusalKind::Range,
+            ),
             (
                 pb::EpisodeReport {
                     episode_return: f64::NAN,

@@ -31,7 +31,7 @@ use actor::env::{AdpEnv, End};
 use actor::exploration::Exploration;
 use actor::policy::{MlpPolicy, Scratch};
 use learner::bench::{fitted_policy_weights, replay_full, td3_updates};
-use learner::service::read_status;
+use learner_service::read_status;
 
 use crate::config::EvalConfig;
 use crate::config::TrainConfig;

@@ -9,8 +9,8 @@ use anyhow::{bail, Context};
 use serde::{Deserialize, Serialize};
 
 use actor::EnvConfig;
-use learner::service::ServiceConfig;
 use learner::Td3Config;
+use learner_service::ServiceConfig;
 use planner::{ActionSpace, PlannerKind};
 use scheduler::{BwrapMode, SandboxConfig};
 

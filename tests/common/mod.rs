@@ -5,8 +5,8 @@
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
 
-use learner::service::{read_status, Status};
 use learner::{checkpoint, seeded_rng, Device, RateLimiter, RunState, Td3, Td3Config};
+use learner_service::{read_status, Status};
 
 /// The `adp` binary under test.
 pub fn adp() -> Command {

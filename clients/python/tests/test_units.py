@@ -137,8 +137,6 @@ def test_ddp_centred_map_matches_the_rust_values():
     assert abs(p(0.7) - 1.7) < 1e-12 and abs(p(-0.5) - 1.35) < 1e-12 and abs(p(-1.0) - 1.0) < 1e-12
     assert m.schedule(sp, [0.0] * 4, 20).checks == sp.schedule(ddp, 20).checks
     assert ActionMap("affine").box_action(sp, [0.3, 0.1, -0.2, 0.9]) == [0.3, 0.1, -0.2, 0.9]
-    assert ActionMap.from_env_toml('reward_scale = 0.01\naction_map = "affine"\n').name == "affine"
-    assert ActionMap.from_env_toml("").name == "ddp-centred"
     with pytest.raises(ActionError, match="unknown action map"):
         ActionMap("bogus")
 
@@ -172,3 +170,26 @@ def test_weight_and_velocity_spaces():
         ActionSpace("weights")
     with pytest.raises(ActionError, match="unknown action space `weights:log-mppi`"):
         ActionSpace("weights:log-mppi")
+
+
+def test_run_spec_enums_decode_to_names_and_unknown_values_are_refused():
+    from adp_client._proto import adp_pb2 as pb
+    from adp_client import SpecError
+    from adp_client.spec import action_map_name, action_space_name, laser_layout, planner_name
+
+    assert planner_name(pb.PLANNER_LOG_MPPI) == "log-mppi"
+    assert action_space_name(pb.ActionSpace(kind=pb.ACTION_SPACE_KIND_DECREMENTAL)) == "decremental"
+    weights = pb.ActionSpace(kind=pb.ACTION_SPACE_KIND_DECREMENTAL_WEIGHTS, gains=pb.PLANNER_MPPI)
+    assert action_space_name(weights) == "decremental+weights:mppi"
+    assert ActionSpace(action_space_name(weights)).dim == 9
+    env = pb.EnvConfig(action_map=pb.ACTION_MAP_AFFINE, laser_sectors=25)
+    assert (action_map_name(env), laser_layout(env)) == ("affine", "sectors:25")
+    assert laser_layout(pb.EnvConfig()) == "scan"
+    with pytest.raises(SpecError, match="env.action_map is unspecified"):
+        action_map_name(pb.EnvConfig())
+    with pytest.raises(SpecError, match="spec.planner = 9 is not a known value"):
+        planner_name(9)
+    with pytest.raises(SpecError, match="spec.action_space.gains is unspecified"):
+        action_space_name(pb.ActionSpace(kind=pb.ACTION_SPACE_KIND_WEIGHTS))
+    with pytest.raises(SpecError, match="env.laser_sectors = 721"):
+        laser_layout(pb.EnvConfig(laser_sectors=721))

@@ -1,6 +1,6 @@
 //! The JSON card of an exported policy: what it holds, how it is made, and how it is read back.
 
-use actor::observation::{self, LaserLayout, DEFAULT_LASER_CLIP_M, MAX_SECTORS};
+use layout::{LaserLayout, DEFAULT_LASER_CLIP_M, MAX_OBSERVED_TRACKS, MAX_SECTORS};
 use planner::ActionSpace;
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
@@ -159,7 +159,7 @@ pub fn observation_layout(
     laser_clip_m: f64,
     tracks: usize,
 ) -> ObservationLayout {
-    let segments = observation::segments(laser, space, tracks)
+    let segments = layout::segments(laser, space.dim(), tracks)
         .iter()
         .map(|s| ObservationSegment {
             name: s.name.into(),
@@ -169,7 +169,7 @@ pub fn observation_layout(
         })
         .collect();
     ObservationLayout {
-        dim: observation::obs_dim(laser, space, tracks),
+        dim: layout::obs_dim(laser, space.dim(), tracks),
         segments,
     }
 }
@@ -279,7 +279,7 @@ pub enum CardMismatch {
     /// The recorded number of observed tracks is not an integer in range.
     #[error(
         "the recorded environment's observe_tracks = {0} is not an integer in 0..={max}",
-        max = observation::MAX_OBSERVED_TRACKS
+        max = MAX_OBSERVED_TRACKS
     )]
     ObserveTracks(serde_json::Value),
     /// The recorded laser layout is not one.
@@ -426,7 +426,7 @@ fn observe_tracks(environment: &serde_json::Value) -> Result<usize, CardMismatch
         Some(v) => v
             .as_u64()
             .map(|k| k as usize)
-            .filter(|&k| k <= observation::MAX_OBSERVED_TRACKS)
+            .filter(|&k| k <= MAX_OBSERVED_TRACKS)
             .ok_or_else(|| CardMismatch::ObserveTracks(v.clone())),
     }
 }

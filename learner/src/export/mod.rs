@@ -16,7 +16,7 @@
 //!
 //! Files: [`onnx`] (the ONNX graph), [`weights`] (the safetensors writer and its reader),
 //! [`card`] (the JSON card and its reader); the observation layout the card documents is
-//! [`actor::observation`]'s.
+//! the shared one of the [`layout`] crate.
 
 mod card;
 mod onnx;
@@ -169,17 +169,16 @@ mod tests {
     use crate::nets::Actor;
     use crate::td3::seeded_rng;
 
-    /// The learner's observation layout (network input size, card) is the actor's, value for
-    /// value, in every action space.
+    /// The learner's observation layout (network input size, card) is the shared layout's
+    /// (which the actor builds), value for value, in every action space.
     #[test]
     fn the_learners_observation_layout_is_the_actors() {
-        use actor::observation;
         let c = Td3Config::default();
         assert_eq!(
             (c.obs_dim, c.laser_dim, c.act_dim),
             (
-                observation::obs_dim(observation::LaserLayout::Scan, ActionSpace::Decremental, 0),
-                observation::LASER_BEAMS,
+                layout::obs_dim(layout::LaserLayout::Scan, ActionSpace::Decremental.dim(), 0),
+                layout::LASER_BEAMS,
                 ActionSpace::Decremental.dim()
             )
         );
@@ -193,22 +192,22 @@ mod tests {
             ActionSpace::Velocity,
         ] {
             for (tracks, laser) in [
-                (0, observation::LaserLayout::Scan),
-                (4, observation::LaserLayout::Scan),
-                (4, observation::LaserLayout::Sectors(15)),
+                (0, layout::LaserLayout::Scan),
+                (4, layout::LaserLayout::Scan),
+                (4, layout::LaserLayout::Sectors(15)),
             ] {
-                let card = observation_layout(laser, space, observation::DEFAULT_LASER_CLIP_M, tracks);
+                let card = observation_layout(laser, space, layout::DEFAULT_LASER_CLIP_M, tracks);
                 let card_segments: Vec<(&str, usize, usize)> = card
                     .segments
                     .iter()
                     .map(|s| (s.name.as_str(), s.offset, s.size))
                     .collect();
-                let actor_segments: Vec<(&str, usize, usize)> = observation::segments(laser, space, tracks)
+                let layout_segments: Vec<(&str, usize, usize)> = layout::segments(laser, space.dim(), tracks)
                     .iter()
                     .map(|s| (s.name, s.offset, s.size))
                     .collect();
-                assert_eq!(card_segments, actor_segments, "{space:?}");
-                assert_eq!(card.dim, observation::obs_dim(laser, space, tracks), "{space:?}");
+                assert_eq!(card_segments, layout_segments, "{space:?}");
+                assert_eq!(card.dim, layout::obs_dim(laser, space.dim(), tracks), "{space:?}");
             }
         }
     }
@@ -622,7 +621,7 @@ mod tests {
     fn card_names_gains_and_the_velocity_command() {
         let card_of = |space: ActionSpace| {
             let config = Td3Config {
-                obs_dim: actor::observation::obs_dim(actor::LaserLayout::Scan, space, 0),
+                obs_dim: layout::obs_dim(layout::LaserLayout::Scan, space.dim(), 0),
                 act_dim: space.dim(),
                 ..Td3Config::default()
             };

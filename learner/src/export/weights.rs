@@ -155,7 +155,7 @@ pub enum WeightsError {
 pub fn read_actor_safetensors(bytes: &[u8], dims: &[usize]) -> Result<Vec<f32>, WeightsError> {
     let file = SafeTensors::deserialize(bytes).map_err(|e| WeightsError::Unreadable(e.to_string()))?;
     let layers = dims.len() - 1;
-    let mut flat = Vec::with_capacity(actor::policy::param_count(dims));
+    let mut flat = Vec::with_capacity(layout::param_count(dims));
     let mut used = 0;
     for l in 0..layers {
         let (n_in, n_out) = (dims[l], dims[l + 1]);

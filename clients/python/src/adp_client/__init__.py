@@ -19,10 +19,11 @@ from .actor import (
 )
 from .checksum import step_checksum
 from .policy import MlpPolicy, PolicyError, param_count
+from .spec import SpecError
 
 __all__ = [
     "ActionError", "ActionMap", "ActionSpace", "Actor", "AdpError", "ConfigError", "Connection", "Environment",
     "EnvironmentFault", "LearnerUnreachable", "MlpPolicy", "PolicyError", "RunInfo", "Schedule",
-    "Session", "StepsRefused", "param_count", "read_token_file", "step_checksum",
+    "Session", "SpecError", "StepsRefused", "param_count", "read_token_file", "step_checksum",
 ]
 __version__ = "0.1.0"

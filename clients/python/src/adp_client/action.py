@@ -14,7 +14,6 @@ The shared test vectors in testdata/action_vectors.json pin both ports.
 """
 
 import math
-import re
 from dataclasses import dataclass
 from typing import List
 
@@ -209,12 +208,6 @@ class ActionMap:
         if name not in ACTION_MAPS:
             raise ActionError(f"unknown action map `{name}` (expected ddp-centred or affine)")
         self.name = name
-
-    @classmethod
-    def from_env_toml(cls, env_toml: str) -> "ActionMap":
-        """The map of a run's `[env]` settings (the RunSpec's env_toml); the default when absent."""
-        m = re.search(r'^action_map\s*=\s*"([^"]*)"', env_toml or "", re.MULTILINE)
-        return cls(m.group(1) if m else "ddp-centred")
 
     def to_box(self, u: float, ddp: float) -> float:
         """The box value of one output `u` (clamped to [-1, 1]) whose DDP box value is `ddp`."""

@@ -18,6 +18,7 @@ from ._proto import adp_pb2 as pb
 from ._proto.stubs import Stub
 from .action import ActionMap, ActionSpace
 from .policy import MlpPolicy
+from .spec import action_map_name, action_space_name, laser_layout, planner_name
 
 MAX_MESSAGE_BYTES = 64 << 20
 BATCH_RECORDS = 64
@@ -71,12 +72,13 @@ class RunInfo:
     policy_dims: list
     heartbeat_ms: int
     lease_ttl_ms: int
-    env_toml: str
-
-    @property
-    def action_map(self) -> ActionMap:
-        """How the policy's output becomes a box action (the run's `[env] action_map`)."""
-        return ActionMap.from_env_toml(self.env_toml)
+    # The run's `[env]` settings (the RunSpec's `EnvConfig` message: laser_clip_m,
+    # agent_period_cycles, observe_tracks, rewards...).
+    env: object
+    # How the policy's output becomes a box action (the run's `[env] action_map`).
+    action_map: ActionMap
+    # The observation's laser layout: "scan" or "sectors:N" (the run's `[env] observation`).
+    laser_layout: str
 
     def schedule(self, action, n: int = 20):
         """The rollout schedule a policy output selects: the action map, then the action
@@ -187,14 +189,16 @@ class Session:
             actor_id=reply.actor_id,
             obs_dim=s.obs_dim,
             act_dim=s.act_dim,
-            action_space=ActionSpace(s.action_space),
-            planner=s.planner,
+            action_space=ActionSpace(action_space_name(s.action_space)),
+            planner=planner_name(s.planner),
             max_speed=s.max_speed,
             run_seed=s.run_seed,
             policy_dims=list(s.policy_dims),
             heartbeat_ms=s.heartbeat_ms,
             lease_ttl_ms=s.lease_ttl_ms,
-            env_toml=s.env_toml,
+            env=s.env,
+            action_map=ActionMap(action_map_name(s.env)),
+            laser_layout=laser_layout(s.env),
         )
         self.actor_id = reply.actor_id
         # This registration's credential: every request naming actor_id carries it.
@@ -376,7 +380,7 @@ class Environment:
     """What a simulator implements to train with the learner (gymnasium-style).
 
     `configure(info)` is called once per session with the run's settings (`RunInfo`: obs and
-    action sizes, action space, planner, `env_toml`). `reset(world, seed)` starts an episode
+    action sizes, action space, planner, `env`). `reset(world, seed)` starts an episode
     in BARN world `world` and returns the first observation (`obs_dim` floats). `step(action)`
     applies a normalized action in [-1, 1]^act_dim and returns `(obs, reward, terminal,
     truncated, info)`; when the episode ends, `info` carries `outcome` ("success",

@@ -7,7 +7,7 @@ use proto::validate::Refusal;
 use scheduler::{Decision, RegistryError};
 use tonic::{Request, Response, Status};
 
-use super::shared::Shared;
+use crate::shared::Shared;
 
 /// The `adp.v1.Control` service over the learner's shared state.
 pub struct ControlService {
@@ -146,7 +146,7 @@ impl Control for ControlService {
                     pb::assignment_reply::Decision::IdleMs(self.shared.idle_retry_ms)
                 }
                 Decision::Assign(a) => {
-                    let first = Shared::open_lease(&mut core, a.lease_id, r.actor_id, a.episodes, now);
+                    let first = core.open_lease(a.lease_id, r.actor_id, a.episodes, now);
                     tracing::debug!(
                         actor_id = r.actor_id,
                         rank = core.registry.rank_of(r.actor_id),
@@ -236,7 +236,7 @@ impl Control for ControlService {
                  <run dir>/{} (the run token that actors hold is not enough); `adp stop --run-dir \
                  DIR` sends it",
                 proto::auth::OPERATOR_METADATA,
-                super::OPERATOR_TOKEN_FILE
+                crate::run_dir::OPERATOR_TOKEN_FILE
             )));
         }
         let r = request.into_inner();

@@ -3,7 +3,7 @@
 //!
 //! It owns the [`Td3`] state; everything else it reaches through [`Shared`].
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::sync::atomic::Ordering;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -14,16 +14,19 @@ use proto::shm::{ShmConfig, ShmPolicyPublisher};
 use rand_pcg::Pcg64Mcg;
 use tokio::sync::watch;
 
-use super::shared::{Shared, Totals};
-use super::status::{write_status, Status};
-use super::{ServiceConfig, ServiceError};
-use crate::batch::Batch;
-use crate::checkpoint::{self, RunState};
-use crate::exploration::ExplorationSchedule;
-use crate::export::export_checkpoint;
-use crate::retention;
-use crate::td3::Td3;
-use crate::tensorboard::EventWriter;
+use crate::error::TrainError;
+use crate::run_dir::create_private_dir;
+use crate::shared::{Rates, Shared};
+use crate::status::write_status;
+use crate::totals::Totals;
+use crate::ServiceConfig;
+use learner::batch::Batch;
+use learner::checkpoint::{self, RunState};
+use learner::exploration::ExplorationSchedule;
+use learner::export::export_checkpoint;
+use learner::retention;
+use learner::td3::Td3;
+use learner::tensorboard::EventWriter;
 
 /// What the training thread needs besides the shared state.
 pub struct Trainer {
@@ -65,7 +68,7 @@ struct Meter {
 impl Trainer {
     /// Runs until the budget is stored and trained on, or a stop is requested; then writes the
     /// final checkpoint and export.
-    pub fn run(mut self) -> Result<TrainSummary, ServiceError> {
+    pub fn run(mut self) -> Result<TrainSummary, TrainError> {
         let mut shm_pub = match &self.shm {
             Some(cfg) => match ShmPolicyPublisher::open(cfg) {
                 Ok(p) => Some(p),
@@ -164,8 +167,8 @@ impl Trainer {
                     .replay
                     .sample(cfg.batch_size, &mut self.sampler_rng, &mut batch);
                 drop(core);
-                sampled.map_err(ServiceError::Sample)?;
-                let stats = self.td3.update(&batch).map_err(ServiceError::Update)?;
+                sampled.map_err(TrainError::Sample)?;
+                let stats = self.td3.update(&batch).map_err(TrainError::Update)?;
                 let (inserts, updates) = {
                     let mut core = self.shared.lock();
                     core.rate.record_updates(1);
@@ -239,13 +242,14 @@ impl Trainer {
             0.0
         };
         core.lag = (0, 0);
-        let status = Status::collect(
-            &self.shared,
+        let status = self.shared.status(
             &core,
-            (inserts - meter.inserts) as f64 / dt,
-            (updates - meter.updates) as f64 / dt,
-            lag,
-            exploration.sigma(inserts),
+            Rates {
+                inserts_per_s: (inserts - meter.inserts) as f64 / dt,
+                updates_per_s: (updates - meter.updates) as f64 / dt,
+                policy_lag: lag,
+                exploration_sigma: exploration.sigma(inserts),
+            },
         );
         drop(core);
         *meter = Meter {
@@ -265,7 +269,7 @@ impl Trainer {
     /// reached, a full disk being cleaned up), each failure reported. A failed attempt leaves
     /// only a `.tmp-` directory, which never counts as a checkpoint, so the previous complete
     /// checkpoint stays the one a resume uses.
-    fn final_checkpoint(&mut self) -> Result<PathBuf, ServiceError> {
+    fn final_checkpoint(&mut self) -> Result<PathBuf, TrainError> {
         let mut attempt = 1;
         loop {
             match self.checkpoint() {
@@ -287,7 +291,7 @@ impl Trainer {
     /// replay buffer's snapshot bytes); serializing the networks, hashing and fsyncing happen
     /// outside it, so heartbeats, leases and ingest go on during a slow write. The networks
     /// belong to this thread, so nothing changes them meanwhile.
-    fn checkpoint(&mut self) -> Result<PathBuf, ServiceError> {
+    fn checkpoint(&mut self) -> Result<PathBuf, TrainError> {
         let root = self.run_dir.join("checkpoints");
         let (dir, run, replay) = {
             let core = self.shared.lock();
@@ -314,7 +318,7 @@ impl Trainer {
                 let mut bytes = Vec::new();
                 core.replay
                     .write_snapshot(&mut bytes)
-                    .map_err(|source| ServiceError::ReplayCopy {
+                    .map_err(|source| TrainError::ReplayCopy {
                         dir: dir.clone(),
                         source,
                     })?;
@@ -334,7 +338,7 @@ impl Trainer {
             None => checkpoint::save(&dir, &self.td3, &run),
         };
         drop(replay);
-        saved.map_err(|source| ServiceError::Save {
+        saved.map_err(|source| TrainError::Save {
             dir: dir.clone(),
             source,
         })?;
@@ -362,14 +366,4 @@ fn slow_checkpoint_ms() -> Option<u64> {
     std::env::var("ADP_TEST_SLOW_CHECKPOINT_MS")
         .ok()
         .and_then(|v| v.parse().ok())
-}
-
-/// Creates `dir` (and missing parents) readable by this user only.
-pub(super) fn create_private_dir(dir: &Path) -> Result<(), ServiceError> {
-    use std::os::unix::fs::DirBuilderExt;
-    std::fs::DirBuilder::new()
-        .recursive(true)
-        .mode(0o700)
-        .create(dir)
-        .map_err(ServiceError::io(format!("cannot create {}", dir.display())))
 }

@@ -2,7 +2,7 @@
 //!
 //! tonic refuses a message longer than a service's `max_decoding_message_size` with
 //! OUT_OF_RANGE. The learner's own refusals never use that code (see
-//! [`super::control::refusal_status`]), so [`SizeStatus`] rewrites it in the response head
+//! [`crate::control::refusal_status`]), so [`SizeStatus`] rewrites it in the response head
 //! (where a refusal before any reply is sent travels, as a trailers-only response).
 
 use std::future::Future;

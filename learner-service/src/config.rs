@@ -2,12 +2,12 @@
 
 use std::path::PathBuf;
 
-use planner::ActionSpace;
+use planner::{ActionSpace, PlannerKind};
 use proto::auth::TlsFiles;
 use serde::{Deserialize, Serialize};
 
-use super::ServiceError;
-use crate::config::Td3Config;
+use crate::error::SettingsError;
+use learner::config::Td3Config;
 
 /// How the learner process serves actors. Every field has a default; unknown keys are refused.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -95,24 +95,24 @@ impl ServiceConfig {
     /// Refuses settings that cannot work: a heartbeat not shorter than the lease, no port for
     /// shared memory, and a network address other than loopback without TLS unless
     /// `allow_insecure_listen`.
-    pub fn check(&self) -> Result<(), ServiceError> {
+    pub fn check(&self) -> Result<(), SettingsError> {
         if self.shared_memory && self.shm_max_actors == 0 {
-            return Err(ServiceError::ShmMaxActors);
+            return Err(SettingsError::ShmMaxActors);
         }
         if self.heartbeat_ms == 0 || self.lease_ttl_ms <= self.heartbeat_ms {
-            return Err(ServiceError::LeaseTtl {
+            return Err(SettingsError::LeaseTtl {
                 lease_ttl_ms: self.lease_ttl_ms,
                 heartbeat_ms: self.heartbeat_ms,
             });
         }
         if self.progress_timeout_ms != 0 && self.progress_timeout_ms <= self.heartbeat_ms {
-            return Err(ServiceError::ProgressTimeout {
+            return Err(SettingsError::ProgressTimeout {
                 progress_timeout_ms: self.progress_timeout_ms,
                 heartbeat_ms: self.heartbeat_ms,
             });
         }
         if self.tls.is_none() && !self.allow_insecure_listen && !is_loopback_listen(&self.listen) {
-            return Err(ServiceError::InsecureListen {
+            return Err(SettingsError::InsecureListen {
                 listen: self.listen.clone(),
             });
         }
@@ -172,13 +172,13 @@ pub struct LearnerOptions {
     /// Service settings.
     pub service: ServiceConfig,
     /// The planner actors run (`dwa`, `mppi`, `log-mppi`, `system`).
-    pub planner: String,
+    pub planner: PlannerKind,
     /// The planner's speed cap (m/s).
     pub max_speed: f64,
     /// The ADP action space.
     pub space: ActionSpace,
-    /// The actors' environment settings as TOML (sent to actors unchanged).
-    pub env_toml: String,
+    /// The actors' environment settings (sent to actors as the run spec's `EnvConfig`).
+    pub env: actor::EnvConfig,
     /// The training worlds (BARN indices).
     pub worlds: Vec<usize>,
     /// Total agent steps of the run; the learner stops assigning work once they are stored.

@@ -18,7 +18,8 @@ use proto::StepView;
 use tokio_stream::Stream;
 use tonic::{Request, Response, Status, Streaming};
 
-use super::shared::{Plane, Shared};
+use crate::ingest::Plane;
+use crate::shared::Shared;
 
 thread_local! {
     static SCRATCH: RefCell<DecodeScratch> = RefCell::new(DecodeScratch::default());
@@ -84,7 +85,7 @@ fn ingest_batch(shared: &Shared, batch: &pb::StepBatch) -> (u64, u64, String) {
 }
 
 /// The `adp.v1.Data` service's `PushSteps` (`WatchPolicy` is answered by
-/// [`super::policy_streams::DataRoutes`] before a request reaches this service).
+/// [`crate::policy_streams::DataRoutes`] before a request reaches this service).
 pub struct DataService {
     pub(super) shared: Arc<Shared>,
 }

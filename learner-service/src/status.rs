@@ -1,13 +1,15 @@
 //! `status.json`: what the learner is doing, rewritten atomically every status period, for the
 //! progress bar of `adp train`, for tests and for people watching a cluster job.
+//!
+//! Plain data: the learner's shared state fills a [`Status`] from a snapshot of its counters
+//! ([`crate::shared::Shared::status`]).
 
 use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
-use super::ServiceError;
-
-use super::shared::{Core, PrunedRanks, Shared};
+use crate::error::{FileError, StatusFileError};
+use crate::totals::PrunedRanks;
 
 /// Name of the status file in the run directory.
 pub const STATUS_FILE: &str = "status.json";
@@ -85,7 +87,7 @@ pub struct ResumeStatus {
     pub updates: u64,
 }
 
-/// A snapshot of the learner's counters. Plain data.
+/// A snapshot of the learner's counters.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct Status {
     /// The run.
@@ -173,75 +175,6 @@ pub struct Status {
 }
 
 impl Status {
-    /// Collects the counters (call with the core locked).
-    pub fn collect(
-        shared: &Shared,
-        core: &Core,
-        inserts_per_s: f64,
-        updates_per_s: f64,
-        policy_lag: f64,
-        exploration_sigma: f64,
-    ) -> Self {
-        let reg = core.registry.status();
-        let t = &core.totals;
-        let means = t.recent_means();
-        Self {
-            run_id: shared.validator.run_id.clone(),
-            incarnation: shared.validator.incarnation,
-            inserts: core.rate.inserts(),
-            budget: shared.budget,
-            updates: core.rate.updates(),
-            policy_version: core.policy_version,
-            cycle: reg.cycle,
-            replay_len: core.replay.len(),
-            inserts_per_s,
-            updates_per_s,
-            policy_lag,
-            exploration_sigma,
-            live_actors: reg.live_actors,
-            open_leases: core.open_leases(),
-            steps_received: t.steps_received,
-            episodes: t.episodes_reported,
-            episodes_verified: t.episodes_verified,
-            episodes_mismatched: t.episodes_mismatched,
-            episodes_abandoned: t.episodes_abandoned,
-            leases_expired: t.leases_expired,
-            leases_dropped: t.leases_dropped,
-            success_rate: means.map(|m| m.0),
-            mean_return: means.map(|m| m.1),
-            mean_score: means.map(|m| m.2),
-            refused: shared
-                .refusals
-                .snapshot()
-                .into_iter()
-                .map(|(k, v)| (k.to_owned(), v))
-                .collect(),
-            world_episodes: reg.worlds.iter().map(|w| (w.world, w.completed)).collect(),
-            rank_steps: t.rank_steps.iter().map(|(&r, &n)| (r, n)).collect(),
-            actor_kinds: {
-                let active = core.active_by_kind();
-                t.kinds
-                    .iter()
-                    .map(|(kind, k)| KindStatus {
-                        kind: kind.clone(),
-                        registered: k.registered,
-                        active: active.get(kind).copied().unwrap_or(0),
-                        episodes: k.episodes,
-                        steps: k.steps,
-                    })
-                    .collect()
-            },
-            resume_warnings: shared.resume_warnings.clone(),
-            shm_unavailable: shared.shm_unavailable.lock().expect("shm note lock").clone(),
-            finished: super::shared::is_set(&shared.finished),
-            ranks: core.ranks().cloned().collect(),
-            leases_expired_recent: core.expired_recent().copied().collect(),
-            refused_leases: shared.refused_leases(),
-            resumed_from: shared.resumed_from.clone(),
-            pruned_ranks: t.pruned_ranks,
-        }
-    }
-
     /// The TensorBoard scalars of this status (tag, value).
     pub fn scalars(&self) -> Vec<(&'static str, f64)> {
         let mut v = vec![
@@ -272,21 +205,20 @@ impl Status {
 }
 
 /// Writes `status` to `run_dir/status.json` atomically (temporary file + rename).
-pub fn write_status(run_dir: &Path, status: &Status) -> Result<(), ServiceError> {
+pub fn write_status(run_dir: &Path, status: &Status) -> Result<(), FileError> {
     let tmp = run_dir.join(format!(".{STATUS_FILE}.tmp"));
     let text = serde_json::to_string_pretty(status).expect("status serializes");
     std::fs::write(&tmp, text)
         .and_then(|_| std::fs::rename(&tmp, run_dir.join(STATUS_FILE)))
-        .map_err(ServiceError::io(format!(
+        .map_err(FileError::at(format!(
             "cannot write {}",
             run_dir.join(STATUS_FILE).display()
         )))
 }
 
 /// Reads `run_dir/status.json`.
-pub fn read_status(run_dir: &Path) -> Result<Status, ServiceError> {
+pub fn read_status(run_dir: &Path) -> Result<Status, StatusFileError> {
     let p = run_dir.join(STATUS_FILE);
-    let text =
-        std::fs::read_to_string(&p).map_err(ServiceError::io(format!("cannot read {}", p.display())))?;
-    serde_json::from_str(&text).map_err(|source| ServiceError::Status { path: p, source })
+    let text = std::fs::read_to_string(&p).map_err(FileError::at(format!("cannot read {}", p.display())))?;
+    serde_json::from_str(&text).map_err(|source| StatusFileError::Parse { path: p, source })
 }

@@ -28,9 +28,9 @@ use tonic::body::Body;
 use tonic::server::NamedService;
 use tonic::Status;
 
-use super::control::refusal_status;
-use super::data::DataService;
-use super::shared::Shared;
+use crate::control::refusal_status;
+use crate::data::DataService;
+use crate::shared::Shared;
 
 /// The HTTP/2 path of `WatchPolicy`.
 const WATCH_PATH: &str = "/adp.v1.Data/WatchPolicy";
