@@ -316,6 +316,122 @@ fn session(
     down_since: &mut Option<Instant>,
     span: &tracing::Span,
 ) -> Result<SessionEnd, SessionError> {
+    let r = register(rt, setup, down_since, span)?;
+    let planes = open_planes(rt, setup, &r.spec, r.data.clone(), &r.run, r.actor_id, &r.secret)?;
+    tracing::info!(
+        run_id = %r.run.run_id,
+        planner = %r.planner,
+        action_space = %r.space,
+        plane = planes.name,
+        "registered"
+    );
+    let flags = Arc::new(Flags::default());
+    let spec = &r.spec;
+    let lease_ttl = Duration::from_millis(u64::from(spec.lease_ttl_ms.max(spec.heartbeat_ms).max(10)));
+    let heartbeat = rt.spawn(
+        heartbeats(
+            r.control.clone(),
+            r.run.clone(),
+            r.actor_id,
+            r.wire_secret.clone(),
+            Duration::from_millis(u64::from(spec.heartbeat_ms.max(10))),
+            lease_ttl,
+            flags.clone(),
+        )
+        .instrument(span.clone()),
+    );
+    let _stop_heartbeats = AbortOnDrop(heartbeat);
+    let ctx = EpisodeCtx {
+        setup,
+        spec,
+        planner: r.planner,
+        space: r.space,
+        env_cfg: &r.env_cfg,
+        flags: &flags,
+    };
+    let mut live = Live {
+        rt,
+        control: r.control.clone(),
+        data: r.data.clone(),
+        run: r.run.clone(),
+        actor_id: r.actor_id,
+        secret: r.secret,
+        wire_secret: r.wire_secret.clone(),
+        dims: r.dims.clone(),
+        lease_ttl,
+        planes,
+        policy: None,
+    };
+    // How long a finished run may take to drain this actor's last lease before it leaves: as
+    // long as the learner keeps the lease valid, up to the actor's patience with the learner.
+    let drain_limit = setup.give_up_after;
+    loop {
+        if flags.shutdown.load(Ordering::Acquire) {
+            wait_for_lease_end(&flags, drain_limit);
+            return Ok(SessionEnd::Shutdown);
+        }
+        if flags.gone.load(Ordering::Acquire) {
+            return Ok(SessionEnd::Reconnect(
+                "the learner no longer knows this session, or stopped answering heartbeats".into(),
+            ));
+        }
+        let a = match live.next_assignment()? {
+            Next::Assign(a) => a,
+            Next::Idle(ms) => {
+                std::thread::sleep(Duration::from_millis(u64::from(ms.max(1))));
+                continue;
+            }
+            Next::Shutdown => {
+                wait_for_lease_end(&flags, drain_limit);
+                return Ok(SessionEnd::Shutdown);
+            }
+            Next::End(end) => return Ok(end),
+        };
+        tracing::debug!(
+            lease = a.lease_id,
+            world = a.world,
+            cycle = a.cycle,
+            episodes = a.episodes,
+            policy_version = a.policy_version,
+            "assignment"
+        );
+        flags.lease.store(a.lease_id, Ordering::Release);
+        flags.lease_lost.store(false, Ordering::Release);
+        if let Some(end) = live.await_policy(&a, &flags)? {
+            return Ok(end);
+        }
+        if let Some(end) = live.run_assignment(&ctx, &a, &flags)? {
+            return Ok(end);
+        }
+        // The lease stays in the heartbeats until the learner has received all its steps and
+        // finished it (steps may still wait in the learner's queue behind its rate limiter).
+    }
+}
+
+/// What the learner told this actor at registration, decoded.
+struct Registered {
+    control: ControlClient,
+    data: proto::grpc::DataClient,
+    run: pb::RunRef,
+    spec: pb::RunSpec,
+    actor_id: u64,
+    secret: ActorSecret,
+    /// The secret as sent on the control plane.
+    wire_secret: proto::Bytes,
+    space: ActionSpace,
+    planner: PlannerKind,
+    env_cfg: EnvConfig,
+    /// The policy network's layer sizes.
+    dims: Vec<usize>,
+}
+
+/// Connects, registers this actor and decodes the run's spec; records the actor id in `span`.
+fn register(
+    rt: &tokio::runtime::Runtime,
+    setup: &ActorSetup<'_>,
+    down_since: &mut Option<Instant>,
+    span: &tracing::Span,
+) -> Result<Registered, SessionError> {
     let (mut control, data) = rt.block_on(setup.learner.connect())?;
     let reply = rt
         .block_on(control.register(pb::RegisterRequest {
@@ -348,106 +464,101 @@ fn session(
             .ok_or(SessionError::Reply("has no environment settings"))?,
     )?;
     let dims: Vec<usize> = spec.policy_dims.iter().map(|&d| d as usize).collect();
-    let mut planes = open_planes(rt, setup, &spec, data.clone(), &run, actor_id, &secret)?;
-    tracing::info!(
-        run_id = %run.run_id,
-        planner = %planner,
-        action_space = %space,
-        plane = planes.name,
-        "registered"
-    );
-    let flags = Arc::new(Flags::default());
-    let lease_ttl = Duration::from_millis(u64::from(spec.lease_ttl_ms.max(spec.heartbeat_ms).max(10)));
-    let heartbeat = rt.spawn(
-        heartbeats(
-            control.clone(),
-            run.clone(),
-            actor_id,
-            wire_secret.clone(),
-            Duration::from_millis(u64::from(spec.heartbeat_ms.max(10))),
-            lease_ttl,
-            flags.clone(),
-        )
-        .instrument(span.clone()),
-    );
-    let _stop_heartbeats = AbortOnDrop(heartbeat);
-    let mut policy: Option<(u64, f64, MlpPolicy)> = None;
-    let ctx = EpisodeCtx {
-        setup,
-        spec: &spec,
-        planner,
+    Ok(Registered {
+        control,
+        data,
+        run,
+        spec,
+        actor_id,
+        secret,
+        wire_secret,
         space,
-        env_cfg: &env_cfg,
-        flags: &flags,
-    };
-    // How long a finished run may take to drain this actor's last lease before it leaves: as
-    // long as the learner keeps the lease valid, up to the actor's patience with the learner.
-    let drain_limit = setup.give_up_after;
-    loop {
-        if flags.shutdown.load(Ordering::Acquire) {
-            wait_for_lease_end(&flags, drain_limit);
-            return Ok(SessionEnd::Shutdown);
-        }
-        if flags.gone.load(Ordering::Acquire) {
-            return Ok(SessionEnd::Reconnect(
-                "the learner no longer knows this session, or stopped answering heartbeats".into(),
-            ));
-        }
-        let reply = rt.block_on(control.next_assignment(pb::AssignmentRequest {
-            run: Some(run.clone()),
-            actor_id,
-            actor_secret: wire_secret.clone(),
-        }));
+        planner,
+        env_cfg,
+        dims,
+    })
+}
+
+/// The learner's answer to a request for work.
+enum Next {
+    /// Run this assignment.
+    Assign(pb::Assignment),
+    /// Nothing to do yet: ask again after this many milliseconds.
+    Idle(u32),
+    /// The run is over.
+    Shutdown,
+    /// The session must end (and reconnect).
+    End(SessionEnd),
+}
+
+/// A registered session: its connection, planes and newest policy.
+struct Live<'a> {
+    rt: &'a tokio::runtime::Runtime,
+    control: ControlClient,
+    data: proto::grpc::DataClient,
+    run: pb::RunRef,
+    actor_id: u64,
+    secret: ActorSecret,
+    wire_secret: proto::Bytes,
+    dims: Vec<usize>,
+    lease_ttl: Duration,
+    planes: Planes,
+    /// (version, exploration sigma, network) of the newest policy received.
+    policy: Option<(u64, f64, MlpPolicy)>,
+}
+
+impl Live<'_> {
+    /// Asks the learner for the next assignment.
+    fn next_assignment(&mut self) -> Result<Next, SessionError> {
+        let reply = self
+            .rt
+            .block_on(self.control.next_assignment(pb::AssignmentRequest {
+                run: Some(self.run.clone()),
+                actor_id: self.actor_id,
+                actor_secret: self.wire_secret.clone(),
+            }));
         let decision = match reply {
             Ok(r) => r.into_inner().decision,
             Err(s) => {
-                return Ok(SessionEnd::Reconnect(format!(
+                return Ok(Next::End(SessionEnd::Reconnect(format!(
                     "next assignment: {}",
                     status_text(&s)
-                )))
+                ))))
             }
         };
-        let a = match decision {
-            Some(pb::assignment_reply::Decision::Shutdown(_)) => {
-                wait_for_lease_end(&flags, drain_limit);
-                return Ok(SessionEnd::Shutdown);
-            }
-            Some(pb::assignment_reply::Decision::IdleMs(ms)) => {
-                std::thread::sleep(Duration::from_millis(u64::from(ms.max(1))));
-                continue;
-            }
-            Some(pb::assignment_reply::Decision::Assign(a)) => a,
-            None => return Ok(SessionEnd::Reconnect("empty assignment reply".into())),
-        };
-        tracing::debug!(
-            lease = a.lease_id,
-            world = a.world,
-            cycle = a.cycle,
-            episodes = a.episodes,
-            policy_version = a.policy_version,
-            "assignment"
-        );
-        flags.lease.store(a.lease_id, Ordering::Release);
-        flags.lease_lost.store(false, Ordering::Release);
-        // Wait for the assignment's policy version. A shared-memory source that has not
-        // delivered it within a lease TTL is replaced by gRPC's WatchPolicy for the rest of the
-        // session (steps stay on shared memory), before the learner's no-progress bound would
-        // drop the lease.
+        Ok(match decision {
+            Some(pb::assignment_reply::Decision::Shutdown(_)) => Next::Shutdown,
+            Some(pb::assignment_reply::Decision::IdleMs(ms)) => Next::Idle(ms),
+            Some(pb::assignment_reply::Decision::Assign(a)) => Next::Assign(a),
+            None => Next::End(SessionEnd::Reconnect("empty assignment reply".into())),
+        })
+    }
+
+    /// Waits for the assignment's policy version (or a lost lease, or a gone learner). A
+    /// shared-memory source that has not delivered it within a lease TTL is replaced by
+    /// gRPC's WatchPolicy for the rest of the session (steps stay on shared memory), before
+    /// the learner's no-progress bound would drop the lease. `Some` ends the session.
+    fn await_policy(
+        &mut self,
+        a: &pb::Assignment,
+        flags: &Flags,
+    ) -> Result<Option<SessionEnd>, SessionError> {
         let waiting_since = Instant::now();
         loop {
-            if planes.shm_policies && waiting_since.elapsed() >= lease_ttl {
+            if self.planes.shm_policies && waiting_since.elapsed() >= self.lease_ttl {
                 tracing::warn!(
                     wanted = a.policy_version,
-                    have = policy.as_ref().map(|p| p.0),
+                    have = self.policy.as_ref().map(|p| p.0),
                     waited_ms = waiting_since.elapsed().as_millis() as u64,
                     "no policy over shared memory; watching policies over gRPC"
                 );
-                planes.policies = grpc_policies(rt, data.clone(), &run, actor_id, &secret);
-                planes.shm_policies = false;
+                self.planes.policies =
+                    grpc_policies(self.rt, self.data.clone(), &self.run, self.actor_id, &self.secret);
+                self.planes.shm_policies = false;
             }
-            match planes.policies.poll(policy.as_ref().map(|p| p.0)) {
+            match self.planes.policies.poll(self.policy.as_ref().map(|p| p.0)) {
                 Ok(Some(update)) => {
-                    let net = MlpPolicy::from_flat(&dims, update.weights).map_err(|source| {
+                    let net = MlpPolicy::from_flat(&self.dims, update.weights).map_err(|source| {
                         SessionError::Policy {
                             version: update.version,
                             source,
@@ -458,27 +569,37 @@ fn session(
                         sigma = update.exploration_sigma,
                         "policy received"
                     );
-                    policy = Some((update.version, update.exploration_sigma, net));
+                    self.policy = Some((update.version, update.exploration_sigma, net));
                 }
                 Ok(None) => {}
-                Err(e) => return Ok(SessionEnd::Reconnect(e.to_string())),
+                Err(e) => return Ok(Some(SessionEnd::Reconnect(e.to_string()))),
             }
-            if policy.as_ref().is_some_and(|p| p.0 >= a.policy_version) {
-                break;
+            if self.policy.as_ref().is_some_and(|p| p.0 >= a.policy_version) {
+                return Ok(None);
             }
             if flags.lease_lost.load(Ordering::Acquire) || flags.gone.load(Ordering::Acquire) {
-                break;
+                return Ok(None);
             }
             std::thread::sleep(Duration::from_millis(2));
         }
-        let Some((version, sigma, net)) = policy.as_ref() else {
-            continue;
+    }
+
+    /// Runs the assignment's episodes with the newest policy, streaming their steps and
+    /// reporting each; stops at a lost lease. `Some` ends the session.
+    fn run_assignment(
+        &mut self,
+        ctx: &EpisodeCtx<'_>,
+        a: &pb::Assignment,
+        flags: &Flags,
+    ) -> Result<Option<SessionEnd>, SessionError> {
+        let Some((version, sigma, net)) = self.policy.as_ref() else {
+            return Ok(None);
         };
         let header = LeaseHeader {
-            incarnation: run.incarnation,
-            actor_id,
+            incarnation: self.run.incarnation,
+            actor_id: self.actor_id,
             lease_id: a.lease_id,
-            secret,
+            secret: self.secret,
         };
         for i in 0..a.episodes {
             if flags.lease_lost.load(Ordering::Acquire) {
@@ -487,21 +608,21 @@ fn session(
             let seed = a.seeds.get(i as usize).copied().unwrap_or(a.lease_id);
             let episode_id = a.first_episode_id + u64::from(i);
             let outcome = match ctx.episode(
-                &a,
+                a,
                 episode_id,
                 seed,
                 (*version, *sigma, net),
                 &header,
-                planes.sink.as_mut(),
+                self.planes.sink.as_mut(),
             ) {
                 Ok(o) => o,
-                Err(EpisodeError::Plane(e)) => return Ok(SessionEnd::Reconnect(e.to_string())),
+                Err(EpisodeError::Plane(e)) => return Ok(Some(SessionEnd::Reconnect(e.to_string()))),
                 Err(EpisodeError::LeaseLost) => {
                     // Records of the lost lease may still wait in the sink (the gRPC sink
                     // batches them): send them now, to be refused and counted, rather than in
                     // front of the next lease's records, whose flush would then fail and throw
                     // away that lease's finished episode with a needless re-registration.
-                    match planes.sink.flush() {
+                    match self.planes.sink.flush() {
                         Ok(()) => {}
                         Err(PlaneError::Refused { refused, sent, .. }) => tracing::warn!(
                             lease = a.lease_id,
@@ -509,14 +630,14 @@ fn session(
                             sent,
                             "lease lost; the learner refused step records of it"
                         ),
-                        Err(e) => return Ok(SessionEnd::Reconnect(e.to_string())),
+                        Err(e) => return Ok(Some(SessionEnd::Reconnect(e.to_string()))),
                     }
                     break;
                 }
                 Err(EpisodeError::Fatal(e)) => return Err(e),
             };
-            if let Err(e) = planes.sink.flush() {
-                return Ok(SessionEnd::Reconnect(e.to_string()));
+            if let Err(e) = self.planes.sink.flush() {
+                return Ok(Some(SessionEnd::Reconnect(e.to_string())));
             }
             tracing::debug!(
                 lease = a.lease_id,
@@ -527,28 +648,27 @@ fn session(
                 "episode done"
             );
             let report = pb::EpisodeReport {
-                run: Some(run.clone()),
-                actor_id,
+                run: Some(self.run.clone()),
+                actor_id: self.actor_id,
                 lease_id: a.lease_id,
-                actor_secret: wire_secret.clone(),
+                actor_secret: self.wire_secret.clone(),
                 last_of_assignment: i + 1 == a.episodes,
                 policy_version: *version,
                 ..outcome
             };
-            if let Err(s) = rt.block_on(control.report_episode(report)) {
+            if let Err(s) = self.rt.block_on(self.control.report_episode(report)) {
                 if s.code() == tonic::Code::NotFound {
                     // The lease expired meanwhile: the world was dealt again.
                     tracing::debug!(lease = a.lease_id, "report refused: {}", status_text(&s));
                     break;
                 }
-                return Ok(SessionEnd::Reconnect(format!(
+                return Ok(Some(SessionEnd::Reconnect(format!(
                     "episode report: {}",
                     status_text(&s)
-                )));
+                ))));
             }
         }
-        // The lease stays in the heartbeats until the learner has received all its steps and
-        // finished it (steps may still wait in the learner's queue behind its rate limiter).
+        Ok(None)
     }
 }
 

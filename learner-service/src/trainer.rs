@@ -69,18 +69,7 @@ impl Trainer {
     /// Runs until the budget is stored and trained on, or a stop is requested; then writes the
     /// final checkpoint and export.
     pub fn run(mut self) -> Result<TrainSummary, TrainError> {
-        let mut shm_pub = match &self.shm {
-            Some(cfg) => match ShmPolicyPublisher::open(cfg) {
-                Ok(p) => Some(p),
-                Err(e) => {
-                    tracing::warn!("cannot publish policies over shared memory ({e}); gRPC only");
-                    *self.shared.shm_unavailable.lock().expect("shm note lock") =
-                        Some(format!("policy publisher: {e}"));
-                    None
-                }
-            },
-            None => None,
-        };
+        let mut shm_pub = self.open_shm_publisher();
         let exploration = ExplorationSchedule::new(self.td3.config(), self.shared.budget);
         let cfg = self.td3.config().clone();
         let mut batch = Batch::new(cfg.obs_dim, cfg.act_dim);
@@ -127,22 +116,8 @@ impl Trainer {
                 let mut core = core;
                 core.policy_version = version;
                 drop(core);
-                let (_, weights) = self.td3.policy().flat_weights();
-                shm_retry = None;
-                if let Some(p) = shm_pub.as_mut().filter(|_| !shm_silent) {
-                    if let Err(e) = p.publish(version, sigma, &weights) {
-                        tracing::warn!(version, "shared-memory policy publish failed ({e}); retrying");
-                        shm_retry = Some((version, sigma, Instant::now()));
-                    }
-                }
-                let snapshot = pb::PolicySnapshot {
-                    version,
-                    exploration_sigma: sigma,
-                    weights: proto::floats::encode(&weights).into(),
-                };
-                self.policy_tx.send_replace(Arc::new(snapshot));
+                shm_retry = self.publish(version, sigma, shm_pub.as_mut().filter(|_| !shm_silent));
                 published = Some(version);
-                self.shared.wake.notify_all();
                 continue;
             }
             if let (Some((version, sigma, at)), Some(p)) = (shm_retry, shm_pub.as_mut()) {
@@ -168,16 +143,7 @@ impl Trainer {
                     .sample(cfg.batch_size, &mut self.sampler_rng, &mut batch);
                 drop(core);
                 sampled.map_err(TrainError::Sample)?;
-                let stats = self.td3.update(&batch).map_err(TrainError::Update)?;
-                let (inserts, updates) = {
-                    let mut core = self.shared.lock();
-                    core.rate.record_updates(1);
-                    (core.rate.inserts(), core.rate.updates())
-                };
-                self.shared.wake.notify_all();
-                if updates.is_multiple_of(10) {
-                    let _ = self.tensorboard.update_stats(inserts, &stats);
-                }
+                self.update(&batch)?;
             } else {
                 let _ = self
                     .shared
@@ -196,6 +162,71 @@ impl Trainer {
                 }
             }
         }
+        self.finish(&mut meter, &exploration, completed)
+    }
+
+    /// The shared-memory policy publisher of the run, or `None` (gRPC only) when it has none
+    /// or it cannot open (noted in the status).
+    fn open_shm_publisher(&self) -> Option<ShmPolicyPublisher> {
+        match ShmPolicyPublisher::open(self.shm.as_ref()?) {
+            Ok(p) => Some(p),
+            Err(e) => {
+                tracing::warn!("cannot publish policies over shared memory ({e}); gRPC only");
+                *self.shared.shm_unavailable.lock().expect("shm note lock") =
+                    Some(format!("policy publisher: {e}"));
+                None
+            }
+        }
+    }
+
+    /// Publishes the current actor as policy `version` with exploration `sigma` on gRPC and on
+    /// `shm` when given; returns the retry of a failed shared-memory publish.
+    fn publish(
+        &mut self,
+        version: u64,
+        sigma: f64,
+        shm: Option<&mut ShmPolicyPublisher>,
+    ) -> Option<(u64, f64, Instant)> {
+        let (_, weights) = self.td3.policy().flat_weights();
+        let mut retry = None;
+        if let Some(p) = shm {
+            if let Err(e) = p.publish(version, sigma, &weights) {
+                tracing::warn!(version, "shared-memory policy publish failed ({e}); retrying");
+                retry = Some((version, sigma, Instant::now()));
+            }
+        }
+        let snapshot = pb::PolicySnapshot {
+            version,
+            exploration_sigma: sigma,
+            weights: proto::floats::encode(&weights).into(),
+        };
+        self.policy_tx.send_replace(Arc::new(snapshot));
+        self.shared.wake.notify_all();
+        retry
+    }
+
+    /// One TD3 update on `batch`, counted; every tenth one's statistics go to TensorBoard.
+    fn update(&mut self, batch: &Batch) -> Result<(), TrainError> {
+        let stats = self.td3.update(batch).map_err(TrainError::Update)?;
+        let (inserts, updates) = {
+            let mut core = self.shared.lock();
+            core.rate.record_updates(1);
+            (core.rate.inserts(), core.rate.updates())
+        };
+        self.shared.wake.notify_all();
+        if updates.is_multiple_of(10) {
+            let _ = self.tensorboard.update_stats(inserts, &stats);
+        }
+        Ok(())
+    }
+
+    /// The end of a run: the final checkpoint and export, the last status.
+    fn finish(
+        &mut self,
+        meter: &mut Meter,
+        exploration: &ExplorationSchedule,
+        completed: bool,
+    ) -> Result<TrainSummary, TrainError> {
         let checkpoint = self.final_checkpoint()?;
         let (inserts, updates) = {
             let core = self.shared.lock();
@@ -211,7 +242,7 @@ impl Trainer {
         };
         // The last status says so: the final checkpoint (and export) are on disk.
         self.shared.finished.store(true, Ordering::Release);
-        self.report(&mut meter, &exploration);
+        self.report(meter, exploration);
         Ok(TrainSummary {
             inserts,
             updates,
