@@ -51,6 +51,7 @@ use std::time::Duration;
 
 use learner::export::space_name;
 use learner::tensorboard::EventWriter;
+use learner::Td3Config;
 use proto::pb;
 use proto::validate::{Spaces, Validator};
 use scheduler::RegistryConfig;
@@ -124,20 +125,7 @@ impl Learner {
         };
         let (state, resume_warnings, resumed_from) = run.training_state(&opts, &registry_cfg)?;
         let cfg = state.td3.config().clone();
-        let laser = opts.env.observation;
-        let space_obs_dim = layout::obs_dim(laser, opts.space.dim(), opts.env.observe_tracks);
-        if cfg.obs_dim != space_obs_dim || cfg.act_dim != opts.space.dim() || cfg.laser_dim > laser.size() {
-            return Err(StartError::SpaceMismatch {
-                obs_dim: cfg.obs_dim,
-                act_dim: cfg.act_dim,
-                laser_dim: cfg.laser_dim,
-                space: space_name(opts.space),
-                laser,
-                space_obs_dim,
-                space_act_dim: opts.space.dim(),
-                laser_size: laser.size(),
-            });
-        }
+        check_sizes(&cfg, &opts)?;
         let incarnation = fresh_incarnation();
         let planes = DataPlanes::start(&svc, &state.run_id, incarnation)?;
         // Recorded in checkpoints, so exports document the observation the policy was trained on.
@@ -162,56 +150,10 @@ impl Learner {
             },
         };
         let (dims, _) = td3.policy().flat_weights();
-        let spec = pb::RunSpec {
-            obs_dim: cfg.obs_dim as u32,
-            act_dim: cfg.act_dim as u32,
-            action_space: Some(actor::spec::action_space_to_wire(opts.space)),
-            planner: planner as i32,
-            max_speed: opts.max_speed,
-            run_seed: cfg.seed,
-            policy_dims: dims.iter().map(|&d| d as u32).collect(),
-            data_plane: match &planes.shm {
-                Some(s) => format!("shm:{}@{}", s.service_prefix, proto::hostname()),
-                None => "grpc".into(),
-            },
-            heartbeat_ms: svc.heartbeat_ms,
-            lease_ttl_ms: svc.lease_ttl_ms,
-            env: Some(actor::spec::env_to_wire(&opts.env)),
-        };
-        let mut core = Core::new(registry, replay, rate, totals, policy_version);
-        core.drop_all_leases();
-        if core.rate.inserts() >= opts.budget_steps {
-            // A finished run resumed with the same budget: nothing to collect. Say so and end
-            // (final checkpoint, export) instead of waiting for steps nobody will be asked for.
-            tracing::warn!(
-                run_id = %run_id,
-                inserts = core.rate.inserts(),
-                budget = opts.budget_steps,
-                "the run already stored its budget; nothing to collect (pass a larger --steps to train it further)"
-            );
-            core.stopping = true;
-        }
-        let mut shared = Shared::new(
-            validator,
-            spec,
-            core,
-            opts.budget_steps,
-            svc.idle_retry_ms,
-            svc.progress_timeout(),
-        );
+        let spec = run_spec(&opts, &cfg, planner, &dims, &planes);
+        let core = Core::new(registry, replay, rate, totals, policy_version);
+        let mut shared = shared_state(&opts, validator, spec, core, &run_id);
         shared.resume_warnings = resume_warnings;
-        shared.rank_forget_ms = svc.rank_forget_ms;
-        shared.dead_ranks_kept = svc.dead_ranks_kept as usize;
-        shared.max_episode_steps = opts.env.max_agent_steps;
-        // Refusal counters continue across a resume like every other counter.
-        let restored = std::mem::take(&mut shared.core.get_mut().expect("core lock").totals.refusals);
-        for (name, n) in restored {
-            if !shared.refusals.add_named(&name, n) {
-                tracing::warn!(
-                    "the checkpoint counts refusals of an unknown kind `{name}` ({n}); not restored"
-                );
-            }
-        }
         shared.resumed_from = resumed_from;
         *shared.shm_unavailable.get_mut().expect("shm note lock") = planes.shm_unavailable;
         let shared = Arc::new(shared);
@@ -339,4 +281,91 @@ impl Learner {
         self.runtime.shutdown_timeout(Duration::from_secs(1));
         summary
     }
+}
+
+/// Refuses TD3 sizes that do not fit the run's action space and observation layout.
+fn check_sizes(cfg: &Td3Config, opts: &LearnerOptions) -> Result<(), StartError> {
+    let laser = opts.env.observation;
+    let space_obs_dim = layout::obs_dim(laser, opts.space.dim(), opts.env.observe_tracks);
+    if cfg.obs_dim != space_obs_dim || cfg.act_dim != opts.space.dim() || cfg.laser_dim > laser.size() {
+        return Err(StartError::SpaceMismatch {
+            obs_dim: cfg.obs_dim,
+            act_dim: cfg.act_dim,
+            laser_dim: cfg.laser_dim,
+            space: space_name(opts.space),
+            laser,
+            space_obs_dim,
+            space_act_dim: opts.space.dim(),
+            laser_size: laser.size(),
+        });
+    }
+    Ok(())
+}
+
+/// The run spec every actor receives at registration.
+fn run_spec(
+    opts: &LearnerOptions,
+    cfg: &Td3Config,
+    planner: pb::Planner,
+    dims: &[usize],
+    planes: &DataPlanes,
+) -> pb::RunSpec {
+    pb::RunSpec {
+        obs_dim: cfg.obs_dim as u32,
+        act_dim: cfg.act_dim as u32,
+        action_space: Some(actor::spec::action_space_to_wire(opts.space)),
+        planner: planner as i32,
+        max_speed: opts.max_speed,
+        run_seed: cfg.seed,
+        policy_dims: dims.iter().map(|&d| d as u32).collect(),
+        data_plane: match &planes.shm {
+            Some(s) => format!("shm:{}@{}", s.service_prefix, proto::hostname()),
+            None => "grpc".into(),
+        },
+        heartbeat_ms: opts.service.heartbeat_ms,
+        lease_ttl_ms: opts.service.lease_ttl_ms,
+        env: Some(actor::spec::env_to_wire(&opts.env)),
+    }
+}
+
+/// The state the service threads share, around `core` (its leases dropped: no actor of an
+/// earlier incarnation holds one), with the refusal counters of a resumed run restored.
+fn shared_state(
+    opts: &LearnerOptions,
+    validator: Validator,
+    spec: pb::RunSpec,
+    mut core: Core,
+    run_id: &str,
+) -> Shared {
+    core.drop_all_leases();
+    if core.rate.inserts() >= opts.budget_steps {
+        // A finished run resumed with the same budget: nothing to collect. Say so and end
+        // (final checkpoint, export) instead of waiting for steps nobody will be asked for.
+        tracing::warn!(
+            run_id = %run_id,
+            inserts = core.rate.inserts(),
+            budget = opts.budget_steps,
+            "the run already stored its budget; nothing to collect (pass a larger --steps to train it further)"
+        );
+        core.stopping = true;
+    }
+    let mut shared = Shared::new(
+        validator,
+        spec,
+        core,
+        opts.budget_steps,
+        opts.service.idle_retry_ms,
+        opts.service.progress_timeout(),
+    );
+    shared.rank_forget_ms = opts.service.rank_forget_ms;
+    shared.dead_ranks_kept = opts.service.dead_ranks_kept as usize;
+    shared.max_episode_steps = opts.env.max_agent_steps;
+    // Refusal counters continue across a resume like every other counter.
+    let restored = std::mem::take(&mut shared.core.get_mut().expect("core lock").totals.refusals);
+    for (name, n) in restored {
+        if !shared.refusals.add_named(&name, n) {
+            tracing::warn!("the checkpoint counts refusals of an unknown kind `{name}` ({n}); not restored");
+        }
+    }
+    shared
 }
