@@ -82,6 +82,41 @@ impl Integrator {
         }
     }
 
+    /// [`Integrator::step_pose`] with the heading's `(sin, cos)` carried along: `sc` holds
+    /// those of `p.yaw` and becomes those of the returned pose's (wrapped) yaw. The pose is the
+    /// same, bit for bit (`sin_cos` is `sin` and `cos`, and the wrapped yaw is the integrated one
+    /// unless it crossed +-pi), with one `sin_cos` per step where the rollout and its collision
+    /// check used up to four trigonometric calls.
+    #[inline]
+    pub fn step_pose_carried(self, p: Pose, sc: &mut (f64, f64), vel: Twist, dt: f64) -> Pose {
+        let (yaw, (s1, c1), next) = match self {
+            Integrator::ExactArc => {
+                let dyaw = vel.w * dt;
+                if dyaw.abs() < 1e-9 {
+                    // The heading does not change: neither does `sc`.
+                    return Pose::new(p.x + vel.v * dt * sc.1, p.y + vel.v * dt * sc.0, p.yaw);
+                }
+                let r = vel.v / vel.w;
+                let yaw1 = p.yaw + dyaw;
+                let (s1, c1) = yaw1.sin_cos();
+                let next = Pose::new(p.x + r * (s1 - sc.0), p.y - r * (c1 - sc.1), wrap_angle(yaw1));
+                (yaw1, (s1, c1), next)
+            }
+            Integrator::Euler => {
+                let yaw = p.yaw + vel.w * dt;
+                let (s, c) = yaw.sin_cos();
+                let next = Pose::new(p.x + vel.v * dt * c, p.y + vel.v * dt * s, wrap_angle(yaw));
+                (yaw, (s, c), next)
+            }
+        };
+        *sc = if next.yaw == yaw {
+            (s1, c1)
+        } else {
+            next.yaw.sin_cos()
+        };
+        next
+    }
+
     /// Moves a pose (heading not wrapped) with forward speed `v` and yaw rate `w` for `dt`
     /// seconds; `sc` holds (sin, cos) of the heading before the step and is updated to the
     /// heading after it (so rollouts compute one `sin_cos` per step).
@@ -122,6 +157,41 @@ mod tests {
             integrator.advance(&mut p, &mut sc, v, w, dt);
         }
         p
+    }
+
+    /// Carrying the heading's (sin, cos) gives the poses of `step_pose` bit for bit, through
+    /// turns that cross +-pi and straight steps, and `sc` stays the (sin, cos) of the yaw.
+    #[test]
+    fn carried_heading_steps_are_the_plain_steps() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(3);
+        for integrator in [Integrator::ExactArc, Integrator::Euler] {
+            for _ in 0..200 {
+                let start = Pose::new(
+                    rng.random_range(-2.0..2.0),
+                    rng.random_range(-2.0..2.0),
+                    rng.random_range(-3.1..3.1),
+                );
+                let (mut a, mut b) = (start, start);
+                let mut sc = start.yaw.sin_cos();
+                for _ in 0..60 {
+                    let w = if rng.random_bool(0.2) {
+                        0.0
+                    } else {
+                        rng.random_range(-2.5..2.5)
+                    };
+                    let vel = Twist::new(rng.random_range(0.0..2.0), w);
+                    let dt = rng.random_range(0.02..0.2);
+                    a = integrator.step_pose(a, vel, dt);
+                    b = integrator.step_pose_carried(b, &mut sc, vel, dt);
+                    assert_eq!(
+                        (a.x.to_bits(), a.y.to_bits(), a.yaw.to_bits()),
+                        (b.x.to_bits(), b.y.to_bits(), b.yaw.to_bits())
+                    );
+                    assert_eq!(sc, b.yaw.sin_cos());
+                }
+            }
+        }
     }
 
     #[test]

@@ -664,6 +664,7 @@ impl NavSystem {
         moving: &[crate::Predicted],
     ) -> bool {
         let (mut vel, mut pose, mut t) = (start, Pose::default(), 0.0);
+        let mut heading = (0.0, 1.0);
         let mut clear = self.start_clear;
         for (&dt, &m) in dts.iter().zip(checks) {
             if t >= self.cfg.verify_time {
@@ -672,12 +673,12 @@ impl NavSystem {
             let before = pose;
             vel.v = approach(vel.v, cmd.v, self.cfg.accel_v * dt);
             vel.w = approach(vel.w, cmd.w, self.cfg.accel_w * dt);
-            pose = self.integrator.step_pose(pose, vel, dt);
+            pose = self.integrator.step_pose_carried(pose, &mut heading, vel, dt);
             t += dt;
             clear = chained_clearance(
                 &self.map,
                 (&before, clear),
-                &pose,
+                (&pose, heading),
                 m as usize,
                 self.cfg.clearance_cap,
                 &mut self.trace.evaluated,

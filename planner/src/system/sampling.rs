@@ -87,11 +87,12 @@ pub(super) fn free_length(map: &LocalMap, from: Vec2, dir: Vec2, half_width: f64
 /// larger of the check with `m` boundary points and the previous bound minus how far any
 /// point of the footprint can have moved (centre displacement plus circumscribed radius
 /// times rotation). Slow rollouts thus keep the bound of their dense early checks; the check
-/// is skipped when the inherited bound already reaches `enough`.
+/// is skipped when the inherited bound already reaches `enough`. `heading` is the `(sin, cos)`
+/// of `pose.yaw`.
 pub(super) fn chained_clearance(
     map: &LocalMap,
     (prev, prev_clear): (&Pose, f64),
-    pose: &Pose,
+    (pose, heading): (&Pose, (f64, f64)),
     m: usize,
     enough: f64,
     evaluated: &mut u64,
@@ -102,7 +103,8 @@ pub(super) fn chained_clearance(
     if inherited >= enough {
         return inherited;
     }
-    map.footprint_clearance(pose, m, enough, evaluated).max(inherited)
+    map.clearance_at(pose.position(), || heading, m, enough, evaluated)
+        .max(inherited)
 }
 
 /// Per-mode sampling parameters, derived from the config each cycle.
@@ -184,6 +186,8 @@ pub(super) fn evaluate(ctx: &RolloutCtx<'_>, controls: &[Twist], e: &mut SampleE
     e.feasible = false;
     e.driven = controls.len();
     let (mut vel, mut pose) = (ctx.start, Pose::default());
+    // (sin, cos) of `pose.yaw`, carried from step to step.
+    let mut yaw_sc = (0.0, 1.0);
     let (mut travel, mut obstacle, mut time) = (0.0, 0.0, 0.0);
     let (mut goal, mut heading, mut space, mut n_q) = (0.0, 0.0, 0.0, 0usize);
     let mut last_clear = ctx.start_clear;
@@ -194,14 +198,14 @@ pub(super) fn evaluate(ctx: &RolloutCtx<'_>, controls: &[Twist], e: &mut SampleE
     for (k, (&dt, u)) in ctx.dts.iter().zip(controls).enumerate() {
         if k < e.driven {
             e.steps += 1;
-            let before = (vel, pose);
+            let before = (vel, pose, yaw_sc);
             vel.v = approach(vel.v, u.v, ctx.accel_v * dt);
             vel.w = approach(vel.w, u.w, ctx.accel_w * dt);
-            pose = ctx.integrator.step_pose(pose, vel, dt);
+            pose = ctx.integrator.step_pose_carried(pose, &mut yaw_sc, vel, dt);
             let clear = chained_clearance(
                 ctx.map,
                 (&before.1, last_clear),
-                &pose,
+                (&pose, yaw_sc),
                 ctx.checks[k] as usize,
                 ctx.clearance_cap,
                 &mut e.evaluated,
@@ -218,7 +222,7 @@ pub(super) fn evaluate(ctx: &RolloutCtx<'_>, controls: &[Twist], e: &mut SampleE
                 match ctx.min_safe_time {
                     Some(t) if time >= t => {
                         e.driven = k;
-                        (vel, pose) = before;
+                        (vel, pose, yaw_sc) = before;
                         stopped_at = Some(time);
                     }
                     _ => {
@@ -246,7 +250,7 @@ pub(super) fn evaluate(ctx: &RolloutCtx<'_>, controls: &[Twist], e: &mut SampleE
             goal += to_goal.norm();
             heading += wrap_angle(to_goal.y.atan2(to_goal.x) - pose.yaw).abs();
             if let Some(dirs) = ctx.space_dirs {
-                let (s, c) = pose.yaw.sin_cos();
+                let (s, c) = yaw_sc;
                 let free = dirs
                     .iter()
                     .map(|&(ds, dc)| {
