@@ -28,7 +28,7 @@ use planner::{
 };
 use sim::lidar::LidarConfig;
 use sim::robot::Twist;
-use sim::{EpisodeConfig, EpisodeResult, Status, World};
+use sim::{EpisodeResult, Status, World};
 
 use crate::config::EvalConfig;
 
@@ -655,19 +655,12 @@ fn run_one(
     } = *job;
     let seed = run_seed(plan.seed, w, r);
     let cost = Arc::new(PlanCost::default());
-    let run = Run {
-        world: &worlds[w],
-        episode: EpisodeConfig {
-            lidar: lidars[li],
-            ..cfg.episode
-        },
-        planner: Box::new(Metered {
-            inner: p.build(&cfg.planners(), planner_seed(seed)),
-            cost: Arc::clone(&cost),
-        }),
-        max_speed: s,
-        seed,
-    };
+    let mut run = eval_run(cfg, &worlds[w], p, s, seed);
+    run.episode.lidar = lidars[li];
+    run.planner = Box::new(Metered {
+        inner: run.planner,
+        cost: Arc::clone(&cost),
+    });
     let no_steps = |_: &Step<'_>| Ok::<(), anyhow::Error>(());
     let (out, forecast) = match policy.filter(|_| f == Fidelity::Adp) {
         Some(net) => {

@@ -11,7 +11,7 @@
 //! clutter and position it was chosen at, the reward and the next observation) and may stop
 //! the run with an error.
 
-use planner::run::{drive_episode_with, CycleDriver};
+use planner::run::{drive_episode, CycleDriver};
 use planner::{ActionSpace, ComputeTally, Planner, Schedule};
 use sim::geometry::Vec2;
 use sim::{EpisodeConfig, EpisodeResult, World};
@@ -180,7 +180,7 @@ pub fn run<E: From<EnvError>>(
     } = run;
     let (space, env, act) = match chooser {
         Chooser::Fixed { schedule, driver } => {
-            let result = drive_episode_with(
+            let result = drive_episode(
                 world,
                 episode,
                 planner.as_mut(),

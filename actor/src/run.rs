@@ -316,24 +316,35 @@ fn session(
     down_since: &mut Option<Instant>,
     span: &tracing::Span,
 ) -> Result<SessionEnd, SessionError> {
-    let r = register(rt, setup, down_since, span)?;
-    let planes = open_planes(rt, setup, &r.spec, r.data.clone(), &r.run, r.actor_id, &r.secret)?;
+    let Registered {
+        control,
+        data,
+        run,
+        spec,
+        actor_id,
+        secret,
+        wire_secret,
+        space,
+        planner,
+        env_cfg,
+        dims,
+    } = register(rt, setup, down_since, span)?;
+    let planes = open_planes(rt, setup, &spec, data.clone(), &run, actor_id, &secret)?;
     tracing::info!(
-        run_id = %r.run.run_id,
-        planner = %r.planner,
-        action_space = %r.space,
+        run_id = %run.run_id,
+        planner = %planner,
+        action_space = %space,
         plane = planes.name,
         "registered"
     );
     let flags = Arc::new(Flags::default());
-    let spec = &r.spec;
     let lease_ttl = Duration::from_millis(u64::from(spec.lease_ttl_ms.max(spec.heartbeat_ms).max(10)));
     let heartbeat = rt.spawn(
         heartbeats(
-            r.control.clone(),
-            r.run.clone(),
-            r.actor_id,
-            r.wire_secret.clone(),
+            control.clone(),
+            run.clone(),
+            actor_id,
+            wire_secret.clone(),
             Duration::from_millis(u64::from(spec.heartbeat_ms.max(10))),
             lease_ttl,
             flags.clone(),
@@ -343,21 +354,21 @@ fn session(
     let _stop_heartbeats = AbortOnDrop(heartbeat);
     let ctx = EpisodeCtx {
         setup,
-        spec,
-        planner: r.planner,
-        space: r.space,
-        env_cfg: &r.env_cfg,
+        spec: &spec,
+        planner,
+        space,
+        env_cfg: &env_cfg,
         flags: &flags,
     };
     let mut live = Live {
         rt,
-        control: r.control.clone(),
-        data: r.data.clone(),
-        run: r.run.clone(),
-        actor_id: r.actor_id,
-        secret: r.secret,
-        wire_secret: r.wire_secret.clone(),
-        dims: r.dims.clone(),
+        control,
+        data,
+        run,
+        actor_id,
+        secret,
+        wire_secret,
+        dims,
         lease_ttl,
         planes,
         policy: None,

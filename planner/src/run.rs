@@ -178,24 +178,8 @@ pub fn run_episode(
     compute: Option<Compute>,
     on_cycle: impl FnMut(&Episode<'_>, &mut dyn Planner, Twist),
 ) -> (EpisodeResult, ComputeTally) {
-    let driver = CycleDriver::new(compute, cfg.control_dt);
-    drive_episode(world, cfg, planner, schedule, max_speed, seed, driver, on_cycle)
-}
-
-/// [`run_episode`] with a driver of the caller's (for example one that tracks moving
-/// obstacles: [`CycleDriver::with_tracking`]).
-#[allow(clippy::too_many_arguments)]
-pub fn drive_episode(
-    world: &World,
-    cfg: EpisodeConfig,
-    planner: &mut dyn Planner,
-    schedule: &Schedule,
-    max_speed: f64,
-    seed: u64,
-    mut driver: CycleDriver,
-    on_cycle: impl FnMut(&Episode<'_>, &mut dyn Planner, Twist),
-) -> (EpisodeResult, ComputeTally) {
-    let result = drive_episode_with(
+    let mut driver = CycleDriver::new(compute, cfg.control_dt);
+    let result = drive_episode(
         world,
         cfg,
         planner,
@@ -208,10 +192,11 @@ pub fn drive_episode(
     (result, *driver.tally())
 }
 
-/// [`drive_episode`] with a driver the caller keeps, to read what it measured afterwards
-/// (its tally, its forecast errors); returns the result.
+/// [`run_episode`] with a driver of the caller's (for example one that tracks moving
+/// obstacles: [`CycleDriver::with_tracking`]), kept by the caller to read what it measured
+/// afterwards (its tally, its forecast errors); returns the result.
 #[allow(clippy::too_many_arguments)]
-pub fn drive_episode_with(
+pub fn drive_episode(
     world: &World,
     cfg: EpisodeConfig,
     planner: &mut dyn Planner,
