@@ -42,8 +42,20 @@ impl WorldData {
 
     /// World `id` of `all`, or a one-line error.
     pub fn get(all: &[World], id: usize) -> anyhow::Result<&World> {
-        all.get(id)
-            .with_context(|| format!("world {id} does not exist ({} worlds)", all.len()))
+        all.get(id).with_context(|| Self::missing(all, id))
+    }
+
+    /// Why world `id` is not in `all` (a generated id says how to evaluate generated worlds).
+    pub fn missing(all: &[World], id: usize) -> String {
+        if sim::catalog::is_generated(id) {
+            format!(
+                "world {id} is a generated world, made on demand for training only: to evaluate \
+                 generated worlds, write them with `adp worlds generate` and pass --obstacles \
+                 and --paths"
+            )
+        } else {
+            format!("world {id} does not exist ({} worlds)", all.len())
+        }
     }
 }
 

@@ -590,7 +590,7 @@ fn check_plan(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Re
     for &w in &plan.worlds {
         worlds
             .get(w)
-            .with_context(|| format!("world {w} is not in the loaded data ({} worlds)", worlds.len()))?;
+            .with_context(|| crate::args::WorldData::missing(worlds, w))?;
     }
     let policy = plan
         .policy

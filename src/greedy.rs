@@ -153,8 +153,8 @@ impl Setup {
         let (mut wins, mut score, mut n) = (0usize, 0.0, 0usize);
         let mut records = Vec::new();
         for (w, seed) in self.seeds() {
-            let world = sim::catalog::world(w).with_context(|| format!("world {w}"))?;
-            let run = eval_run(&self.eval, world, self.planner, self.max_speed, seed);
+            let world = sim::catalog::load(w).with_context(|| format!("world {w}"))?;
+            let run = eval_run(&self.eval, &world, self.planner, self.max_speed, seed);
             let chooser = Chooser::Env {
                 space: self.space,
                 env: &env,
@@ -187,12 +187,12 @@ impl Setup {
         let schedule = Schedule::ddp_default();
         let (mut wins, mut score, mut n) = (0usize, 0.0, 0usize);
         for (w, seed) in self.seeds() {
-            let Ok(world) = sim::catalog::world(w) else {
+            let Ok(world) = sim::catalog::load(w) else {
                 continue;
             };
             let mut planner = self.planner.build(&self.eval.planners(), planner_seed(seed));
             let (r, _) = planner::run::run_episode(
-                world,
+                &world,
                 episode,
                 planner.as_mut(),
                 &schedule,

@@ -43,6 +43,10 @@ fn bad_input_gives_one_line_errors() {
         "bad world selection `360` in `dynabarn-easy,360`: world 360 is beyond 359",
     );
     one_line_error(
+        &adp(&["eval", "--worlds", "generated:2"]),
+        "world 1000000 is a generated world, made on demand for training only",
+    );
+    one_line_error(
         &adp(&["eval", "--worlds", "0..2", "--runs", "0"]),
         "--runs must be at least 1",
     );

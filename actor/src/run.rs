@@ -124,9 +124,9 @@ pub enum SessionError {
         /// Why.
         source: crate::policy::PolicyError,
     },
-    /// The assigned world does not exist.
+    /// The assigned world does not exist or could not be generated.
     #[error(transparent)]
-    World(#[from] sim::catalog::UnknownWorld),
+    World(#[from] sim::catalog::LoadError),
     /// The environment refused its settings or an action.
     #[error(transparent)]
     Environment(#[from] crate::env::EnvError),
@@ -817,13 +817,13 @@ impl EpisodeCtx<'_> {
         header: &LeaseHeader,
         sink: &mut dyn StepSink,
     ) -> Result<pb::EpisodeReport, EpisodeError> {
-        let world = sim::catalog::world(a.world as usize).map_err(|e| EpisodeError::Fatal(e.into()))?;
+        let world = sim::catalog::load(a.world as usize).map_err(|e| EpisodeError::Fatal(e.into()))?;
         let planner = (self.setup.make_planner)(self.planner, seed);
         if self.flags.lease_lost.load(Ordering::Acquire) {
             return Err(EpisodeError::LeaseLost);
         }
         let run = Run {
-            world,
+            world: &world,
             episode: self.setup.episode,
             planner,
             max_speed: self.spec.max_speed,

@@ -179,8 +179,9 @@ pub struct LearnerOptions {
     pub space: ActionSpace,
     /// The actors' environment settings (sent to actors as the run spec's `EnvConfig`).
     pub env: actor::EnvConfig,
-    /// The training worlds (BARN indices).
-    pub worlds: Vec<usize>,
+    /// The training worlds: a list of world ids (embedded or generated, see
+    /// `sim::catalog::load`), or a fresh generated world for every assignment.
+    pub worlds: scheduler::WorldPool,
     /// Total agent steps of the run; the learner stops assigning work once they are stored.
     /// Assignments already dealt still run their episodes to the end and are trained on (a
     /// partial episode would be wasted), so a run stores up to one assignment per actor more;

@@ -37,7 +37,7 @@ pub fn fixture(td3: Td3Config, progress_timeout_ms: u64) -> Fixture {
             episodes_per_assignment: 2,
             run_seed: 1,
         },
-        vec![3, 5],
+        scheduler::WorldPool::Listed(vec![3, 5]),
     )
     .unwrap();
     let core = Core::new(

@@ -131,7 +131,7 @@ mod tests {
             episodes_per_assignment: 2,
             run_seed: 1,
         };
-        let registry = Registry::new(registry_cfg, vec![1, 2]).unwrap();
+        let registry = Registry::new(registry_cfg, scheduler::WorldPool::Listed(vec![1, 2])).unwrap();
         let mut td3 = Td3::new(config.clone(), &Device::flex()).unwrap();
         let run = checkpoint::RunState {
             run_id: "r".into(),

@@ -11,6 +11,11 @@
 //! phase in which the smallest share is `p`, and its order is a shuffle of the worlds by a
 //! [`Pcg64Mcg`] seeded from `(seed, p)`. So the order differs from pass to pass, and the whole
 //! sequence is a function of the seed and the sequence of calls.
+//!
+//! A *fresh* dealer ([`Dealer::fresh`], [`WorldPool::Fresh`]) has no list: it deals the ids
+//! `first, first + 1, ...` in order, each once (a released assignment is still dealt again
+//! before a new world), so every assignment meets a world no earlier assignment met. Its worlds
+//! are the ones dealt so far, every share is 1, and the seed plays no part.
 
 use std::collections::VecDeque;
 
@@ -39,6 +44,18 @@ pub enum DealerError {
     /// A deserialized dealer state is inconsistent (wrong lengths, unknown pending world).
     #[error("inconsistent dealer state: {0}")]
     InconsistentState(String),
+}
+
+/// The training worlds a [`Dealer`] deals from.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum WorldPool {
+    /// These worlds (non-empty, no duplicates), dealt fairly.
+    Listed(Vec<usize>),
+    /// An unbounded run of ids from `first` on, a new one for every assignment.
+    Fresh {
+        /// The first id dealt.
+        first: usize,
+    },
 }
 
 /// Per-world assignment counts, as reported by [`Dealer::counts`].
@@ -72,8 +89,10 @@ pub struct Dealer {
     shares: Vec<u64>,
     /// The current pass: the smallest share.
     pass: u64,
-    /// World indices in tie-break order for the current pass.
+    /// World indices in tie-break order for the current pass (empty when fresh).
     order: Vec<usize>,
+    /// The first id of a fresh dealer's unbounded run (`None`: the listed worlds only).
+    fresh: Option<usize>,
 }
 
 /// The serialized form of a [`Dealer`].
@@ -84,9 +103,34 @@ struct DealerState {
     completed: Vec<u64>,
     in_flight: Vec<u64>,
     pending: Vec<usize>,
+    /// A fresh dealer's first id (absent in the state of a listed dealer).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    fresh: Option<usize>,
 }
 
 impl Dealer {
+    /// A dealer over `pool` with tie-break seed `seed` ([`Dealer::new`] or [`Dealer::fresh`]).
+    pub fn of_pool(pool: WorldPool, seed: u64) -> Result<Self, DealerError> {
+        match pool {
+            WorldPool::Listed(worlds) => Self::new(worlds, seed),
+            WorldPool::Fresh { first } => Ok(Self::fresh(first, seed)),
+        }
+    }
+
+    /// A fresh dealer: ids `first, first + 1, ...`, each dealt once (see the module
+    /// documentation).
+    pub fn fresh(first: usize, seed: u64) -> Self {
+        Self::from_state(DealerState {
+            worlds: Vec::new(),
+            seed,
+            completed: Vec::new(),
+            in_flight: Vec::new(),
+            pending: Vec::new(),
+            fresh: Some(first),
+        })
+        .expect("an empty fresh dealer is consistent")
+    }
+
     /// A dealer over `worlds` (non-empty, no duplicates) with tie-break seed `seed`; all
     /// counts start at zero.
     pub fn new(worlds: Vec<usize>, seed: u64) -> Result<Self, DealerError> {
@@ -97,6 +141,7 @@ impl Dealer {
             completed: vec![0; n],
             in_flight: vec![0; n],
             pending: Vec::new(),
+            fresh: None,
         })
     }
 
@@ -107,9 +152,21 @@ impl Dealer {
             completed,
             in_flight,
             pending,
+            fresh,
         } = state;
-        if worlds.is_empty() {
+        if worlds.is_empty() && fresh.is_none() {
             return Err(DealerError::NoWorlds);
+        }
+        if let Some(first) = fresh {
+            if let Some((i, w)) = worlds
+                .iter()
+                .enumerate()
+                .find(|&(i, &w)| w != first.wrapping_add(i))
+            {
+                return Err(DealerError::InconsistentState(format!(
+                    "a fresh dealer from {first} lists world {w} at position {i}"
+                )));
+            }
         }
         let mut sorted = worlds.clone();
         sorted.sort_unstable();
@@ -134,8 +191,8 @@ impl Dealer {
             shares[index] += 1;
             queue.push_back(index);
         }
-        let min = *shares.iter().min().expect("worlds is non-empty");
-        let max = *shares.iter().max().expect("worlds is non-empty");
+        let min = shares.iter().copied().min().unwrap_or(0);
+        let max = shares.iter().copied().max().unwrap_or(0);
         if max - min > 1 {
             return Err(DealerError::InconsistentState(format!(
                 "world shares range from {min} to {max}, more than one apart"
@@ -150,8 +207,11 @@ impl Dealer {
             shares,
             pass: min,
             order: Vec::new(),
+            fresh,
         };
-        dealer.order = dealer.pass_order(min);
+        if fresh.is_none() {
+            dealer.order = dealer.pass_order(min);
+        }
         Ok(dealer)
     }
 
@@ -165,6 +225,12 @@ impl Dealer {
     }
 
     fn index(&self, world: usize) -> Result<usize, DealerError> {
+        if let Some(first) = self.fresh {
+            return world
+                .checked_sub(first)
+                .filter(|&i| i < self.worlds.len())
+                .ok_or(DealerError::UnknownWorld(world));
+        }
         self.worlds
             .iter()
             .position(|&w| w == world)
@@ -173,11 +239,19 @@ impl Dealer {
 
     /// The world to assign next, counted as in flight until [`Dealer::complete`] or
     /// [`Dealer::release`]: the oldest released assignment if any, otherwise the first world
-    /// of the smallest share in the current pass's order.
+    /// of the smallest share in the current pass's order (a fresh dealer: the next new id).
     pub fn deal(&mut self) -> usize {
         if let Some(index) = self.pending.pop_front() {
             self.in_flight[index] += 1;
             return self.worlds[index];
+        }
+        if let Some(first) = self.fresh {
+            let world = first + self.worlds.len();
+            self.worlds.push(world);
+            self.completed.push(0);
+            self.in_flight.push(1);
+            self.shares.push(1);
+            return world;
         }
         let index = *self
             .order
@@ -227,7 +301,7 @@ impl Dealer {
         Ok(index)
     }
 
-    /// The worlds, in the order given to [`Dealer::new`].
+    /// The worlds, in the order given to [`Dealer::new`] (a fresh dealer: those dealt so far).
     pub fn worlds(&self) -> &[usize] {
         &self.worlds
     }
@@ -266,6 +340,7 @@ impl From<Dealer> for DealerState {
             completed: dealer.completed,
             in_flight: dealer.in_flight,
             pending,
+            fresh: dealer.fresh,
         }
     }
 }
@@ -278,6 +353,41 @@ mod tests {
     fn spread(counts: &[WorldCount], share: impl Fn(&WorldCount) -> u64) -> u64 {
         let shares: Vec<u64> = counts.iter().map(share).collect();
         shares.iter().max().unwrap() - shares.iter().min().unwrap()
+    }
+
+    #[test]
+    fn a_fresh_dealer_deals_each_id_once_and_redeals_releases_first() {
+        let mut dealer = Dealer::of_pool(WorldPool::Fresh { first: 1_000 }, 7).unwrap();
+        assert_eq!(
+            (dealer.deal(), dealer.deal(), dealer.deal()),
+            (1_000, 1_001, 1_002)
+        );
+        dealer.complete(1_000).unwrap();
+        dealer.release(1_002).unwrap();
+        assert_eq!(dealer.deal(), 1_002, "a released assignment goes first");
+        assert_eq!(dealer.deal(), 1_003);
+        assert_eq!(dealer.complete(999), Err(DealerError::UnknownWorld(999)));
+        assert_eq!(dealer.complete(1_004), Err(DealerError::UnknownWorld(1_004)));
+        assert_eq!(dealer.complete(1_000), Err(DealerError::NothingInFlight(1_000)));
+        let counts = dealer.counts();
+        assert_eq!(dealer.worlds(), &[1_000, 1_001, 1_002, 1_003]);
+        assert_eq!(counts.iter().map(|c| c.completed).sum::<u64>(), 1);
+        assert_eq!(counts.iter().map(|c| c.in_flight).sum::<u64>(), 3);
+        // A restart: the in-flight ones come back first, then the run goes on where it was.
+        let text = serde_json::to_string(&dealer).unwrap();
+        let mut back: Dealer = serde_json::from_str(&text).unwrap();
+        back.release_all_in_flight();
+        assert_eq!((back.deal(), back.deal(), back.deal()), (1_001, 1_002, 1_003));
+        assert_eq!(back.deal(), 1_004);
+    }
+
+    #[test]
+    fn a_listed_dealer_state_has_no_fresh_field_and_a_bad_fresh_state_is_refused() {
+        let listed = serde_json::to_string(&Dealer::new(vec![3, 4], 1).unwrap()).unwrap();
+        assert!(!listed.contains("fresh"), "{listed}");
+        let bad = r#"{"worlds":[5,7],"seed":1,"completed":[1,1],"in_flight":[0,0],"pending":[],"fresh":5}"#;
+        let err = serde_json::from_str::<Dealer>(bad).unwrap_err().to_string();
+        assert!(err.contains("lists world 7 at position 1"), "{err}");
     }
 
     #[test]

@@ -3,7 +3,8 @@
 //! processes that run them.
 //!
 //! - [`Dealer`] deals training worlds fairly: the world with the fewest assignments next,
-//!   ties in a seeded order reshuffled every pass, expired assignments dealt again first.
+//!   ties in a seeded order reshuffled every pass, expired assignments dealt again first; or,
+//!   from a [`WorldPool::Fresh`] pool, a world never dealt before for every assignment.
 //! - [`Registry`] tracks actors, leases and cycles: each actor gets one assignment of
 //!   `episodes_per_assignment` episodes (with deterministic seeds, see [`seed`]) per cycle;
 //!   the cycle advances when every actor working in it finished or lost its lease; leases
@@ -29,7 +30,7 @@ mod test_util;
 
 pub use assignment::{ActorId, Assignment, Decision, Expired};
 pub use backoff::{Backoff, BackoffPolicy};
-pub use dealer::{Dealer, DealerError, WorldCount};
+pub use dealer::{Dealer, DealerError, WorldCount, WorldPool};
 pub use registry::{ActorInfo, Registry, RegistryConfig, RegistryError, RegistrySnapshot, RegistryStatus};
 pub use sandbox::{BwrapMode, BwrapStatus, ProbeError, Sandbox, SandboxConfig, SandboxError};
 pub use supervisor::{ExitKind, RankLaunch, Supervisor, SupervisorConfig, SupervisorError, SupervisorEvent};

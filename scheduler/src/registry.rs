@@ -31,7 +31,7 @@ use std::collections::{BTreeMap, VecDeque};
 use serde::{Deserialize, Serialize};
 
 use crate::assignment::{ActorId, Assignment, Decision, Expired};
-use crate::dealer::{Dealer, DealerError, WorldCount};
+use crate::dealer::{Dealer, DealerError, WorldCount, WorldPool};
 use crate::seed::episode_seed;
 
 /// How many finished or expired leases are remembered to tell "expired" and "already
@@ -255,9 +255,9 @@ pub struct Registry {
 }
 
 impl Registry {
-    /// An empty registry at cycle 0 dealing `worlds` (non-empty, no duplicates).
-    pub fn new(config: RegistryConfig, worlds: Vec<usize>) -> Result<Self, RegistryError> {
-        let dealer = Dealer::new(worlds, config.run_seed)?;
+    /// An empty registry at cycle 0 dealing from `worlds` (a list: non-empty, no duplicates).
+    pub fn new(config: RegistryConfig, worlds: WorldPool) -> Result<Self, RegistryError> {
+        let dealer = Dealer::of_pool(worlds, config.run_seed)?;
         Self::restore(
             config,
             RegistrySnapshot {
@@ -730,7 +730,7 @@ mod tests {
             episodes_per_assignment: 2,
             run_seed,
         };
-        Registry::new(config, (0..worlds).map(|w| w * 10).collect()).unwrap()
+        Registry::new(config, WorldPool::Listed((0..worlds).map(|w| w * 10).collect())).unwrap()
     }
 
     fn assign(registry: &mut Registry, actor: ActorId, now_ms: u64) -> Assignment {
@@ -751,7 +751,7 @@ mod tests {
             ..RegistryConfig::default()
         };
         assert!(matches!(
-            Registry::new(zero_ttl, vec![1]),
+            Registry::new(zero_ttl, WorldPool::Listed(vec![1])),
             Err(RegistryError::InvalidConfig(_))
         ));
         let zero_episodes = RegistryConfig {
@@ -759,10 +759,10 @@ mod tests {
             ..RegistryConfig::default()
         };
         assert!(matches!(
-            Registry::new(zero_episodes, vec![1]),
+            Registry::new(zero_episodes, WorldPool::Listed(vec![1])),
             Err(RegistryError::InvalidConfig(_))
         ));
-        let error = Registry::new(RegistryConfig::default(), vec![]).unwrap_err();
+        let error = Registry::new(RegistryConfig::default(), WorldPool::Listed(vec![])).unwrap_err();
         assert_eq!(error, RegistryError::Worlds(DealerError::NoWorlds));
     }
 

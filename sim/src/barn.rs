@@ -134,6 +134,11 @@ pub(crate) fn parse_lines<T: for<'de> Deserialize<'de>, E: std::fmt::Display>(
     Ok(out)
 }
 
+/// The centre of path cell (`row`, `col`) in the world frame, as the reference path is drawn.
+pub fn path_cell_xy(row: f64, col: f64) -> Vec2 {
+    Vec2::new(-4.425 + 0.15 * row, 5.175 + 0.15 * col)
+}
+
 /// Parses an obstacles file and a paths file (BARN JSONL formats) into worlds, indexed by
 /// world id. Every world in one file must be in the other.
 pub fn parse(
@@ -218,7 +223,7 @@ pub fn parse(
         let reference_path = p
             .path_rc
             .iter()
-            .map(|rc| Vec2::new(-4.425 + 0.15 * rc[0] as f64, 5.175 + 0.15 * rc[1] as f64))
+            .map(|rc| path_cell_xy(rc[0] as f64, rc[1] as f64))
             .collect();
         let start = Pose::new(p.start_xy[0], p.start_xy[1], START.yaw);
         let goal = Vec2::new(p.goal_xy[0], p.goal_xy[1]);

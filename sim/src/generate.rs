@@ -421,6 +421,23 @@ impl GeneratedWorld {
         runpy_length(&self.path, START.position(), GOAL)
     }
 
+    /// The world as the simulator runs it, with id `id`: the world `adp eval` reads from this
+    /// world's lines of `obstacles.jsonl` and `paths.jsonl` (whose path length is rounded to
+    /// 6 decimals; so is this one's).
+    pub fn to_world(&self, id: usize) -> crate::World {
+        crate::World::new(
+            id,
+            self.cylinders(),
+            START,
+            GOAL,
+            round6(self.path_length_m()),
+            self.path
+                .iter()
+                .map(|c| crate::barn::path_cell_xy(c.row as f64, c.col as f64))
+                .collect(),
+        )
+    }
+
     /// The world's line of `obstacles.jsonl` (no newline), in the shipped format.
     pub fn obstacles_line(&self) -> String {
         let cylinders: Vec<[f64; 3]> = self.cylinders().iter().map(|c| [c.c.x, c.c.y, c.r]).collect();

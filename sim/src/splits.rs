@@ -9,8 +9,10 @@
 //!
 //! A selection ([`select`]) is one or more comma-separated entries, each a split name, a
 //! built-in set (`all` = BARN 0..299, `dynabarn` = 300..359, `dynabarn-easy`,
-//! `dynabarn-medium`, `dynabarn-hard`), a range `a..b` (end exclusive) or a world id; the
-//! result is sorted without duplicates.
+//! `dynabarn-medium`, `dynabarn-hard`), `generated:N` (the first N generated worlds, ids
+//! [`GENERATED_FIRST`]`..+N`), a range `a..b` (end exclusive) or a world id (embedded or
+//! generated); the result is sorted without duplicates. [`FRESH_GENERATED`] (`generated`
+//! alone, a new world for every training assignment) is not a list and is refused here.
 
 use std::collections::BTreeMap;
 use std::ops::Range;
@@ -19,7 +21,7 @@ use std::sync::OnceLock;
 use rand::{RngCore, SeedableRng};
 use serde::Deserialize;
 
-use crate::catalog::NUM_WORLDS;
+use crate::catalog::{is_generated, GENERATED_COUNT, GENERATED_FIRST, NUM_WORLDS};
 use crate::dynabarn::Level;
 
 /// The embedded BARN split file.
@@ -289,6 +291,10 @@ fn named() -> &'static BTreeMap<String, Vec<usize>> {
     })
 }
 
+/// The training-pool name of an unbounded supply of generated worlds: a new one for every
+/// assignment (the training config's `[run] worlds`; not a [`select`]ion).
+pub const FRESH_GENERATED: &str = "generated";
+
 /// Resolves a selection against the embedded split files (see the module documentation):
 /// the ids, sorted, without duplicates. An error names the entry at fault.
 pub fn select(spec: &str) -> Result<Vec<usize>, SplitError> {
@@ -317,8 +323,12 @@ fn select_in(named: &BTreeMap<String, Vec<usize>>, spec: &str) -> Result<Vec<usi
                 .parse()
                 .map_err(|_| bad(format!("`{s}` is not a world id")))?;
             // A range's end is exclusive, so it may be one past the last world.
-            if v > last + usize::from(end) {
-                return Err(bad(format!("world {} is beyond {last}", v - usize::from(end))));
+            let id = v - usize::from(end && v > 0);
+            if id > last && !is_generated(id) {
+                return Err(bad(format!(
+                    "world {id} is beyond {last} and not a generated world ({GENERATED_FIRST}..{})",
+                    GENERATED_FIRST + GENERATED_COUNT - 1
+                )));
             }
             Ok(v)
         };
@@ -327,10 +337,27 @@ fn select_in(named: &BTreeMap<String, Vec<usize>>, spec: &str) -> Result<Vec<usi
         }
         if let Some(ids) = named.get(entry) {
             out.extend_from_slice(ids);
+        } else if entry == FRESH_GENERATED {
+            return Err(bad(
+                "`generated` alone (a new world for every training assignment) is a training \
+                 pool, not a list of worlds; `generated:N` selects the first N"
+                    .into(),
+            ));
+        } else if let Some(n) = entry.strip_prefix("generated:") {
+            let n: usize = n
+                .trim()
+                .parse()
+                .ok()
+                .filter(|n| (1..=GENERATED_COUNT).contains(n))
+                .ok_or_else(|| bad(format!("`{n}` is not a count in 1..={GENERATED_COUNT}")))?;
+            out.extend(GENERATED_FIRST..GENERATED_FIRST + n);
         } else if let Some((a, b)) = entry.split_once("..") {
             let (a, b) = (num(a, false)?, num(b, true)?);
             if a >= b {
                 return Err(bad("empty range".into()));
+            }
+            if is_generated(a) != is_generated(b - 1) {
+                return Err(bad("a range cannot span embedded and generated worlds".into()));
             }
             out.extend(a..b);
         } else if entry.starts_with(|c: char| c.is_ascii_digit()) {
@@ -492,12 +519,33 @@ mod tests {
         );
         assert_eq!(
             select("1,360").unwrap_err().to_string(),
-            "bad world selection `360` in `1,360`: world 360 is beyond 359"
+            "bad world selection `360` in `1,360`: world 360 is beyond 359 and not a generated \
+             world (1000000..1000999999)"
         );
         assert_eq!(
             select("0..361").unwrap_err().to_string(),
-            "bad world selection `0..361`: world 360 is beyond 359"
+            "bad world selection `0..361`: world 360 is beyond 359 and not a generated world \
+             (1000000..1000999999)"
         );
+        // Generated worlds: `generated:N`, their ids and ranges of them.
+        assert_eq!(
+            select("generated:3").unwrap(),
+            vec![1_000_000, 1_000_001, 1_000_002]
+        );
+        assert_eq!(
+            select("1000005..1000007,2").unwrap(),
+            vec![2, 1_000_005, 1_000_006]
+        );
+        assert_eq!(
+            select("generated:0").unwrap_err().to_string(),
+            "bad world selection `generated:0`: `0` is not a count in 1..=1000000000"
+        );
+        assert_eq!(
+            select("350..1000002").unwrap_err().to_string(),
+            "bad world selection `350..1000002`: a range cannot span embedded and generated worlds"
+        );
+        let e = select("fit,generated").unwrap_err().to_string();
+        assert!(e.contains("is a training pool, not a list of worlds"), "{e}");
         assert_eq!(
             select("5..2").unwrap_err().to_string(),
             "bad world selection `5..2`: empty range"

@@ -355,7 +355,7 @@ fn collect_steps(
 fn collect(steps: u64) -> anyhow::Result<Vec<Figure>> {
     let cfg = TrainConfig::load(None)?;
     let space = cfg.run.action_space;
-    let worlds = cfg.worlds()?;
+    let worlds = sim::splits::select(&cfg.run.worlds)?;
     let target: Vec<f32> = space.ddp_action().iter().map(|&a| a as f32).collect();
     let (dims, weights) = fitted_policy_weights(&cfg.td3, &target)?;
     let net = MlpPolicy::from_flat(&dims, weights)?;
@@ -521,7 +521,7 @@ mod tests {
             space.dim(),
         ];
         let net = MlpPolicy::from_flat(&dims, vec![0.0; actor::policy::param_count(&dims)]).unwrap();
-        let worlds = cfg.worlds().unwrap();
+        let worlds = sim::splits::select(&cfg.run.worlds).unwrap();
         // 250 steps cannot fit in one episode (capped at 200 agent steps).
         assert_eq!(collect_steps(&net, &cfg, cfg.env, &worlds, 0, 250).unwrap(), 250);
     }

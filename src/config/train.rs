@@ -29,7 +29,8 @@ pub struct RunSection {
     pub steps: u64,
     /// Actor processes (0 = one per core).
     pub actors: u32,
-    /// Training worlds (split name, range or list).
+    /// Training worlds: a selection (split name, range, list, `generated:N` = the first N
+    /// generated worlds), or `generated`: a new generated world for every assignment.
     pub worlds: String,
     /// Planner the actors drive.
     pub planner: PlannerKind,
@@ -183,9 +184,16 @@ impl TrainConfig {
         )
     }
 
-    /// The training worlds of `[run] worlds`.
-    pub(crate) fn worlds(&self) -> anyhow::Result<Vec<usize>> {
+    /// The training worlds of `[run] worlds`: a selection, or `generated` (a fresh generated
+    /// world for every assignment).
+    pub(crate) fn worlds(&self) -> anyhow::Result<scheduler::WorldPool> {
+        if self.run.worlds.trim() == sim::splits::FRESH_GENERATED {
+            return Ok(scheduler::WorldPool::Fresh {
+                first: sim::catalog::GENERATED_FIRST,
+            });
+        }
         sim::splits::select(&self.run.worlds)
+            .map(scheduler::WorldPool::Listed)
             .map_err(|e| anyhow::anyhow!("[run] worlds = {:?}: {e}", self.run.worlds))
     }
 }

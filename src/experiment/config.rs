@@ -36,7 +36,8 @@ pub struct ExperimentSection {
     pub action_spaces: Vec<String>,
     /// Speed caps (m/s).
     pub speeds: Vec<f64>,
-    /// Training-world selections, one arm per entry (split names, ranges or lists; default
+    /// Training-world selections, one arm per entry (split names, ranges or lists,
+    /// `generated:N`, or `generated` for a new generated world every assignment; default
     /// `fit`, which leaves `val` to the greedy evaluation of `[train.greedy]`).
     #[serde(default = "default_train_worlds")]
     pub train_worlds: Vec<String>,
@@ -490,6 +491,16 @@ fn world_splits(
         Ok(ids)
     };
     for tw in &ex.train_worlds {
+        if tw.trim() == sim::splits::FRESH_GENERATED {
+            // A new generated world for every assignment: none may be a test world.
+            if let Some(w) = test_worlds.iter().find(|&&w| sim::catalog::is_generated(w)) {
+                bail!(
+                    "{name}: [experiment] train_worlds = \"generated\" may deal test world {w} \
+                     (the test worlds include generated ones)"
+                );
+            }
+            continue;
+        }
         disjoint("experiment", "train_worlds", tw)?;
     }
     if train.greedy.every_steps > 0 {
@@ -860,6 +871,53 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("[train.greedy] worlds"), "{e}");
+    }
+
+    #[test]
+    fn generated_training_worlds_make_arms_of_their_own() {
+        let ex = parse(&MINIMAL.replace(
+            "speeds",
+            "train_worlds = [\"generated:75\", \"generated\"]\nspeeds",
+        ))
+        .unwrap();
+        let ids: Vec<String> = ex.arms.iter().map(Arm::id).collect();
+        assert_eq!(
+            ids,
+            [
+                "dwa-decremental-1.5-generated_75",
+                "dwa-decremental-1.5-generated"
+            ]
+        );
+        assert_eq!(
+            ex.train_config(&ex.arms[0], 0).worlds().unwrap(),
+            scheduler::WorldPool::Listed((1_000_000..1_000_075).collect())
+        );
+        assert_eq!(
+            ex.train_config(&ex.arms[1], 0).worlds().unwrap(),
+            scheduler::WorldPool::Fresh { first: 1_000_000 }
+        );
+        // A fresh pool could deal a generated test world.
+        let e = parse(&MINIMAL.replace(
+            "speeds",
+            "train_worlds = [\"generated\"]\ntest_worlds = \"generated:5\"\nspeeds",
+        ))
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("may deal test world 1000000"), "{e}");
+        // The shipped training-world table: five arms, the last one fresh.
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/experiments/worlds.toml");
+        let ex = Experiment::load(&path, &Restrict::default()).unwrap();
+        let pools: Vec<scheduler::WorldPool> = (ex.arms.iter())
+            .map(|a| ex.train_config(a, 0).worlds().unwrap())
+            .collect();
+        let sizes: Vec<Option<usize>> = (pools.iter())
+            .map(|p| match p {
+                scheduler::WorldPool::Listed(w) => Some(w.len()),
+                scheduler::WorldPool::Fresh { .. } => None,
+            })
+            .collect();
+        assert_eq!(sizes, [Some(25), Some(75), Some(75), Some(1000), None]);
+        assert_eq!(ex.test_worlds.len(), 225);
     }
 
     #[test]
