@@ -118,7 +118,8 @@ impl GlobalPlanner {
         let idx = |x: usize, y: usize| (y * nx + x) as u32;
         let h = |c: u32| {
             let (x, y) = ((c as usize % nx) as f32, (c as usize / nx) as f32);
-            ((x - t.0 as f32).hypot(y - t.1 as f32)) * res
+            let (dx, dy) = (x - t.0 as f32, y - t.1 as f32);
+            (dx * dx + dy * dy).sqrt() * res
         };
         let start = idx(s.0, s.1);
         let goal = idx(t.0, t.1);
