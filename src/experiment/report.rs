@@ -971,6 +971,50 @@ mod tests {
         assert!(none.is_empty());
     }
 
+    /// Arms in several observation layouts make Table II, one ADP row per layout; Table I
+    /// keeps the first layout's arms only.
+    #[test]
+    fn observation_layouts_make_table_two() {
+        let text = "[experiment]\nname = \"t\"\nplanners = [\"dwa\"]\nspeeds = [1.5]\n\
+                    observations = [\"scan\", \"sectors:15\"]\n";
+        let ex = Experiment::parse("t.toml", text, &Default::default()).unwrap();
+        let data: Vec<ArmData> = (ex.arms.iter())
+            .map(|arm| ArmData {
+                arm: arm.clone(),
+                ddp: Some(rec("ddp", &[(3, true, 0.5)])),
+                constant: None,
+                search: None,
+                untrained: None,
+                adp: vec![rec("adp", &[(3, true, 0.25)])],
+                shuffled: vec![],
+                sweep: vec![],
+                sensing: vec![],
+            })
+            .collect();
+        let mut two = String::new();
+        table_two(&mut two, &ex, &data);
+        assert!(
+            two.starts_with("## Table II: observation-layout ablation"),
+            "{two}"
+        );
+        assert!(two.contains("| ADP-decremental (fit, scan) | 100.00 |"), "{two}");
+        assert!(
+            two.contains("| ADP-decremental (fit, sectors:15) | 100.00 |"),
+            "{two}"
+        );
+        let mut one = String::new();
+        table_one(&mut one, &data);
+        assert_eq!(one.matches("| DDP |").count(), 1, "{one}");
+        assert!(
+            one.contains("avg score ↑ 1.5 |") && !one.contains("avg score ↑ 1.5 | avg score"),
+            "{one}"
+        );
+        // One layout and one space: no Table II.
+        let mut none = String::new();
+        table_two(&mut none, &ex, &data[..1]);
+        assert!(none.is_empty());
+    }
+
     /// Three worlds in two bands, two seeds, by hand (binary-exact scores). Per-world ADP
     /// scores (mean of seeds): world 3: 0.375, world 7: 0.5, world 150: 0.125; control: 0.375,
     /// 0 (failed), 0.5. Δ score 0, +0.5, -0.375; Δ success 0, +1, 0.
