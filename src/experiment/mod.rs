@@ -1,9 +1,9 @@
 //! `adp experiment --config configs/experiments/NAME.toml [--out DIR] [--resume]`: train S
-//! seeds per arm (planner x action space x speed x training worlds x observation layout), evaluate every greedy
-//! policy with the papers' protocol against DDP and three controls (the untrained
-//! DDP-initialized policy, the best constant schedule found on the training worlds, the
-//! state-shuffled policy), and write `report.md` with paper-style tables, paired statistics
-//! and figures.
+//! seeds per arm (planner x action space x speed x training worlds x observation layout),
+//! evaluate every greedy policy with the papers' protocol against DDP and three controls (the
+//! untrained DDP-initialized policy, the best constant schedule found on the training worlds,
+//! the state-shuffled policy), optionally sweep compute budgets and lidar conditions, and
+//! write `report.md` with paper-style tables, paired statistics and figures.
 //!
 //! The work is a list of stages ([`plan`]), each writing one file atomically; `--resume`
 //! skips the stages whose file exists. Evaluation runs in parallel over (world, run) on the
