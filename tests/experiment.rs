@@ -3,7 +3,8 @@
 //! PNG figures exist; a resumed experiment skips every finished stage (the trained arm is not
 //! trained again); the learner's greedy evaluations make the learning curves; a changed
 //! experiment file or a second start in the same directory is refused; evaluation in two
-//! shards, merged, equals the unsharded one.
+//! shards, merged, equals the unsharded one. A one-condition sensing sweep (dropout 0, the
+//! configuration's own lidar) reproduces the main DDP evaluation run for run.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -32,6 +33,11 @@ candidates = 3
 [shuffle]
 worlds = "150"
 pool = 64
+
+[sensing_sweep]
+dropouts = [0.0]
+runs = 3
+trim = 1
 
 [stats]
 resamples = 200
@@ -98,9 +104,10 @@ fn tiny_experiment_reports_resumes_and_refuses_mixing() {
     let first = adp(&["experiment", "--config", c, "--out", o]);
     assert!(first.status.success(), "{}", stderr(&first));
     // The seven stages (training, constant search; DDP, constant, untrained, ADP and shuffled
-    // evaluations) each left their output.
+    // evaluations) and the three of the sensing sweep (DDP, constant, ADP) each left their
+    // output.
     let outputs = stage_outputs(&out);
-    assert_eq!(outputs.len(), 7, "{outputs:#?}");
+    assert_eq!(outputs.len(), 10, "{outputs:#?}");
     let report = std::fs::read_to_string(out.join("report.md")).unwrap();
     for needle in [
         "## Table I",
@@ -111,6 +118,8 @@ fn tiny_experiment_reports_resumes_and_refuses_mixing() {
         "ADP-decremental",
         "## Paired statistics",
         "greedy-evaluation learning curves",
+        "## Sensing conditions",
+        "| method | 720 beams, noise 0.001 m |",
     ] {
         assert!(report.contains(needle), "report lacks {needle:?}:\n{report}");
     }
@@ -122,6 +131,17 @@ fn tiny_experiment_reports_resumes_and_refuses_mixing() {
     let results: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("results.json")).unwrap()).unwrap();
     assert_eq!(results[0]["comparisons"].as_array().unwrap().len(), 4);
+    assert_eq!(results[0]["sensing"].as_array().unwrap().len(), 1);
+    // The sensing condition is the configuration's own lidar: DDP's runs are the main ones.
+    let read = |file: &str| -> serde_json::Value {
+        serde_json::from_str(&std::fs::read_to_string(out.join(file)).unwrap()).unwrap()
+    };
+    let (main, sensing) = (
+        read("eval/ddp-dwa-1.5.json"),
+        read("eval/sensing-0/ddp-dwa-1.5.json"),
+    );
+    assert_eq!(main["per_world"], sensing["per_world"]);
+    assert_eq!(sensing["lidar"]["dropout"], 0.0);
 
     // Starting again in the same directory is refused; so is resuming with another file.
     let again = adp(&["experiment", "--config", c, "--out", o]);
@@ -169,6 +189,9 @@ fn tiny_experiment_reports_resumes_and_refuses_mixing() {
         format!("eval/{arm}/untrained.json"),
         format!("eval/{arm}/seed-0/adp.json"),
         format!("eval/{arm}/seed-0/shuffled.json"),
+        "eval/sensing-0/ddp-dwa-1.5.json".to_string(),
+        format!("eval/{arm}/sensing-0/constant.json"),
+        format!("eval/{arm}/sensing-0/seed-0.json"),
     ];
     for file in &evals {
         // Each shard wrote its half; nothing is merged before the unsharded run.

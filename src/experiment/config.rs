@@ -6,18 +6,22 @@
 //! `[train.env]`, `[train.td3]`, `[train.service]`, `[train.sandbox]`), laid over the embedded
 //! `configs/local.toml` and checked by [`TrainConfig::parse`], so every key `adp train`
 //! knows is available here. Per arm and seed the experiment sets `[run] planner`,
-//! `action_space`, `max_speed`, `worlds` and `name`, `[td3] seed`, `obs_dim` and `act_dim`
-//! (see [`Experiment::train_config`]).
+//! `action_space`, `max_speed`, `worlds` and `name`, `[env] observation` (an arm of
+//! `[experiment] observations`), `[td3] seed`, `obs_dim` and `act_dim` (see
+//! [`Experiment::train_config`]).
 
 use std::path::Path;
 
 use anyhow::{bail, Context};
 use serde::{Deserialize, Serialize};
 
+use actor::LaserLayout;
 use planner::ActionSpace;
+use sim::lidar::LidarConfig;
 
 use crate::config::one_line;
 use crate::config::TrainConfig;
+use crate::eval::LidarOverride;
 use planner::PlannerKind;
 
 /// The embedded training defaults that `[train]` is laid over.
@@ -50,6 +54,11 @@ pub struct ExperimentSection {
     /// `[td3] seed` of the first training seed; seed k trains with `first_seed + k`.
     #[serde(default = "default_first_seed")]
     pub first_seed: u64,
+    /// Observation layouts (`"scan"`, `"sectors:N"`), one arm per entry (absent: the one
+    /// layout of `[train.env] observation`). An arm whose layout is `[train.env]`'s keeps the
+    /// id it has without this key; the others' ids end in the layout (`-sectors15`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub observations: Option<Vec<String>>,
 }
 
 fn default_spaces() -> Vec<String> {
@@ -149,7 +158,7 @@ pub struct SweepSection {
     /// this section's own run count: `2 * trim < runs`).
     pub trim: usize,
     /// The arm swept (index into the arms in file order: planners x spaces x speeds x
-    /// training worlds).
+    /// training worlds x observations).
     pub arm: usize,
 }
 
@@ -161,6 +170,43 @@ impl Default for SweepSection {
             runs: 5,
             trim: 1,
             arm: 0,
+        }
+    }
+}
+
+/// `[sensing_sweep]`: DDP, the best constant and every ADP seed of the covered arms evaluated
+/// on the test worlds under other lidar conditions (the evaluation's lidar only: the
+/// planner's costmap and the policy's observation both see the degraded scan). The
+/// conditions are the cross product beams x noise fractions x dropouts, in that order (an
+/// empty list keeps the `[eval] config`'s value); all three empty: no sweep.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SensingSection {
+    /// Lidar beam counts over the 270-degree field.
+    pub beams: Vec<usize>,
+    /// Range noise sigmas as fractions of each scan's mean range (each replaces the absolute
+    /// `noise_sigma`, which becomes 0: a fraction of 0 is a noiseless lidar).
+    pub noise_fractions: Vec<f64>,
+    /// Probabilities that a beam returns nothing.
+    pub dropouts: Vec<f64>,
+    /// Runs per test world of each sweep evaluation.
+    pub runs: usize,
+    /// Fastest and slowest runs dropped per world before averaging (`2 * trim < runs`).
+    pub trim: usize,
+    /// The arms covered (indices into the arms in file order, as `[compute_sweep] arm`);
+    /// empty: every arm.
+    pub arms: Vec<usize>,
+}
+
+impl Default for SensingSection {
+    fn default() -> Self {
+        Self {
+            beams: Vec::new(),
+            noise_fractions: Vec::new(),
+            dropouts: Vec::new(),
+            runs: 5,
+            trim: 1,
+            arms: Vec::new(),
         }
     }
 }
@@ -271,6 +317,8 @@ struct RawFile {
     #[serde(default)]
     compute_sweep: SweepSection,
     #[serde(default)]
+    sensing_sweep: SensingSection,
+    #[serde(default)]
     stats: StatsSection,
     #[serde(default)]
     figures: FiguresSection,
@@ -280,7 +328,8 @@ struct RawFile {
     train: toml::Table,
 }
 
-/// One arm: a planner, an action space, a speed cap and a set of training worlds.
+/// One arm: a planner, an action space, a speed cap, a set of training worlds and an
+/// observation layout.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Arm {
     /// The planner.
@@ -291,22 +340,40 @@ pub struct Arm {
     pub speed: f64,
     /// Training-world selection as written.
     pub train_worlds: String,
+    /// The observation layout when it is not `[train.env] observation` (`None`: that one).
+    pub observation: Option<LaserLayout>,
 }
 
 impl Arm {
-    /// A file-name-safe id, e.g. `dwa-decremental-1.5-train`.
+    /// A file-name-safe id, e.g. `dwa-decremental-1.5-train`, and with an observation layout
+    /// of its own `dwa-decremental-1.5-train-sectors15`.
     pub fn id(&self) -> String {
         let worlds: String = self
             .train_worlds
             .chars()
             .map(|c| if c.is_ascii_alphanumeric() { c } else { '_' })
             .collect();
+        let layout: String = self.observation.map_or_else(String::new, |l| {
+            let name: String = l
+                .to_string()
+                .chars()
+                .filter(char::is_ascii_alphanumeric)
+                .collect();
+            format!("-{name}")
+        });
         format!(
-            "{}-{}-{}-{worlds}",
+            "{}-{}-{}-{worlds}{layout}",
             planner_name(self.planner),
             space_label(self.space),
             speed_label(self.speed)
         )
+    }
+
+    /// Whether `other` differs from this arm at most in its observation layout, so that its
+    /// DDP, constant search and best constant (which observe nothing) are this arm's.
+    pub fn same_controls(&self, other: &Arm) -> bool {
+        (self.planner, self.space, &self.train_worlds) == (other.planner, other.space, &other.train_worlds)
+            && self.speed == other.speed
     }
 }
 
@@ -358,6 +425,8 @@ pub struct Experiment {
     pub shuffle: ShuffleSection,
     /// `[compute_sweep]`.
     pub sweep: SweepSection,
+    /// `[sensing_sweep]`.
+    pub sensing: SensingSection,
     /// `[stats]`.
     pub stats: StatsSection,
     /// `[slurm]`.
@@ -599,12 +668,14 @@ fn restricted_seeds(
 }
 
 /// The arms, planner-major: every kept planner, action space (a gains space only with its
-/// planner), speed and training-world selection.
+/// planner), speed, training-world selection and observation layout (`observations`, as
+/// [`observation_layouts`] gives them).
 fn restricted_arms(
     restrict: &Restrict,
     planners: &[PlannerKind],
     spaces: &[ActionSpace],
     ex: &ExperimentSection,
+    observations: &[Option<LaserLayout>],
 ) -> Vec<Arm> {
     let mut arms = Vec::new();
     for &planner in planners
@@ -619,17 +690,118 @@ fn restricted_arms(
                 restrict.speeds.is_empty() || restrict.speeds.iter().any(|x| (x - *v).abs() < 1e-9)
             }) {
                 for tw in &ex.train_worlds {
-                    arms.push(Arm {
-                        planner,
-                        space,
-                        speed,
-                        train_worlds: tw.clone(),
-                    });
+                    for &observation in observations {
+                        arms.push(Arm {
+                            planner,
+                            space,
+                            speed,
+                            train_worlds: tw.clone(),
+                            observation,
+                        });
+                    }
                 }
             }
         }
     }
     arms
+}
+
+/// The observation layouts of `[experiment] observations` in file order, `None` for the one
+/// of `[train.env] observation` (`base`); absent: that one alone.
+fn observation_layouts(
+    name: &str,
+    ex: &ExperimentSection,
+    base: LaserLayout,
+) -> anyhow::Result<Vec<Option<LaserLayout>>> {
+    let Some(listed) = &ex.observations else {
+        return Ok(vec![None]);
+    };
+    if listed.is_empty() {
+        bail!(
+            "{name}: [experiment] observations must not be empty (leave it out for [train.env] observation)"
+        );
+    }
+    let mut layouts: Vec<LaserLayout> = Vec::new();
+    for text in listed {
+        let layout: LaserLayout = text
+            .parse()
+            .map_err(|e| anyhow::anyhow!("{name}: [experiment] observations: {e}"))?;
+        if layouts.contains(&layout) {
+            bail!("{name}: [experiment] observations: `{text}` is listed twice");
+        }
+        layouts.push(layout);
+    }
+    Ok(layouts.into_iter().map(|l| (l != base).then_some(l)).collect())
+}
+
+/// Checks `[sensing_sweep]` against the experiment's `arm_count` arms: every value a lidar
+/// can take, no value twice, its runs and trim, and its arms.
+fn check_sensing(name: &str, s: &SensingSection, arm_count: usize) -> anyhow::Result<()> {
+    let err = |key: &str, what: String| anyhow::anyhow!("{name}: [sensing_sweep] {key}{what}");
+    let check = |key: &str, value: String, lidar: LidarConfig| {
+        lidar.validate().map_err(|e| err(key, format!(" = {value}: {e}")))
+    };
+    for &beams in &s.beams {
+        check(
+            "beams",
+            beams.to_string(),
+            LidarConfig {
+                beams,
+                ..LidarConfig::default()
+            },
+        )?;
+    }
+    for &noise_fraction in &s.noise_fractions {
+        let lidar = LidarConfig {
+            noise_fraction,
+            noise_sigma: 0.0,
+            ..LidarConfig::default()
+        };
+        check("noise_fractions", noise_fraction.to_string(), lidar)?;
+    }
+    for &dropout in &s.dropouts {
+        check(
+            "dropouts",
+            dropout.to_string(),
+            LidarConfig {
+                dropout,
+                ..LidarConfig::default()
+            },
+        )?;
+    }
+    let twice = |values: Vec<String>| {
+        let first = values.iter().enumerate().find(|(i, v)| values[..*i].contains(v));
+        first.map(|(_, v)| v.clone())
+    };
+    for (key, values) in [
+        ("beams", s.beams.iter().map(ToString::to_string).collect()),
+        (
+            "noise_fractions",
+            s.noise_fractions.iter().map(ToString::to_string).collect(),
+        ),
+        ("dropouts", s.dropouts.iter().map(ToString::to_string).collect()),
+        ("arms", s.arms.iter().map(ToString::to_string).collect()),
+    ] {
+        if let Some(v) = twice(values) {
+            return Err(err(key, format!(": {v} is listed twice")));
+        }
+    }
+    if s.runs == 0 || 2 * s.trim >= s.runs {
+        return Err(err(
+            "runs",
+            format!(
+                " = {} and trim = {}: runs must be at least 1 and trim less than half of runs",
+                s.runs, s.trim
+            ),
+        ));
+    }
+    if let Some(a) = s.arms.iter().find(|&&a| a >= arm_count) {
+        return Err(err(
+            "arms",
+            format!(": arm {a}, but the experiment has {arm_count} arm(s) (indices from 0)"),
+        ));
+    }
+    Ok(())
 }
 
 /// Checks `[compute_sweep]` against the experiment's `arm_count` arms.
@@ -691,15 +863,19 @@ impl Experiment {
             None => *test_worlds.last().context("no test worlds")?,
         };
         let seeds = restricted_seeds(name, restrict, &planners, &spaces, ex)?;
-        let arms = restricted_arms(restrict, &planners, &spaces, ex);
+        let observations = observation_layouts(name, ex, train.env.observation)?;
+        let arms = restricted_arms(restrict, &planners, &spaces, ex, &observations);
         let sweep = raw.compute_sweep;
         check_sweep(name, &sweep, arms.len())?;
+        let sensing = raw.sensing_sweep;
+        check_sensing(name, &sensing, arms.len())?;
         Ok(Self {
             section: raw.experiment,
             eval: raw.eval,
             search: raw.constant_search,
             shuffle: raw.shuffle,
             sweep,
+            sensing,
             stats: raw.stats,
             slurm: raw.slurm,
             train,
@@ -727,9 +903,33 @@ impl Experiment {
         out
     }
 
+    /// The sensing conditions of `[sensing_sweep]`, in order (empty without a sweep).
+    pub fn sensing_conditions(&self) -> Vec<LidarOverride> {
+        let s = &self.sensing;
+        if s.beams.is_empty() && s.noise_fractions.is_empty() && s.dropouts.is_empty() {
+            return Vec::new();
+        }
+        LidarOverride::combinations(&s.beams, &s.noise_fractions, &s.dropouts)
+    }
+
+    /// The arms the sensing sweep covers, in order (every arm when `[sensing_sweep] arms` is
+    /// empty; none without conditions).
+    pub fn sensing_arms(&self) -> Vec<usize> {
+        match (self.sensing_conditions().is_empty(), self.sensing.arms.is_empty()) {
+            (true, _) => Vec::new(),
+            (false, true) => (0..self.arms.len()).collect(),
+            (false, false) => self.sensing.arms.clone(),
+        }
+    }
+
+    /// The observation layout `arm` trains with.
+    pub fn observation(&self, arm: &Arm) -> LaserLayout {
+        arm.observation.unwrap_or(self.train.env.observation)
+    }
+
     /// The training configuration of `arm`'s seed `seed` (0-based): `[train]` with the arm's
-    /// planner, action space (and the observation, laser and action sizes it and `[train.env]
-    /// observation` need), speed cap and training worlds, and `[td3] seed = first_seed + seed`.
+    /// planner, action space and observation layout (and the observation, laser and action
+    /// sizes they need), speed cap and training worlds, and `[td3] seed = first_seed + seed`.
     pub fn train_config(&self, arm: &Arm, seed: usize) -> TrainConfig {
         let mut cfg = self.train.clone();
         cfg.run.name = format!("{}-seed{seed}", arm.id());
@@ -737,6 +937,7 @@ impl Experiment {
         cfg.run.action_space = arm.space;
         cfg.run.max_speed = arm.speed;
         cfg.run.worlds = arm.train_worlds.clone();
+        cfg.env.observation = self.observation(arm);
         (cfg.td3.obs_dim, cfg.td3.act_dim, cfg.td3.laser_dim) = cfg.td3_sizes();
         cfg.td3.seed = self.section.first_seed + seed as u64;
         cfg
@@ -955,6 +1156,178 @@ mod tests {
         };
         let ex = Experiment::parse("x.toml", MINIMAL, &r).unwrap();
         assert_eq!((ex.seeds, ex.train.run.steps), (1, 50));
+    }
+
+    /// Observation layouts are the innermost arm axis: the layout of `[train.env]
+    /// observation` keeps today's id, the others end in theirs, and each arm's networks take
+    /// its layout's inputs.
+    #[test]
+    fn observation_layouts_make_arms() {
+        let ex = parse(&MINIMAL.replace(
+            "speeds = [1.5]",
+            "speeds = [1.5, 2.0]\nobservations = [\"scan\", \"sectors:15\"]",
+        ))
+        .unwrap();
+        let ids: Vec<String> = ex.arms.iter().map(Arm::id).collect();
+        assert_eq!(
+            ids,
+            [
+                "dwa-decremental-1.5-fit",
+                "dwa-decremental-1.5-fit-sectors15",
+                "dwa-decremental-2.0-fit",
+                "dwa-decremental-2.0-fit-sectors15"
+            ]
+        );
+        let sizes = |ex: &Experiment| -> Vec<(usize, usize, String)> {
+            (ex.arms.iter())
+                .map(|a| {
+                    let c = ex.train_config(a, 0);
+                    (c.td3.obs_dim, c.td3.laser_dim, c.env.observation.to_string())
+                })
+                .collect()
+        };
+        assert_eq!(
+            sizes(&ex)[..2],
+            [(730, 720, "scan".into()), (25, 15, "sectors:15".into())]
+        );
+        assert_eq!(
+            ex.train_config(&ex.arms[1], 0).run.name,
+            "dwa-decremental-1.5-fit-sectors15-seed0"
+        );
+        assert!(ex.arms[1].same_controls(&ex.arms[0]) && !ex.arms[2].same_controls(&ex.arms[0]));
+        // Without the key: one arm of [train.env] observation, its id as before.
+        let env = format!("{MINIMAL}[train.env]\nobservation = \"sectors:25\"\n");
+        let ex = parse(&env).unwrap();
+        assert_eq!(ex.arms[0].id(), "dwa-decremental-1.5-fit");
+        assert_eq!(sizes(&ex), [(35, 25, "sectors:25".into())]);
+        // With it, [train.env]'s layout is the one without a suffix.
+        let ex = parse(&env.replace("speeds", "observations = [\"scan\", \"sectors:25\"]\nspeeds")).unwrap();
+        let ids: Vec<String> = ex.arms.iter().map(Arm::id).collect();
+        assert_eq!(ids, ["dwa-decremental-1.5-fit-scan", "dwa-decremental-1.5-fit"]);
+        assert_eq!(
+            sizes(&ex),
+            [(730, 720, "scan".into()), (35, 25, "sectors:25".into())]
+        );
+    }
+
+    #[test]
+    fn bad_observations_and_sensing_values_are_named() {
+        let obs = |list: &str| {
+            parse(&MINIMAL.replace("speeds", &format!("observations = {list}\nspeeds")))
+                .unwrap_err()
+                .to_string()
+        };
+        for (list, needle) in [
+            ("[]", "must not be empty"),
+            ("[\"sectors:0\"]", "\"sectors:0\" is not a laser layout"),
+            (
+                "[\"scan\", \"sectors:15\", \"sectors:15\"]",
+                "`sectors:15` is listed twice",
+            ),
+        ] {
+            let e = obs(list);
+            assert!(
+                e.starts_with("x.toml: [experiment] observations") && e.contains(needle) && !e.contains('\n'),
+                "{e}"
+            );
+        }
+        let sensing = |body: &str| {
+            parse(&format!("{MINIMAL}[sensing_sweep]\n{body}\n"))
+                .unwrap_err()
+                .to_string()
+        };
+        for (body, needle) in [
+            (
+                "noise_fractions = [0.1, 1.5]",
+                "[sensing_sweep] noise_fractions = 1.5: ",
+            ),
+            ("beams = [1]", "[sensing_sweep] beams = 1: "),
+            ("dropouts = [1.0]", "[sensing_sweep] dropouts = 1: "),
+            (
+                "noise_fractions = [0.1, 0.1]",
+                "[sensing_sweep] noise_fractions: 0.1 is listed twice",
+            ),
+            (
+                "dropouts = [0.1]\nruns = 4\ntrim = 2",
+                "[sensing_sweep] runs = 4 and trim = 2",
+            ),
+            ("dropouts = [0.1]\nruns = 0", "[sensing_sweep] runs = 0"),
+            (
+                "dropouts = [0.1]\narms = [0, 1]",
+                "[sensing_sweep] arms: arm 1, but the experiment has 1 arm(s)",
+            ),
+            ("noise = [0.1]", "noise"),
+        ] {
+            let e = sensing(body);
+            assert!(
+                e.starts_with("x.toml: ") && e.contains(needle) && !e.contains('\n'),
+                "{e}"
+            );
+        }
+    }
+
+    /// The conditions are the cross product beams x noise fractions x dropouts, and the sweep
+    /// covers every arm unless it lists some; without values there is none.
+    #[test]
+    fn sensing_conditions_are_the_cross_product() {
+        let ex = parse(MINIMAL).unwrap();
+        assert!(ex.sensing_conditions().is_empty() && ex.sensing_arms().is_empty());
+        let ex = parse(&format!(
+            "{}[sensing_sweep]\nbeams = [720, 90]\nnoise_fractions = [0.0, 0.1, 0.2]\n",
+            MINIMAL.replace("speeds = [1.5]", "speeds = [1.5, 2.0]")
+        ))
+        .unwrap();
+        let c = ex.sensing_conditions();
+        assert_eq!(c.len(), 6);
+        assert_eq!(
+            (c[0].beams, c[0].noise_fraction, c[0].dropout),
+            (Some(720), Some(0.0), None)
+        );
+        assert_eq!((c[5].beams, c[5].noise_fraction), (Some(90), Some(0.2)));
+        assert_eq!(ex.sensing_arms(), [0, 1]);
+        let ex = parse(&format!(
+            "{MINIMAL}[sensing_sweep]\ndropouts = [0.1]\narms = [0]\n"
+        ))
+        .unwrap();
+        assert_eq!((ex.sensing_conditions().len(), ex.sensing_arms()), (1, vec![0]));
+    }
+
+    /// The sensing experiment: DWA at 1.5 m/s in four observation layouts on the 225 test
+    /// worlds, swept over four noise levels of a 720-beam lidar.
+    #[test]
+    fn the_sensing_experiment_parses() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/experiments/sensing.toml");
+        let ex = Experiment::load(&path, &Restrict::default()).unwrap();
+        let ids: Vec<String> = ex.arms.iter().map(Arm::id).collect();
+        assert_eq!(
+            ids,
+            [
+                "dwa-decremental-1.5-fit",
+                "dwa-decremental-1.5-fit-sectors15",
+                "dwa-decremental-1.5-fit-sectors25",
+                "dwa-decremental-1.5-fit-sectors50"
+            ]
+        );
+        let dims: Vec<usize> = ex
+            .arms
+            .iter()
+            .map(|a| ex.train_config(a, 0).td3.obs_dim)
+            .collect();
+        assert_eq!(dims, [730, 25, 35, 60]);
+        assert_eq!(
+            (ex.seeds, ex.test_worlds.len(), ex.eval.runs, ex.eval.trim),
+            (3, 225, 20, 5)
+        );
+        let c = ex.sensing_conditions();
+        let noise: Vec<Option<f64>> = c.iter().map(|c| c.noise_fraction).collect();
+        assert_eq!(noise, [Some(0.0), Some(0.05), Some(0.1), Some(0.2)]);
+        assert!(c.iter().all(|c| c.beams == Some(720) && c.dropout.is_none()));
+        assert_eq!(ex.sensing_arms(), [0, 1, 2, 3]);
+        assert!(ex.sweep_points().is_empty());
+        // The scan arm trains exactly as table1.toml's arm of the same id.
+        let t1 = Experiment::load(&path.with_file_name("table1.toml"), &Restrict::default()).unwrap();
+        let same = t1.arms.iter().find(|a| a.id() == ids[0]).unwrap();
+        assert_eq!(t1.train_config(same, 2), ex.train_config(&ex.arms[0], 2));
     }
 
     /// A space that sets a planner's gains makes arms with that planner only, and a space

@@ -1,9 +1,9 @@
 //! `adp experiment --config configs/experiments/NAME.toml [--out DIR] [--resume]`: train S
-//! seeds per arm (planner x action space x speed x training worlds), evaluate every greedy
-//! policy with the papers' protocol against DDP and three controls (the untrained
-//! DDP-initialized policy, the best constant schedule found on the training worlds, the
-//! state-shuffled policy), and write `report.md` with paper-style tables, paired statistics
-//! and figures.
+//! seeds per arm (planner x action space x speed x training worlds x observation layout),
+//! evaluate every greedy policy with the papers' protocol against DDP and three controls (the
+//! untrained DDP-initialized policy, the best constant schedule found on the training worlds,
+//! the state-shuffled policy), optionally sweep compute budgets and lidar conditions, and
+//! write `report.md` with paper-style tables, paired statistics and figures.
 //!
 //! The work is a list of stages ([`plan`]), each writing one file atomically; `--resume`
 //! skips the stages whose file exists. Evaluation runs in parallel over (world, run) on the
@@ -39,9 +39,9 @@ use controls::{
     best_constant, candidates, halving, keep_best, search_pairs, shuffle_pool, write_untrained_export,
     Candidate, SearchResult,
 };
-use plan::{pending, stages, write_atomic, Layout, Stage, SweepPlan, SweepWho};
+use plan::{pending, stages, write_atomic, Layout, SensingPlan, Stage, SweepPlan, SweepWho, Sweeps};
 use record::{EvalRecord, Summary};
-use report::{comparisons, ArmData, Comparison};
+use report::{comparisons, sensing_results, ArmData, Comparison, SensingResult};
 use runner::{evaluate, observations, Controller, RunSpec};
 use shard::Shard;
 
@@ -168,7 +168,7 @@ pub fn run(args: &Args) -> anyhow::Result<Option<PathBuf>> {
         .num_threads(args.jobs.unwrap_or(0))
         .build()
         .context("cannot start worker threads")?;
-    let all = stages(&ex.arms, ex.seeds, sweep_plan(&ex));
+    let all = stages(&ex.arms, ex.seeds, &sweeps(&ex));
     let todo = pending(&all, &ctx.layout, &ex.arms, Path::exists);
     tracing::info!(
         "adp experiment {}: {} arm(s) x {} seed(s), {} stage(s), {} to run, in {}",
@@ -328,6 +328,9 @@ fn describe(stage: &Stage, arms: &[Arm]) -> String {
         Stage::Sweep { arm, point, who } => {
             format!("budget sweep point {point} of {}: {who:?}", arms[arm].id())
         }
+        Stage::Sensing { arm, condition, who } => {
+            format!("sensing condition {condition} of {}: {who:?}", arms[arm].id())
+        }
     }
 }
 
@@ -338,6 +341,23 @@ fn sweep_plan(ex: &Experiment) -> Option<SweepPlan> {
         arm: ex.sweep.arm,
         points,
     })
+}
+
+/// The sensing sweep of `ex`, if it has one.
+fn sensing_plan(ex: &Experiment) -> Option<SensingPlan> {
+    let conditions = ex.sensing_conditions().len();
+    (conditions > 0).then(|| SensingPlan {
+        arms: ex.sensing_arms(),
+        conditions,
+    })
+}
+
+/// The sweeps of `ex`.
+fn sweeps(ex: &Experiment) -> Sweeps {
+    Sweeps {
+        budget: sweep_plan(ex),
+        sensing: sensing_plan(ex),
+    }
 }
 
 /// The best constant action of arm `arm`, from its search's file.
@@ -464,6 +484,7 @@ fn record(ctx: &Ctx<'_>, a: &Arm, controller: &str, ev: runner::Evaluation) -> E
         per_world: ev.per_world,
         trace: ev.trace,
         compute: ev.compute,
+        lidar: None,
     }
 }
 
@@ -487,6 +508,7 @@ fn run_stage(ctx: &Ctx<'_>, stage: &Stage, out: &Path) -> anyhow::Result<()> {
             record(ctx, a, "ddp", ev).save(out)
         }
         Stage::Sweep { arm, point, who } => sweep_stage(ctx, arm, point, who, out),
+        Stage::Sensing { arm, condition, who } => sensing_stage(ctx, arm, condition, who, out),
         Stage::EvalConstant { arm } => {
             let a = &ex.arms[arm];
             let action = best_action(ctx, arm)?;
@@ -619,13 +641,51 @@ fn search_stage(ctx: &Ctx<'_>, arm: usize, out: &Path) -> anyhow::Result<()> {
 /// writes its record to `out`.
 fn sweep_stage(ctx: &Ctx<'_>, arm: usize, point: usize, who: SweepWho, out: &Path) -> anyhow::Result<()> {
     let ex = ctx.ex;
-    let points = planner::schedule::DEFAULT_BOUNDARY_POINTS;
-    let a = &ex.arms[arm];
     let mut cfg = ctx.cfg.clone();
     cfg.compute = ex.sweep_points()[point];
+    sweep_record(ctx, arm, who, &cfg, (ex.sweep.runs, ex.sweep.trim))?.save(out)
+}
+
+/// One controller (`who`) of arm `arm` under sensing condition `condition` on the test
+/// worlds (the condition replaces the evaluation's lidar, so the planner's costmap and the
+/// policy's observation both see its scans); writes its record, with the lidar, to `out`.
+fn sensing_stage(
+    ctx: &Ctx<'_>,
+    arm: usize,
+    condition: usize,
+    who: SweepWho,
+    out: &Path,
+) -> anyhow::Result<()> {
+    let ex = ctx.ex;
+    let mut cfg = ctx.cfg.clone();
+    cfg.episode.lidar = sensing_lidar(ctx, condition)?;
+    let mut rec = sweep_record(ctx, arm, who, &cfg, (ex.sensing.runs, ex.sensing.trim))?;
+    rec.lidar = Some(cfg.episode.lidar);
+    rec.save(out)
+}
+
+/// The lidar of sensing condition `condition`: the evaluation configuration's with the
+/// condition's values.
+fn sensing_lidar(ctx: &Ctx<'_>, condition: usize) -> anyhow::Result<sim::lidar::LidarConfig> {
+    ctx.ex.sensing_conditions()[condition]
+        .apply(ctx.cfg.episode.lidar)
+        .with_context(|| format!("[sensing_sweep] condition {condition}"))
+}
+
+/// The record of one controller (`who`) of arm `arm` of a sweep on the test worlds, run
+/// with `cfg` and `(runs, trim)`; every controller's run r of world w has the same seed.
+fn sweep_record(
+    ctx: &Ctx<'_>,
+    arm: usize,
+    who: SweepWho,
+    cfg: &EvalConfig,
+    (runs, trim): (usize, usize),
+) -> anyhow::Result<EvalRecord> {
+    let points = planner::schedule::DEFAULT_BOUNDARY_POINTS;
+    let a = &ctx.ex.arms[arm];
     let spec = RunSpec {
-        cfg: &cfg,
-        runs: ex.sweep.runs,
+        cfg,
+        runs,
         ..test_spec(ctx, a, false)
     };
     let (name, ev, action, policy) = match who {
@@ -653,14 +713,14 @@ fn sweep_stage(ctx: &Ctx<'_>, arm: usize, point: usize, who: SweepWho, out: &Pat
         }
     };
     let mut rec = record(ctx, a, name, ev);
-    rec.runs = ex.sweep.runs;
-    rec.trim = ex.sweep.trim;
+    rec.runs = runs;
+    rec.trim = trim;
     rec.action = action;
     rec.policy = policy;
     if let SweepWho::Adp { seed } = who {
         rec.seed_index = Some(seed);
     }
-    rec.save(out)
+    Ok(rec)
 }
 
 /// The observation pool of the state-shuffled control: the policy's own observations on the
@@ -727,6 +787,22 @@ fn arm_data(ctx: &Ctx<'_>, arm: usize) -> anyhow::Result<ArmData> {
             });
         }
     }
+    let mut sensing = Vec::new();
+    if ex.sensing_arms().contains(&arm) {
+        for condition in 0..ex.sensing_conditions().len() {
+            let at = |who| read(Stage::Sensing { arm, condition, who });
+            let mut adp = Vec::new();
+            for seed in 0..ex.seeds {
+                adp.extend(at(SweepWho::Adp { seed })?);
+            }
+            sensing.push(report::SweepPoint {
+                label: crate::eval::lidar_label(&sensing_lidar(ctx, condition)?),
+                ddp: at(SweepWho::Ddp)?,
+                constant: at(SweepWho::Constant)?,
+                adp,
+            });
+        }
+    }
     Ok(ArmData {
         arm: a.clone(),
         ddp: read(Stage::EvalDdp {
@@ -739,6 +815,7 @@ fn arm_data(ctx: &Ctx<'_>, arm: usize) -> anyhow::Result<ArmData> {
         adp,
         shuffled,
         sweep,
+        sensing,
     })
 }
 
@@ -749,6 +826,9 @@ struct ArmResults {
     /// (method, seed index or none, table values).
     methods: Vec<(String, Option<usize>, Summary)>,
     comparisons: Vec<Comparison>,
+    /// The sensing sweep, per condition (absent for an arm it does not cover).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    sensing: Vec<SensingResult>,
 }
 
 /// Drives `policy` once on `world` (run 0's seed) and records where the robot was and what
@@ -802,7 +882,7 @@ fn write_report(ctx: &Ctx<'_>) -> anyhow::Result<PathBuf> {
             rendered = true;
         }
         let missing = pending(
-            &stages(&ex.arms, ex.seeds, sweep_plan(ex)),
+            &stages(&ex.arms, ex.seeds, &sweeps(ex)),
             &ctx.layout,
             &ex.arms,
             Path::exists,
@@ -1009,7 +1089,7 @@ fn episode_figure(
 }
 
 /// The machine-readable summary of every arm (`results.json`): its methods' table values and
-/// ADP's comparisons with the controls.
+/// ADP's comparisons with the controls, and the sensing sweep.
 fn arm_results(data: &[ArmData], ex: &Experiment) -> Vec<ArmResults> {
     data.iter()
         .map(|d| {
@@ -1030,6 +1110,7 @@ fn arm_results(data: &[ArmData], ex: &Experiment) -> Vec<ArmResults> {
                 arm: d.arm.id(),
                 methods,
                 comparisons: comparisons(d, ex),
+                sensing: sensing_results(d, ex),
             }
         })
         .collect()
@@ -1044,9 +1125,139 @@ fn stage_arm(s: &Stage, arms: &[Arm]) -> Option<usize> {
         | Stage::EvalUntrained { arm }
         | Stage::EvalAdp { arm, .. }
         | Stage::EvalShuffled { arm, .. }
-        | Stage::Sweep { arm, .. } => Some(arm),
+        | Stage::Sweep { arm, .. }
+        | Stage::Sensing { arm, .. } => Some(arm),
         Stage::EvalDdp { planner, speed } => {
             arms.iter().position(|a| a.planner == planner && a.speed == speed)
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use planner::PlannerKind;
+
+    fn shipped(file: &str) -> Experiment {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("configs/experiments")
+            .join(file);
+        Experiment::load(&path, &Restrict::default()).unwrap()
+    }
+
+    /// The shipped experiments without the new keys keep their arms, stages and files:
+    /// table1 (9 arms x 3 seeds, the budget sweep of arm 0 at 4 points) and rl-dwa (4
+    /// arms x 3 seeds, no sweep).
+    #[test]
+    fn existing_experiments_keep_their_stages_and_ids() {
+        let layout = Layout { dir: "/e".into() };
+        let ex = shipped("table1.toml");
+        let ids: Vec<String> = ex.arms.iter().map(Arm::id).collect();
+        assert_eq!(
+            ids,
+            [
+                "dwa-decremental-1.0-fit",
+                "dwa-decremental-1.5-fit",
+                "dwa-decremental-2.0-fit",
+                "mppi-decremental-1.0-fit",
+                "mppi-decremental-1.5-fit",
+                "mppi-decremental-2.0-fit",
+                "system-decremental-1.0-fit",
+                "system-decremental-1.5-fit",
+                "system-decremental-2.0-fit"
+            ]
+        );
+        assert_eq!(sweeps(&ex).sensing, None);
+        let all = stages(&ex.arms, ex.seeds, &sweeps(&ex));
+        // Training 27, searches 9, DDP 9, per arm constant, untrained, 3 ADP and 3 shuffled
+        // (72), the budget sweep 4 x (DDP, constant, 3 seeds).
+        assert_eq!(all.len(), 27 + 9 + 9 + 72 + 20);
+        let files: Vec<PathBuf> = all.iter().map(|s| layout.output(s, &ex.arms)).collect();
+        assert_eq!(files[27], PathBuf::from("/e/search/dwa-decremental-1.0-fit.json"));
+        assert_eq!(files[36], PathBuf::from("/e/eval/ddp-dwa-1.0.json"));
+        assert_eq!(
+            files[45],
+            PathBuf::from("/e/eval/dwa-decremental-1.0-fit/constant.json")
+        );
+        assert_eq!(
+            files.last().unwrap(),
+            &PathBuf::from("/e/eval/dwa-decremental-1.0-fit/sweep-3/seed-2.json")
+        );
+        let ex = shipped("rl-dwa.toml");
+        assert_eq!(sweeps(&ex), Sweeps::default());
+        let all = stages(&ex.arms, ex.seeds, &sweeps(&ex));
+        assert_eq!(all.len(), 12 + 4 + 1 + 4 * 8);
+        assert_eq!(
+            all.iter().filter(|s| matches!(s, Stage::Search { .. })).count(),
+            4
+        );
+    }
+
+    /// The sensing experiment: 4 layouts x 3 seeds trained, one search and one best constant
+    /// shared by the layouts, and per condition DDP, the constant and 12 policies.
+    #[test]
+    fn the_sensing_experiment_plans_its_sweep() {
+        let ex = shipped("sensing.toml");
+        let all = stages(&ex.arms, ex.seeds, &sweeps(&ex));
+        let main = 12 + 1 + 1 + 1 + 4 * (1 + 3 + 3);
+        assert_eq!(all.len(), main + 4 * (1 + 1 + 12));
+        assert!(all[main..].iter().all(|s| matches!(s, Stage::Sensing { .. })));
+    }
+
+    /// A sensing-sweep evaluation runs under its condition's lidar: on two worlds, a
+    /// noiseless condition over a noiseless configuration reproduces the main DDP evaluation
+    /// bit for bit, run by run; heavy noise drives other episodes. Both record their lidar.
+    #[test]
+    fn a_sensing_evaluation_applies_its_lidar_condition() {
+        let dir = std::env::temp_dir().join(format!("adp-sensing-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let eval_toml = dir.join("eval.toml");
+        let base = include_str!("../../configs/eval.toml");
+        assert!(base.contains("noise_sigma = 0.001 "));
+        std::fs::write(
+            &eval_toml,
+            base.replace("noise_sigma = 0.001 ", "noise_sigma = 0.0 "),
+        )
+        .unwrap();
+        let text = format!(
+            "[experiment]\nname = \"t\"\nplanners = [\"dwa\"]\nspeeds = [1.5]\ntest_worlds = \
+             \"0,1\"\n[eval]\nruns = 2\ntrim = 0\nconfig = {:?}\n[sensing_sweep]\n\
+             noise_fractions = [0.0, 0.5]\nruns = 2\ntrim = 0\n",
+            eval_toml.display().to_string()
+        );
+        let ex = Experiment::parse("t.toml", &text, &Restrict::default()).unwrap();
+        let ctx = Ctx {
+            ex: &ex,
+            layout: Layout { dir: dir.clone() },
+            cfg: eval_config(&ex).unwrap(),
+            worlds: sim::catalog::worlds(),
+            test_worlds: ex.test_worlds.clone(),
+        };
+        let run = |stage: Stage| {
+            let out = ctx.layout.output(&stage, &ex.arms);
+            run_stage(&ctx, &stage, &out).unwrap();
+            EvalRecord::load(&out).unwrap()
+        };
+        let main = run(Stage::EvalDdp {
+            planner: PlannerKind::Dwa,
+            speed: 1.5,
+        });
+        let sensing = |condition| {
+            run(Stage::Sensing {
+                arm: 0,
+                condition,
+                who: SweepWho::Ddp,
+            })
+        };
+        let (clean, noisy) = (sensing(0), sensing(1));
+        assert_eq!(main.lidar, None);
+        assert_eq!(clean.per_world, main.per_world);
+        assert_eq!(clean.lidar, Some(ctx.cfg.episode.lidar));
+        assert_eq!(noisy.lidar.unwrap().noise_fraction, 0.5);
+        assert_eq!(noisy.per_world.len(), 2);
+        assert!(noisy.per_world.iter().all(|w| w.runs.len() == 2));
+        assert_ne!(noisy.per_world, main.per_world);
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

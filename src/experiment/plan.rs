@@ -13,6 +13,12 @@
 //! | best constant, untrained policy | `eval/A/constant.json`, `eval/A/untrained.json` (and its export `eval/A/untrained-policy/`) |
 //! | trained policy and its state-shuffled twin, seed k | `eval/A/seed-k/adp.json`, `eval/A/seed-k/shuffled.json` |
 //! | budget sweep point i: DDP, best constant, seed k | `eval/A/sweep-i/ddp.json`, `.../constant.json`, `.../seed-k.json` |
+//! | sensing condition i: DDP (per planner and speed) | `eval/sensing-i/ddp-PLANNER-SPEED.json` |
+//! | sensing condition i: best constant, seed k | `eval/A/sensing-i/constant.json`, `eval/A/sensing-i/seed-k.json` |
+//!
+//! Arms that differ only in their observation layout share their constant search and best
+//! constant (which observe nothing): those stages run once, for the first such arm
+//! ([`control_arm`]), whose files every arm of the group reads.
 
 use std::path::{Path, PathBuf};
 
@@ -75,9 +81,18 @@ pub enum Stage {
         /// Which controller.
         who: SweepWho,
     },
+    /// Evaluate a controller of the sensing sweep under its lidar condition.
+    Sensing {
+        /// Arm index.
+        arm: usize,
+        /// Index of the condition ([`super::config::Experiment::sensing_conditions`]).
+        condition: usize,
+        /// Which controller.
+        who: SweepWho,
+    },
 }
 
-/// The controllers of the budget sweep.
+/// The controllers of the budget and sensing sweeps.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum SweepWho {
     /// The DDP schedule.
@@ -98,6 +113,32 @@ pub struct SweepPlan {
     pub arm: usize,
     /// Sweep points.
     pub points: usize,
+}
+
+/// The sensing sweep of an experiment: the arms covered and the number of conditions.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct SensingPlan {
+    /// Arm indices, in order.
+    pub arms: Vec<usize>,
+    /// Sensing conditions.
+    pub conditions: usize,
+}
+
+/// The sweeps after the main evaluations (each `None` when the experiment has none).
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct Sweeps {
+    /// The budget sweep.
+    pub budget: Option<SweepPlan>,
+    /// The sensing sweep.
+    pub sensing: Option<SensingPlan>,
+}
+
+/// The first arm that differs from arm `arm` at most in its observation layout: the one
+/// whose constant search and best constant the arm shares ([`Arm::same_controls`]).
+pub fn control_arm(arms: &[Arm], arm: usize) -> usize {
+    arms.iter()
+        .position(|a| a.same_controls(&arms[arm]))
+        .expect("an arm shares its controls with itself")
 }
 
 /// Where the files of an experiment directory live.
@@ -136,9 +177,14 @@ impl Layout {
     pub fn output(&self, stage: &Stage, arms: &[Arm]) -> PathBuf {
         match *stage {
             Stage::Train { arm, seed } => self.run_dir(&arms[arm], seed).join("trained.json"),
-            Stage::Search { arm } => self.dir.join("search").join(format!("{}.json", arms[arm].id())),
+            Stage::Search { arm } => {
+                let owner = &arms[control_arm(arms, arm)];
+                self.dir.join("search").join(format!("{}.json", owner.id()))
+            }
             Stage::EvalDdp { planner, speed } => self.ddp_file(planner, speed),
-            Stage::EvalConstant { arm } => self.arm_eval_dir(&arms[arm]).join("constant.json"),
+            Stage::EvalConstant { arm } => self
+                .arm_eval_dir(&arms[control_arm(arms, arm)])
+                .join("constant.json"),
             Stage::EvalUntrained { arm } => self.arm_eval_dir(&arms[arm]).join("untrained.json"),
             Stage::EvalAdp { arm, seed } => self
                 .arm_eval_dir(&arms[arm])
@@ -156,6 +202,24 @@ impl Layout {
                     SweepWho::Adp { seed } => dir.join(format!("seed-{seed}.json")),
                 }
             }
+            Stage::Sensing { arm, condition, who } => {
+                let dir = format!("sensing-{condition}");
+                match who {
+                    SweepWho::Ddp => {
+                        let ddp = self.ddp_file(arms[arm].planner, arms[arm].speed);
+                        let file = ddp.file_name().expect("a DDP file has a name");
+                        self.dir.join("eval").join(dir).join(file)
+                    }
+                    SweepWho::Constant => self
+                        .arm_eval_dir(&arms[control_arm(arms, arm)])
+                        .join(dir)
+                        .join("constant.json"),
+                    SweepWho::Adp { seed } => self
+                        .arm_eval_dir(&arms[arm])
+                        .join(dir)
+                        .join(format!("seed-{seed}.json")),
+                }
+            }
         }
     }
 }
@@ -163,16 +227,21 @@ impl Layout {
 /// Every stage of `arms` x `seeds`, in an order that respects their dependencies: all
 /// training first (the longest work, so a job that stops early has its policies), then the
 /// constant searches, then the evaluations. DDP runs once per (planner, speed), shared by the
-/// arms that differ only in action space or training worlds. The budget sweep, if any, comes
-/// last.
-pub fn stages(arms: &[Arm], seeds: usize, sweep: Option<SweepPlan>) -> Vec<Stage> {
+/// arms that differ only in action space, training worlds or observation layout; the constant
+/// search and the best constant once per group of arms that differ only in observation layout
+/// ([`control_arm`]). The budget sweep, if any, comes next (per point: DDP, the best constant,
+/// the seeds), then the sensing sweep (per covered arm and condition: DDP for the first
+/// covered arm of its planner and speed, the best constant for the first covered arm of its
+/// group, the seeds).
+pub fn stages(arms: &[Arm], seeds: usize, sweeps: &Sweeps) -> Vec<Stage> {
     let mut out = Vec::new();
     for arm in 0..arms.len() {
         for seed in 0..seeds {
             out.push(Stage::Train { arm, seed });
         }
     }
-    for arm in 0..arms.len() {
+    let owns_controls = |arm: usize| control_arm(arms, arm) == arm;
+    for arm in (0..arms.len()).filter(|&a| owns_controls(a)) {
         out.push(Stage::Search { arm });
     }
     let mut ddp: Vec<(PlannerKind, f64)> = Vec::new();
@@ -186,19 +255,36 @@ pub fn stages(arms: &[Arm], seeds: usize, sweep: Option<SweepPlan>) -> Vec<Stage
             .map(|(planner, speed)| Stage::EvalDdp { planner, speed }),
     );
     for arm in 0..arms.len() {
-        out.push(Stage::EvalConstant { arm });
+        if owns_controls(arm) {
+            out.push(Stage::EvalConstant { arm });
+        }
         out.push(Stage::EvalUntrained { arm });
         for seed in 0..seeds {
             out.push(Stage::EvalAdp { arm, seed });
             out.push(Stage::EvalShuffled { arm, seed });
         }
     }
-    if let Some(SweepPlan { arm, points }) = sweep {
+    if let Some(SweepPlan { arm, points }) = sweeps.budget {
         for point in 0..points {
             let who = [SweepWho::Ddp, SweepWho::Constant]
                 .into_iter()
                 .chain((0..seeds).map(|seed| SweepWho::Adp { seed }));
             out.extend(who.map(|who| Stage::Sweep { arm, point, who }));
+        }
+    }
+    if let Some(plan) = &sweeps.sensing {
+        for (k, &arm) in plan.arms.iter().enumerate() {
+            let (a, before) = (&arms[arm], &plan.arms[..k]);
+            let ddp = !before
+                .iter()
+                .any(|&b| arms[b].planner == a.planner && arms[b].speed == a.speed);
+            let constant = !before.iter().any(|&b| arms[b].same_controls(a));
+            for condition in 0..plan.conditions {
+                let who = (ddp.then_some(SweepWho::Ddp).into_iter())
+                    .chain(constant.then_some(SweepWho::Constant))
+                    .chain((0..seeds).map(|seed| SweepWho::Adp { seed }));
+                out.extend(who.map(|who| Stage::Sensing { arm, condition, who }));
+            }
         }
     }
     out
@@ -229,6 +315,7 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use actor::LaserLayout;
     use planner::ActionSpace;
 
     fn arms() -> Vec<Arm> {
@@ -242,14 +329,23 @@ mod tests {
             space,
             speed: 1.5,
             train_worlds: "train".into(),
+            observation: None,
         })
         .collect()
     }
 
     #[test]
     fn the_budget_sweep_comes_last_with_ddp_the_constant_and_every_seed_per_point() {
-        let plain = stages(&arms(), 2, None);
-        let s = stages(&arms(), 2, Some(SweepPlan { arm: 1, points: 3 }));
+        let plain = stages(&arms(), 2, &Sweeps::default());
+        let budget = Some(SweepPlan { arm: 1, points: 3 });
+        let s = stages(
+            &arms(),
+            2,
+            &Sweeps {
+                budget,
+                sensing: None,
+            },
+        );
         assert_eq!(s[..plain.len()], plain[..]);
         let sweep = &s[plain.len()..];
         assert_eq!(sweep.len(), 3 * (2 + 2));
@@ -260,9 +356,164 @@ mod tests {
         assert_eq!(files.len(), sweep.len(), "one file per sweep stage");
     }
 
+    /// The arms of one space in three observation layouts: the scan (no suffix) and two of
+    /// their own, then another space.
+    fn layout_arms() -> Vec<Arm> {
+        let mut out: Vec<Arm> = [
+            None,
+            Some(LaserLayout::Sectors(15)),
+            Some(LaserLayout::Sectors(50)),
+        ]
+        .into_iter()
+        .map(|observation| Arm {
+            observation,
+            ..arms()[0].clone()
+        })
+        .collect();
+        out.push(arms()[1].clone());
+        out
+    }
+
+    /// Arms that differ only in their observation layout train and evaluate their policies
+    /// each, but share DDP, the constant search and the best constant, whose files are the
+    /// first arm's.
+    #[test]
+    fn observation_arms_share_their_controls() {
+        let arms = layout_arms();
+        let s = stages(&arms, 1, &Sweeps::default());
+        let count = |f: &dyn Fn(&Stage) -> bool| s.iter().filter(|x| f(x)).count();
+        assert_eq!(count(&|x| matches!(x, Stage::Train { .. })), 4);
+        assert_eq!(count(&|x| matches!(x, Stage::EvalAdp { .. })), 4);
+        assert_eq!(count(&|x| matches!(x, Stage::EvalUntrained { .. })), 4);
+        assert_eq!(count(&|x| matches!(x, Stage::Search { .. })), 2);
+        assert_eq!(count(&|x| matches!(x, Stage::EvalConstant { .. })), 2);
+        assert_eq!(count(&|x| matches!(x, Stage::EvalDdp { .. })), 1);
+        assert_eq!((control_arm(&arms, 2), control_arm(&arms, 3)), (0, 3));
+        let layout = Layout { dir: "/e".into() };
+        let file = |stage: Stage| layout.output(&stage, &arms);
+        assert_eq!(file(Stage::Search { arm: 2 }), file(Stage::Search { arm: 0 }));
+        assert_eq!(
+            file(Stage::EvalConstant { arm: 1 }),
+            PathBuf::from("/e/eval/dwa-decremental-1.5-train/constant.json")
+        );
+        assert_eq!(
+            file(Stage::EvalAdp { arm: 1, seed: 0 }),
+            PathBuf::from("/e/eval/dwa-decremental-1.5-train-sectors15/seed-0/adp.json")
+        );
+        let mut outputs: Vec<PathBuf> = s.iter().map(|x| layout.output(x, &arms)).collect();
+        outputs.sort();
+        outputs.dedup();
+        assert_eq!(outputs.len(), s.len(), "distinct outputs");
+    }
+
+    /// The sensing sweep comes after the budget sweep: per covered arm and condition, DDP
+    /// once per planner and speed, the best constant once per group of arms sharing it,
+    /// then every seed; one file per stage.
+    #[test]
+    fn the_sensing_sweep_comes_last_in_arm_and_condition_order() {
+        let arms = layout_arms();
+        let budget = Some(SweepPlan { arm: 0, points: 2 });
+        let before = stages(
+            &arms,
+            2,
+            &Sweeps {
+                budget,
+                sensing: None,
+            },
+        );
+        let sensing = Some(SensingPlan {
+            arms: vec![1, 2, 3],
+            conditions: 4,
+        });
+        let s = stages(&arms, 2, &Sweeps { budget, sensing });
+        assert_eq!(s[..before.len()], before[..]);
+        let sweep = &s[before.len()..];
+        // Arm 1: DDP, constant, 2 seeds; arm 2: 2 seeds (its DDP and constant are arm 1's);
+        // arm 3: its own constant and 2 seeds (DDP is arm 1's), for each of 4 conditions.
+        assert_eq!(sweep.len(), 4 * (4 + 2 + 3));
+        let who = |arm: usize, condition: usize| -> Vec<SweepWho> {
+            sweep
+                .iter()
+                .filter_map(|x| match *x {
+                    Stage::Sensing {
+                        arm: a,
+                        condition: c,
+                        who,
+                    } if (a, c) == (arm, condition) => Some(who),
+                    _ => None,
+                })
+                .collect()
+        };
+        let seeds = [SweepWho::Adp { seed: 0 }, SweepWho::Adp { seed: 1 }];
+        assert_eq!(
+            who(1, 3),
+            [&[SweepWho::Ddp, SweepWho::Constant][..], &seeds].concat()
+        );
+        assert_eq!(who(2, 0), seeds);
+        assert_eq!(who(3, 2), [&[SweepWho::Constant][..], &seeds].concat());
+        // Arm-major, then condition order.
+        assert_eq!(
+            sweep[..5],
+            [
+                Stage::Sensing {
+                    arm: 1,
+                    condition: 0,
+                    who: SweepWho::Ddp
+                },
+                Stage::Sensing {
+                    arm: 1,
+                    condition: 0,
+                    who: SweepWho::Constant
+                },
+                Stage::Sensing {
+                    arm: 1,
+                    condition: 0,
+                    who: seeds[0]
+                },
+                Stage::Sensing {
+                    arm: 1,
+                    condition: 0,
+                    who: seeds[1]
+                },
+                Stage::Sensing {
+                    arm: 1,
+                    condition: 1,
+                    who: SweepWho::Ddp
+                },
+            ]
+        );
+        let layout = Layout { dir: "/e".into() };
+        let files: std::collections::BTreeSet<PathBuf> = s.iter().map(|x| layout.output(x, &arms)).collect();
+        assert_eq!(files.len(), s.len(), "one file per stage");
+        // Every covered arm reads the shared DDP and constant files.
+        let file = |arm, who| {
+            layout.output(
+                &Stage::Sensing {
+                    arm,
+                    condition: 2,
+                    who,
+                },
+                &arms,
+            )
+        };
+        assert_eq!(
+            file(2, SweepWho::Ddp),
+            PathBuf::from("/e/eval/sensing-2/ddp-dwa-1.5.json")
+        );
+        assert_eq!(file(3, SweepWho::Ddp), file(1, SweepWho::Ddp));
+        assert_eq!(
+            file(2, SweepWho::Constant),
+            PathBuf::from("/e/eval/dwa-decremental-1.5-train/sensing-2/constant.json")
+        );
+        assert_eq!(
+            file(2, SweepWho::Adp { seed: 1 }),
+            PathBuf::from("/e/eval/dwa-decremental-1.5-train-sectors50/sensing-2/seed-1.json")
+        );
+    }
+
     #[test]
     fn stages_cover_every_arm_and_seed_once_with_ddp_shared() {
-        let s = stages(&arms(), 2, None);
+        let s = stages(&arms(), 2, &Sweeps::default());
         let count = |f: &dyn Fn(&Stage) -> bool| s.iter().filter(|x| f(x)).count();
         assert_eq!(count(&|x| matches!(x, Stage::Train { .. })), 4);
         assert_eq!(
@@ -291,7 +542,7 @@ mod tests {
         let _ = std::fs::remove_dir_all(&dir);
         let layout = Layout { dir: dir.clone() };
         let arms = arms();
-        let all = stages(&arms, 1, None);
+        let all = stages(&arms, 1, &Sweeps::default());
         let first_arm = |s: &Stage| match *s {
             Stage::Train { arm, .. }
             | Stage::Search { arm }
@@ -299,7 +550,8 @@ mod tests {
             | Stage::EvalUntrained { arm }
             | Stage::EvalAdp { arm, .. }
             | Stage::EvalShuffled { arm, .. }
-            | Stage::Sweep { arm, .. } => arm == 0,
+            | Stage::Sweep { arm, .. }
+            | Stage::Sensing { arm, .. } => arm == 0,
             Stage::EvalDdp { .. } => true,
         };
         for s in all.iter().filter(|s| first_arm(s)) {

@@ -44,6 +44,9 @@ pub struct EvalRecord {
     /// records written before the model: zero).
     #[serde(default)]
     pub compute: planner::ComputeTally,
+    /// The lidar of a sensing-sweep evaluation (absent: the evaluation configuration's).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub lidar: Option<sim::lidar::LidarConfig>,
 }
 
 /// The table values of a set of runs after trimming.
@@ -150,6 +153,7 @@ mod tests {
             }],
             trace: vec![],
             compute: Default::default(),
+            lidar: None,
         };
         // Charged times 10, 50, 8, 50: trim 1 drops 8 and one 50; kept: 10 (success), 50.
         assert_eq!(rec.per_world_values(), vec![(4, 0.5, 0.2)]);

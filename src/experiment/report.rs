@@ -1,6 +1,7 @@
 //! `report.md`: paper-style tables (the ADP paper's Table I rows per planner and speed with
-//! the controls; Table II's action-space ablation), the paired statistics of every
-//! comparison and the figures. Pure: it formats what the stages wrote.
+//! the controls; Table II's action-space and observation-layout ablation; the budget and
+//! sensing sweeps), the paired statistics of every comparison and the figures. Pure: it
+//! formats what the stages wrote.
 
 use std::fmt::Write as _;
 
@@ -31,12 +32,15 @@ pub struct ArmData {
     /// The budget sweep (the swept arm only): per sweep point, its compute label and the
     /// records of DDP, the best constant and the ADP seeds found.
     pub sweep: Vec<SweepPoint>,
+    /// The sensing sweep (the covered arms only): per condition, its lidar label and the
+    /// records of DDP, the best constant and the ADP seeds found.
+    pub sensing: Vec<SweepPoint>,
 }
 
-/// One point of the budget sweep.
+/// One point of the budget or the sensing sweep.
 #[derive(Clone, Debug)]
 pub struct SweepPoint {
-    /// The compute model (`free`, or the platform and budget scale).
+    /// The compute model (`free`, or the platform and budget scale) or the lidar condition.
     pub label: String,
     /// DDP.
     pub ddp: Option<EvalRecord>,
@@ -251,6 +255,56 @@ pub fn comparisons(d: &ArmData, ex: &Experiment) -> Vec<Comparison> {
     .collect()
 }
 
+/// ADP against DDP under one sensing condition.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct SensingResult {
+    /// The lidar condition.
+    pub condition: String,
+    /// (method, seed index or none, table values) of DDP, the best constant and each ADP seed.
+    pub methods: Vec<(String, Option<usize>, Summary)>,
+    /// ADP (mean over seeds per world) minus DDP, paired over worlds and runs (none while
+    /// either side is missing).
+    pub vs_ddp: Option<Comparison>,
+}
+
+/// The sensing sweep of an arm: per condition, the methods' values and ADP against DDP with
+/// the statistics of [`compare`] (empty for an arm the sweep does not cover).
+pub fn sensing_results(d: &ArmData, ex: &Experiment) -> Vec<SensingResult> {
+    let st = &ex.stats;
+    d.sensing
+        .iter()
+        .map(|p| {
+            let mut methods = Vec::new();
+            for (name, r) in [("ddp", &p.ddp), ("constant", &p.constant)] {
+                methods.extend(r.iter().map(|r| (name.to_string(), None, r.summary())));
+            }
+            methods.extend(
+                p.adp
+                    .iter()
+                    .map(|r| ("adp".to_string(), r.seed_index, r.summary())),
+            );
+            let ddp: Vec<EvalRecord> = p.ddp.iter().cloned().collect();
+            SensingResult {
+                condition: p.label.clone(),
+                methods,
+                vs_ddp: compare("DDP", &p.adp, &ddp, st.resamples, st.confidence, st.seed),
+            }
+        })
+        .collect()
+}
+
+/// The sign of a difference's interval in words: "ADP higher", "ADP lower", or that the
+/// interval includes 0.
+fn in_words(i: &Interval) -> &'static str {
+    if i.lo > 0.0 {
+        "ADP higher"
+    } else if i.hi < 0.0 {
+        "ADP lower"
+    } else {
+        "no difference resolved (the interval includes 0)"
+    }
+}
+
 /// A mean over seeds with its sample standard deviation (`x` alone for one seed).
 fn pm(values: &[f64], decimals: usize) -> String {
     match values.len() {
@@ -306,8 +360,9 @@ pub fn render(ex: &Experiment, data: &[ArmData], figures: &[(String, String)], n
     let mut out = String::new();
     protocol_section(&mut out, ex);
     table_one(&mut out, data);
-    table_two(&mut out, data);
+    table_two(&mut out, ex, data);
     sweep_section(&mut out, data);
+    sensing_section(&mut out, ex, data);
     constants_section(&mut out, data);
     statistics_section(&mut out, ex, data);
     wins_section(&mut out, data);
@@ -360,7 +415,7 @@ fn protocol_section(out: &mut String, ex: &Experiment) {
 }
 
 /// The report's Table I: per planner, the methods' metrics at every speed, for the first
-/// action space and training worlds.
+/// action space, training worlds and observation layout.
 fn table_one(out: &mut String, data: &[ArmData]) {
     // Table I: per planner, methods x (metric x speed), for the first action space.
     let mut planners: Vec<_> = data.iter().map(|d| d.arm.planner).collect();
@@ -373,6 +428,7 @@ fn table_one(out: &mut String, data: &[ArmData]) {
                 d.arm.planner == *p
                     && d.arm.space == data[0].arm.space
                     && d.arm.train_worlds == data[0].arm.train_worlds
+                    && d.arm.observation == data[0].arm.observation
             })
             .collect();
         let _ = writeln!(out, "### {}\n", planner_name(*p));
@@ -404,14 +460,23 @@ fn table_one(out: &mut String, data: &[ArmData]) {
     }
 }
 
-/// The report's Table II (only with more than one action space): per planner and speed, DDP
-/// and ADP in every action space side by side.
-fn table_two(out: &mut String, data: &[ArmData]) {
+/// The report's Table II (only with more than one action space or observation layout): per
+/// planner and speed, DDP and ADP in every action space and layout side by side.
+fn table_two(out: &mut String, ex: &Experiment, data: &[ArmData]) {
     // Table II: action spaces side by side per planner and speed.
     let mut spaces: Vec<_> = data.iter().map(|d| d.arm.space).collect();
     spaces.dedup();
-    if spaces.len() > 1 {
-        let _ = writeln!(out, "## Table II: action-space ablation\n");
+    let layouts = data.iter().any(|d| d.arm.observation.is_some());
+    if spaces.len() > 1 || layouts {
+        let _ = writeln!(
+            out,
+            "## Table II: {} ablation\n",
+            match (spaces.len() > 1, layouts) {
+                (true, false) => "action-space",
+                (false, _) => "observation-layout",
+                (true, true) => "action-space and observation-layout",
+            }
+        );
         let mut keys: Vec<(String, String)> = Vec::new();
         for d in data {
             let k = (planner_name(d.arm.planner), speed_label(d.arm.speed));
@@ -436,9 +501,14 @@ fn table_two(out: &mut String, data: &[ArmData]) {
             }
             for d in group {
                 let recs: Vec<&EvalRecord> = d.adp.iter().collect();
+                let layout = if layouts {
+                    format!(", {}", ex.observation(&d.arm))
+                } else {
+                    String::new()
+                };
                 let _ = writeln!(
                     out,
-                    "| ADP-{} ({}) | {} |",
+                    "| ADP-{} ({}{layout}) | {} |",
                     space_label(d.arm.space),
                     d.arm.train_worlds,
                     cells(&recs).join(" | ")
@@ -492,8 +562,96 @@ DDP, the best constant and ADP \
     }
 }
 
-/// The report's "Best constant schedules" table: per arm with a search, the constant it
-/// chose with its search results.
+/// The report's "Sensing conditions" section: per covered arm, DDP, the best constant and
+/// ADP (mean ± sd over seeds) under every lidar condition, then ADP − DDP per condition,
+/// paired over worlds, with its interval's sign in words.
+fn sensing_section(out: &mut String, ex: &Experiment, data: &[ArmData]) {
+    let covered: Vec<&ArmData> = data.iter().filter(|d| !d.sensing.is_empty()).collect();
+    let Some(first) = covered.first() else {
+        return;
+    };
+    let conf = ex.stats.confidence * 100.0;
+    let _ = writeln!(
+        out,
+        "## Sensing conditions\n\nDDP, the best constant and ADP on the test worlds with {} \
+         run(s) each ({} dropped from either end per world), under other lidar conditions: the \
+         planner's costmap and the policy's observation both see the degraded scan (a noise \
+         fraction replaces the absolute noise, so 0 % is a noiseless lidar). Run r of world w \
+         has the same seed for every controller. Cells: success (%) / score; ADP cells mean ± \
+         sd over seeds.\n",
+        ex.sensing.runs, ex.sensing.trim
+    );
+    let labels: Vec<&str> = first.sensing.iter().map(|p| p.label.as_str()).collect();
+    for d in covered {
+        let _ = writeln!(
+            out,
+            "### {} (observation `{}`)\n",
+            d.arm.id(),
+            ex.observation(&d.arm)
+        );
+        let _ = writeln!(
+            out,
+            "| method | {} |\n|---|{}",
+            labels.join(" | "),
+            "---|".repeat(labels.len())
+        );
+        let cell = |recs: Vec<&EvalRecord>| {
+            if recs.is_empty() {
+                return "–".to_string();
+            }
+            let c = cells(&recs);
+            format!("{} / {}", c[0], c[2])
+        };
+        for (name, pick) in [
+            (
+                "DDP",
+                (|p| p.ddp.iter().collect()) as fn(&SweepPoint) -> Vec<&EvalRecord>,
+            ),
+            ("best constant", |p| p.constant.iter().collect()),
+            ("ADP", |p| p.adp.iter().collect()),
+        ] {
+            let row: Vec<String> = d.sensing.iter().map(|p| cell(pick(p))).collect();
+            let _ = writeln!(out, "| {name} | {} |", row.join(" | "));
+        }
+        let _ = writeln!(
+            out,
+            "\nADP − DDP per condition, paired over worlds (ADP's per-world value the mean over \
+             its seeds; {conf:.0} % percentile-bootstrap interval, {} resamples) and McNemar's \
+             exact p over (seed, world, run) pairs:\n",
+            ex.stats.resamples
+        );
+        let _ = writeln!(
+            out,
+            "| condition | worlds | Δ success (pp) [{conf:.0} % CI] | success | Δ score [{conf:.0} % CI] | score | p exact |\n|---|---|---|---|---|---|---|"
+        );
+        for r in sensing_results(d, ex) {
+            let Some(c) = r.vs_ddp else {
+                let _ = writeln!(out, "| {} | – | – | not evaluated yet | – | – | – |", r.condition);
+                continue;
+            };
+            let _ = writeln!(
+                out,
+                "| {} | {} | {:+.2} [{:+.2}, {:+.2}] | {} | {:+.4} [{:+.4}, {:+.4}] | {} | {:.4} |",
+                r.condition,
+                c.d_success.n,
+                100.0 * c.d_success.mean,
+                100.0 * c.d_success.lo,
+                100.0 * c.d_success.hi,
+                in_words(&c.d_success),
+                c.d_score.mean,
+                c.d_score.lo,
+                c.d_score.hi,
+                in_words(&c.d_score),
+                c.mcnemar.p_exact,
+            );
+        }
+        out.push('\n');
+    }
+}
+
+/// The report's "Best constant schedules" table: per arm with a search of its own (arms
+/// that differ only in observation layout share the first one's), the constant it chose
+/// with its search results.
 fn constants_section(out: &mut String, data: &[ArmData]) {
     // The constants found.
     let _ = writeln!(out, "## Best constant schedules (searched on training worlds)\n");
@@ -501,7 +659,10 @@ fn constants_section(out: &mut String, data: &[ArmData]) {
         out,
         "| arm | action (normalized) | physical parameters | search score | search success (%) | compute (ms / cycle) | (world, run) pairs | candidates | DDP in the search: score, compute (ms / cycle) |\n|---|---|---|---|---|---|---|---|---|"
     );
-    for d in data {
+    for (k, d) in data.iter().enumerate() {
+        if data[..k].iter().any(|e| e.arm.same_controls(&d.arm)) {
+            continue;
+        }
         if let Some(s) = &d.search {
             let b = &s.candidates[s.best];
             let names: Vec<&str> = d.arm.space.ranges().iter().map(|r| r.0).collect();
@@ -713,6 +874,7 @@ mod tests {
                 .collect(),
             trace: vec![],
             compute: Default::default(),
+            lidar: None,
         }
     }
 
@@ -742,6 +904,115 @@ mod tests {
         let other = [rec("ddp", &[(4, true, 0.3), (7, false, 0.0)])];
         assert!(compare("DDP", &adp, &other, 10, 0.95, 1).is_none());
         assert!(compare("DDP", &adp, &[], 10, 0.95, 1).is_none());
+    }
+
+    /// The sensing section: per covered arm a row per method and a column per condition, then
+    /// ADP − DDP per condition with the interval's sign in words; a condition without DDP
+    /// says so. The same numbers are in [`sensing_results`].
+    #[test]
+    fn the_sensing_section_states_each_difference_in_words() {
+        let text = "[experiment]\nname = \"t\"\nplanners = [\"dwa\"]\nspeeds = [1.5]\n\
+                    observations = [\"sectors:15\"]\n[sensing_sweep]\nnoise_fractions = [0.0, 0.1, 0.2]\n";
+        let ex = Experiment::parse("t.toml", text, &Default::default()).unwrap();
+        let (good, bad) = (
+            [(3, true, 0.5), (7, true, 0.5)],
+            [(3, false, 0.0), (7, false, 0.0)],
+        );
+        let point = |label: &str, ddp: Option<EvalRecord>, adp: &[(usize, bool, f64)]| SweepPoint {
+            label: label.into(),
+            ddp,
+            constant: None,
+            adp: vec![rec("adp", adp), rec("adp", adp)],
+        };
+        let d = ArmData {
+            arm: ex.arms[0].clone(),
+            ddp: None,
+            constant: None,
+            search: None,
+            untrained: None,
+            adp: vec![],
+            shuffled: vec![],
+            sweep: vec![],
+            sensing: vec![
+                point("clean", Some(rec("ddp", &bad)), &good),
+                point("noisy", Some(rec("ddp", &good)), &bad),
+                point("noisier", None, &bad),
+            ],
+        };
+        let mut out = String::new();
+        sensing_section(&mut out, &ex, std::slice::from_ref(&d));
+        assert!(out.starts_with("## Sensing conditions"), "{out}");
+        assert!(
+            out.contains("### dwa-decremental-1.5-fit-sectors15 (observation `sectors:15`)"),
+            "{out}"
+        );
+        assert!(out.contains("| method | clean | noisy | noisier |"), "{out}");
+        assert!(
+            out.contains("| DDP | 0.00 / 0.000 | 100.00 / 0.500 | – |"),
+            "{out}"
+        );
+        assert!(out.contains("| best constant | – | – | – |"), "{out}");
+        assert!(
+            out.contains("| clean | 2 | +100.00 [+100.00, +100.00] | ADP higher | +0.5000 [+0.5000, +0.5000] | ADP higher |"),
+            "{out}"
+        );
+        assert!(
+            out.contains("| noisy | 2 | -100.00 [-100.00, -100.00] | ADP lower |"),
+            "{out}"
+        );
+        assert!(out.contains("| noisier | – | – | not evaluated yet |"), "{out}");
+        let r = sensing_results(&d, &ex);
+        assert_eq!(r.len(), 3);
+        assert_eq!(r[0].methods.len(), 3, "DDP and two seeds");
+        assert!(r[2].vs_ddp.is_none());
+        // No sensing points: no section.
+        let mut none = String::new();
+        sensing_section(&mut none, &ex, &[ArmData { sensing: vec![], ..d }]);
+        assert!(none.is_empty());
+    }
+
+    /// Arms in several observation layouts make Table II, one ADP row per layout; Table I
+    /// keeps the first layout's arms only.
+    #[test]
+    fn observation_layouts_make_table_two() {
+        let text = "[experiment]\nname = \"t\"\nplanners = [\"dwa\"]\nspeeds = [1.5]\n\
+                    observations = [\"scan\", \"sectors:15\"]\n";
+        let ex = Experiment::parse("t.toml", text, &Default::default()).unwrap();
+        let data: Vec<ArmData> = (ex.arms.iter())
+            .map(|arm| ArmData {
+                arm: arm.clone(),
+                ddp: Some(rec("ddp", &[(3, true, 0.5)])),
+                constant: None,
+                search: None,
+                untrained: None,
+                adp: vec![rec("adp", &[(3, true, 0.25)])],
+                shuffled: vec![],
+                sweep: vec![],
+                sensing: vec![],
+            })
+            .collect();
+        let mut two = String::new();
+        table_two(&mut two, &ex, &data);
+        assert!(
+            two.starts_with("## Table II: observation-layout ablation"),
+            "{two}"
+        );
+        assert!(two.contains("| ADP-decremental (fit, scan) | 100.00 |"), "{two}");
+        assert!(
+            two.contains("| ADP-decremental (fit, sectors:15) | 100.00 |"),
+            "{two}"
+        );
+        let mut one = String::new();
+        table_one(&mut one, &data);
+        assert_eq!(one.matches("| DDP |").count(), 1, "{one}");
+        assert!(
+            one.contains("avg score ↑ 1.5 |") && !one.contains("avg score ↑ 1.5 | avg score"),
+            "{one}"
+        );
+        // One layout and one space: no Table II.
+        let mut none = String::new();
+        table_two(&mut none, &ex, &data[..1]);
+        assert!(none.is_empty());
     }
 
     /// Three worlds in two bands, two seeds, by hand (binary-exact scores). Per-world ADP

@@ -101,6 +101,7 @@ pub fn merge(shards: Vec<EvalRecord>, worlds: &[usize]) -> anyhow::Result<EvalRe
             && (s.space == out.space)
             && (s.speed == out.speed)
             && (s.seed_index == out.seed_index)
+            && (s.lidar == out.lidar)
             && (s.runs, s.trim, s.seed) == (out.runs, out.trim, out.seed);
         if !same {
             bail!(
@@ -179,6 +180,7 @@ mod tests {
                 })
                 .collect(),
             compute: Default::default(),
+            lidar: None,
         }
     }
 
