@@ -1,5 +1,5 @@
 //! `report.md`: paper-style tables (the ADP paper's Table I rows per planner and speed with
-//! the controls; Table II's action-space and observation-layout ablation; the budget and
+//! the controls; Table II's action-space, training-world and observation-layout ablation; the budget and
 //! sensing sweeps), the paired statistics of every comparison and the figures. Pure: it
 //! formats what the stages wrote.
 
@@ -460,23 +460,26 @@ fn table_one(out: &mut String, data: &[ArmData]) {
     }
 }
 
-/// The report's Table II (only with more than one action space or observation layout): per
-/// planner and speed, DDP and ADP in every action space and layout side by side.
+/// The report's Table II (only with more than one action space, training-world selection or
+/// observation layout): per planner and speed, DDP and ADP in every one side by side.
 fn table_two(out: &mut String, ex: &Experiment, data: &[ArmData]) {
     // Table II: action spaces side by side per planner and speed.
     let mut spaces: Vec<_> = data.iter().map(|d| d.arm.space).collect();
     spaces.dedup();
     let layouts = data.iter().any(|d| d.arm.observation.is_some());
-    if spaces.len() > 1 || layouts {
-        let _ = writeln!(
-            out,
-            "## Table II: {} ablation\n",
-            match (spaces.len() > 1, layouts) {
-                (true, false) => "action-space",
-                (false, _) => "observation-layout",
-                (true, true) => "action-space and observation-layout",
-            }
-        );
+    let worlds = data
+        .iter()
+        .any(|d| d.arm.train_worlds != data[0].arm.train_worlds);
+    let varied: Vec<&str> = [
+        (spaces.len() > 1, "action-space"),
+        (worlds, "training-world"),
+        (layouts, "observation-layout"),
+    ]
+    .into_iter()
+    .filter_map(|(on, name)| on.then_some(name))
+    .collect();
+    if !varied.is_empty() {
+        let _ = writeln!(out, "## Table II: {} ablation\n", varied.join(" and "));
         let mut keys: Vec<(String, String)> = Vec::new();
         for d in data {
             let k = (planner_name(d.arm.planner), speed_label(d.arm.speed));
@@ -1013,6 +1016,34 @@ mod tests {
         let mut none = String::new();
         table_two(&mut none, &ex, &data[..1]);
         assert!(none.is_empty());
+    }
+
+    /// Arms on several training-world selections make Table II, one ADP row per selection.
+    #[test]
+    fn training_world_selections_make_table_two() {
+        let text = "[experiment]\nname = \"t\"\nplanners = [\"dwa\"]\nspeeds = [1.5]\n\
+                    train_worlds = [\"fit\", \"generated\"]\n";
+        let ex = Experiment::parse("t.toml", text, &Default::default()).unwrap();
+        let data: Vec<ArmData> = (ex.arms.iter())
+            .zip([0.25, 0.5])
+            .map(|(arm, score)| ArmData {
+                arm: arm.clone(),
+                ddp: Some(rec("ddp", &[(3, true, 0.5)])),
+                constant: None,
+                search: None,
+                untrained: None,
+                adp: vec![rec("adp", &[(3, true, score)])],
+                shuffled: vec![],
+                sweep: vec![],
+                sensing: vec![],
+            })
+            .collect();
+        let mut two = String::new();
+        table_two(&mut two, &ex, &data);
+        assert!(two.starts_with("## Table II: training-world ablation"), "{two}");
+        assert_eq!(two.matches("| DDP |").count(), 1, "{two}");
+        assert!(two.contains("| ADP-decremental (fit) |"), "{two}");
+        assert!(two.contains("| ADP-decremental (generated) |"), "{two}");
     }
 
     /// Three worlds in two bands, two seeds, by hand (binary-exact scores). Per-world ADP
