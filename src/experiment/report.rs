@@ -1,7 +1,7 @@
 //! `report.md`: paper-style tables (the ADP paper's Table I rows per planner and speed with
-//! the controls; Table II's action-space, training-world and observation-layout ablation; the budget and
-//! sensing sweeps), the paired statistics of every comparison and the figures. Pure: it
-//! formats what the stages wrote.
+//! the controls; Table II's action-space, training-world and observation-layout ablation; the
+//! budget and sensing sweeps), the paired statistics of every comparison and the figures.
+//! Pure: it formats what the stages wrote.
 
 use std::fmt::Write as _;
 
