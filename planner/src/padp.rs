@@ -401,16 +401,19 @@ mod tests {
                 position: Vec2::new(2.0, -2.0),
                 velocity: Vec2::new(0.0, 1.0),
                 radius: 0.5,
+                residual: None,
             },
             Predicted {
                 position: Vec2::new(-3.0, 3.0),
                 velocity: Vec2::new(1.0, 0.0),
                 radius: 0.5,
+                residual: None,
             },
             Predicted {
                 position: Vec2::new(9.0, 0.0),
                 velocity: Vec2::new(0.0, 1.0),
                 radius: 0.5,
+                residual: None,
             },
         ];
         let p = measure_pressure(&ep, &moving, &cfg, 2.8, &mut costs);
