@@ -5,7 +5,7 @@
 //! every sample (`planner::residual_fit::Sample`) as one JSON line; `fit` trains a corrector
 //! on such a file and writes it as JSON, for `adp eval --prediction kf-res` (`[prediction]
 //! residual`). Neither touches a held-out world: `log` refuses any world of the `test`,
-//! `hardest50` or `dynabarn-test` splits.
+//! `hardest50` or `dynabarn-test` splits, and `fit` refuses samples from them.
 
 use std::io::{BufRead, BufWriter, Write};
 use std::path::{Path, PathBuf};
@@ -116,7 +116,7 @@ fn log(a: &LogArgs) -> anyhow::Result<()> {
         bail!("--runs must be at least 1");
     }
     let ids = sim::splits::select(&a.worlds)?;
-    let held_out = sim::splits::select("test,hardest50,dynabarn-test")?;
+    let held_out = held_out()?;
     if let Some(w) = ids.iter().find(|w| held_out.binary_search(w).is_ok()) {
         bail!(
             "--worlds {}: world {w} is held out for testing (test, hardest50, dynabarn-test); \
@@ -184,6 +184,11 @@ fn log(a: &LogArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// The held-out worlds (sorted): the `test`, `hardest50` and `dynabarn-test` splits.
+fn held_out() -> anyhow::Result<Vec<usize>> {
+    Ok(sim::splits::select("test,hardest50,dynabarn-test")?)
+}
+
 /// Reads a samples file; an error names the file and the line.
 fn read_samples(path: &Path) -> anyhow::Result<Vec<Sample>> {
     let file = std::fs::File::open(path).with_context(|| format!("cannot read {}", path.display()))?;
@@ -204,6 +209,15 @@ fn read_samples(path: &Path) -> anyhow::Result<Vec<Sample>> {
 /// writes the corrector.
 fn fit_command(a: &FitArgs) -> anyhow::Result<()> {
     let samples = read_samples(&a.data)?;
+    let held_out = held_out()?;
+    if let Some(s) = samples.iter().find(|s| held_out.binary_search(&s.world).is_ok()) {
+        bail!(
+            "{}: has samples of world {}, which is held out for testing (test, hardest50, \
+             dynabarn-test); fit on training worlds only",
+            a.data.display(),
+            s.world
+        );
+    }
     let settings = FitSettings {
         seed: a.seed,
         epochs: a.epochs,
