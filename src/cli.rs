@@ -4,7 +4,9 @@
 
 use clap::{Parser, Subcommand};
 
-use crate::{actor_process, bench, calibrate, eval, experiment, export, render, slurm, stop, train, worlds};
+use crate::{
+    actor_process, bench, calibrate, eval, experiment, export, render, slurm, stop, tracks, train, worlds,
+};
 
 /// `adp`.
 #[derive(Parser)]
@@ -56,6 +58,12 @@ pub enum Cmd {
         #[command(subcommand)]
         cmd: worlds::WorldsCmd,
     },
+    /// Log obstacle tracks and fit PADP's residual corrector of the Kalman forecast (for
+    /// `adp eval --prediction kf-res`).
+    Tracks {
+        #[command(subcommand)]
+        cmd: tracks::TracksCmd,
+    },
     /// Measure the DESIGN §8 figures on this machine (release build) next to their targets.
     Bench(bench::BenchArgs),
 }
@@ -80,5 +88,6 @@ pub fn run(cmd: Cmd) -> anyhow::Result<()> {
             Ok(())
         }
         Cmd::Worlds { cmd } => cmd.run(),
+        Cmd::Tracks { cmd } => cmd.run(),
     }
 }

@@ -22,6 +22,7 @@ use serde::Serialize;
 use actor::closed_loop::{self, planner_seed, Chooser, Greedy, Run, Step};
 use actor::{EnvConfig, MlpPolicy};
 use planner::moving::FORECAST_HORIZONS;
+use planner::residual::Corrector;
 use planner::{
     run::CycleDriver, ActionSpace, ComputeConfig, ComputeModel, ComputeTally, ForecastErrors, PadpParts,
     PlanInput, Planner, PlannerKind, Schedule, Trace, TrackingConfig,
@@ -46,6 +47,11 @@ pub enum ObstaclePrediction {
     /// track) forecasts each moving obstacle; every rollout point is checked against the
     /// forecast at its time (`planner::moving`).
     Kf,
+    /// kf, with PADP's residual corrector on the forecast (Eq. 3, `planner::residual`): a
+    /// track whose recent motion bends by at least the corrector's threshold gets its
+    /// learned correction wherever its forecast is checked (`[prediction] residual`, default
+    /// the corrector embedded from `assets/kf-residual/`).
+    KfRes,
     /// kf, and the global path search weighs PADP's predictive cost field of the forecast
     /// (Eqs. 4-6; `[prediction] predictive_cost_weight`, `[prediction.field]`).
     PadpPath,
@@ -64,7 +70,7 @@ impl ObstaclePrediction {
         }
     }
 
-    /// The suffix of the row's fidelity label: none, `+kf`, `+padp-path`, `+padp`.
+    /// The suffix of the row's fidelity label: none, `+kf`, `+kf-res`, `+padp-path`, `+padp`.
     pub fn label_suffix(self) -> String {
         match self {
             ObstaclePrediction::Off => String::new(),
@@ -503,11 +509,16 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
         )
         .expect("static template"),
     );
+    let corrector = plan
+        .predictions
+        .contains(&ObstaclePrediction::KfRes)
+        .then(|| crate::tracks::load_corrector(cfg.prediction.residual.as_deref()))
+        .transpose()?;
     let t0 = Instant::now();
     let results: Vec<RunOut> = jobs
         .par_iter()
         .map(|job| {
-            let out = run_one(plan, cfg, worlds, &lidars, policy, job);
+            let out = run_one(plan, cfg, worlds, &lidars, policy, corrector.as_ref(), job);
             bar.inc(1);
             out
         })
@@ -556,11 +567,15 @@ fn check_plan(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Re
     // policy observes tracks; the rows it makes must say so.
     if plan.fidelities.contains(&Fidelity::Adp) && plan.policy.is_some() {
         let tracks = plan.policy_env.observe_tracks;
-        if plan.predictions.iter().any(|p| p.padp() != PadpParts::default()) {
+        if plan
+            .predictions
+            .iter()
+            .any(|&p| p.padp() != PadpParts::default() || p == ObstaclePrediction::KfRes)
+        {
             bail!(
-                "--prediction padp-path and padp run with the planning loop of --fidelity vanilla, \
-                 ddp or a constant adp action, not with a learned policy (its environment runs \
-                 the tracker alone): use --prediction kf"
+                "--prediction kf-res, padp-path and padp run with the planning loop of --fidelity \
+                 vanilla, ddp or a constant adp action, not with a learned policy (its environment \
+                 runs the tracker alone): use --prediction kf"
             );
         }
         if tracks == 0 && plan.predictions.contains(&ObstaclePrediction::Kf) {
@@ -645,6 +660,7 @@ fn run_one(
     worlds: &[World],
     lidars: &[LidarConfig],
     policy: Option<&MlpPolicy>,
+    corrector: Option<&Arc<Corrector>>,
     job: &Job,
 ) -> anyhow::Result<RunOut> {
     let Job {
@@ -675,14 +691,20 @@ fn run_one(
         }
         None => {
             let driver = CycleDriver::new(cfg.compute.resolve(p.name())?, cfg.episode.control_dt);
-            let mut driver = match pr {
-                ObstaclePrediction::Off => driver,
-                ObstaclePrediction::Kf => driver.with_tracking(TrackingConfig::default()),
-                ObstaclePrediction::PadpPath | ObstaclePrediction::Padp => driver
-                    .with_tracking(TrackingConfig::default())
-                    .with_padp(cfg.prediction, pr.padp()),
-            }
-            .with_forecast_errors();
+            let mut driver =
+                match pr {
+                    ObstaclePrediction::Off => driver,
+                    ObstaclePrediction::Kf => driver.with_tracking(TrackingConfig::default()),
+                    ObstaclePrediction::KfRes => driver
+                        .with_tracking(TrackingConfig::default())
+                        .with_corrector(Arc::clone(
+                            corrector.expect("run loads the corrector for kf-res rows"),
+                        )),
+                    ObstaclePrediction::PadpPath | ObstaclePrediction::Padp => driver
+                        .with_tracking(TrackingConfig::default())
+                        .with_padp(cfg.prediction.clone(), pr.padp()),
+                }
+                .with_forecast_errors();
             let schedule = f.schedule(&plan.adp)?;
             let chooser = Chooser::Fixed {
                 schedule: &schedule,
@@ -863,7 +885,8 @@ pub struct EvalArgs {
     #[arg(long, value_delimiter = ',', default_value = "1.5")]
     pub max_speed: Vec<f64>,
     /// Moving-obstacle prediction(s), comma-separated: one row per value (`off`: none; `kf`:
-    /// the tracker's constant-velocity forecast; `padp-path`: kf and PADP's predictive cost in
+    /// the tracker's constant-velocity forecast; `kf-res`: kf corrected by PADP's learned
+    /// residual corrector, `[prediction] residual`; `padp-path`: kf and PADP's predictive cost in
     /// the global path; `padp`: that and PADP's complexity-adaptive weights, see the
     /// `[prediction]` table; with --fidelity adp and a learned policy, kf exactly when the policy observes tracks).
     #[arg(long, value_enum, value_delimiter = ',', default_value = "off")]
@@ -1244,6 +1267,7 @@ mod tests {
             policy_env: EnvConfig::default(),
             predictions: vec![
                 ObstaclePrediction::Kf,
+                ObstaclePrediction::KfRes,
                 ObstaclePrediction::PadpPath,
                 ObstaclePrediction::Padp,
             ],
@@ -1251,22 +1275,23 @@ mod tests {
         };
         let rows = run(&plan, &cfg, sim::catalog::worlds()).unwrap();
         let labels: Vec<&str> = rows.iter().map(|r| r.fidelity_label.as_str()).collect();
-        assert_eq!(labels, ["ddp+kf", "ddp+padp-path", "ddp+padp"]);
-        assert!(rows[..2].iter().all(|r| r.pressure_modes_pct.is_none()));
+        assert_eq!(labels, ["ddp+kf", "ddp+kf-res", "ddp+padp-path", "ddp+padp"]);
+        assert!(rows[..3].iter().all(|r| r.pressure_modes_pct.is_none()));
         // Every row runs the tracker and measures its forecast.
         for r in &rows {
             let f = r.forecast.expect("a tracker row measures its forecast");
             assert!(f.forecasts[0] > 0 && f.rmse_m[0].unwrap() < 1.0, "{f:?}");
         }
-        let shares = rows[2].pressure_modes_pct.expect("padp reports its modes");
+        let shares = rows[3].pressure_modes_pct.expect("padp reports its modes");
         assert!((shares.iter().sum::<f64>() - 100.0).abs() < 1e-9, "{shares:?}");
         assert!(
             table(&rows).contains("| dwa | ddp+padp-path |"),
             "{}",
             table(&rows)
         );
-        let json = serde_json::to_value(&rows[1]).unwrap();
+        let json = serde_json::to_value(&rows[2]).unwrap();
         assert_eq!(json["prediction"], "padp-path");
+        assert_eq!(serde_json::to_value(&rows[1]).unwrap()["prediction"], "kf-res");
         assert!(json.get("pressure_modes_pct").is_none());
         // A learned policy runs the tracker alone.
         let space = ActionSpace::Decremental;
@@ -1290,7 +1315,7 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(
-            err.contains("--prediction padp-path and padp") && err.contains("use --prediction kf"),
+            err.contains("--prediction kf-res, padp-path and padp") && err.contains("use --prediction kf"),
             "{err}"
         );
         // A bad setting of the table is refused with its table and key.
@@ -1300,6 +1325,18 @@ mod tests {
         std::fs::write(&file, "[prediction.complexity]\nlow = 0.7\n").unwrap();
         let err = EvalConfig::load(Some(&file)).unwrap_err().to_string();
         assert!(err.contains("[prediction.complexity] low: low 0.7"), "{err}");
+        // A corrector file that is not there is named when a kf-res row needs it.
+        let missing = dir.join("missing.json");
+        std::fs::write(&file, format!("[prediction]\nresidual = {:?}\n", missing)).unwrap();
+        let cfg = EvalConfig::load(Some(&file)).unwrap();
+        let kf_res = EvalPlan {
+            predictions: vec![ObstaclePrediction::KfRes],
+            ..plan.clone()
+        };
+        let err = run(&kf_res, &cfg, sim::catalog::worlds())
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("missing.json: cannot read"), "{err}");
         std::fs::remove_dir_all(&dir).unwrap();
     }
 

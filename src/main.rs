@@ -14,6 +14,7 @@ mod policy;
 mod render;
 mod slurm;
 mod stop;
+mod tracks;
 mod train;
 mod worlds;
 

@@ -355,6 +355,7 @@ mod tests {
             position: Vec2::new(x, y),
             velocity: Vec2::new(vx, vy),
             radius: 0.5,
+            residual: None,
         };
         // Three tracks at 5 m, 2 m and 5 m (a tie: list order), in 2 slots, then in 4.
         let tracks = [

@@ -19,6 +19,8 @@ pub mod mppi;
 pub mod padp;
 pub mod prediction;
 pub mod recovery;
+pub mod residual;
+pub mod residual_fit;
 pub mod run;
 pub mod schedule;
 pub mod system;

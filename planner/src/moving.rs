@@ -11,13 +11,22 @@
 //! [`Tracking`] runs a [`Tracker`] on the robot's scans and turns its confirmed moving
 //! tracks into [`Predicted`] obstacles in each cycle's robot frame. Without tracking the
 //! list is empty and every planner behaves exactly as before.
+//!
+//! With PADP's residual corrector ([`Tracking::with_corrector`], [`crate::residual`]) a
+//! track whose recent motion bends past the corrector's threshold carries a correction
+//! ([`Predicted::residual`]): its forecast at `t` is the constant-velocity one plus the
+//! correction at `t`, wherever a forecast is checked. Without a correction (no corrector, or
+//! the gate closed) the forecast and every check are the constant-velocity ones, bit for bit.
 
 use serde::{Deserialize, Serialize};
 use sim::geometry::{Footprint, Pose, Vec2};
 use sim::predictive_cost::MovingObstacle;
 use sim::Episode;
 
+use crate::residual::{Correction, Corrector, CorrectorScratch, STEPS, STEP_S};
 use crate::tracker::{Track, Tracker, TrackerConfig};
+use sim::motion::MovingCylinder;
+use std::sync::Arc;
 
 /// A moving obstacle as a planner sees it, in the robot frame of the planning cycle.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -28,22 +37,38 @@ pub struct Predicted {
     pub velocity: Vec2,
     /// Radius (m).
     pub radius: f64,
+    /// The residual corrector's correction of the forecast (robot frame; `t` seconds from
+    /// now), or `None`: the forecast is constant velocity.
+    pub residual: Option<Correction>,
 }
 
 impl Predicted {
-    /// The track `tr` at time `now` (s), in the frame of the believed pose `believed`.
+    /// The track `tr` at time `now` (s), in the frame of the believed pose `believed`, without
+    /// a correction.
     pub fn from_track(tr: &Track, believed: &Pose, now: f64) -> Self {
         Self {
             position: believed.to_local(tr.predict(now - tr.time)),
             velocity: tr.velocity.rotated(-believed.yaw),
             radius: tr.radius,
+            residual: None,
+        }
+    }
+
+    /// Where the centre will be `t` seconds from now: `position + velocity t`, plus the
+    /// correction at `t` when there is one.
+    #[inline]
+    pub fn at(&self, t: f64) -> Vec2 {
+        let p = self.position + self.velocity * t;
+        match &self.residual {
+            None => p,
+            Some(c) => p + c.at(t),
         }
     }
 }
 
 /// Smallest clearance (m) between `footprint` at `pose` (robot frame of the cycle) and every
-/// obstacle of `moving` where it will be `t` seconds from now; infinite when `moving` is
-/// empty. Adds one check point per obstacle to `evaluated`.
+/// obstacle of `moving` where it will be `t` seconds from now ([`Predicted::at`]); infinite
+/// when `moving` is empty. Adds one check point per obstacle to `evaluated`.
 #[inline]
 pub fn clearance(
     footprint: &Footprint,
@@ -62,7 +87,7 @@ pub fn clearance(
     let at = pose.position();
     let mut best = f64::INFINITY;
     for o in moving {
-        let d = o.position + o.velocity * t - at;
+        let d = o.at(t) - at;
         let local = Vec2::new(c * d.x + s * d.y, -s * d.x + c * d.y);
         best = best.min(footprint.signed_distance_local(local) - o.radius);
     }
@@ -76,7 +101,10 @@ pub fn clearance(
 /// Each forecast centre sweeps a segment over the interval. When the segment stays outside
 /// the footprint the clearance is exact: a segment and a rectangle that are apart are
 /// nearest at an end of the segment or a corner of the rectangle. When it passes through
-/// the footprint the value is at most minus the obstacle's radius (contact).
+/// the footprint the value is at most minus the obstacle's radius (contact). A corrected
+/// forecast ([`Predicted::residual`]) moves linearly between the prediction steps, so its
+/// sweep is the polyline through its positions at `t0`, at the steps inside the interval and
+/// at `t1`, each segment checked so.
 #[inline]
 pub fn hold_clearance(
     footprint: &Footprint,
@@ -100,20 +128,39 @@ pub fn hold_clearance(
         Vec2::new(-hl, hw),
         Vec2::new(-hl, -hw),
     ];
-    let mut best = f64::INFINITY;
-    for o in moving {
-        let a = local(o.position + o.velocity * t0);
-        let b = local(o.position + o.velocity * t1);
+    // The gap between the footprint and a segment a-b (footprint frame) one end of which
+    // lies outside it.
+    let sweep = |a: Vec2, b: Vec2| {
         let ends = footprint
             .signed_distance_local(a)
             .min(footprint.signed_distance_local(b));
-        let gap = if segment_meets_box(a, b, hl, hw) {
+        if segment_meets_box(a, b, hl, hw) {
             ends.min(0.0)
         } else {
             corners
                 .iter()
                 .map(|&q| point_segment_distance(q, a, b))
                 .fold(ends, f64::min)
+        }
+    };
+    let mut best = f64::INFINITY;
+    for o in moving {
+        let gap = match o.residual {
+            None => sweep(
+                local(o.position + o.velocity * t0),
+                local(o.position + o.velocity * t1),
+            ),
+            Some(_) => {
+                let (mut from, mut gap) = (t0, f64::INFINITY);
+                for k in 0..=STEPS {
+                    let knot = k as f64 * STEP_S;
+                    if knot > t0 && knot < t1 {
+                        gap = gap.min(sweep(local(o.at(from)), local(o.at(knot))));
+                        from = knot;
+                    }
+                }
+                gap.min(sweep(local(o.at(from)), local(o.at(t1))))
+            }
         };
         best = best.min(gap - o.radius);
     }
@@ -183,6 +230,10 @@ pub struct Tracking {
     moving: Vec<Predicted>,
     /// The same obstacles in the believed frame of the robot's map.
     in_map: Vec<MovingObstacle>,
+    /// Their corrections in the believed frame.
+    corrections_in_map: Vec<Option<Correction>>,
+    /// The residual corrector and its buffers, when on.
+    corrector: Option<(Arc<Corrector>, CorrectorScratch)>,
 }
 
 impl Tracking {
@@ -193,27 +244,62 @@ impl Tracking {
             min_speed: cfg.min_speed,
             moving: Vec::new(),
             in_map: Vec::new(),
+            corrections_in_map: Vec::new(),
+            corrector: None,
         }
     }
 
+    /// The same tracking correcting each moving track's forecast with `corrector`
+    /// ([`crate::residual`]).
+    pub fn with_corrector(mut self, corrector: Arc<Corrector>) -> Self {
+        let scratch = corrector.scratch();
+        self.corrector = Some((corrector, scratch));
+        self
+    }
+
+    /// The confirmed tracks moving at least the minimum speed, in the order of
+    /// [`Tracking::moving`] (after an update: the tracks of that update).
+    pub fn moving_tracks(&self) -> impl Iterator<Item = &Track> {
+        let min_speed = self.min_speed;
+        self.tracker
+            .confirmed()
+            .filter(move |tr| tr.velocity.norm() >= min_speed)
+    }
+
     /// Takes the episode's current scan (at its time, from its believed pose) and returns the
-    /// confirmed tracks moving at least the minimum speed, in the robot frame.
+    /// confirmed tracks moving at least the minimum speed, in the robot frame (with their
+    /// corrections when the corrector is on and its gate open).
     pub fn update(&mut self, ep: &Episode<'_>) -> &[Predicted] {
         let now = ep.sim_time();
         let believed = ep.believed_pose();
         self.tracker.update(now, &believed, ep.perception().points);
         self.moving.clear();
         self.in_map.clear();
+        self.corrections_in_map.clear();
         for tr in self.tracker.confirmed() {
             if tr.velocity.norm() >= self.min_speed {
-                self.moving.push(Predicted::from_track(tr, &believed, now));
+                // Every track was just updated to `now`: its correction starts now.
+                let correction = self
+                    .corrector
+                    .as_mut()
+                    .and_then(|(c, scratch)| tr.residual_features().and_then(|f| c.correction(&f, scratch)));
+                let mut p = Predicted::from_track(tr, &believed, now);
+                p.residual = correction.map(|c| c.rotated(-believed.yaw));
+                self.moving.push(p);
                 self.in_map.push(MovingObstacle {
                     position: tr.predict(now - tr.time),
                     velocity: tr.velocity,
                 });
+                self.corrections_in_map.push(correction);
             }
         }
         &self.moving
+    }
+
+    /// The corrections of [`Tracking::moving_in_map`]'s obstacles (believed frame; `None`
+    /// where there is none), in the same order.
+    pub fn corrections_in_map(&self) -> &[Option<Correction>] {
+        &self.corrections_in_map
     }
 
     /// The moving obstacles of the last [`Tracking::update`] (the same as
@@ -242,9 +328,40 @@ pub const FORECAST_HORIZONS: [f64; 5] = [0.0, 0.4, 1.2, 2.0, 2.8];
 /// A track follows the moving cylinder whose centre is nearest its own, within this (m).
 pub const FORECAST_MATCH_M: f64 = 1.0;
 
+/// The moving cylinder of `ep` that a track's forecast `o` (believed frame, at the episode's
+/// time) follows: the one whose centre is nearest the track's, within [`FORECAST_MATCH_M`];
+/// returned with the angle (rad) that turns believed-frame vectors into the world frame and
+/// the forecast's position and velocity in the world frame (through the believed-to-true pose
+/// correction).
+pub fn followed_cylinder<'w>(
+    ep: &Episode<'w>,
+    o: &MovingObstacle,
+) -> Option<(&'w MovingCylinder, f64, Vec2, Vec2)> {
+    let now = ep.scene().time();
+    let (truth, believed) = (ep.state().pose, ep.believed_pose());
+    let p = truth.to_world(believed.to_local(o.position));
+    let turn = truth.yaw - believed.yaw;
+    let v = o.velocity.rotated(turn);
+    let world: &'w sim::World = ep.world();
+    let (cylinder, d) = world
+        .moving
+        .iter()
+        .map(|c| (c, c.at(now).c.dist(p)))
+        .min_by(|a, b| a.1.total_cmp(&b.1))?;
+    (d <= FORECAST_MATCH_M).then_some((cylinder, turn, p, v))
+}
+
+/// Whether `cylinder`'s loop ends between `now` and `now + h` (s): it jumps back to its first
+/// keyframe, which no forecast follows.
+pub fn crosses_loop_end(cylinder: &MovingCylinder, now: f64, h: f64) -> bool {
+    let period = cylinder.trajectory.period();
+    ((now + h) / period).floor() != (now / period).floor()
+}
+
 /// The tracker's forecast against the truth (a harness metric: PADP's prediction RMSE).
 ///
-/// Each cycle every moving track's constant-velocity forecast `h` seconds ahead, for each of
+/// Each cycle every moving track's forecast (constant velocity, corrected where the residual
+/// corrector corrects it) `h` seconds ahead, for each of
 /// [`FORECAST_HORIZONS`], is compared with where the moving cylinder it follows really is at
 /// that time. The cylinder a track follows is the one whose centre is nearest the track's
 /// position now, within [`FORECAST_MATCH_M`]; a track on none is left out, and so is a
@@ -278,29 +395,26 @@ impl ForecastErrors {
     /// Compares the forecasts of `tracking`'s last update, made at the episode's current
     /// time, with the episode's ground truth.
     pub fn record(&mut self, ep: &Episode<'_>, tracking: &Tracking) {
-        let cylinders = &ep.world().moving;
-        if cylinders.is_empty() {
+        if ep.world().moving.is_empty() {
             return;
         }
         let now = ep.scene().time();
-        let (truth, believed) = (ep.state().pose, ep.believed_pose());
-        for o in tracking.moving_in_map() {
-            let p = truth.to_world(believed.to_local(o.position));
-            let v = o.velocity.rotated(truth.yaw - believed.yaw);
-            let nearest = cylinders
-                .iter()
-                .map(|c| (c, c.at(now).c.dist(p)))
-                .min_by(|a, b| a.1.total_cmp(&b.1));
-            let Some((cylinder, _)) = nearest.filter(|n| n.1 <= FORECAST_MATCH_M) else {
+        let corrections = tracking.corrections_in_map();
+        for (o, correction) in tracking.moving_in_map().iter().zip(corrections) {
+            let Some((cylinder, turn, p, v)) = followed_cylinder(ep, o) else {
                 continue;
             };
-            let period = cylinder.trajectory.period();
+            let correction = correction.map(|c| c.rotated(turn));
             for (k, &h) in FORECAST_HORIZONS.iter().enumerate() {
-                if ((now + h) / period).floor() != (now / period).floor() {
+                if crosses_loop_end(cylinder, now, h) {
                     continue;
                 }
                 let truth = cylinder.at(now + h).c;
-                let (error, still) = ((p + v * h).dist(truth), p.dist(truth));
+                let forecast = match &correction {
+                    None => p + v * h,
+                    Some(c) => p + v * h + c.at(h),
+                };
+                let (error, still) = (forecast.dist(truth), p.dist(truth));
                 self.sum_sq[k] += error * error;
                 self.sum_sq_still[k] += still * still;
                 self.count[k] += 1;
@@ -336,6 +450,7 @@ mod tests {
             position: Vec2::new(2.0, -1.0),
             velocity: Vec2::new(0.0, 1.0),
             radius: 0.2,
+            residual: None,
         }];
         let at = |x: f64, t: f64, n: &mut u64| clearance(&fp, &Pose::new(x, 0.0, 0.0), t, &moving, n);
         let mut n = 0;
@@ -359,6 +474,7 @@ mod tests {
             position: Vec2::new(0.0, -2.0),
             velocity: Vec2::new(0.0, 1.0),
             radius: 0.2,
+            residual: None,
         }];
         let at = |t0: f64, t1: f64, n: &mut u64| hold_clearance(&fp, &Pose::default(), t0, t1, &moving, n);
         assert!((at(0.0, 1.0, &mut n) - (1.0 - 0.215 - 0.2)).abs() < 1e-12);
@@ -373,6 +489,7 @@ mod tests {
             position: Vec2::new(1.0, -1.0),
             velocity: Vec2::new(1.0, 1.0),
             radius: 0.1,
+            residual: None,
         }];
         let d = hold_clearance(&fp, &Pose::default(), -3.0, 3.0, &diagonal, &mut n);
         let expected = (2.0 - 0.254 - 0.215) / 2f64.sqrt() - 0.1;
@@ -439,6 +556,110 @@ mod tests {
         let mut none = ForecastErrors::default();
         none.record(&ep, &tracking);
         assert_eq!(none.rmse(), [None; 5]);
+    }
+
+    #[test]
+    fn a_corrected_forecast_is_checked_where_the_correction_puts_it() {
+        let fp = Footprint::JACKAL;
+        let mut n = 0;
+        // Passing 1.5 m to the right at 1 m/s, from x = -2; the correction lifts it by 0.3 m per
+        // step up to 1.5 m at step 5 (t = 2 s), where the corrected forecast is at the origin.
+        let steps = std::array::from_fn(|k| Vec2::new(0.0, 0.3 * (k as f64 + 1.0).min(5.0)));
+        let corrected = Predicted {
+            position: Vec2::new(-2.0, -1.5),
+            velocity: Vec2::new(1.0, 0.0),
+            radius: 0.2,
+            residual: Some(Correction { steps }),
+        };
+        let plain = Predicted {
+            residual: None,
+            ..corrected
+        };
+        assert_eq!(corrected.at(0.0), plain.at(0.0));
+        assert!((corrected.at(2.0) - Vec2::default()).norm() < 1e-12);
+        assert!((corrected.at(1.0) - Vec2::new(-1.0, -0.75)).norm() < 1e-12);
+        // At t = 2 s the corrected one is at the robot's centre, exactly as a standing
+        // obstacle there would be.
+        let standing = Predicted {
+            position: corrected.at(2.0),
+            ..Predicted::default()
+        };
+        let d = clearance(&fp, &Pose::default(), 2.0, &[corrected], &mut n);
+        let want = clearance(&fp, &Pose::default(), 2.0, &[standing], &mut n) - 0.2;
+        assert!((d - want).abs() < 1e-12, "{d} vs {want}");
+        // The constant-velocity sweep over 0..4 s passes 1.5 m to the side; the corrected
+        // one's polyline goes through the robot.
+        let plain_gap = hold_clearance(&fp, &Pose::default(), 0.0, 4.0, &[plain], &mut n);
+        assert!((plain_gap - (1.5 - 0.215 - 0.2)).abs() < 1e-12, "{plain_gap}");
+        assert!(hold_clearance(&fp, &Pose::default(), 0.0, 4.0, &[corrected], &mut n) <= -0.2);
+        // Over 0..0.8 s it is still far: the polyline through (-2, -1.5), (-1.6, -1.2) and
+        // (-1.2, -0.9) is nearest the corner (-0.254, -0.215) at its end.
+        let early = hold_clearance(&fp, &Pose::default(), 0.0, 0.8, &[corrected], &mut n);
+        let want = Vec2::new(-1.2, -0.9).dist(Vec2::new(-0.254, -0.215)) - 0.2;
+        assert!((early - want).abs() < 1e-12, "{early} vs {want}");
+        assert_eq!(n, 5, "one check point per obstacle and call");
+    }
+
+    #[test]
+    fn a_closed_gate_changes_nothing() {
+        use crate::residual::{Mlp, TrainedWith, FEATURES, OUTPUTS};
+        use sim::motion::{MovingCylinder, Trajectory};
+        use sim::{EpisodeConfig, Twist, World};
+        // A cylinder turning on a circle of 3 m around a standing robot at 1 m/s.
+        let keys: Vec<[f64; 3]> = (0..=40)
+            .map(|k| {
+                let a = k as f64 * std::f64::consts::TAU / 40.0;
+                [k as f64 * 0.4712, 3.0 * a.cos(), 3.0 * a.sin()]
+            })
+            .collect();
+        let period = keys[40][0];
+        let world =
+            World::new(0, vec![], Pose::default(), Vec2::new(-9.0, 0.0), 9.0, vec![]).with_moving(vec![
+                MovingCylinder {
+                    radius: 0.5,
+                    trajectory: Trajectory::new(&keys, period).unwrap(),
+                },
+            ]);
+        let corrector = |threshold_rad: f64| {
+            Arc::new(
+                Corrector::new(
+                    Mlp::seeded(&[FEATURES, 8, OUTPUTS], 1),
+                    [0.0; FEATURES],
+                    [1.0; FEATURES],
+                    1.0,
+                    0.75,
+                    threshold_rad,
+                    0.888,
+                    TrainedWith::default(),
+                )
+                .unwrap(),
+            )
+        };
+        let run = |tracking: &mut Tracking| {
+            let cfg = EpisodeConfig::default().with_profile(sim::Profile::Ideal, None);
+            let mut ep = Episode::new(&world, cfg, 2);
+            let mut errors = ForecastErrors::default();
+            let mut corrected = 0;
+            for _ in 0..200 {
+                ep.step(Twist::default());
+                tracking.update(&ep);
+                errors.record(&ep, tracking);
+                corrected += tracking.moving().iter().filter(|o| o.residual.is_some()).count();
+            }
+            (errors, corrected)
+        };
+        let (plain, none) = run(&mut Tracking::new(TrackingConfig::default()));
+        assert_eq!(none, 0);
+        // A threshold above pi never opens: the same forecasts, bit for bit.
+        let mut closed = Tracking::new(TrackingConfig::default()).with_corrector(corrector(4.0));
+        assert_eq!(run(&mut closed), (plain, 0));
+        // Open on every turning track: corrected forecasts, other errors from 0.4 s on.
+        let mut open = Tracking::new(TrackingConfig::default()).with_corrector(corrector(0.0));
+        let (errors, corrected) = run(&mut open);
+        assert!(corrected > 50, "{corrected}");
+        assert_eq!(errors.count, plain.count);
+        assert_eq!(errors.sum_sq[0], plain.sum_sq[0]);
+        assert_ne!(errors.sum_sq[4], plain.sum_sq[4]);
     }
 
     #[test]

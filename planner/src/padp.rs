@@ -31,7 +31,7 @@ use crate::Planner;
 
 /// PADP's settings: the `[prediction]` table of the evaluation configuration. Every field is
 /// optional in a TOML table; unknown keys are refused.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct PadpConfig {
     /// `kappa_d` of Eq. 6 in the scale of the global path search's costs (see
@@ -44,6 +44,10 @@ pub struct PadpConfig {
     pub complexity: ComplexityConfig,
     /// What each mode changes.
     pub modes: ModeEffects,
+    /// The residual corrector file of the rows of `--prediction kf-res` (JSON,
+    /// [`crate::residual::CorrectorFile`]; a relative path is taken from the working
+    /// directory); `None`: the corrector embedded in the `adp` binary.
+    pub residual: Option<std::path::PathBuf>,
 }
 
 impl Default for PadpConfig {
@@ -53,6 +57,7 @@ impl Default for PadpConfig {
             field: PredictiveCostConfig::default(),
             complexity: ComplexityConfig::default(),
             modes: ModeEffects::default(),
+            residual: None,
         }
     }
 }
@@ -401,16 +406,19 @@ mod tests {
                 position: Vec2::new(2.0, -2.0),
                 velocity: Vec2::new(0.0, 1.0),
                 radius: 0.5,
+                residual: None,
             },
             Predicted {
                 position: Vec2::new(-3.0, 3.0),
                 velocity: Vec2::new(1.0, 0.0),
                 radius: 0.5,
+                residual: None,
             },
             Predicted {
                 position: Vec2::new(9.0, 0.0),
                 velocity: Vec2::new(0.0, 1.0),
                 radius: 0.5,
+                residual: None,
             },
         ];
         let p = measure_pressure(&ep, &moving, &cfg, 2.8, &mut costs);

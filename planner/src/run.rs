@@ -7,7 +7,10 @@ use sim::World;
 use crate::compute::{periods, Budget, Compute, ComputeTally, CycleWork};
 use crate::moving::{ForecastErrors, Tracking, TrackingConfig};
 use crate::padp::{Padp, PadpConfig, PadpParts};
+use crate::residual::Corrector;
+use crate::residual_fit::{record_samples, Sample};
 use crate::{PlanInput, Planner, Prediction, Schedule};
+use std::sync::Arc;
 
 /// The planning loop of one episode: every control period either runs a planning cycle or,
 /// while the previous cycle's modelled compute still runs, lets the robot keep its command.
@@ -34,6 +37,8 @@ pub struct CycleDriver {
     padp: Option<Padp>,
     /// The tracker's forecast against the truth, when measured.
     forecast_errors: Option<ForecastErrors>,
+    /// The residual corrector's training samples, when logged.
+    samples: Option<Vec<Sample>>,
 }
 
 impl CycleDriver {
@@ -47,6 +52,7 @@ impl CycleDriver {
             tracking: None,
             padp: None,
             forecast_errors: None,
+            samples: None,
         }
     }
 
@@ -54,6 +60,30 @@ impl CycleDriver {
     pub fn with_tracking(mut self, cfg: TrackingConfig) -> Self {
         self.tracking = Some(Tracking::new(cfg));
         self
+    }
+
+    /// The same driver correcting the tracker's forecast with PADP's residual `corrector`
+    /// ([`crate::residual`]). Panics without tracking ([`CycleDriver::with_tracking`] first).
+    pub fn with_corrector(mut self, corrector: Arc<Corrector>) -> Self {
+        let tracking = self
+            .tracking
+            .take()
+            .expect("CycleDriver::with_corrector needs with_tracking first");
+        self.tracking = Some(tracking.with_corrector(corrector));
+        self
+    }
+
+    /// The same driver logging the residual corrector's training samples every cycle
+    /// ([`record_samples`]; a harness tool: the planner sees none of it). It logs only with
+    /// tracking.
+    pub fn with_samples(mut self) -> Self {
+        self.samples = Some(Vec::new());
+        self
+    }
+
+    /// The samples logged so far (empty when not logging).
+    pub fn take_samples(&mut self) -> Vec<Sample> {
+        self.samples.as_mut().map(std::mem::take).unwrap_or_default()
     }
 
     /// The same driver running the `parts` of PADP with `cfg` (validated by the caller:
@@ -113,6 +143,9 @@ impl CycleDriver {
             t.update(ep);
             if let Some(e) = &mut self.forecast_errors {
                 e.record(ep, t);
+            }
+            if let Some(s) = &mut self.samples {
+                record_samples(ep, t, s);
             }
         }
         if let (Some(p), Some(t)) = (&mut self.padp, &self.tracking) {

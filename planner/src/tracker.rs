@@ -28,14 +28,18 @@
 //!    missed [`TrackerConfig::max_misses`] scans in a row is dropped.
 //!
 //! Prediction ([`Track::predict`]) is constant velocity: `o(t + tau) = o(t) + v tau`, the
-//! base forecast of PADP (Eq. 2); PADP's learned residual corrector (Eq. 3) is not part of
-//! this module.
+//! base forecast of PADP (Eq. 2). Each track also keeps the short position history
+//! ([`Track::history`]: its estimated position after each update, sampled every 0.4 s) that
+//! PADP's learned residual corrector (Eq. 3, [`crate::residual`]) reads; the corrector itself
+//! is not part of this module.
 //!
 //! A [`Tracker`] owns its buffers: after its first scans an update does not allocate.
 //! `Send`, not shared: one per episode.
 
 use serde::{Deserialize, Serialize};
 use sim::geometry::{Pose, Vec2};
+
+use crate::residual::{Features, History};
 
 /// Tracker tunables. Every field is optional in a TOML table; unknown keys are refused.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -167,6 +171,7 @@ pub struct Track {
     /// Whether [`TrackerConfig::confirm_hits`] scans have confirmed it.
     pub confirmed: bool,
     cov: AxisCov,
+    history: History,
 }
 
 impl Track {
@@ -174,6 +179,8 @@ impl Track {
     /// unless `cfg` confirms on the first hit), with the measurement's position variance and
     /// the birth velocity variance of `cfg`.
     pub fn born(id: u64, position: Vec2, radius: f64, time: f64, cfg: &TrackerConfig) -> Track {
+        let mut history = History::default();
+        history.push(time, position);
         Track {
             id,
             position,
@@ -188,6 +195,7 @@ impl Track {
                 pv: 0.0,
                 vv: cfg.birth_speed_sigma * cfg.birth_speed_sigma,
             },
+            history,
         }
     }
 
@@ -204,6 +212,23 @@ impl Track {
     /// Trace of the velocity covariance ((m/s)^2).
     pub fn velocity_variance(&self) -> f64 {
         2.0 * self.cov.vv
+    }
+
+    /// The estimated positions after the updates so far, every 0.4 s (believed frame; the
+    /// first at birth).
+    pub fn history(&self) -> &History {
+        &self.history
+    }
+
+    /// The residual corrector's input for this track ([`Features::of`]); `None` until its
+    /// history is full (2 s after birth).
+    pub fn residual_features(&self) -> Option<Features> {
+        Features::of(
+            self.velocity,
+            self.position_variance(),
+            self.velocity_variance(),
+            &self.history,
+        )
     }
 
     /// Direction of motion (rad), PADP's psi.
@@ -325,6 +350,7 @@ impl Tracker {
             if !taken {
                 tr.misses += 1;
             }
+            tr.history.push(t, tr.position);
         }
         self.tracks.retain(|tr| tr.misses <= cfg.max_misses);
         for (j, c) in self.clusters.iter().enumerate() {

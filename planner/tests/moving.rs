@@ -54,6 +54,7 @@ fn drive(planner: &mut dyn Planner, predict: bool) -> (f64, bool, f64) {
             position: local,
             velocity: velocity.rotated(-robot.pose.yaw),
             radius,
+            residual: None,
         }];
         let cmd = planner.plan(&PlanInput {
             perception: sim::Perception {

@@ -964,6 +964,7 @@ mod tests {
             position: Vec2::new(x, y),
             velocity: Vec2::new(vx, vy),
             radius,
+            residual: None,
         };
         let still = Twist::default();
         let mut sys = NavSystem::new(SystemConfig::default(), 1);
@@ -1040,6 +1041,7 @@ mod tests {
             position: Vec2::new(0.254 + 0.2 + 0.005, -1.0),
             velocity: Vec2::new(0.0, 2.0),
             radius: 0.2,
+            residual: None,
         }];
         assert_eq!(plan(&mut sys, &grazing), Twist::new(-0.1, 0.0));
         assert_eq!(sys.mode(), Mode::Brake);
@@ -1047,6 +1049,7 @@ mod tests {
             position: Vec2::new(1.2, 0.0),
             velocity: Vec2::new(-1.0, 0.0),
             radius: 0.2,
+            residual: None,
         }];
         assert_eq!(plan(&mut sys, &head_on), Twist::default());
         assert_eq!(sys.mode(), Mode::Brake);
