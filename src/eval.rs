@@ -512,7 +512,7 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
     let corrector = plan
         .predictions
         .contains(&ObstaclePrediction::KfRes)
-        .then(|| crate::tracks::load_corrector(cfg.prediction.residual.as_deref()))
+        .then(|| crate::corrector::load_corrector(cfg.prediction.residual.as_deref()))
         .transpose()?;
     let t0 = Instant::now();
     let results: Vec<RunOut> = jobs

@@ -6,6 +6,7 @@ mod bench;
 mod calibrate;
 mod cli;
 mod config;
+mod corrector;
 mod eval;
 mod experiment;
 mod export;

@@ -9,35 +9,18 @@
 
 use std::io::{BufRead, BufWriter, Write};
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
 
 use anyhow::{bail, Context};
 use rayon::prelude::*;
 
 use actor::closed_loop::{self, Chooser, Step};
-use planner::residual::{Corrector, STEPS, STEP_S};
+use planner::residual::{STEPS, STEP_S};
 use planner::residual_fit::{fit, FitSettings, Sample};
 use planner::run::CycleDriver;
 use planner::{PlannerKind, Schedule, TrackingConfig};
 
 use crate::args::EvalRunArgs;
 use crate::eval::{eval_run, run_seed};
-
-/// The corrector trained on `dynabarn-fit` that `--prediction kf-res` uses when the
-/// configuration names none (`assets/kf-residual/README.md` says how it was made).
-pub const DEFAULT_CORRECTOR: &str = include_str!("../assets/kf-residual/corrector.json");
-
-/// The embedded corrector's name in errors.
-pub const DEFAULT_CORRECTOR_NAME: &str = "assets/kf-residual/corrector.json (embedded)";
-
-/// The corrector at `path`, or the embedded default.
-pub fn load_corrector(path: Option<&Path>) -> anyhow::Result<Arc<Corrector>> {
-    let c = match path {
-        Some(p) => Corrector::load(p)?,
-        None => Corrector::from_json(DEFAULT_CORRECTOR, DEFAULT_CORRECTOR_NAME)?,
-    };
-    Ok(Arc::new(c))
-}
 
 /// `adp tracks`.
 #[derive(clap::Subcommand, Debug)]
@@ -278,30 +261,6 @@ fn fit_command(a: &FitArgs) -> anyhow::Result<()> {
 
 #[cfg(test)]
 mod tests {
-    use super::*;
-
-    #[test]
-    fn the_embedded_corrector_loads() {
-        let c = load_corrector(None).unwrap();
-        assert_eq!(c.net().sizes(), vec![13, 64, 64, 14]);
-        assert_eq!(
-            (c.gain, c.threshold_rad, c.clip_m),
-            (
-                planner::residual::PAPER_GAIN,
-                planner::residual::PAPER_THRESHOLD_RAD,
-                planner::residual::PAPER_CLIP_M
-            )
-        );
-        // Trained on dynabarn-fit only.
-        let fit = sim::splits::select("dynabarn-fit").unwrap();
-        let t = &c.trained;
-        assert!(t
-            .train_worlds
-            .iter()
-            .chain(&t.val_worlds)
-            .all(|w| fit.contains(w)));
-    }
-
     #[test]
     fn held_out_worlds_are_refused() {
         let cli = <crate::cli::Cli as clap::Parser>::try_parse_from([

@@ -11,9 +11,10 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{bail, Context};
+use sim::catalog::barn_metrics;
 use sim::generate::{GeneratedWorld, GeneratorConfig};
 use sim::grid::Grid;
-use sim::metrics::{barn_metrics, difficulty, METRIC_NAMES};
+use sim::metrics::{difficulty, METRIC_NAMES};
 
 /// The generator options `generate` and `compare` share.
 #[derive(clap::Args, Clone, Debug)]

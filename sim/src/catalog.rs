@@ -6,6 +6,8 @@ use std::borrow::Cow;
 use std::sync::OnceLock;
 
 use crate::generate::{GenerateError, GeneratorConfig};
+use crate::grid::{Cell, Grid, ROBOT_RADIUS_CELLS};
+use crate::metrics::Metrics;
 use crate::world::World;
 
 /// Number of embedded worlds: BARN then DynaBARN.
@@ -82,6 +84,28 @@ pub fn barn_worlds() -> &'static [World] {
 /// [`worlds`]).
 pub fn dynabarn_worlds() -> &'static [World] {
     &worlds()[crate::dynabarn::FIRST_ID..]
+}
+
+/// The metrics of the 300 embedded BARN worlds, by world id, computed here: on the C-space of
+/// each world's grid as rebuilt from its cylinders ([`Grid::from_barn_cylinders`])
+/// along its shipped path. (They equal the dataset's published values; `sim/tests/barn_metrics.rs`
+/// checks that when the dataset is at hand.)
+pub fn barn_metrics() -> &'static [Metrics] {
+    static METRICS: OnceLock<Vec<Metrics>> = OnceLock::new();
+    METRICS.get_or_init(|| {
+        barn_worlds()
+            .iter()
+            .map(|w| {
+                let cspace = Grid::from_barn_cylinders(&w.cylinders).cspace(ROBOT_RADIUS_CELLS);
+                let path: Vec<Cell> = w
+                    .reference_path
+                    .iter()
+                    .map(|&p| Cell::from_centre(p).expect("BARN paths run through cell centres"))
+                    .collect();
+                Metrics::compute(&cspace, &path).expect("BARN paths are free in their C-space")
+            })
+            .collect()
+    })
 }
 
 /// One embedded world by id.

@@ -119,28 +119,6 @@ impl Metrics {
     }
 }
 
-/// The metrics of the 300 embedded BARN worlds, by world id, computed here: on the C-space of
-/// each world's grid as rebuilt from its cylinders ([`Grid::from_barn_cylinders`]) along its
-/// shipped path. (They equal the dataset's published values; `sim/tests/barn_metrics.rs`
-/// checks that when the dataset is at hand.)
-pub fn barn_metrics() -> &'static [Metrics] {
-    static METRICS: std::sync::OnceLock<Vec<Metrics>> = std::sync::OnceLock::new();
-    METRICS.get_or_init(|| {
-        crate::catalog::barn_worlds()
-            .iter()
-            .map(|w| {
-                let cspace = Grid::from_barn_cylinders(&w.cylinders).cspace(crate::grid::ROBOT_RADIUS_CELLS);
-                let path: Vec<Cell> = w
-                    .reference_path
-                    .iter()
-                    .map(|&p| Cell::from_centre(p).expect("BARN paths run through cell centres"))
-                    .collect();
-                Metrics::compute(&cspace, &path).expect("BARN paths are free in their C-space")
-            })
-            .collect()
-    })
-}
-
 /// Coefficients (intercept, then one per metric in the order of [`METRIC_NAMES`]) of the
 /// least-squares fit of the BARN dataset's measured traversal time per metre of path
 /// (`difficulty_time_per_m`: the mean of 10 Gazebo runs, DWA and E-Band, over the grid path

@@ -8,9 +8,10 @@
 
 use std::path::PathBuf;
 
+use sim::catalog::barn_metrics;
 use sim::generate::astar;
 use sim::grid::{Cell, Grid, ROBOT_RADIUS_CELLS};
-use sim::metrics::{barn_metrics, difficulty, ClosestObstacle, Metrics, METRIC_NAMES, TIME_PER_M_FIT};
+use sim::metrics::{difficulty, ClosestObstacle, Metrics, METRIC_NAMES, TIME_PER_M_FIT};
 
 /// The dataset folder, or `None` (with a note) when it is not there.
 fn data_dir() -> Option<PathBuf> {
