@@ -974,6 +974,25 @@ mod tests {
         assert!(none.is_empty());
     }
 
+    /// Every arm of `ex` with DDP (score 0.5) and one ADP seed (score `adp[k]` for arm k), both
+    /// successful on world 3.
+    fn one_world_arms(ex: &Experiment, adp: &[f64]) -> Vec<ArmData> {
+        (ex.arms.iter())
+            .zip(adp)
+            .map(|(arm, &score)| ArmData {
+                arm: arm.clone(),
+                ddp: Some(rec("ddp", &[(3, true, 0.5)])),
+                constant: None,
+                search: None,
+                untrained: None,
+                adp: vec![rec("adp", &[(3, true, score)])],
+                shuffled: vec![],
+                sweep: vec![],
+                sensing: vec![],
+            })
+            .collect()
+    }
+
     /// Arms in several observation layouts make Table II, one ADP row per layout; Table I
     /// keeps the first layout's arms only.
     #[test]
@@ -981,19 +1000,7 @@ mod tests {
         let text = "[experiment]\nname = \"t\"\nplanners = [\"dwa\"]\nspeeds = [1.5]\n\
                     observations = [\"scan\", \"sectors:15\"]\n";
         let ex = Experiment::parse("t.toml", text, &Default::default()).unwrap();
-        let data: Vec<ArmData> = (ex.arms.iter())
-            .map(|arm| ArmData {
-                arm: arm.clone(),
-                ddp: Some(rec("ddp", &[(3, true, 0.5)])),
-                constant: None,
-                search: None,
-                untrained: None,
-                adp: vec![rec("adp", &[(3, true, 0.25)])],
-                shuffled: vec![],
-                sweep: vec![],
-                sensing: vec![],
-            })
-            .collect();
+        let data = one_world_arms(&ex, &[0.25, 0.25]);
         let mut two = String::new();
         table_two(&mut two, &ex, &data);
         assert!(
@@ -1024,20 +1031,7 @@ mod tests {
         let text = "[experiment]\nname = \"t\"\nplanners = [\"dwa\"]\nspeeds = [1.5]\n\
                     train_worlds = [\"fit\", \"generated\"]\n";
         let ex = Experiment::parse("t.toml", text, &Default::default()).unwrap();
-        let data: Vec<ArmData> = (ex.arms.iter())
-            .zip([0.25, 0.5])
-            .map(|(arm, score)| ArmData {
-                arm: arm.clone(),
-                ddp: Some(rec("ddp", &[(3, true, 0.5)])),
-                constant: None,
-                search: None,
-                untrained: None,
-                adp: vec![rec("adp", &[(3, true, score)])],
-                shuffled: vec![],
-                sweep: vec![],
-                sensing: vec![],
-            })
-            .collect();
+        let data = one_world_arms(&ex, &[0.25, 0.5]);
         let mut two = String::new();
         table_two(&mut two, &ex, &data);
         assert!(two.starts_with("## Table II: training-world ablation"), "{two}");
