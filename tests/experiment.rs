@@ -268,7 +268,9 @@ fn emitted_slurm_job_runs_the_experiment() {
         })
         .unwrap_or_default();
     assert!(submitted.status.success(), "{}\n{logs}", stderr(&submitted));
-    assert_eq!(logs.matches("merged 2 shards").count(), 5, "{logs}");
+    // Five evaluation stages (DDP, constant, untrained, seed 0, shuffled) and the sensing
+    // sweep's three (DDP, constant, seed 0 under its one condition).
+    assert_eq!(logs.matches("merged 2 shards").count(), 8, "{logs}");
     assert!(out.join("report.md").exists(), "{logs}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
