@@ -99,7 +99,7 @@ fn log(a: &LogArgs) -> anyhow::Result<()> {
         bail!("--runs must be at least 1");
     }
     let ids = sim::splits::select(&a.worlds)?;
-    let held_out = held_out()?;
+    let held_out = sim::splits::held_out_worlds();
     if let Some(w) = ids.iter().find(|w| held_out.binary_search(w).is_ok()) {
         bail!(
             "--worlds {}: world {w} is held out for testing (test, hardest50, dynabarn-test); \
@@ -167,11 +167,6 @@ fn log(a: &LogArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// The held-out worlds (sorted): the `test`, `hardest50` and `dynabarn-test` splits.
-fn held_out() -> anyhow::Result<Vec<usize>> {
-    Ok(sim::splits::select("test,hardest50,dynabarn-test")?)
-}
-
 /// Reads a samples file; an error names the file and the line.
 fn read_samples(path: &Path) -> anyhow::Result<Vec<Sample>> {
     let file = std::fs::File::open(path).with_context(|| format!("cannot read {}", path.display()))?;
@@ -192,7 +187,7 @@ fn read_samples(path: &Path) -> anyhow::Result<Vec<Sample>> {
 /// writes the corrector.
 fn fit_command(a: &FitArgs) -> anyhow::Result<()> {
     let samples = read_samples(&a.data)?;
-    let held_out = held_out()?;
+    let held_out = sim::splits::held_out_worlds();
     if let Some(s) = samples.iter().find(|s| held_out.binary_search(&s.world).is_ok()) {
         bail!(
             "{}: has samples of world {}, which is held out for testing (test, hardest50, \

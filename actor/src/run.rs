@@ -24,6 +24,7 @@ use proto::plane::{ActorSecret, LeaseHeader, PlaneError, PolicySource, StepSink}
 use proto::shm::{ShmConfig, ShmPolicySource, ShmStepSink};
 use proto::StepView;
 use sim::episode::{EpisodeConfig, Status};
+use sim::World;
 use thiserror::Error;
 use tracing::Instrument;
 
@@ -606,6 +607,8 @@ impl Live<'_> {
         let Some((version, sigma, net)) = self.policy.as_ref() else {
             return Ok(None);
         };
+        // Once per assignment: a generated world is made on this call.
+        let world = sim::catalog::load(a.world as usize)?;
         let header = LeaseHeader {
             incarnation: self.run.incarnation,
             actor_id: self.actor_id,
@@ -619,7 +622,7 @@ impl Live<'_> {
             let seed = a.seeds.get(i as usize).copied().unwrap_or(a.lease_id);
             let episode_id = a.first_episode_id + u64::from(i);
             let outcome = match ctx.episode(
-                a,
+                &world,
                 episode_id,
                 seed,
                 (*version, *sigma, net),
@@ -807,23 +810,23 @@ fn exploration_seed(seed: u64) -> u64 {
 }
 
 impl EpisodeCtx<'_> {
-    /// Runs one episode, streaming its steps; returns the report's outcome fields.
+    /// Runs one episode of an assignment on its world `world`, streaming its steps; returns
+    /// the report's outcome fields.
     fn episode(
         &self,
-        a: &pb::Assignment,
+        world: &World,
         episode_id: u64,
         seed: u64,
         (version, sigma, net): (u64, f64, &MlpPolicy),
         header: &LeaseHeader,
         sink: &mut dyn StepSink,
     ) -> Result<pb::EpisodeReport, EpisodeError> {
-        let world = sim::catalog::load(a.world as usize).map_err(|e| EpisodeError::Fatal(e.into()))?;
         let planner = (self.setup.make_planner)(self.planner, seed);
         if self.flags.lease_lost.load(Ordering::Acquire) {
             return Err(EpisodeError::LeaseLost);
         }
         let run = Run {
-            world: &world,
+            world,
             episode: self.setup.episode,
             planner,
             max_speed: self.spec.max_speed,
@@ -863,7 +866,8 @@ impl EpisodeCtx<'_> {
         };
         Ok(pb::EpisodeReport {
             episode_id,
-            world: a.world,
+            // The world was loaded from the assignment's 32-bit id.
+            world: world.id as u32,
             outcome: outcome as i32,
             time_s: r.episode.time_s,
             score: r.episode.score,

@@ -295,6 +295,18 @@ fn named() -> &'static BTreeMap<String, Vec<usize>> {
 /// assignment (the training config's `[run] worlds`; not a [`select`]ion).
 pub const FRESH_GENERATED: &str = "generated";
 
+/// Every world of a held-out split of the embedded files (`test`, `hardest50`, any
+/// `*-test`), sorted, without duplicates: worlds nothing may train or select on.
+pub fn held_out_worlds() -> Vec<usize> {
+    let mut ids: Vec<usize> = (named().iter())
+        .filter(|(name, _)| held_out(name))
+        .flat_map(|(_, ids)| ids.iter().copied())
+        .collect();
+    ids.sort_unstable();
+    ids.dedup();
+    ids
+}
+
 /// Resolves a selection against the embedded split files (see the module documentation):
 /// the ids, sorted, without duplicates. An error names the entry at fault.
 pub fn select(spec: &str) -> Result<Vec<usize>, SplitError> {
@@ -495,6 +507,11 @@ mod tests {
         assert_eq!(f.seed, 99);
         assert_eq!(f.splits, SplitSet::Barn.generate(99));
         assert_ne!(SplitSet::Barn.generate(99), SplitSet::Barn.generate(2026));
+    }
+
+    #[test]
+    fn held_out_worlds_are_every_test_split() {
+        assert_eq!(held_out_worlds(), select("test,hardest50,dynabarn-test").unwrap());
     }
 
     #[test]
