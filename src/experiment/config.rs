@@ -369,11 +369,18 @@ impl Arm {
         )
     }
 
-    /// Whether `other` differs from this arm at most in its observation layout, so that its
-    /// DDP, constant search and best constant (which observe nothing) are this arm's.
+    /// Whether `other` differs from this arm at most in its observation layout and training
+    /// worlds, so that its DDP, constant search and best constant are this arm's: they observe
+    /// nothing and are searched on `[constant_search] worlds`, one selection for every arm.
     pub fn same_controls(&self, other: &Arm) -> bool {
-        (self.planner, self.space, &self.train_worlds) == (other.planner, other.space, &other.train_worlds)
-            && self.speed == other.speed
+        (self.planner, self.space) == (other.planner, other.space) && self.speed == other.speed
+    }
+
+    /// Whether `other` differs from this arm at most in its training worlds, so that its
+    /// untrained policy (the DDP-initialized actor of the first seed, which has seen no world)
+    /// is this arm's.
+    pub fn same_untrained(&self, other: &Arm) -> bool {
+        self.same_controls(other) && self.observation == other.observation
     }
 }
 

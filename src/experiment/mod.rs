@@ -1204,6 +1204,27 @@ mod tests {
         assert!(all[main..].iter().all(|s| matches!(s, Stage::Sensing { .. })));
     }
 
+    /// The training-worlds experiment: 5 selections x 3 seeds trained; the arms differ only in
+    /// training worlds, so one search, one DDP, one best constant and one untrained policy
+    /// (the first arm's) serve them all.
+    #[test]
+    fn the_worlds_experiment_shares_its_controls() {
+        let ex = shipped("worlds.toml");
+        assert_eq!(ex.arms.len(), 5);
+        let all = stages(&ex.arms, ex.seeds, &sweeps(&ex));
+        assert_eq!(all.len(), 15 + 1 + 1 + 1 + 1 + 5 * (3 + 3));
+        let layout = Layout { dir: "/e".into() };
+        let owner = "/e/eval/dwa-decremental-1.5-150_154_157_163_169_174_177_181_184_189_201_209_214_218_225_229_235_242_246_250_262_268_281_285_290";
+        for arm in 0..5 {
+            for (stage, file) in [
+                (Stage::EvalConstant { arm }, "constant.json"),
+                (Stage::EvalUntrained { arm }, "untrained.json"),
+            ] {
+                assert_eq!(layout.output(&stage, &ex.arms), Path::new(owner).join(file));
+            }
+        }
+    }
+
     /// A sensing-sweep evaluation runs under its condition's lidar: on two worlds, a
     /// noiseless condition over a noiseless configuration reproduces the main DDP evaluation
     /// bit for bit, run by run; heavy noise drives other episodes. Both record their lidar.

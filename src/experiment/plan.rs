@@ -16,9 +16,11 @@
 //! | sensing condition i: DDP (per planner and speed) | `eval/sensing-i/ddp-PLANNER-SPEED.json` |
 //! | sensing condition i: best constant, seed k | `eval/A/sensing-i/constant.json`, `eval/A/sensing-i/seed-k.json` |
 //!
-//! Arms that differ only in their observation layout share their constant search and best
-//! constant (which observe nothing): those stages run once, for the first such arm
-//! ([`control_arm`]), whose files every arm of the group reads.
+//! Arms that differ only in their observation layout or training worlds share their constant
+//! search and best constant (which observe nothing and are searched on one set of worlds):
+//! those stages run once, for the first such arm ([`control_arm`]), whose files every arm of
+//! the group reads. Arms that differ only in training worlds share their untrained policy too
+//! ([`untrained_arm`]).
 
 use std::path::{Path, PathBuf};
 
@@ -133,12 +135,20 @@ pub struct Sweeps {
     pub sensing: Option<SensingPlan>,
 }
 
-/// The first arm that differs from arm `arm` at most in its observation layout: the one
-/// whose constant search and best constant the arm shares ([`Arm::same_controls`]).
+/// The first arm that differs from arm `arm` at most in its observation layout and
+/// training worlds: the one whose constant search and best constant the arm shares ([`Arm::same_controls`]).
 pub fn control_arm(arms: &[Arm], arm: usize) -> usize {
     arms.iter()
         .position(|a| a.same_controls(&arms[arm]))
         .expect("an arm shares its controls with itself")
+}
+
+/// The first arm that differs from arm `arm` at most in its training worlds: the one whose
+/// untrained policy and its evaluation the arm shares ([`Arm::same_untrained`]).
+pub fn untrained_arm(arms: &[Arm], arm: usize) -> usize {
+    arms.iter()
+        .position(|a| a.same_untrained(&arms[arm]))
+        .expect("an arm shares its untrained policy with itself")
 }
 
 /// Where the files of an experiment directory live.
@@ -185,7 +195,9 @@ impl Layout {
             Stage::EvalConstant { arm } => self
                 .arm_eval_dir(&arms[control_arm(arms, arm)])
                 .join("constant.json"),
-            Stage::EvalUntrained { arm } => self.arm_eval_dir(&arms[arm]).join("untrained.json"),
+            Stage::EvalUntrained { arm } => self
+                .arm_eval_dir(&arms[untrained_arm(arms, arm)])
+                .join("untrained.json"),
             Stage::EvalAdp { arm, seed } => self
                 .arm_eval_dir(&arms[arm])
                 .join(format!("seed-{seed}"))
@@ -229,7 +241,8 @@ impl Layout {
 /// constant searches, then the evaluations. DDP runs once per (planner, speed), shared by the
 /// arms that differ only in action space, training worlds or observation layout; the constant
 /// search and the best constant once per group of arms that differ only in observation layout
-/// ([`control_arm`]). The budget sweep, if any, comes next (per point: DDP, the best constant,
+/// and training worlds ([`control_arm`]), the untrained policy once per group of arms that
+/// differ only in training worlds ([`untrained_arm`]). The budget sweep, if any, comes next (per point: DDP, the best constant,
 /// the seeds), then the sensing sweep (per covered arm and condition: DDP for the first
 /// covered arm of its planner and speed, the best constant for the first covered arm of its
 /// group, the seeds).
@@ -258,7 +271,9 @@ pub fn stages(arms: &[Arm], seeds: usize, sweeps: &Sweeps) -> Vec<Stage> {
         if owns_controls(arm) {
             out.push(Stage::EvalConstant { arm });
         }
-        out.push(Stage::EvalUntrained { arm });
+        if untrained_arm(arms, arm) == arm {
+            out.push(Stage::EvalUntrained { arm });
+        }
         for seed in 0..seeds {
             out.push(Stage::EvalAdp { arm, seed });
             out.push(Stage::EvalShuffled { arm, seed });
@@ -354,6 +369,57 @@ mod tests {
         let files: std::collections::BTreeSet<PathBuf> =
             sweep.iter().map(|x| layout.output(x, &arms())).collect();
         assert_eq!(files.len(), sweep.len(), "one file per sweep stage");
+    }
+
+    /// Arms that differ only in their training worlds train and evaluate their policies each,
+    /// but share DDP, the constant search, the best constant and the untrained policy (it has
+    /// seen no world), whose files are the first arm's; an arm with another observation layout
+    /// among them shares the controls but has an untrained policy of its own.
+    #[test]
+    fn training_world_arms_share_their_controls_and_untrained_policy() {
+        let mut arms: Vec<Arm> = ["train", "generated:75", "generated"]
+            .into_iter()
+            .map(|w| Arm {
+                train_worlds: w.into(),
+                ..arms()[0].clone()
+            })
+            .collect();
+        arms.push(Arm {
+            observation: Some(LaserLayout::Sectors(15)),
+            ..arms[1].clone()
+        });
+        let s = stages(&arms, 2, &Sweeps::default());
+        let count = |f: &dyn Fn(&Stage) -> bool| s.iter().filter(|x| f(x)).count();
+        assert_eq!(count(&|x| matches!(x, Stage::Train { .. })), 8);
+        assert_eq!(count(&|x| matches!(x, Stage::EvalAdp { .. })), 8);
+        assert_eq!(count(&|x| matches!(x, Stage::EvalShuffled { .. })), 8);
+        assert_eq!(count(&|x| matches!(x, Stage::Search { .. })), 1);
+        assert_eq!(count(&|x| matches!(x, Stage::EvalConstant { .. })), 1);
+        assert_eq!(count(&|x| matches!(x, Stage::EvalDdp { .. })), 1);
+        assert_eq!(count(&|x| matches!(x, Stage::EvalUntrained { .. })), 2);
+        assert_eq!((untrained_arm(&arms, 2), untrained_arm(&arms, 3)), (0, 3));
+        let layout = Layout { dir: "/e".into() };
+        let file = |stage: Stage| layout.output(&stage, &arms);
+        assert_eq!(
+            file(Stage::EvalUntrained { arm: 2 }),
+            PathBuf::from("/e/eval/dwa-decremental-1.5-train/untrained.json")
+        );
+        assert_eq!(
+            file(Stage::EvalUntrained { arm: 3 }),
+            PathBuf::from("/e/eval/dwa-decremental-1.5-generated_75-sectors15/untrained.json")
+        );
+        assert_eq!(
+            file(Stage::EvalConstant { arm: 3 }),
+            file(Stage::EvalConstant { arm: 0 })
+        );
+        assert_eq!(
+            file(Stage::EvalAdp { arm: 2, seed: 1 }),
+            PathBuf::from("/e/eval/dwa-decremental-1.5-generated/seed-1/adp.json")
+        );
+        // Every stage that runs writes a file of its own.
+        let outputs: std::collections::BTreeSet<PathBuf> =
+            s.iter().map(|x| layout.output(x, &arms)).collect();
+        assert_eq!(outputs.len(), s.len());
     }
 
     /// The arms of one space in three observation layouts: the scan (no suffix) and two of

@@ -653,8 +653,8 @@ fn sensing_section(out: &mut String, ex: &Experiment, data: &[ArmData]) {
 }
 
 /// The report's "Best constant schedules" table: per arm with a search of its own (arms
-/// that differ only in observation layout share the first one's), the constant it chose
-/// with its search results.
+/// that differ only in observation layout or training worlds share the first one's), the
+/// constant it chose with its search results.
 fn constants_section(out: &mut String, data: &[ArmData]) {
     // The constants found.
     let _ = writeln!(out, "## Best constant schedules (searched on training worlds)\n");
