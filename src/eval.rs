@@ -62,6 +62,31 @@ pub enum ObstaclePrediction {
 }
 
 impl ObstaclePrediction {
+    /// `driver` with the tracker, the residual `corrector` and PADP this value runs (`cfg`'s
+    /// `[prediction]` settings). Panics for `kf-res` without a corrector: the caller loads it
+    /// ([`crate::corrector::load_corrector`]).
+    pub fn driver(
+        self,
+        driver: CycleDriver,
+        cfg: &EvalConfig,
+        corrector: Option<&Arc<Corrector>>,
+    ) -> CycleDriver {
+        match self {
+            ObstaclePrediction::Off => driver,
+            ObstaclePrediction::Kf => driver.with_tracking(TrackingConfig::default()),
+            ObstaclePrediction::KfRes => {
+                driver
+                    .with_tracking(TrackingConfig::default())
+                    .with_corrector(Arc::clone(
+                        corrector.expect("the caller loads the corrector for kf-res"),
+                    ))
+            }
+            ObstaclePrediction::PadpPath | ObstaclePrediction::Padp => driver
+                .with_tracking(TrackingConfig::default())
+                .with_padp(cfg.prediction.clone(), self.padp()),
+        }
+    }
+
     /// The parts of PADP the row runs.
     pub fn padp(self) -> PadpParts {
         PadpParts {
@@ -691,20 +716,7 @@ fn run_one(
         }
         None => {
             let driver = CycleDriver::new(cfg.compute.resolve(p.name())?, cfg.episode.control_dt);
-            let mut driver =
-                match pr {
-                    ObstaclePrediction::Off => driver,
-                    ObstaclePrediction::Kf => driver.with_tracking(TrackingConfig::default()),
-                    ObstaclePrediction::KfRes => driver
-                        .with_tracking(TrackingConfig::default())
-                        .with_corrector(Arc::clone(
-                            corrector.expect("run loads the corrector for kf-res rows"),
-                        )),
-                    ObstaclePrediction::PadpPath | ObstaclePrediction::Padp => driver
-                        .with_tracking(TrackingConfig::default())
-                        .with_padp(cfg.prediction.clone(), pr.padp()),
-                }
-                .with_forecast_errors();
+            let mut driver = pr.driver(driver, cfg, corrector).with_forecast_errors();
             let schedule = f.schedule(&plan.adp)?;
             let chooser = Chooser::Fixed {
                 schedule: &schedule,

@@ -7,14 +7,20 @@
 //! planner's model and the robot shows. Samples the compute budget left out (rolled out for the
 //! picture only) are grey. Walls are grey boxes; moving obstacles (DynaBARN) are drawn in teal
 //! where they are when the episode ends, over the paths their centres swept during it (faint).
+//! With `--prediction kf` (or any value of `adp eval --prediction`) the planner runs with the
+//! tracker, as in `adp eval`, and the tracks of its last planning cycle are drawn in brown:
+//! each estimated disc and the forecast of its centre every 0.4 s over 2.8 s (dots), mapped
+//! from the robot's frame by its true pose like the rollouts, so that the gap to the teal
+//! obstacle shows the tracker's error (and the localization drift).
 //!
 //! With `--frames N` the output is instead a frame strip: N pictures side by side of the world
 //! at evenly spaced moments from the start to the end of the episode, each with the robot's
-//! path so far, its footprint, the moving obstacles and their last two seconds of motion.
-//! PNG or SVG by the output's extension.
+//! path so far, its footprint, the moving obstacles and their last two seconds of motion, and
+//! with a tracker the tracks and forecasts of the last planning cycle. PNG or SVG by the
+//! output's extension.
 
 use crate::args::{Setup, WorldData};
-use crate::eval::Fidelity;
+use crate::eval::{Fidelity, ObstaclePrediction};
 use planner::ActionSpace;
 use planner::PlannerKind;
 use std::path::Path;
@@ -24,6 +30,7 @@ use anyhow::{bail, Context};
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
+use planner::moving::Predicted;
 use planner::{run::CycleDriver, Planner, Prediction, Schedule};
 use sim::geometry::{Footprint, Pose, Vec2};
 use sim::robot::{approach, RobotLimits, Twist};
@@ -46,6 +53,36 @@ const JUMP_M: f64 = 1.0;
 const MOVING: RGBColor = RGBColor(20, 120, 140);
 /// Static obstacles.
 const STATIC: RGBColor = RGBColor(90, 90, 90);
+/// The tracker's tracks and their forecasts.
+const TRACK: RGBColor = RGBColor(150, 80, 20);
+/// Spacing (s) and count of the forecast points drawn per track (0 to 2.8 s, as far as
+/// `adp eval` measures the forecast).
+const FORECAST_STEP_S: f64 = 0.4;
+const FORECAST_POINTS: usize = 8;
+
+/// A moving obstacle the tracker reported at one planning cycle, in the world frame.
+#[derive(Clone, Debug, PartialEq)]
+struct TrackView {
+    /// The estimated centre (m).
+    centre: Vec2,
+    /// The estimated radius (m).
+    radius: f64,
+    /// The forecast centre every [`FORECAST_STEP_S`] from now, starting now.
+    forecast: Vec<Vec2>,
+}
+
+impl TrackView {
+    /// `p` (robot frame of the cycle) drawn from the robot's true pose `pose`.
+    fn of(p: &Predicted, pose: &Pose) -> Self {
+        Self {
+            centre: pose.to_world(p.position),
+            radius: p.radius,
+            forecast: (0..FORECAST_POINTS)
+                .map(|k| pose.to_world(p.at(k as f64 * FORECAST_STEP_S)))
+                .collect(),
+        }
+    }
+}
 
 /// Rollouts recorded at one moment, in the world frame.
 struct Moment {
@@ -91,8 +128,9 @@ pub struct RenderJob<'a> {
     pub max_speed: f64,
     /// Noise seed.
     pub seed: u64,
-    /// The compute model the planner runs under (`None`: free).
-    pub compute: Option<planner::Compute>,
+    /// The planning cycles' driver: the compute model, and the tracker when the planner
+    /// predicts moving obstacles ([`ObstaclePrediction::driver`]).
+    pub driver: CycleDriver,
     /// Rollouts are drawn every this many seconds of simulated time.
     pub rollout_every_s: f64,
     /// Footprints are drawn every this many seconds.
@@ -111,6 +149,16 @@ struct Record {
     phase: f64,
     /// Simulated time at the end (s).
     end_s: f64,
+    /// `(simulated time, tracks)` at every planning cycle, when the driver tracks.
+    tracks: Vec<(f64, Vec<TrackView>)>,
+}
+
+impl Record {
+    /// The tracks of the last planning cycle at or before `t` (none without a tracker).
+    fn tracks_at(&self, t: f64) -> &[TrackView] {
+        let k = self.tracks.partition_point(|(s, _)| *s <= t);
+        k.checked_sub(1).map_or(&[], |k| &self.tracks[k].1)
+    }
 }
 
 /// Runs the episode and writes the picture to `out`; returns the episode result.
@@ -130,62 +178,41 @@ pub fn render(mut job: RenderJob<'_>, out: &Path) -> anyhow::Result<EpisodeResul
         bail!("--frames {n}: a strip has 2 to {MAX_FRAMES} frames");
     }
     let dt = job.episode.control_dt;
-    let every = (job.rollout_every_s / dt).round().max(1.0) as u64;
-    let mut trail: Vec<(f64, Pose)> = Vec::new();
-    let mut moments: Vec<Moment> = Vec::new();
-    let mut cycle = 0u64;
     let prediction = Prediction::for_profile(job.episode.profile);
-    let schedule = &job.schedule;
-    let mut on_cycle = |ep: &Episode<'_>, planner: &mut dyn Planner, cmd: Twist| {
-        let pose = ep.state().pose;
-        trail.push((ep.sim_time(), pose));
-        if cycle > 0 && cycle.is_multiple_of(every) {
-            let predicted = predicted_rollout(prediction, schedule, ep.perception().vel, cmd)
-                .iter()
-                .map(|p| pose.to_world(p.position()))
-                .collect();
-            let r = planner.rollouts();
-            let world = |&(a, b, _): &(usize, usize, bool)| -> Vec<Pose> {
-                r.poses[a..b].iter().map(|p| compose(&pose, p)).collect()
-            };
-            let skipped = |i: usize| r.skipped.get(i).copied().unwrap_or(false);
-            moments.push(Moment {
-                rollouts: (r.spans.iter().enumerate())
-                    .filter(|&(i, _)| !skipped(i))
-                    .map(|(_, s)| (world(s), s.2))
-                    .collect(),
-                skipped: (r.spans.iter().enumerate())
-                    .filter(|&(i, _)| skipped(i))
-                    .map(|(_, s)| world(s))
-                    .collect(),
-                origin: pose,
-                dts: r.dts.clone(),
-                predicted,
-            });
-        }
-        cycle += 1;
-        // Record only during the planning call of each chosen moment.
-        planner.set_recording(cycle.is_multiple_of(every));
+    let mut rec = Recorder {
+        every: (job.rollout_every_s / dt).round().max(1.0) as u64,
+        prediction,
+        schedule: &job.schedule,
+        cycle: 0,
+        trail: Vec::new(),
+        moments: Vec::new(),
     };
+    let mut tracks = Vec::new();
     // The loop of `planner::run::run_episode`, kept here so that the end state is drawn too.
     let mut ep = Episode::new(job.world, job.episode, job.seed);
-    let mut driver = CycleDriver::new(job.compute, dt);
     while ep.status() == Status::Running {
-        driver.period(
+        let cycles = rec.trail.len();
+        job.driver.period(
             &mut ep,
             job.planner.as_mut(),
-            schedule,
+            &job.schedule,
             job.max_speed,
             prediction,
-            &mut on_cycle,
+            &mut |ep: &Episode<'_>, planner: &mut dyn Planner, cmd: Twist| rec.on_cycle(ep, planner, cmd),
         );
+        if let (Some(t), Some(&(time, pose))) = (job.driver.tracking(), rec.trail.last()) {
+            if rec.trail.len() > cycles {
+                tracks.push((time, t.moving().iter().map(|p| TrackView::of(p, &pose)).collect()));
+            }
+        }
     }
-    trail.push((ep.sim_time(), ep.state().pose));
+    rec.trail.push((ep.sim_time(), ep.state().pose));
     let record = Record {
-        trail,
-        moments,
+        trail: rec.trail,
+        moments: rec.moments,
         phase: ep.obstacle_phase(),
         end_s: ep.sim_time(),
+        tracks,
     };
     let result = ep.result();
     let (view, size) = match job.frames {
@@ -212,6 +239,53 @@ pub fn render(mut job: RenderJob<'_>, out: &Path) -> anyhow::Result<EpisodeResul
             .with_context(|| format!("cannot write {}", out.display()))?;
     }
     Ok(result)
+}
+
+/// What the planning cycles of an episode leave to draw, gathered as they happen.
+struct Recorder<'a> {
+    /// Rollouts are recorded every this many cycles.
+    every: u64,
+    prediction: Prediction,
+    schedule: &'a Schedule,
+    /// Planning cycles so far.
+    cycle: u64,
+    trail: Vec<(f64, Pose)>,
+    moments: Vec<Moment>,
+}
+
+impl Recorder<'_> {
+    /// After each planning call: the pose, and at the chosen moments the rollouts.
+    fn on_cycle(&mut self, ep: &Episode<'_>, planner: &mut dyn Planner, cmd: Twist) {
+        let pose = ep.state().pose;
+        self.trail.push((ep.sim_time(), pose));
+        if self.cycle > 0 && self.cycle.is_multiple_of(self.every) {
+            let predicted = predicted_rollout(self.prediction, self.schedule, ep.perception().vel, cmd)
+                .iter()
+                .map(|p| pose.to_world(p.position()))
+                .collect();
+            let r = planner.rollouts();
+            let world = |&(a, b, _): &(usize, usize, bool)| -> Vec<Pose> {
+                r.poses[a..b].iter().map(|p| compose(&pose, p)).collect()
+            };
+            let skipped = |i: usize| r.skipped.get(i).copied().unwrap_or(false);
+            self.moments.push(Moment {
+                rollouts: (r.spans.iter().enumerate())
+                    .filter(|&(i, _)| !skipped(i))
+                    .map(|(_, s)| (world(s), s.2))
+                    .collect(),
+                skipped: (r.spans.iter().enumerate())
+                    .filter(|&(i, _)| skipped(i))
+                    .map(|(_, s)| world(s))
+                    .collect(),
+                origin: pose,
+                dts: r.dts.clone(),
+                predicted,
+            });
+        }
+        self.cycle += 1;
+        // Record only during the planning call of each chosen moment.
+        planner.set_recording(self.cycle.is_multiple_of(self.every));
+    }
 }
 
 /// A pose given in the frame of `base`, expressed in the world frame.
@@ -386,6 +460,36 @@ where
     Ok(())
 }
 
+/// The tracker's `tracks`: each estimated disc (outline) and its forecast centre, a line
+/// with a dot every [`FORECAST_STEP_S`] and the disc's outline at the last one (faint).
+fn draw_tracks<DB: DrawingBackend>(
+    root: &DrawingArea<DB, Shift>,
+    tracks: &[TrackView],
+    view: &View,
+) -> DrawResult
+where
+    DB::ErrorType: 'static,
+{
+    let e = drawing_error::<DB::ErrorType>;
+    for tr in tracks {
+        let r = view.len(tr.radius);
+        root.draw(&Circle::new(view.px(tr.centre), r, TRACK.stroke_width(2)))
+            .map_err(e)?;
+        let line: Vec<(i32, i32)> = tr.forecast.iter().map(|&p| view.px(p)).collect();
+        root.draw(&PathElement::new(line, TRACK.stroke_width(2)))
+            .map_err(e)?;
+        for &p in &tr.forecast {
+            root.draw(&Circle::new(view.px(p), 3, TRACK.filled()))
+                .map_err(e)?;
+        }
+        if let Some(&last) = tr.forecast.last() {
+            root.draw(&Circle::new(view.px(last), r, TRACK.mix(0.4).stroke_width(1)))
+                .map_err(e)?;
+        }
+    }
+    Ok(())
+}
+
 /// The footprint outline at `pose`.
 fn footprint<DB: DrawingBackend>(
     root: &DrawingArea<DB, Shift>,
@@ -477,7 +581,9 @@ where
     let line: Vec<(i32, i32)> = trail.iter().map(|(_, p)| px(p.position())).collect();
     root.draw(&PathElement::new(line, RGBColor(200, 30, 30).stroke_width(3)))
         .map_err(e)?;
-    // The chosen command's predicted rollout, over the driven path.
+    // The tracks of the last planning cycle (beside the obstacles where they are at the end),
+    // then the chosen command's predicted rollout, over the driven path.
+    draw_tracks(root, record.tracks_at(record.end_s), view)?;
     let purple = RGBColor(120, 40, 170);
     for m in &record.moments {
         let line: Vec<(i32, i32)> = std::iter::once(m.origin.position())
@@ -532,6 +638,7 @@ where
         area.draw(&PathElement::new(line, RGBColor(200, 30, 30).stroke_width(2)))
             .map_err(e)?;
         footprint(area, &fp, &trail[upto - 1].1, view, 2)?;
+        draw_tracks(area, record.tracks_at(t), view)?;
         area.draw(&Text::new(
             format!("t = {t:.1} s"),
             (8, 8),
@@ -577,6 +684,10 @@ pub struct RenderArgs {
     /// Draw the footprint every this many seconds.
     #[arg(long, default_value_t = 0.5)]
     pub footprint_every: f64,
+    /// How the planner learns of moving obstacles, as in `adp eval --prediction`; with a
+    /// tracker its tracks and their forecasts are drawn (brown).
+    #[arg(long, value_enum, default_value = "off")]
+    pub prediction: ObstaclePrediction,
     /// Draw a frame strip instead of one picture: this many frames (2 to 24) side by side,
     /// the world at evenly spaced moments from the start to the end of the episode.
     #[arg(long)]
@@ -593,6 +704,9 @@ pub fn command(a: &RenderArgs) -> anyhow::Result<()> {
     let cfg = a.setup.eval_config()?;
     let all = a.setup.data.load()?;
     let w = WorldData::get(&all, a.world)?;
+    let corrector = (a.prediction == ObstaclePrediction::KfRes)
+        .then(|| crate::corrector::load_corrector(cfg.prediction.residual.as_deref()))
+        .transpose()?;
     let adp = crate::eval::AdpSetting {
         space: a.action,
         action: match &a.policy {
@@ -607,7 +721,11 @@ pub fn command(a: &RenderArgs) -> anyhow::Result<()> {
         schedule: a.fidelity.schedule(&adp)?,
         max_speed: a.max_speed,
         seed: a.seed,
-        compute: cfg.compute.resolve(a.planner.name())?,
+        driver: a.prediction.driver(
+            CycleDriver::new(cfg.compute.resolve(a.planner.name())?, cfg.episode.control_dt),
+            &cfg,
+            corrector.as_ref(),
+        ),
         rollout_every_s: a.rollouts_every,
         footprint_every_s: a.footprint_every,
         frames: a.frames,
@@ -669,6 +787,43 @@ mod tests {
         assert!(pieces[1][0].dist(Vec2::new(10.0, 8.0)) < 0.1);
         assert_eq!(pieces.iter().map(Vec::len).sum::<usize>(), 21);
         assert_eq!(frame_times(5, 4.0), vec![0.0, 1.0, 2.0, 3.0, 4.0]);
+    }
+
+    /// A track is drawn where the robot's true pose puts its robot-frame estimate, its
+    /// forecast every 0.4 s along its velocity; the strip's frames take the tracks of the
+    /// last cycle at or before their time.
+    #[test]
+    fn tracks_are_drawn_in_the_world_frame_at_their_cycle() {
+        let seen = Predicted {
+            position: Vec2::new(1.0, 0.0),
+            velocity: Vec2::new(1.0, 0.5),
+            radius: 0.5,
+            residual: None,
+        };
+        // Robot at (2, 3) facing +y: its x axis is the world's +y, its y axis the world's -x.
+        let pose = Pose::new(2.0, 3.0, std::f64::consts::FRAC_PI_2);
+        let v = TrackView::of(&seen, &pose);
+        let near = |a: Vec2, b: Vec2| a.dist(b) < 1e-12;
+        assert!(near(v.centre, Vec2::new(2.0, 4.0)), "{:?}", v.centre);
+        assert_eq!((v.radius, v.forecast.len()), (0.5, 8));
+        assert!(near(v.forecast[0], v.centre));
+        // 2.8 s ahead: (1 + 2.8, 0 + 1.4) in the robot frame.
+        assert!(
+            near(v.forecast[7], Vec2::new(2.0 - 1.4, 3.0 + 3.8)),
+            "{:?}",
+            v.forecast[7]
+        );
+        let record = Record {
+            trail: Vec::new(),
+            moments: Vec::new(),
+            phase: 0.0,
+            end_s: 3.0,
+            tracks: vec![(0.05, Vec::new()), (1.0, vec![v.clone()]), (2.0, Vec::new())],
+        };
+        assert!(record.tracks_at(0.0).is_empty());
+        assert_eq!(record.tracks_at(1.0), std::slice::from_ref(&v));
+        assert_eq!(record.tracks_at(1.99), &[v]);
+        assert!(record.tracks_at(2.5).is_empty());
     }
 
     #[test]

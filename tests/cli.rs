@@ -201,6 +201,22 @@ fn render_writes_png_and_svg() {
         strip.to_str().unwrap(),
     ]);
     one_line_error(&o, "--frames 1: a strip has 2 to 24 frames");
+    // With the tracker, its tracks and forecasts are drawn (brown, #965014); without, none.
+    for (prediction, tracks) in [("off", false), ("kf", true)] {
+        let svg = dir.join(format!("tracks-{prediction}.svg"));
+        let o = adp(&[
+            "render",
+            "--world",
+            "330",
+            "--prediction",
+            prediction,
+            "--out",
+            svg.to_str().unwrap(),
+        ]);
+        assert!(o.status.success(), "{}", stderr(&o));
+        let text = std::fs::read_to_string(&svg).unwrap().to_ascii_uppercase();
+        assert_eq!(text.contains("#965014"), tracks, "--prediction {prediction}");
+    }
     std::fs::remove_dir_all(&dir).ok();
 }
 
