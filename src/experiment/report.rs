@@ -183,8 +183,9 @@ pub fn wins_and_losses(
     })
 }
 
-/// Difficulty bands of the report's wins-and-losses table: thirds of BARN's 300 worlds.
-const DIFFICULTY_BANDS: [usize; 4] = [0, 100, 200, 300];
+/// Difficulty bands of the report's wins-and-losses table: thirds of BARN's 300 worlds, then
+/// DynaBARN's easy, medium and hard levels (ids 300..320, 320..340, 340..360).
+const DIFFICULTY_BANDS: [usize; 7] = [0, 100, 200, 300, 320, 340, 360];
 
 /// Compares the seeds `adp` with `control` (one record shared by every seed, or one per
 /// seed, paired in order). `None` when either side is missing or they ran other worlds or
@@ -789,7 +790,8 @@ fn wins_section(out: &mut String, data: &[ArmData]) {
     }
     let _ = writeln!(
         out,
-        "## Where ADP wins and loses\n\nPer band of world index (BARN's difficulty rank), the \
+        "## Where ADP wins and loses\n\nPer band of world index (BARN's difficulty rank; \
+         DynaBARN's easy, medium and hard levels are 300..320, 320..340 and 340..360), the \
          test worlds' mean Δ success and Δ score (ADP's mean over seeds − the control, after \
          trimming) and how many worlds ADP's score beats or trails the control's; then the \
          worlds of the five largest gains and losses (world: Δ score).\n"
@@ -1066,5 +1068,29 @@ mod tests {
         // Other worlds cannot be paired.
         let other = rec("ddp", &[(4, true, 0.3), (7, false, 0.0), (150, true, 0.4)]);
         assert!(wins_and_losses("DDP", &adp, &other, &[0, 300], 5).is_none());
+    }
+
+    /// The report's bands put DynaBARN test worlds in their levels, not in no band.
+    #[test]
+    fn dynabarn_worlds_fall_in_their_levels() {
+        let adp = [rec(
+            "adp",
+            &[(305, true, 0.5), (325, false, 0.0), (345, false, 0.0)],
+        )];
+        let control = rec("ddp", &[(305, false, 0.0), (325, false, 0.0), (345, true, 0.5)]);
+        let w = wins_and_losses("DDP", &adp, &control, &DIFFICULTY_BANDS, 5).unwrap();
+        let bands: Vec<_> = w
+            .bands
+            .iter()
+            .map(|b| (b.worlds, b.count, b.won, b.lost))
+            .collect();
+        assert_eq!(
+            bands,
+            [
+                ((300, 320), 1, 1, 0),
+                ((320, 340), 1, 0, 0),
+                ((340, 360), 1, 0, 1)
+            ]
+        );
     }
 }
