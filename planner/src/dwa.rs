@@ -17,6 +17,7 @@ use sim::robot::{approach, Twist};
 use crate::compute::{evaluation_order, Work};
 use crate::local_map::LocalMap;
 use crate::moving;
+use crate::path_distance::PathDistance;
 use crate::recovery::{Recovery, RecoveryConfig};
 use crate::{Gains, GainsError, Integrator, PlanInput, Planner, Schedule, Trace};
 
@@ -106,6 +107,8 @@ pub struct Dwa {
     /// Grid cells (`i * w_samples + j`) in evaluation order: the grid's own order, or
     /// [`crate::compute::even_order`] when a compute budget may stop the cycle early.
     order: Vec<u32>,
+    /// The cycle's local path, prepared for the rollouts' path-cost queries.
+    path: PathDistance,
     recovery: Recovery,
     trace: Trace,
 }
@@ -154,32 +157,11 @@ impl Dwa {
             cost: Vec::new(),
             margins: Vec::new(),
             order: Vec::new(),
+            path: PathDistance::default(),
             recovery: Recovery::new(cfg.recovery),
             trace: Trace::default(),
         }
     }
-}
-
-/// Distance from `p` to the polyline `path` (or to `fallback` if the path is empty).
-pub fn distance_to_path(path: &[Vec2], p: Vec2, fallback: Vec2) -> f64 {
-    if path.len() < 2 {
-        return p.dist(path.first().copied().unwrap_or(fallback));
-    }
-    // Squared distances in the loop, one square root at the end.
-    let mut best = f64::INFINITY;
-    for s in path.windows(2) {
-        let (a, b) = (s[0], s[1]);
-        let ab = b - a;
-        let len2 = ab.dot(ab);
-        let t = if len2 > 0.0 {
-            ((p - a).dot(ab) / len2).clamp(0.0, 1.0)
-        } else {
-            0.0
-        };
-        let d = p - (a + ab * t);
-        best = best.min(d.dot(d));
-    }
-    best.sqrt()
 }
 
 fn sample(lo: f64, hi: f64, k: usize, i: usize) -> f64 {
@@ -252,6 +234,7 @@ impl Dwa {
             n: (nv, nw),
         };
         self.build_profiles(sched, (v0, w0), &window);
+        self.path.prepare(per.local_path, per.local_goal);
         let horizon = sched.horizon();
         // First grid point of the goal term's tail (the end point at least).
         let tail = (cfg.goal_tail * steps as f64).ceil() as usize;
@@ -458,9 +441,7 @@ impl Dwa {
             cell,
             cmd,
             goal: goal_sum / tail_len.max(1) as f64,
-            path: 0.5
-                * (distance_to_path(per.local_path, mid, per.local_goal)
-                    + distance_to_path(per.local_path, end, per.local_goal)),
+            path: 0.5 * (self.path.distance(mid) + self.path.distance(end)),
             obstacle: (cfg.clearance_cap - min_clear) / cfg.clearance_cap,
             speed: if input.max_speed > 0.0 {
                 (input.max_speed - cmd.v) / input.max_speed

@@ -17,6 +17,7 @@ pub mod log_mppi;
 pub mod moving;
 pub mod mppi;
 pub mod padp;
+pub mod path_distance;
 pub mod prediction;
 pub mod recovery;
 pub mod residual;

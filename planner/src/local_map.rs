@@ -24,7 +24,8 @@ pub struct LocalMap {
     ny: usize,
     /// `nx` and `ny` as floats: the bounds test of a lookup compares before it converts.
     extent: (f64, f64),
-    /// Distance (m) from each cell centre to the nearest obstacle cell centre (`dist[iy * nx + ix]`).
+    /// Distance (m) from each cell centre to the nearest obstacle cell centre, column-major
+    /// (`dist[ix * ny + iy]`: the column pass of the transform runs along contiguous memory).
     dist: Vec<f32>,
     footprint: Footprint,
     /// Inscribed and circumscribed radii of the footprint (m), cached for the hot loop.
@@ -37,8 +38,11 @@ pub struct LocalMap {
     mode: CheckMode,
     /// Whether row `iy` holds an obstacle cell (rows without one skip the x pass).
     occupied: Vec<bool>,
+    /// Obstacle cells of the scan, row-major (`marks[iy * nx + ix]`).
+    marks: Vec<bool>,
+    /// Per cell of a row: cells since the last obstacle to its left.
+    scratch_g: Vec<u32>,
     scratch_f: Vec<f32>,
-    scratch_d: Vec<f32>,
     scratch_v: Vec<usize>,
     scratch_z: Vec<f32>,
 }
@@ -70,8 +74,9 @@ impl LocalMap {
             half_gap: Vec::new(),
             mode: CheckMode::Conservative,
             occupied: Vec::new(),
+            marks: Vec::new(),
+            scratch_g: Vec::new(),
             scratch_f: Vec::new(),
-            scratch_d: Vec::new(),
             scratch_v: Vec::new(),
             scratch_z: Vec::new(),
         };
@@ -131,56 +136,75 @@ impl LocalMap {
 
     /// Rebuilds the field from obstacle `points` (robot frame) over the box
     /// x in [-back, reach], y in [-reach, reach]. Points outside the box are ignored.
+    ///
+    /// The exact transform in two passes, on squared distances in cell units (integers, exact
+    /// in `f32`, so any exact method gives the same bits): along each row that holds an
+    /// obstacle, the distance to its nearest obstacle cell (two linear scans), written into
+    /// the column-major field; then along each column, contiguous in memory, the lower envelope
+    /// of parabolas ([`edt_1d`]); then metres, in one pass over the field.
     pub fn build(&mut self, points: &[Vec2], back: f64, reach: f64) {
         self.origin = Vec2::new(-back, -reach);
         self.nx = ((back + reach) / self.res).ceil() as usize + 1;
         self.ny = ((2.0 * reach) / self.res).ceil() as usize + 1;
         self.extent = (self.nx as f64, self.ny as f64);
         let (nx, ny) = (self.nx, self.ny);
-        self.dist.clear();
-        self.dist.resize(nx * ny, INF);
+        // Obstacle cells, row-major (`marks[iy * nx + ix]`), and which rows hold one.
+        self.marks.clear();
+        self.marks.resize(nx * ny, false);
         self.occupied.clear();
         self.occupied.resize(ny, false);
         for p in points {
             if let Some((ix, iy)) = self.cell(*p) {
-                self.dist[iy * nx + ix] = 0.0;
+                self.marks[iy * nx + ix] = true;
                 self.occupied[iy] = true;
             }
         }
-        let n = nx.max(ny);
-        self.scratch_f.resize(n, 0.0);
-        self.scratch_d.resize(n, 0.0);
-        self.scratch_v.resize(n, 0);
-        self.scratch_z.resize(n + 1, 0.0);
-        // Rows (along x), then columns (along y), on squared distances in cell units. A row
-        // without obstacles stays "infinite" and is skipped.
-        for (iy, row) in self.dist.chunks_exact_mut(nx).enumerate() {
-            if self.occupied[iy] {
-                self.scratch_f[..nx].copy_from_slice(row);
-                edt_1d(
-                    &self.scratch_f[..nx],
-                    row,
-                    &mut self.scratch_v,
-                    &mut self.scratch_z,
-                );
+        self.dist.clear();
+        self.dist.resize(nx * ny, INF);
+        self.scratch_g.resize(nx, 0);
+        self.scratch_f.resize(ny, 0.0);
+        self.scratch_v.resize(ny, 0);
+        self.scratch_z.resize(ny + 1, 0.0);
+        // Rows: a row without obstacles stays "infinite" (the column pass skips it).
+        for (iy, row) in self.marks.chunks_exact(nx).enumerate() {
+            if !self.occupied[iy] {
+                continue;
+            }
+            // Cells since the last obstacle to the left, then the smaller of that and the
+            // cells to the next one on the right.
+            let gaps = &mut self.scratch_g[..nx];
+            let mut since = u32::MAX;
+            for (g, &hit) in gaps.iter_mut().zip(row) {
+                since = if hit { 0 } else { since.saturating_add(1) };
+                *g = since;
+            }
+            since = u32::MAX;
+            for (ix, (g, &hit)) in gaps.iter_mut().zip(row).enumerate().rev() {
+                since = if hit { 0 } else { since.saturating_add(1) };
+                let k = (*g).min(since);
+                self.dist[ix * ny + iy] = (k as f32) * (k as f32);
             }
         }
-        // The column pass writes metres directly (no separate conversion pass).
-        let res = self.res as f32;
-        for x in 0..nx {
-            for (y, f) in self.scratch_f[..ny].iter_mut().enumerate() {
-                *f = self.dist[y * nx + x];
-            }
+        // Columns, in place (each copied to the envelope's input first).
+        for column in self.dist.chunks_exact_mut(ny) {
+            self.scratch_f[..ny].copy_from_slice(column);
             edt_1d(
                 &self.scratch_f[..ny],
-                &mut self.scratch_d[..ny],
+                column,
                 &mut self.scratch_v,
                 &mut self.scratch_z,
             );
-            for (y, &d) in self.scratch_d[..ny].iter().enumerate() {
-                self.dist[y * nx + x] = if d >= INF { FAR as f32 } else { d.sqrt() * res };
-            }
         }
+        let res = self.res as f32;
+        for d in &mut self.dist {
+            *d = if *d >= INF { FAR as f32 } else { d.sqrt() * res };
+        }
+    }
+
+    /// The field value of cell `(ix, iy)` (column-major: a column is contiguous).
+    #[inline]
+    fn at(&self, ix: usize, iy: usize) -> f32 {
+        self.dist[ix * self.ny + iy]
     }
 
     /// The cell holding `p`, if inside the field.
@@ -200,7 +224,7 @@ impl LocalMap {
     #[inline]
     fn raw(&self, p: Vec2, outside: f32) -> f32 {
         match self.cell(p) {
-            Some((ix, iy)) => self.dist[iy * self.nx + ix],
+            Some((ix, iy)) => self.at(ix, iy),
             None => outside,
         }
     }
@@ -210,7 +234,7 @@ impl LocalMap {
     /// value), or [`FAR`] outside the field.
     pub fn distance(&self, p: Vec2) -> f64 {
         match self.cell(p) {
-            Some((ix, iy)) => (self.dist[iy * self.nx + ix] as f64 - 0.5 * self.res).max(0.0),
+            Some((ix, iy)) => (self.at(ix, iy) as f64 - 0.5 * self.res).max(0.0),
             None => FAR,
         }
     }
@@ -379,11 +403,7 @@ mod tests {
                     .iter()
                     .map(|&(x, y)| (x.abs_diff(ix).pow(2) + y.abs_diff(iy).pow(2)) as f32)
                     .fold(f32::INFINITY, f32::min);
-                assert_eq!(
-                    map.dist[iy * map.nx + ix],
-                    d2.sqrt() * 0.05f32,
-                    "cell ({ix}, {iy})"
-                );
+                assert_eq!(map.at(ix, iy), d2.sqrt() * 0.05f32, "cell ({ix}, {iy})");
             }
         }
         // No obstacle at all: FAR everywhere.

@@ -31,8 +31,8 @@ use sim::geometry::{wrap_angle, Pose, Vec2};
 use sim::robot::{approach, Twist};
 
 use crate::compute::{admit, evaluation_order, Work};
-use crate::dwa::distance_to_path;
 use crate::local_map::LocalMap;
+use crate::path_distance::PathDistance;
 use crate::{Gains, GainsError, Integrator, PlanInput, Planner, Predicted, Rollouts, Trace};
 
 /// MPPI parameters (defaults used by `adp eval`).
@@ -135,6 +135,8 @@ pub struct Mppi {
     outcomes: Vec<Outcome>,
     /// Collision threshold per check density (see [`MppiConfig::margin`]).
     margins: Vec<f64>,
+    /// The cycle's local path, prepared for the samples' path cost.
+    path: PathDistance,
     order: Vec<usize>,
     /// Samples in evaluation order under a compute budget ([`crate::compute::even_order`]).
     eval_order: Vec<u32>,
@@ -165,7 +167,8 @@ struct Scene<'a> {
     goal: Vec2,
     /// First grid point of the goal term's tail.
     tail_start: usize,
-    path: &'a [Vec2],
+    /// The local path (path cost of the end point).
+    path: &'a PathDistance,
     /// Collision threshold on the estimated clearance (m), per check density.
     margins: &'a [f64],
     /// The rollout integrator.
@@ -192,6 +195,7 @@ impl Mppi {
             controls: Vec::new(),
             outcomes: Vec::new(),
             margins: Vec::new(),
+            path: PathDistance::default(),
             order: Vec::new(),
             eval_order: Vec::new(),
             admitted: Vec::new(),
@@ -566,7 +570,7 @@ fn rollout(scene: &Scene<'_>, controls: &[Twist], mut record: Option<&mut Rollou
         0.0
     };
     let mut cost = cfg.w_goal * goal_dist
-        + cfg.w_path * distance_to_path(scene.path, end, scene.goal)
+        + cfg.w_path * scene.path.distance(end)
         + cfg.w_obstacle * (cfg.clearance_cap - min_clear) / cfg.clearance_cap
         + cfg.w_heading * heading
         + cfg.w_smooth * smooth;
@@ -615,6 +619,7 @@ impl Planner for Mppi {
         self.nominal.warm_start(sched.dts(), cfg.control_dt);
 
         let start = per.vel;
+        self.path.prepare(per.local_path, per.local_goal);
         self.margins.clear();
         for m in 0..=self.map.boundary_points() {
             let here = self.map.footprint_clearance(
@@ -636,7 +641,7 @@ impl Planner for Mppi {
             start,
             goal: per.local_goal,
             tail_start: steps.saturating_sub(((self.cfg.goal_tail * steps as f64).ceil() as usize).max(1)),
-            path: per.local_path,
+            path: &self.path,
             margins: &self.margins,
             integrator: input.prediction.integrator,
             moving: input.moving,
@@ -871,6 +876,8 @@ pub(crate) mod tests {
         map.build(&[], 1.0, 3.0);
         let dts = [0.1; 20];
         let checks = [0u16; 20];
+        let mut path = PathDistance::default();
+        path.prepare(&[], Vec2::new(1.0, 0.0));
         let cost = |goal_tail: f64, v: &dyn Fn(usize) -> f64| {
             let cfg = MppiConfig {
                 goal_tail,
@@ -885,7 +892,7 @@ pub(crate) mod tests {
                 start: Twist::new(0.0, 0.0),
                 goal: Vec2::new(1.0, 0.0),
                 tail_start,
-                path: &[],
+                path: &path,
                 margins: &[cfg.margin],
                 integrator: Integrator::Euler,
                 moving: &[],

@@ -1,0 +1,245 @@
+//! Distance from a point to the local path, for the many queries of one planning cycle.
+//!
+//! DWA scores every rollout by two points' distance to the local path and MPPI every sample by
+//! its end point's: hundreds of queries a cycle against the same polyline of a few dozen
+//! segments. [`PathDistance`] prepares the segments once per cycle and answers each query with
+//! the value of the plain projection formula, bit for bit, while doing less of it:
+//!
+//! - segments are grouped in runs of [`RUN`], each run inside a disk; a query measures the run
+//!   whose disk is nearest first, then skips every run whose disk is farther than the best
+//!   distance so far by more than [`SLACK`] (far more than the rounding of either distance,
+//!   so a skipped segment could not have been the minimum, and the minimum is exact whatever
+//!   order it is taken in);
+//! - a segment divides only when the projection falls strictly inside it (one or two for a
+//!   point near the path; the others clamp to an end point, which needs no division).
+
+use sim::geometry::Vec2;
+
+/// One segment `a -> a + ab` of the path, with what every query needs of it.
+#[derive(Clone, Copy, Debug)]
+struct Segment {
+    a: Vec2,
+    ab: Vec2,
+    /// `a + ab`: the end point a projection clamped to 1 lands on.
+    end: Vec2,
+    /// `|ab|^2`.
+    len2: f64,
+}
+
+/// Segments per run (the unit a query skips).
+const RUN: usize = 8;
+
+/// How much farther than the best distance so far a run's disk must be to be skipped (m).
+/// Path coordinates are metres within tens of metres of the robot, where both distances are
+/// exact to about 1e-14 m.
+const SLACK: f64 = 1e-9;
+
+/// A disk holding every point of a run of [`RUN`] segments.
+#[derive(Clone, Copy, Debug)]
+struct Disk {
+    centre: Vec2,
+    radius: f64,
+}
+
+/// A polyline prepared for distance queries. Reused across cycles: [`PathDistance::prepare`]
+/// keeps its buffers, so a cycle does not allocate once they have grown. `Send + Sync`;
+/// queries take `&self`, so parallel rollouts may share one.
+#[derive(Clone, Debug, Default)]
+pub struct PathDistance {
+    segments: Vec<Segment>,
+    /// `runs[r]` holds `segments[r * RUN..]` (at most [`RUN`] of them).
+    runs: Vec<Disk>,
+    /// The point a path of fewer than two points measures from (its only point, or the
+    /// fallback).
+    point: Vec2,
+}
+
+impl PathDistance {
+    /// Prepares `path`; with fewer than two points, distances are measured to its only point,
+    /// or to `fallback` when it is empty.
+    pub fn prepare(&mut self, path: &[Vec2], fallback: Vec2) {
+        self.segments.clear();
+        self.point = path.first().copied().unwrap_or(fallback);
+        if path.len() < 2 {
+            return;
+        }
+        self.segments.extend(path.windows(2).map(|s| {
+            let (a, b) = (s[0], s[1]);
+            let ab = b - a;
+            Segment {
+                a,
+                ab,
+                end: a + ab,
+                len2: ab.dot(ab),
+            }
+        }));
+        self.runs.clear();
+        self.runs
+            .extend(path.windows(2).step_by(RUN).enumerate().map(|(r, _)| {
+                // The run's points: its segments' starts and the last one's end.
+                let points = &path[r * RUN..(r * RUN + RUN + 1).min(path.len())];
+                let (mut lo, mut hi) = (points[0], points[0]);
+                for q in points {
+                    lo = Vec2::new(lo.x.min(q.x), lo.y.min(q.y));
+                    hi = Vec2::new(hi.x.max(q.x), hi.y.max(q.y));
+                }
+                let centre = (lo + hi) * 0.5;
+                let radius = points.iter().map(|q| q.dist(centre)).fold(0.0, f64::max);
+                // A disk holding the points holds the segments between them (it is convex); the
+                // slack covers the rounding of the radius.
+                Disk {
+                    centre,
+                    radius: radius + SLACK,
+                }
+            }));
+    }
+
+    /// Distance from `p` to the prepared path: the smallest over its segments of the distance
+    /// to the projection of `p` clamped to the segment.
+    #[inline]
+    pub fn distance(&self, p: Vec2) -> f64 {
+        if self.segments.is_empty() {
+            return p.dist(self.point);
+        }
+        // The run whose disk's centre is nearest (relative to its size) first: its distance
+        // lets most others be skipped. Squared distances throughout; a square root only when
+        // the best distance improves.
+        let mut first = 0;
+        let mut nearest = f64::INFINITY;
+        for (r, disk) in self.runs.iter().enumerate() {
+            let key = (p - disk.centre).dot(p - disk.centre) - disk.radius * disk.radius;
+            if key < nearest {
+                (first, nearest) = (r, key);
+            }
+        }
+        let mut best = self.run_min(first, p, f64::INFINITY);
+        let mut reach = best.sqrt() + SLACK;
+        for (r, disk) in self.runs.iter().enumerate() {
+            let within = disk.radius + reach;
+            if r != first && (p - disk.centre).dot(p - disk.centre) <= within * within {
+                let before = best;
+                best = self.run_min(r, p, best);
+                if best < before {
+                    reach = best.sqrt() + SLACK;
+                }
+            }
+        }
+        best.sqrt()
+    }
+
+    /// The smaller of `best` and the squared distances from `p` to the segments of run `r`.
+    #[inline]
+    fn run_min(&self, r: usize, p: Vec2, mut best: f64) -> f64 {
+        let end = (r * RUN + RUN).min(self.segments.len());
+        for s in &self.segments[r * RUN..end] {
+            let along = (p - s.a).dot(s.ab);
+            // The projection parameter `along / len2` clamped to [0, 1]: at or before the
+            // start (or a zero-length segment) it is 0 and the nearest point `a + ab * 0` is
+            // `a` (up to the sign of a zero, which squaring removes); at or past the end it is
+            // 1 and the point is `a + ab`. Only a projection strictly inside divides.
+            let d = if s.len2 > 0.0 && along > 0.0 {
+                if along >= s.len2 {
+                    p - s.end
+                } else {
+                    p - (s.a + s.ab * (along / s.len2).clamp(0.0, 1.0))
+                }
+            } else {
+                p - s.a
+            };
+            best = best.min(d.dot(d));
+        }
+        best
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The plain formula the prepared path must reproduce bit for bit.
+    fn reference(path: &[Vec2], p: Vec2, fallback: Vec2) -> f64 {
+        if path.len() < 2 {
+            return p.dist(path.first().copied().unwrap_or(fallback));
+        }
+        let mut best = f64::INFINITY;
+        for s in path.windows(2) {
+            let (a, b) = (s[0], s[1]);
+            let ab = b - a;
+            let len2 = ab.dot(ab);
+            let t = if len2 > 0.0 {
+                ((p - a).dot(ab) / len2).clamp(0.0, 1.0)
+            } else {
+                0.0
+            };
+            let d = p - (a + ab * t);
+            best = best.min(d.dot(d));
+        }
+        best.sqrt()
+    }
+
+    /// A deterministic stream in [-1, 1) (no dependency on a random crate in this test).
+    fn stream(seed: u64) -> impl FnMut() -> f64 {
+        let mut s = seed;
+        move || {
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            ((s >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
+        }
+    }
+
+    #[test]
+    fn a_point_beside_an_l_shaped_path_by_hand() {
+        let path = [Vec2::new(0.0, 0.0), Vec2::new(2.0, 0.0), Vec2::new(2.0, 2.0)];
+        let mut d = PathDistance::default();
+        d.prepare(&path, Vec2::default());
+        // Beside the first leg, beyond the corner, before the start, inside the bend.
+        assert_eq!(d.distance(Vec2::new(1.0, -0.5)), 0.5);
+        assert_eq!(d.distance(Vec2::new(3.0, -1.0)), 2f64.sqrt());
+        assert_eq!(d.distance(Vec2::new(-3.0, 4.0)), 5.0);
+        assert_eq!(d.distance(Vec2::new(1.5, 1.0)), 0.5);
+    }
+
+    #[test]
+    fn short_paths_measure_from_their_point_or_the_fallback() {
+        let mut d = PathDistance::default();
+        d.prepare(&[], Vec2::new(3.0, 4.0));
+        assert_eq!(d.distance(Vec2::default()), 5.0);
+        d.prepare(&[Vec2::new(0.0, 1.0)], Vec2::new(3.0, 4.0));
+        assert_eq!(d.distance(Vec2::default()), 1.0);
+    }
+
+    #[test]
+    fn equals_the_plain_formula_bit_for_bit() {
+        let mut r = stream(7);
+        let mut d = PathDistance::default();
+        for case in 0..360 {
+            // Random walks of 0..120 points (up to 15 runs), some with repeated points (zero-length segments)
+            // and exact zeros, queried near and far.
+            let n = case % 120;
+            let mut path = Vec::with_capacity(n);
+            let mut at = Vec2::new(r(), r());
+            for k in 0..n {
+                if k % 7 != 3 {
+                    at = at + Vec2::new(0.2 * r(), 0.2 * r());
+                }
+                if k % 11 == 5 {
+                    at = Vec2::new(0.0, -0.0);
+                }
+                path.push(at);
+            }
+            let fallback = Vec2::new(r(), r());
+            d.prepare(&path, fallback);
+            for q in 0..50 {
+                let scale = if q % 2 == 0 { 0.5 } else { 10.0 };
+                let p = Vec2::new(scale * r(), scale * r());
+                let (got, want) = (d.distance(p), reference(&path, p, fallback));
+                assert_eq!(got.to_bits(), want.to_bits(), "case {case} query {q}: {p:?}");
+            }
+            // Path points themselves and segment ends: exact zeros.
+            for &p in &path {
+                assert_eq!(d.distance(p).to_bits(), reference(&path, p, fallback).to_bits());
+            }
+        }
+    }
+}
