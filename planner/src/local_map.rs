@@ -439,17 +439,37 @@ mod tests {
 
     #[test]
     fn edt_1d_matches_brute_force() {
-        let f = [1e20f32, 0.0, 1e20, 1e20, 4.0, 1e20, 0.0, 1e20];
-        let mut d = [0f32; 8];
-        let mut v = [0usize; 8];
-        let mut z = [0f32; 9];
-        edt_1d(&f, &mut d, &mut v, &mut z);
-        for (q, &dq) in d.iter().enumerate() {
-            let b = (0..8)
-                .filter(|&p| f[p] < 1e19)
-                .map(|p| ((q as f32 - p as f32).powi(2)) + f[p])
-                .fold(f32::INFINITY, f32::min);
-            assert_eq!(dq, b, "q = {q}");
+        // A hand-made line, then random lines of every length up to 64: integer heights (as
+        // the transform's passes produce) with "infinite" samples, including none finite.
+        let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(11);
+        let mut lines = vec![vec![1e20f32, 0.0, 1e20, 1e20, 4.0, 1e20, 0.0, 1e20]];
+        for len in 1..=64usize {
+            for _ in 0..20 {
+                let empty = rng.random_range(0.0..1.0);
+                lines.push(
+                    (0..len)
+                        .map(|_| {
+                            if rng.random_range(0.0..1.0) < empty {
+                                1e20
+                            } else {
+                                rng.random_range(0..2000u32) as f32
+                            }
+                        })
+                        .collect(),
+                );
+            }
+        }
+        for f in &lines {
+            let n = f.len();
+            let (mut d, mut v, mut z) = (vec![0f32; n], vec![0usize; n], vec![0f32; n + 1]);
+            edt_1d(f, &mut d, &mut v, &mut z);
+            for (q, &dq) in d.iter().enumerate() {
+                let b = (0..n)
+                    .filter(|&p| f[p] < 1e19)
+                    .map(|p| ((q as f32 - p as f32).powi(2)) + f[p])
+                    .fold(1e20f32, f32::min);
+                assert_eq!(dq, b, "q = {q} of {f:?}");
+            }
         }
     }
 }
