@@ -212,9 +212,11 @@ impl LocalMap {
     fn cell(&self, p: Vec2) -> Option<(usize, usize)> {
         let fx = (p.x - self.origin.x) * self.inv_res;
         let fy = (p.y - self.origin.y) * self.inv_res;
-        // For 0 <= f, trunc(f) < n exactly when f < n: bounds in float, one conversion each.
+        // For 0 <= f, trunc(f) < n exactly when f < n: bounds in float, one conversion each,
+        // through u32 (a single signed 64-bit conversion on x86-64, where f64 -> usize takes a
+        // branch-free fix-up sequence for values above 2^63 that cannot occur here).
         if fx >= 0.0 && fy >= 0.0 && fx < self.extent.0 && fy < self.extent.1 {
-            Some((fx as usize, fy as usize))
+            Some((fx as u32 as usize, fy as u32 as usize))
         } else {
             None
         }

@@ -147,7 +147,8 @@ impl Costmap {
         if fx < 0.0 || fy < 0.0 {
             return FREE;
         }
-        let (ix, iy) = (fx as usize, fy as usize);
+        // Through u32: one signed conversion (saturating, so far points stay outside).
+        let (ix, iy) = (fx as u32 as usize, fy as u32 as usize);
         if ix < self.nx && iy < self.ny {
             self.cells[iy * self.nx + ix]
         } else {

@@ -196,9 +196,10 @@ impl Costmap {
         let fx = (p.x - self.origin.x) / self.cfg.resolution;
         let fy = (p.y - self.origin.y) / self.cfg.resolution;
         // For f >= 0, floor(f) = trunc(f) and trunc(f) < n exactly when f < n: no floor call
-        // (a library call on the baseline x86-64 target) for each of the scan's returns.
+        // (a library call on the baseline x86-64 target) for each of the scan's returns; and
+        // through u32, one signed conversion (f64 -> usize needs a fix-up for 2^63 and above).
         (fx >= 0.0 && fy >= 0.0 && fx < self.nx as f64 && fy < self.ny as f64)
-            .then_some((fx as usize, fy as usize))
+            .then_some((fx as u32 as usize, fy as u32 as usize))
     }
 
     /// Centre of a cell.
