@@ -427,8 +427,51 @@ mod tests {
             let fast = w.at(0.0).raycast(o, d, 6.0);
             match (brute, fast) {
                 (None, None) => {}
-                (Some(a), Some(b)) => assert!((a - b).abs() < 1e-9, "{a} vs {b} from {o:?} dir {d:?}"),
+                // The same cylinder's `ray_circle`: the same bits.
+                (Some(a), Some(b)) => assert_eq!(a.to_bits(), b.to_bits(), "{a} vs {b} from {o:?} dir {d:?}"),
                 other => panic!("mismatch {other:?} from {o:?} dir {d:?}"),
+            }
+        }
+    }
+
+    #[test]
+    fn raycast_is_exact_in_sparse_worlds() {
+        // Sparse worlds (long traversals of empty cells), rays from inside and outside the
+        // grid, some nearly along an axis, at every range: the nearest cylinder's own bits.
+        let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(21);
+        for seed in 0..6 {
+            let mut world_rng = rand_pcg::Pcg64Mcg::seed_from_u64(100 + seed);
+            let cylinders: Vec<Circle> = (0..12 + 8 * seed as usize)
+                .map(|_| Circle {
+                    c: Vec2::new(
+                        world_rng.random_range(-8.0..8.0),
+                        world_rng.random_range(-8.0..8.0),
+                    ),
+                    r: world_rng.random_range(0.05..0.3),
+                })
+                .collect();
+            let w = World::new(0, cylinders, Pose::default(), Vec2::new(0.0, 10.0), 10.0, vec![]);
+            for k in 0..3000 {
+                let o = Vec2::new(rng.random_range(-10.0..10.0), rng.random_range(-10.0..10.0));
+                let a: f64 = if k % 5 == 0 {
+                    (k % 4) as f64 * std::f64::consts::FRAC_PI_2 + rng.random_range(-1e-7..1e-7)
+                } else {
+                    rng.random_range(-3.2..3.2)
+                };
+                let d = Vec2::new(a.cos(), a.sin());
+                let range = rng.random_range(0.5..30.0);
+                let brute = w
+                    .cylinders
+                    .iter()
+                    .filter_map(|c| ray_circle(o, d, c))
+                    .fold(f64::INFINITY, f64::min);
+                let brute = (brute <= range).then_some(brute);
+                let fast = w.at(0.0).raycast(o, d, range);
+                assert_eq!(
+                    brute.map(f64::to_bits),
+                    fast.map(f64::to_bits),
+                    "world {seed}: {brute:?} vs {fast:?} from {o:?} dir {d:?} range {range}"
+                );
             }
         }
     }
