@@ -74,24 +74,23 @@ impl PathDistance {
             }
         }));
         self.runs.clear();
-        self.runs
-            .extend(path.windows(2).step_by(RUN).enumerate().map(|(r, _)| {
-                // The run's points: its segments' starts and the last one's end.
-                let points = &path[r * RUN..(r * RUN + RUN + 1).min(path.len())];
-                let (mut lo, mut hi) = (points[0], points[0]);
-                for q in points {
-                    lo = Vec2::new(lo.x.min(q.x), lo.y.min(q.y));
-                    hi = Vec2::new(hi.x.max(q.x), hi.y.max(q.y));
-                }
-                let centre = (lo + hi) * 0.5;
-                let radius = points.iter().map(|q| q.dist(centre)).fold(0.0, f64::max);
-                // A disk holding the points holds the segments between them (it is convex); the
-                // slack covers the rounding of the radius.
-                Disk {
-                    centre,
-                    radius: radius + SLACK,
-                }
-            }));
+        self.runs.extend((0..self.segments.len().div_ceil(RUN)).map(|r| {
+            // The run's points: its segments' starts and the last one's end.
+            let points = &path[r * RUN..(r * RUN + RUN + 1).min(path.len())];
+            let (mut lo, mut hi) = (points[0], points[0]);
+            for q in points {
+                lo = Vec2::new(lo.x.min(q.x), lo.y.min(q.y));
+                hi = Vec2::new(hi.x.max(q.x), hi.y.max(q.y));
+            }
+            let centre = (lo + hi) * 0.5;
+            let radius = points.iter().map(|q| q.dist(centre)).fold(0.0, f64::max);
+            // A disk holding the points holds the segments between them (it is convex); the
+            // slack covers the rounding of the radius.
+            Disk {
+                centre,
+                radius: radius + SLACK,
+            }
+        }));
     }
 
     /// Distance from `p` to the prepared path: the smallest over its segments of the distance
@@ -136,12 +135,13 @@ impl PathDistance {
             // The projection parameter `along / len2` clamped to [0, 1]: at or before the
             // start (or a zero-length segment) it is 0 and the nearest point `a + ab * 0` is
             // `a` (up to the sign of a zero, which squaring removes); at or past the end it is
-            // 1 and the point is `a + ab`. Only a projection strictly inside divides.
+            // 1 and the point is `a + ab`. Only a projection strictly inside divides, and its
+            // quotient is already in (0, 1] (so the clamp of the plain formula is a no-op).
             let d = if s.len2 > 0.0 && along > 0.0 {
                 if along >= s.len2 {
                     p - s.end
                 } else {
-                    p - (s.a + s.ab * (along / s.len2).clamp(0.0, 1.0))
+                    p - (s.a + s.ab * (along / s.len2))
                 }
             } else {
                 p - s.a

@@ -410,6 +410,16 @@ mod tests {
         World::new(0, cylinders, Pose::default(), Vec2::new(0.0, 10.0), 10.0, vec![])
     }
 
+    /// The nearest hit over every cylinder of `w` within `range`, by `ray_circle` alone.
+    fn brute_raycast(w: &World, o: Vec2, d: Vec2, range: f64) -> Option<f64> {
+        let t = w
+            .cylinders
+            .iter()
+            .filter_map(|c| ray_circle(o, d, c))
+            .fold(f64::INFINITY, f64::min);
+        (t <= range).then_some(t)
+    }
+
     #[test]
     fn raycast_matches_brute_force() {
         let w = random_world(7);
@@ -418,12 +428,7 @@ mod tests {
             let o = Vec2::new(rng.random_range(-7.0..7.0), rng.random_range(-7.0..7.0));
             let a: f64 = rng.random_range(-3.2..3.2);
             let d = Vec2::new(a.cos(), a.sin());
-            let brute = w
-                .cylinders
-                .iter()
-                .filter_map(|c| ray_circle(o, d, c))
-                .fold(f64::INFINITY, f64::min);
-            let brute = (brute <= 6.0).then_some(brute);
+            let brute = brute_raycast(&w, o, d, 6.0);
             let fast = w.at(0.0).raycast(o, d, 6.0);
             match (brute, fast) {
                 (None, None) => {}
@@ -460,12 +465,7 @@ mod tests {
                 };
                 let d = Vec2::new(a.cos(), a.sin());
                 let range = rng.random_range(0.5..30.0);
-                let brute = w
-                    .cylinders
-                    .iter()
-                    .filter_map(|c| ray_circle(o, d, c))
-                    .fold(f64::INFINITY, f64::min);
-                let brute = (brute <= range).then_some(brute);
+                let brute = brute_raycast(&w, o, d, range);
                 let fast = w.at(0.0).raycast(o, d, range);
                 assert_eq!(
                     brute.map(f64::to_bits),
