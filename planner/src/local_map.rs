@@ -222,6 +222,23 @@ impl LocalMap {
         }
     }
 
+    /// The footprint's circumscribed radius (m), computed once: the value
+    /// `footprint().circumscribed_radius()` gives.
+    pub fn circumscribed_radius(&self) -> f64 {
+        self.radii.1
+    }
+
+    /// How far a boundary point's distance estimate can fall below the centre's minus the
+    /// circumscribed radius (m): `sqrt(2)` cells and a rounding slack. A boundary point is at
+    /// most the circumscribed radius from the centre and each point lies within half a cell
+    /// diagonal of the cell centre whose value the field holds, so by the triangle inequality
+    /// over the cell centres a point's value is at least the centre's minus the radius and
+    /// one cell diagonal; the values are `f32` roundings of at most [`FAR`] (relative error
+    /// below 1e-7), far inside the 1e-5 m slack.
+    pub fn cell_slack(&self) -> f64 {
+        std::f64::consts::SQRT_2 * self.res + 1e-5
+    }
+
     /// The raw field value (cell-centre distance, m) at `p`, or `outside`.
     #[inline]
     fn raw(&self, p: Vec2, outside: f32) -> f32 {
@@ -272,6 +289,30 @@ impl LocalMap {
         enough: f64,
         evaluated: &mut u64,
     ) -> f64 {
+        self.clearance_above(c, heading, m, enough, f64::INFINITY, evaluated)
+    }
+
+    /// [`LocalMap::clearance_at`] for a caller that needs the clearance only where it is below
+    /// `floor` (a rollout keeping its smallest clearance and comparing each step with a
+    /// margin: a step at or above both changes neither). When a lower bound of the clearance
+    /// from the centre's distance alone is at least `floor`, that bound is returned and the
+    /// boundary points are not read. So the result is `clearance_at`'s bit for bit whenever
+    /// either is below `floor`, and both are at least `floor` otherwise. `evaluated` grows by
+    /// what `clearance_at` counts (the check's points, read or not): the compute model prices
+    /// the check, not this shortcut.
+    ///
+    /// The bound is the disk bound in [`CheckMode::Conservative`] (the clearance's own lower
+    /// bound), and the disk bound minus [`LocalMap::cell_slack`] in [`CheckMode::GridPoints`].
+    #[inline]
+    pub fn clearance_above(
+        &self,
+        c: Vec2,
+        heading: impl FnOnce() -> (f64, f64),
+        m: usize,
+        enough: f64,
+        floor: f64,
+        evaluated: &mut u64,
+    ) -> f64 {
         let dc = self.distance(c);
         *evaluated += 1;
         let (inscribed, circumscribed) = self.radii;
@@ -288,6 +329,14 @@ impl LocalMap {
                 CheckMode::Conservative => disk,
                 CheckMode::GridPoints => dc - inscribed,
             };
+        }
+        let bound = match self.mode {
+            CheckMode::Conservative => disk,
+            CheckMode::GridPoints => disk - self.cell_slack(),
+        };
+        if bound >= floor {
+            *evaluated += m as u64;
+            return bound;
         }
         let (s, co) = heading();
         // The smallest raw cell distance first, the half-cell correction once: the same
@@ -473,5 +522,50 @@ mod tests {
                 assert_eq!(dq, b, "q = {q} of {f:?}");
             }
         }
+    }
+
+    /// The floor's contract, in both check modes, over random maps, poses, densities and
+    /// floors: the result is `clearance_at`'s bit for bit when either is below the floor,
+    /// both are at least the floor otherwise, and the points counted are the same. Floors
+    /// near the clearance itself are drawn often, where a loose bound would show.
+    #[test]
+    fn a_floor_changes_nothing_below_it_and_counts_the_same() {
+        let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(11);
+        let mut skipped = 0;
+        for mode in [CheckMode::Conservative, CheckMode::GridPoints] {
+            for _ in 0..40 {
+                let pts: Vec<Vec2> = (0..rng.random_range(1..60))
+                    .map(|_| Vec2::new(rng.random_range(-1.0..4.0), rng.random_range(-3.0..3.0)))
+                    .collect();
+                let mut map = LocalMap::new(Footprint::JACKAL, 0.05, 20);
+                map.set_check_mode(mode);
+                map.build(&pts, 1.0, 3.0);
+                for _ in 0..500 {
+                    let c = Vec2::new(rng.random_range(-0.5..3.5), rng.random_range(-2.5..2.5));
+                    let yaw: f64 = rng.random_range(-4.0..4.0);
+                    let m = rng.random_range(0..=20);
+                    let enough = rng.random_range(0.0..1.0);
+                    let (mut n_at, mut n_above) = (0, 0);
+                    let exact = map.clearance_at(c, || yaw.sin_cos(), m, enough, &mut n_at);
+                    let floor = if rng.random_range(0.0..1.0) < 0.5 {
+                        exact + rng.random_range(-0.1..0.1)
+                    } else {
+                        rng.random_range(-0.3..0.8)
+                    };
+                    let got = map.clearance_above(c, || yaw.sin_cos(), m, enough, floor, &mut n_above);
+                    assert_eq!(n_at, n_above, "{mode:?} at {c:?}");
+                    if exact < floor || got < floor {
+                        assert_eq!(got.to_bits(), exact.to_bits(), "{mode:?} at {c:?}, floor {floor}");
+                    } else {
+                        assert!(
+                            exact >= floor && got >= floor,
+                            "{mode:?} at {c:?}: {exact} {got} {floor}"
+                        );
+                        skipped += usize::from(got != exact);
+                    }
+                }
+            }
+        }
+        assert!(skipped > 1000, "the floor skipped only {skipped} checks");
     }
 }

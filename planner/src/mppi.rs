@@ -465,8 +465,10 @@ pub(crate) struct Unicycle {
     pub(crate) y: f64,
     /// Heading, not wrapped (rad).
     pub(crate) yaw: f64,
-    sin: f64,
-    cos: f64,
+    /// `yaw.sin_cos()`, carried from step to step by the integrator.
+    pub(crate) sin: f64,
+    /// See `sin`.
+    pub(crate) cos: f64,
     /// Current velocity.
     vel: Twist,
     integrator: Integrator,
@@ -528,10 +530,18 @@ fn rollout(scene: &Scene<'_>, controls: &[Twist], mut record: Option<&mut Rollou
         if let Some(r) = record.as_deref_mut() {
             r.push(Pose::new(pose.x, pose.y, wrap_angle(pose.yaw)));
         }
-        let mut clear =
-            scene
-                .map
-                .footprint_clearance(&pose, scene.checks[k] as usize, cfg.clearance_cap, &mut evaluated);
+        let m = (scene.checks[k] as usize).min(scene.margins.len() - 1);
+        // Only a clearance below the running minimum or the margin changes the outcome (a
+        // moving obstacle's clearance enters through the same `min`). The robot carries the
+        // (sin, cos) of its unwrapped yaw, the value `pose.yaw.sin_cos()` gives.
+        let mut clear = scene.map.clearance_above(
+            pose.position(),
+            || (robot.sin, robot.cos),
+            scene.checks[k] as usize,
+            cfg.clearance_cap,
+            min_clear.max(scene.margins[m]),
+            &mut evaluated,
+        );
         if !scene.moving.is_empty() {
             let fp = scene.map.footprint();
             clear = clear.min(crate::moving::clearance(
@@ -542,7 +552,6 @@ fn rollout(scene: &Scene<'_>, controls: &[Twist], mut record: Option<&mut Rollou
                 &mut evaluated,
             ));
         }
-        let m = (scene.checks[k] as usize).min(scene.margins.len() - 1);
         if clear < scene.margins[m] {
             hit = Some(t);
             break;

@@ -98,7 +98,7 @@ pub(super) fn chained_clearance(
     evaluated: &mut u64,
 ) -> f64 {
     let moved = pose.position().dist(prev.position())
-        + map.footprint().circumscribed_radius() * wrap_angle(pose.yaw - prev.yaw).abs();
+        + map.circumscribed_radius() * wrap_angle(pose.yaw - prev.yaw).abs();
     let inherited = prev_clear - moved;
     if inherited >= enough {
         return inherited;
