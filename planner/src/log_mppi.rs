@@ -330,8 +330,7 @@ fn rollout(scene: &Scene<'_>, controls: &[Twist], mut record: Option<&mut Rollou
         let mut crash = scene.costmap.at(centre) != FREE;
         let m = (scene.checks[k] as usize).min(scene.boundary.len() - 1);
         if !crash && m > 0 {
-            // The (sin, cos) of the unwrapped yaw, carried by the robot.
-            let (s, c) = (robot.sin, robot.cos);
+            let (s, c) = pose.yaw.sin_cos();
             evaluated += m as u64;
             crash = scene.boundary[m].iter().any(|b| {
                 let p = Vec2::new(centre.x + c * b.x - s * b.y, centre.y + s * b.x + c * b.y);
