@@ -466,9 +466,9 @@ pub(crate) struct Unicycle {
     /// Heading, not wrapped (rad).
     pub(crate) yaw: f64,
     /// `yaw.sin_cos()`, carried from step to step by the integrator.
-    pub(crate) sin: f64,
+    sin: f64,
     /// See `sin`.
-    pub(crate) cos: f64,
+    cos: f64,
     /// Current velocity.
     vel: Twist,
     integrator: Integrator,
