@@ -7,6 +7,7 @@
 //! at grid points, or exact arcs with conservative checks).
 
 pub mod action;
+pub mod check_points;
 pub mod complexity;
 pub mod compute;
 pub mod dwa;

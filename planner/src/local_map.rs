@@ -7,6 +7,7 @@
 
 use sim::geometry::{Footprint, Pose, Vec2};
 
+use crate::check_points::{CheckPoints, FieldView};
 use crate::prediction::CheckMode;
 use crate::PlanInput;
 
@@ -31,7 +32,7 @@ pub struct LocalMap {
     /// Inscribed and circumscribed radii of the footprint (m), cached for the hot loop.
     radii: (f64, f64),
     /// `points[m]` = m boundary points spread evenly over the perimeter.
-    points: Vec<Vec<Vec2>>,
+    points: Vec<CheckPoints>,
     /// Half the spacing between neighbouring points of `points[m]` (m).
     half_gap: Vec<f64>,
     /// How [`LocalMap::footprint_clearance`] treats what is not checked.
@@ -105,7 +106,9 @@ impl LocalMap {
             return;
         }
         let perim = 4.0 * (self.footprint.half_length + self.footprint.half_width);
-        self.points = (0..=n).map(|m| self.footprint.boundary_points(m)).collect();
+        self.points = (0..=n)
+            .map(|m| CheckPoints::new(&self.footprint.boundary_points(m)))
+            .collect();
         self.half_gap = (0..=n)
             .map(|m| {
                 if m == 0 {
@@ -239,15 +242,6 @@ impl LocalMap {
         std::f64::consts::SQRT_2 * self.res + 1e-5
     }
 
-    /// The raw field value (cell-centre distance, m) at `p`, or `outside`.
-    #[inline]
-    fn raw(&self, p: Vec2, outside: f32) -> f32 {
-        match self.cell(p) {
-            Some((ix, iy)) => self.at(ix, iy),
-            None => outside,
-        }
-    }
-
     /// Distance from `p` (robot frame) to the nearest obstacle point, estimated as the
     /// cell-centre distance minus half a cell (within about +0.036 / -0.1 m of the exact
     /// value), or [`FAR`] outside the field.
@@ -338,15 +332,17 @@ impl LocalMap {
             *evaluated += m as u64;
             return bound;
         }
-        let (s, co) = heading();
         // The smallest raw cell distance first, the half-cell correction once: the same
         // value as the smallest `distance` (the correction is monotone).
-        let outside = FAR as f32 + 0.5 * self.res as f32;
-        let mut raw = f32::INFINITY;
-        for b in &self.points[m] {
-            let p = Vec2::new(c.x + co * b.x - s * b.y, c.y + s * b.x + co * b.y);
-            raw = raw.min(self.raw(p, outside));
-        }
+        let field = FieldView {
+            dist: &self.dist,
+            ny: self.ny,
+            origin: self.origin,
+            inv_res: self.inv_res,
+            extent: self.extent,
+            outside: FAR as f32 + 0.5 * self.res as f32,
+        };
+        let raw = self.points[m].nearest(c, heading(), &field);
         let nearest = (raw as f64 - 0.5 * self.res).max(0.0);
         *evaluated += m as u64;
         match self.mode {
