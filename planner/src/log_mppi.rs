@@ -23,6 +23,7 @@ use serde::{Deserialize, Serialize};
 use sim::geometry::{wrap_angle, Footprint, Pose, Vec2};
 use sim::robot::Twist;
 
+use crate::check_points::{CheckPoints, LevelView, LEVEL_PADDING};
 use crate::compute::{admit, evaluation_order, Work};
 use crate::local_map::LocalMap;
 use crate::mppi::{mppi_weights, roll_all, Nominal, Unicycle};
@@ -112,6 +113,7 @@ struct Costmap {
     origin: Vec2,
     nx: usize,
     ny: usize,
+    /// Row-major levels, then [`LEVEL_PADDING`] free bytes (see [`LevelView`]).
     cells: Vec<u8>,
 }
 
@@ -138,22 +140,28 @@ impl Costmap {
                 });
             }
         }
+        self.cells.extend([FREE; LEVEL_PADDING]);
+    }
+
+    /// The grid as the footprint check reads it.
+    fn view(&self) -> LevelView<'_> {
+        LevelView {
+            cells: &self.cells,
+            nx: self.nx,
+            ny: self.ny,
+            origin: self.origin,
+            res: self.res,
+        }
+    }
+
+    /// Cells of the grid (the padding excluded).
+    fn len(&self) -> usize {
+        self.nx * self.ny
     }
 
     /// The level at `p`; free outside the map.
     fn at(&self, p: Vec2) -> u8 {
-        let fx = (p.x - self.origin.x) / self.res;
-        let fy = (p.y - self.origin.y) / self.res;
-        if fx < 0.0 || fy < 0.0 {
-            return FREE;
-        }
-        // Through u32: one signed conversion (saturating, so far points stay outside).
-        let (ix, iy) = (fx as u32 as usize, fy as u32 as usize);
-        if ix < self.nx && iy < self.ny {
-            self.cells[iy * self.nx + ix]
-        } else {
-            FREE
-        }
+        self.view().at(p).unwrap_or(FREE)
     }
 }
 
@@ -165,7 +173,7 @@ pub struct LogMppi {
     map: LocalMap,
     costmap: Costmap,
     /// `boundary[m]` = m footprint boundary points (robot frame).
-    boundary: Vec<Vec<Vec2>>,
+    boundary: Vec<CheckPoints>,
     /// The warm-start sequence and its grid.
     nominal: Nominal,
     /// Sampled sequences, `samples x steps`, clamped to the limits.
@@ -181,6 +189,13 @@ pub struct LogMppi {
     trace: Trace,
 }
 
+/// The Jackal's check sets for 0..=n boundary points.
+fn check_sets(n: usize) -> Vec<CheckPoints> {
+    (0..=n)
+        .map(|m| CheckPoints::new(&Footprint::JACKAL.boundary_points(m)))
+        .collect()
+}
+
 /// What one rollout cost.
 #[derive(Clone, Copy, Debug, Default)]
 struct Outcome {
@@ -192,7 +207,7 @@ struct Outcome {
 struct Scene<'a> {
     cfg: &'a LogMppiConfig,
     costmap: &'a Costmap,
-    boundary: &'a [Vec<Vec2>],
+    boundary: &'a [CheckPoints],
     dts: &'a [f64],
     checks: &'a [u16],
     nominal: &'a [Twist],
@@ -212,7 +227,7 @@ impl LogMppi {
             rng: Pcg64Mcg::seed_from_u64(seed),
             map: LocalMap::new(Footprint::JACKAL, cfg.map_resolution, n),
             costmap: Costmap::default(),
-            boundary: (0..=n).map(|m| Footprint::JACKAL.boundary_points(m)).collect(),
+            boundary: check_sets(n),
             nominal: Nominal::default(),
             controls: Vec::new(),
             outcomes: Vec::new(),
@@ -330,12 +345,8 @@ fn rollout(scene: &Scene<'_>, controls: &[Twist], mut record: Option<&mut Rollou
         let mut crash = scene.costmap.at(centre) != FREE;
         let m = (scene.checks[k] as usize).min(scene.boundary.len() - 1);
         if !crash && m > 0 {
-            let (s, c) = pose.yaw.sin_cos();
             evaluated += m as u64;
-            crash = scene.boundary[m].iter().any(|b| {
-                let p = Vec2::new(centre.x + c * b.x - s * b.y, centre.y + s * b.x + c * b.y);
-                scene.costmap.at(p) == LETHAL
-            });
+            crash = scene.boundary[m].any_on_level(centre, pose.yaw.sin_cos(), &scene.costmap.view(), LETHAL);
         }
         if !crash && !scene.moving.is_empty() {
             // The costmap's lethal band is the inscribed radius: contact with a forecast
@@ -364,7 +375,7 @@ impl Planner for LogMppi {
         let steps = sched.len().max(1);
         let n = sched.boundary_points();
         if self.boundary.len() != n + 1 {
-            self.boundary = (0..=n).map(|m| Footprint::JACKAL.boundary_points(m)).collect();
+            self.boundary = check_sets(n);
         }
         let reach = input.max_speed * sched.horizon()
             + self.map.footprint().circumscribed_radius()
@@ -414,7 +425,7 @@ impl Planner for LogMppi {
             cells: 0,
         };
         let spent = Work {
-            cells: (self.map.cells() + self.costmap.cells.len()) as u64,
+            cells: (self.map.cells() + self.costmap.len()) as u64,
             ..Work::default()
         };
         let cycle = admit(
