@@ -12,6 +12,7 @@ pub mod dynabarn;
 pub mod dynamics;
 pub mod episode;
 mod error;
+pub mod fan;
 pub mod generate;
 pub mod geometry;
 pub mod grid;

@@ -8,6 +8,7 @@ use rand_pcg::Pcg64Mcg;
 use serde::{Deserialize, Serialize};
 
 use crate::error::ConfigError;
+use crate::fan::Fan;
 use crate::geometry::{Pose, Vec2};
 use crate::world::Scene;
 
@@ -135,9 +136,8 @@ impl LidarRng {
 #[derive(Clone, Debug)]
 pub struct Lidar {
     cfg: LidarConfig,
-    /// (cos, sin) of every beam angle in the robot frame.
-    dirs: Vec<Vec2>,
-    angles: Vec<f64>,
+    /// The beams, evenly over the field of view (robot frame).
+    fan: Fan,
     noise: Option<Normal<f64>>,
     dropout: Option<Bernoulli>,
 }
@@ -147,16 +147,12 @@ impl Lidar {
     pub fn new(cfg: LidarConfig) -> Self {
         cfg.validate().expect("invalid lidar config");
         let fov = cfg.fov_deg.to_radians();
-        let angles: Vec<f64> = (0..cfg.beams)
-            .map(|i| -fov / 2.0 + fov * i as f64 / (cfg.beams - 1) as f64)
-            .collect();
-        let dirs = angles.iter().map(|a| Vec2::new(a.cos(), a.sin())).collect();
+        let fan = Fan::new(cfg.beams, -fov / 2.0, fov / 2.0);
         let noise = (cfg.noise_sigma > 0.0).then(|| Normal::new(0.0, cfg.noise_sigma).expect("sigma >= 0"));
         let dropout = (cfg.dropout > 0.0).then(|| Bernoulli::new(cfg.dropout).expect("dropout in [0, 1)"));
         Self {
             cfg,
-            dirs,
-            angles,
+            fan,
             noise,
             dropout,
         }
@@ -169,7 +165,7 @@ impl Lidar {
 
     /// Beam angles in the robot frame (rad), in scan order.
     pub fn angles(&self) -> &[f64] {
-        &self.angles
+        self.fan.angles()
     }
 
     /// Scans `scene` (a world at one moment) from `pose`, writing one range per beam into
@@ -181,20 +177,15 @@ impl Lidar {
     /// max_range]` last. With the defaults a beam draws one absolute noise value and nothing
     /// else.
     pub fn scan(&self, scene: &Scene<'_>, pose: &Pose, rng: &mut LidarRng, ranges: &mut Vec<f64>) {
-        ranges.resize(self.dirs.len(), 0.0);
-        let o = pose.position();
-        let (s, c) = pose.yaw.sin_cos();
+        self.fan.cast(scene, pose, self.cfg.max_range, ranges);
         let (mut returned, mut returns) = (0.0, 0usize);
-        for (r, d) in ranges.iter_mut().zip(&self.dirs) {
-            let dw = Vec2::new(c * d.x - s * d.y, s * d.x + c * d.y);
-            *r = match scene.raycast(o, dw, self.cfg.max_range) {
-                Some(hit) => {
-                    returned += hit;
-                    returns += 1;
-                    hit
-                }
-                None => self.cfg.max_range,
-            };
+        for r in ranges.iter_mut() {
+            if r.is_finite() {
+                returned += *r;
+                returns += 1;
+            } else {
+                *r = self.cfg.max_range;
+            }
         }
         let relative_sigma = if returns > 0 {
             self.cfg.noise_fraction * returned / returns as f64
@@ -221,13 +212,13 @@ impl Lidar {
     /// a beam without one (what clears free space in [`crate::costmap::Costmap::clear`]).
     pub fn ends(&self, ranges: &[f64], out: &mut Vec<Vec2>) {
         out.clear();
-        out.extend(ranges.iter().zip(&self.dirs).map(|(&r, d)| *d * r));
+        out.extend(ranges.iter().zip(self.fan.dirs()).map(|(&r, d)| *d * r));
     }
 
     /// Converts ranges to points in the robot frame, skipping beams at max range (no return).
     pub fn points(&self, ranges: &[f64], out: &mut Vec<Vec2>) {
         out.clear();
-        for (&r, d) in ranges.iter().zip(&self.dirs) {
+        for (&r, d) in ranges.iter().zip(self.fan.dirs()) {
             if r < self.cfg.max_range {
                 out.push(*d * r);
             }
