@@ -433,8 +433,7 @@ mod tests {
                 let (s, co) = yaw.sin_cos();
                 for level in [1u8, 2] {
                     let expected = points.iter().any(|b| {
-                        grid.at(Vec2::new(c.x + co * b.x - s * b.y, c.y + s * b.x + co * b.y))
-                            == Some(level)
+                        grid.at(Vec2::new(c.x + co * b.x - s * b.y, c.y + s * b.x + co * b.y)) == Some(level)
                     });
                     assert_eq!(set.any_on_level_scalar(c, (s, co), &grid, level), expected);
                     assert_eq!(set.any_on_level(c, (s, co), &grid, level), expected);

@@ -392,14 +392,20 @@ fn edt_1d(f: &[f32], d: &mut [f32], v: &mut [usize], z: &mut [f32]) {
             }
         }
     }
-    k = 0;
-    for (q, out) in d.iter_mut().enumerate() {
-        let qf = q as f32;
-        while z[k + 1] < qf {
-            k += 1;
+    // Cell q takes the first parabola j with q <= z[j + 1]; the breakpoints rise, so parabola
+    // j fills the run of cells up to the next breakpoint's floor (truncation for z >= 0) and
+    // the runs tile the column in order.
+    let mut q = 0usize;
+    for j in 0..=k {
+        let end = match z[j + 1] {
+            b if b < 0.0 => q,
+            b => (b as usize).saturating_add(1).clamp(q, n),
+        };
+        let (pf, fp) = (v[j] as f32, f[v[j]]);
+        for (qf, out) in (q..end).map(|c| c as f32).zip(&mut d[q..end]) {
+            *out = (qf - pf) * (qf - pf) + fp;
         }
-        let p = v[k] as f32;
-        *out = (qf - p) * (qf - p) + f[v[k]];
+        q = end;
     }
 }
 
