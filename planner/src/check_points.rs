@@ -322,8 +322,8 @@ mod avx2 {
     }
 }
 
-/// Whether this CPU runs the four-point paths.
-fn avx2_available() -> bool {
+/// Whether this CPU runs the four-lane paths (here and in [`crate::path_distance`]).
+pub(crate) fn avx2_available() -> bool {
     #[cfg(target_arch = "x86_64")]
     {
         std::arch::is_x86_feature_detected!("avx2")

@@ -11,7 +11,11 @@
 //!   so a skipped segment could not have been the minimum, and the minimum is exact whatever
 //!   order it is taken in);
 //! - a segment divides only when the projection falls strictly inside it (one or two for a
-//!   point near the path; the others clamp to an end point, which needs no division).
+//!   point near the path; the others clamp to an end point, which needs no division);
+//! - on x86-64 CPUs with AVX2 (detected at run time) a run's segments are measured four at a
+//!   time, each lane with the scalar path's operations in its order and the three cases
+//!   blended, so the same bits (runs are padded with copies of their first segment, which
+//!   cannot change a minimum).
 
 use sim::geometry::Vec2;
 
@@ -52,6 +56,22 @@ pub struct PathDistance {
     /// The point a path of fewer than two points measures from (its only point, or the
     /// fallback).
     point: Vec2,
+    /// `lanes[2 r]` and `lanes[2 r + 1]`: run `r`'s segments as four-lane columns.
+    lanes: Vec<Lanes>,
+    /// Whether queries measure runs four segments at a time.
+    avx2: bool,
+}
+
+/// Four segments as columns (one lane each), for the four-at-a-time path.
+#[derive(Clone, Copy, Debug, Default)]
+struct Lanes {
+    ax: [f64; 4],
+    ay: [f64; 4],
+    abx: [f64; 4],
+    aby: [f64; 4],
+    endx: [f64; 4],
+    endy: [f64; 4],
+    len2: [f64; 4],
 }
 
 impl PathDistance {
@@ -91,6 +111,24 @@ impl PathDistance {
                 radius: radius + SLACK,
             }
         }));
+        self.avx2 = crate::check_points::avx2_available();
+        self.lanes.clear();
+        for run in self.segments.chunks(RUN) {
+            for half in 0..RUN / 4 {
+                let mut l = Lanes::default();
+                for lane in 0..4 {
+                    let s = run.get(half * 4 + lane).unwrap_or(&run[0]);
+                    l.ax[lane] = s.a.x;
+                    l.ay[lane] = s.a.y;
+                    l.abx[lane] = s.ab.x;
+                    l.aby[lane] = s.ab.y;
+                    l.endx[lane] = s.end.x;
+                    l.endy[lane] = s.end.y;
+                    l.len2[lane] = s.len2;
+                }
+                self.lanes.push(l);
+            }
+        }
     }
 
     /// Distance from `p` to the prepared path: the smallest over its segments of the distance
@@ -128,7 +166,59 @@ impl PathDistance {
 
     /// The smaller of `best` and the squared distances from `p` to the segments of run `r`.
     #[inline]
-    fn run_min(&self, r: usize, p: Vec2, mut best: f64) -> f64 {
+    fn run_min(&self, r: usize, p: Vec2, best: f64) -> f64 {
+        #[cfg(target_arch = "x86_64")]
+        if self.avx2 {
+            // SAFETY: `avx2` is set only where the CPU reports AVX2.
+            return unsafe { self.run_min_avx2(r, p, best) };
+        }
+        self.run_min_scalar(r, p, best)
+    }
+
+    /// [`PathDistance::run_min`] four segments at a time: every lane computes the three
+    /// candidates of the scalar path (the start, the end, the projection inside) with its
+    /// operations and keeps the one the scalar branch takes.
+    ///
+    /// # Safety
+    /// The CPU must support AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn run_min_avx2(&self, r: usize, p: Vec2, best: f64) -> f64 {
+        use std::arch::x86_64::*;
+        let (px, py) = (_mm256_set1_pd(p.x), _mm256_set1_pd(p.y));
+        let zero = _mm256_setzero_pd();
+        let mut low = _mm256_set1_pd(best);
+        for l in &self.lanes[r * (RUN / 4)..(r + 1) * (RUN / 4)] {
+            // SAFETY: each column holds four f64s; unaligned loads.
+            let load = |v: &[f64; 4]| unsafe { _mm256_loadu_pd(v.as_ptr()) };
+            let (ax, ay, abx, aby) = (load(&l.ax), load(&l.ay), load(&l.abx), load(&l.aby));
+            let len2 = load(&l.len2);
+            // d = p - a, `along` = d . ab.
+            let (wx, wy) = (_mm256_sub_pd(px, ax), _mm256_sub_pd(py, ay));
+            let along = _mm256_add_pd(_mm256_mul_pd(wx, abx), _mm256_mul_pd(wy, aby));
+            let ahead = _mm256_and_pd(
+                _mm256_cmp_pd::<_CMP_GT_OQ>(len2, zero),
+                _mm256_cmp_pd::<_CMP_GT_OQ>(along, zero),
+            );
+            let past = _mm256_and_pd(ahead, _mm256_cmp_pd::<_CMP_GE_OQ>(along, len2));
+            let inside = _mm256_andnot_pd(past, ahead);
+            // The projection: p - (a + ab * (along / len2)) (NaN or infinite in the lanes
+            // that do not take it, which the blends drop).
+            let t = _mm256_div_pd(along, len2);
+            let ix = _mm256_sub_pd(px, _mm256_add_pd(ax, _mm256_mul_pd(abx, t)));
+            let iy = _mm256_sub_pd(py, _mm256_add_pd(ay, _mm256_mul_pd(aby, t)));
+            let (ex, ey) = (_mm256_sub_pd(px, load(&l.endx)), _mm256_sub_pd(py, load(&l.endy)));
+            let dx = _mm256_blendv_pd(_mm256_blendv_pd(wx, ix, inside), ex, past);
+            let dy = _mm256_blendv_pd(_mm256_blendv_pd(wy, iy, inside), ey, past);
+            let sq = _mm256_add_pd(_mm256_mul_pd(dx, dx), _mm256_mul_pd(dy, dy));
+            low = _mm256_min_pd(low, sq);
+        }
+        let pairs = _mm_min_pd(_mm256_castpd256_pd128(low), _mm256_extractf128_pd::<1>(low));
+        _mm_cvtsd_f64(_mm_min_sd(pairs, _mm_unpackhi_pd(pairs, pairs)))
+    }
+
+    /// [`PathDistance::run_min`] one segment at a time.
+    fn run_min_scalar(&self, r: usize, p: Vec2, mut best: f64) -> f64 {
         let end = (r * RUN + RUN).min(self.segments.len());
         for s in &self.segments[r * RUN..end] {
             let along = (p - s.a).dot(s.ab);
@@ -230,15 +320,26 @@ mod tests {
             }
             let fallback = Vec2::new(r(), r());
             d.prepare(&path, fallback);
+            // This CPU's path, then the scalar one (the same on a CPU without AVX2).
+            let mut scalar = d.clone();
+            scalar.avx2 = false;
             for q in 0..50 {
                 let scale = if q % 2 == 0 { 0.5 } else { 10.0 };
                 let p = Vec2::new(scale * r(), scale * r());
-                let (got, want) = (d.distance(p), reference(&path, p, fallback));
-                assert_eq!(got.to_bits(), want.to_bits(), "case {case} query {q}: {p:?}");
+                let want = reference(&path, p, fallback);
+                for (got, which) in [(d.distance(p), "detected"), (scalar.distance(p), "scalar")] {
+                    assert_eq!(
+                        got.to_bits(),
+                        want.to_bits(),
+                        "case {case} query {q} ({which}): {p:?}"
+                    );
+                }
             }
             // Path points themselves and segment ends: exact zeros.
             for &p in &path {
-                assert_eq!(d.distance(p).to_bits(), reference(&path, p, fallback).to_bits());
+                let want = reference(&path, p, fallback).to_bits();
+                assert_eq!(d.distance(p).to_bits(), want);
+                assert_eq!(scalar.distance(p).to_bits(), want);
             }
         }
     }
