@@ -69,12 +69,13 @@ impl Fan {
         let world = scene.world();
         for cyl in &world.cylinders {
             let oc = o - cyl.c;
-            if oc.dot(oc) - cyl.r * cyl.r <= 0.0 {
+            let dist2 = oc.dot(oc);
+            if dist2 - cyl.r * cyl.r <= 0.0 {
                 // The sensor inside the cylinder: every beam meets it at 0.
                 (0..n).for_each(|i| self.hit(i, o, heading, cyl, out));
                 continue;
             }
-            let dist = oc.dot(oc).sqrt();
+            let dist = dist2.sqrt();
             // A hit lies at least `dist - r` away (far above rounding at this margin).
             if dist - cyl.r > max_range + 1e-6 {
                 continue;
