@@ -41,8 +41,9 @@ pub struct ParamStats {
     pub sd: f64,
     /// Mean over the steps at or below the median clutter.
     pub open: f64,
-    /// Mean over the steps above the median clutter.
-    pub cluttered: f64,
+    /// Mean over the steps above the median clutter; `None` (JSON `null`) when no step is
+    /// above it (every step as cluttered as the median, e.g. a policy that never moves).
+    pub cluttered: Option<f64>,
     /// Pearson correlation with clutter (0 when either does not vary).
     pub clutter_corr: f64,
 }
@@ -74,23 +75,22 @@ pub struct GreedyResult {
 /// One agent step of an evaluation: the scene's clutter and the chosen physical parameters.
 pub type StepRecord = (f64, Vec<f64>);
 
-/// Summarizes per-step `(clutter, params)` records into one [`ParamStats`] per name. Steps at
-/// or below the median clutter are "open", the others "cluttered". Pure.
+/// Summarizes per-step `(clutter, params)` records into one [`ParamStats`] per name (none
+/// without records). Steps at or below the median clutter are "open", the others "cluttered".
+/// Pure.
 pub fn schedule_stats(records: &[StepRecord], names: &[&str]) -> Vec<ParamStats> {
     let n = records.len();
+    if n == 0 {
+        return Vec::new();
+    }
+    // Over non-empty rows only (`all` and `open` always hold a step; `busy` may not).
     let mean = |f: &dyn Fn(&StepRecord) -> f64, rows: &[&StepRecord]| {
-        if rows.is_empty() {
-            f64::NAN
-        } else {
-            rows.iter().map(|r| f(r)).sum::<f64>() / rows.len() as f64
-        }
+        rows.iter().map(|r| f(r)).sum::<f64>() / rows.len() as f64
     };
     let all: Vec<&StepRecord> = records.iter().collect();
     let mut clutter: Vec<f64> = records.iter().map(|r| r.0).collect();
     clutter.sort_by(f64::total_cmp);
-    let median = if n == 0 {
-        0.0
-    } else if n % 2 == 1 {
+    let median = if n % 2 == 1 {
         clutter[n / 2]
     } else {
         0.5 * (clutter[n / 2 - 1] + clutter[n / 2])
@@ -117,7 +117,7 @@ pub fn schedule_stats(records: &[StepRecord], names: &[&str]) -> Vec<ParamStats>
                 mean: m,
                 sd: var.sqrt(),
                 open: mean(&v, &open),
-                cluttered: mean(&v, &busy),
+                cluttered: (!busy.is_empty()).then(|| mean(&v, &busy)),
                 clutter_corr: corr,
             }
         })
@@ -380,13 +380,15 @@ impl GreedyMonitor {
         ];
         for p in &r.schedule {
             for (what, v) in [
-                ("mean", p.mean),
-                ("sd", p.sd),
-                ("open", p.open),
+                ("mean", Some(p.mean)),
+                ("sd", Some(p.sd)),
+                ("open", Some(p.open)),
                 ("cluttered", p.cluttered),
-                ("clutter_corr", p.clutter_corr),
+                ("clutter_corr", Some(p.clutter_corr)),
             ] {
-                values.push((format!("schedule/{}_{what}", p.name), v));
+                if let Some(v) = v {
+                    values.push((format!("schedule/{}_{what}", p.name), v));
+                }
             }
         }
         let refs: Vec<(&str, f64)> = values.iter().map(|(t, v)| (t.as_str(), *v)).collect();
@@ -402,9 +404,13 @@ pub fn describe(r: &GreedyResult) -> String {
         .schedule
         .iter()
         .map(|p| {
+            let cluttered = match p.cluttered {
+                Some(c) => format!("{c:.2}"),
+                None => "none".into(),
+            };
             format!(
-                "{} {:.2}±{:.2} (open {:.2}, cluttered {:.2})",
-                p.name, p.mean, p.sd, p.open, p.cluttered
+                "{} {:.2}±{:.2} (open {:.2}, cluttered {cluttered})",
+                p.name, p.mean, p.sd, p.open
             )
         })
         .collect();
@@ -440,9 +446,32 @@ mod tests {
         close(s[1].mean, 1.9);
         close(s[1].sd, 0.05f64.sqrt()); // deviations ±0.3, ±0.1: (0.09 + 0.01) * 2 / 4
         close(s[1].open, 2.1);
-        close(s[1].cluttered, 1.7);
+        close(s[1].cluttered.unwrap(), 1.7);
         close(s[1].clutter_corr, -1.0);
-        assert!(schedule_stats(&[], &["p"])[0].mean.is_nan());
+        assert!(schedule_stats(&[], &["p"]).is_empty());
+        // A policy that never moves: every step as cluttered as the median. The record still
+        // reads back (a NaN would be written as `null` and refused by the reader).
+        let still: Vec<StepRecord> = (0..3).map(|_| (0.0, vec![0.5])).collect();
+        let s = schedule_stats(&still, &["v_frac"]);
+        assert_eq!((s[0].open, s[0].cluttered, s[0].sd), (0.5, None, 0.0));
+        let r = GreedyResult {
+            agent_steps: 1,
+            policy_version: 1,
+            success: 0.0,
+            score: 0.0,
+            ddp_success: 100.0,
+            ddp_score: 0.5,
+            clutter_mean: 0.0,
+            schedule: s,
+        };
+        let line = serde_json::to_string(&r).unwrap();
+        assert!(line.contains("\"cluttered\":null"), "{line}");
+        assert_eq!(serde_json::from_str::<GreedyResult>(&line).unwrap(), r);
+        assert!(
+            describe(&r).contains("(open 0.50, cluttered none)"),
+            "{}",
+            describe(&r)
+        );
     }
 
     #[test]
