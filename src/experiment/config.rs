@@ -346,7 +346,9 @@ pub struct Arm {
 
 impl Arm {
     /// A file-name-safe id, e.g. `dwa-decremental-1.5-train`, and with an observation layout
-    /// of its own `dwa-decremental-1.5-train-sectors15`.
+    /// of its own `dwa-decremental-1.5-train-sectors15`. Only letters, digits and `-+._`: a
+    /// space's `:` becomes `_` (`dwa-weights_dwa-1.5-fit`), since the ids name directories of
+    /// experiments kept in the repository, and Windows checkouts refuse `:` in a path.
     pub fn id(&self) -> String {
         let worlds: String = self
             .train_worlds
@@ -364,7 +366,7 @@ impl Arm {
         format!(
             "{}-{}-{}-{worlds}{layout}",
             planner_name(self.planner),
-            space_label(self.space),
+            space_label(self.space).replace(':', "_"),
             speed_label(self.speed)
         )
     }
@@ -995,12 +997,15 @@ mod tests {
         let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/experiments/rl-dwa.toml");
         let ex = Experiment::load(&path, &Restrict::default()).unwrap();
         let ids: Vec<String> = ex.arms.iter().map(|a| a.id()).collect();
+        assert!(ids.iter().all(|id| id
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || "-+._".contains(c))));
         assert_eq!(
             ids,
             [
                 "dwa-decremental-1.5-fit",
-                "dwa-weights:dwa-1.5-fit",
-                "dwa-decremental+weights:dwa-1.5-fit",
+                "dwa-weights_dwa-1.5-fit",
+                "dwa-decremental+weights_dwa-1.5-fit",
                 "dwa-velocity-1.5-fit"
             ]
         );
