@@ -315,11 +315,18 @@ impl Dwa {
                 yaw += w * dt;
                 let (s, c) = yaw.sin_cos();
                 let wrapped = s.atan2(c);
+                // Within (-pi, pi] the wrap usually gives the yaw back bit for bit, and then
+                // its sine and cosine are the ones just computed.
+                let rot = if wrapped.to_bits() == yaw.to_bits() {
+                    (s, c)
+                } else {
+                    wrapped.sin_cos()
+                };
                 self.w_prof.push(YawStep {
                     w,
                     sin_cos: (s, c),
                     yaw: wrapped,
-                    rot: wrapped.sin_cos(),
+                    rot,
                 });
             }
         }
