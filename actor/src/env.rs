@@ -18,7 +18,9 @@
 //! * otherwise the shaping terms, [`End::Continue`]: `progress_scale * (d_prev - d)` with `d`
 //!   the Euclidean distance of the robot to the global goal, plus `step_penalty`, plus the
 //!   obstacle penalty of [`crate::reward::obstacle_penalty`] on the clearance between the
-//!   robot's footprint and its lidar returns.
+//!   robot's footprint and its lidar returns; plus, when `stuck_window` > 0, `stuck_reward`
+//!   at every step after which the robot got less than `stuck_progress_m` closer to the goal
+//!   over the last `stuck_window` agent steps ([`crate::stuck`]; off by default).
 
 use planner::action::ActionError;
 use planner::run::CycleDriver;
@@ -35,6 +37,7 @@ use sim::{Dynamics, Profile, World};
 
 use crate::observation::{self, LaserLayout, LaserResampler, DEFAULT_LASER_CLIP_M};
 use crate::reward::{footprint_clearance, obstacle_penalty};
+use crate::stuck::{stuck_term, StuckWindow};
 
 /// Environment parameters: agent rate, step cap, laser clip and the reward terms.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -63,6 +66,15 @@ pub struct EnvConfig {
     /// timeout (default 0.0). The learner bootstraps through such a step (the state has no
     /// clock), so a non-zero value is noise to the critic; it is kept for ablations.
     pub timeout_reward: f64,
+    /// Agent steps over which the stuck term measures progress toward the goal (default 0:
+    /// no stuck term). The 3D RL-DWA paper's `R_stuck` looks at its last 20 steps.
+    pub stuck_window: u32,
+    /// A robot that got less than this much closer to the goal (Euclidean, m) over the last
+    /// `stuck_window` agent steps is stuck (default 0.5).
+    pub stuck_progress_m: f64,
+    /// Added to the shaping reward of every step after which the robot is stuck (default 0.0;
+    /// negative for a penalty). Not added to a colliding step, whose reward replaces shaping.
+    pub stuck_reward: f64,
     /// Added to the shaping reward of the step that reaches the goal (default 50.0).
     pub success_reward: f64,
     /// Every reward is multiplied by this before it is stored (default 0.01: collision -1,
@@ -233,6 +245,9 @@ impl Default for EnvConfig {
             obstacle_scale: -5.0,
             collision_reward: -100.0,
             timeout_reward: 0.0,
+            stuck_window: 0,
+            stuck_progress_m: 0.5,
+            stuck_reward: 0.0,
             success_reward: 50.0,
             reward_scale: 0.01,
             action_map: ActionMap::DdpCentred,
@@ -281,6 +296,8 @@ impl EnvConfig {
             ("obstacle_scale", self.obstacle_scale),
             ("collision_reward", self.collision_reward),
             ("timeout_reward", self.timeout_reward),
+            ("stuck_progress_m", self.stuck_progress_m),
+            ("stuck_reward", self.stuck_reward),
             ("success_reward", self.success_reward),
         ] {
             if !v.is_finite() {
@@ -390,6 +407,8 @@ pub struct AdpEnv<'w> {
     policy_f64: Vec<f64>,
     action_f64: Vec<f64>,
     goal_distance: f64,
+    /// The goal distances of the stuck term's window (`None` when `stuck_window` is 0).
+    stuck: Option<StuckWindow>,
     agent_steps: u32,
     episode_return: f64,
     end: End,
@@ -466,6 +485,7 @@ impl<'w> AdpEnv<'w> {
             policy_f64: Vec::with_capacity(space.dim()),
             action_f64: vec![0.0; space.dim()],
             goal_distance,
+            stuck: (cfg.stuck_window > 0).then(|| StuckWindow::new(cfg.stuck_window as usize, goal_distance)),
             agent_steps: 0,
             episode_return: 0.0,
             end: End::Continue,
@@ -591,6 +611,10 @@ impl<'w> AdpEnv<'w> {
         let progress = self.goal_distance - distance;
         self.goal_distance = distance;
         let cfg = &self.cfg;
+        let stuck = match self.stuck.as_mut() {
+            Some(window) => stuck_term(window.push(distance), cfg.stuck_progress_m, cfg.stuck_reward),
+            None => 0.0,
+        };
         let shaping = || {
             let clearance = footprint_clearance(
                 self.episode.perception().points,
@@ -599,6 +623,7 @@ impl<'w> AdpEnv<'w> {
             cfg.progress_scale * progress
                 + cfg.step_penalty
                 + obstacle_penalty(clearance, cfg.obstacle_threshold_m, cfg.obstacle_scale)
+                + stuck
         };
         let (reward, end) = match self.episode.status() {
             Status::Collided => (cfg.collision_reward, End::Terminal),
@@ -949,6 +974,61 @@ mod tests {
             (Status::TimedOut, 3, -101.5)
         );
         assert!(e.step(&ddp()).is_err());
+    }
+
+    #[test]
+    fn a_robot_that_stands_still_pays_the_stuck_term_once_its_window_is_full() {
+        let world = open_field(false);
+        let cfg = EnvConfig {
+            stuck_window: 3,
+            stuck_progress_m: 0.5,
+            stuck_reward: -5.0,
+            ..unscaled()
+        };
+        let mut still = env(&world, constant(0.0), cfg, 1);
+        let rewards: Vec<f32> = (0..5).map(|_| still.step(&ddp()).unwrap().reward).collect();
+        assert_eq!(
+            rewards,
+            [-0.5, -0.5, -5.5, -5.5, -5.5],
+            "the step penalty, then the stuck term from the window's third step on"
+        );
+        // Driving at 1 m/s toward the goal (0.25 m a step at speed; more than 0.2 m over every
+        // window of 3 steps, the first one included): no stuck term, the rewards without it.
+        let moving_cfg = EnvConfig {
+            stuck_progress_m: 0.2,
+            ..cfg
+        };
+        let mut moving = env(&world, constant(1.0), moving_cfg, 1);
+        let mut plain = env(&world, constant(1.0), unscaled(), 1);
+        for k in 0..8 {
+            let (a, b) = (moving.step(&ddp()).unwrap(), plain.step(&ddp()).unwrap());
+            assert_eq!(a, b, "step {k}");
+        }
+        // A stuck robot that collides gets the collision reward alone.
+        let walled = open_field(true);
+        let mut crash = env(
+            &walled,
+            constant(1.0),
+            EnvConfig {
+                stuck_window: 1,
+                stuck_progress_m: 10.0,
+                ..cfg
+            },
+            1,
+        );
+        let last = loop {
+            let out = crash.step(&ddp()).unwrap();
+            if out.end != End::Continue {
+                break out;
+            }
+        };
+        assert_eq!(
+            last,
+            StepOutcome {
+                reward: -100.0,
+                end: End::Terminal
+            }
+        );
     }
 
     #[test]

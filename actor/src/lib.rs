@@ -36,6 +36,7 @@ pub mod policy;
 pub mod reward;
 pub mod run;
 pub mod spec;
+pub mod stuck;
 
 pub use env::{AdpEnv, End, EnvConfig, EnvError, EnvResult, StepOutcome};
 pub use exploration::Exploration;

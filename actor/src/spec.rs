@@ -133,6 +133,9 @@ pub fn env_to_wire(env: &EnvConfig) -> pb::EnvConfig {
         obstacle_scale: env.obstacle_scale,
         collision_reward: env.collision_reward,
         timeout_reward: env.timeout_reward,
+        stuck_window: env.stuck_window,
+        stuck_progress_m: env.stuck_progress_m,
+        stuck_reward: env.stuck_reward,
         success_reward: env.success_reward,
         reward_scale: env.reward_scale,
         action_map: match env.action_map {
@@ -205,6 +208,9 @@ pub fn env_from_wire(m: &pb::EnvConfig) -> Result<EnvConfig, SpecError> {
         obstacle_scale: m.obstacle_scale,
         collision_reward: m.collision_reward,
         timeout_reward: m.timeout_reward,
+        stuck_window: m.stuck_window,
+        stuck_progress_m: m.stuck_progress_m,
+        stuck_reward: m.stuck_reward,
         success_reward: m.success_reward,
         reward_scale: m.reward_scale,
         action_map,
@@ -379,6 +385,9 @@ mod tests {
             profile = "custom"
             observe_tracks = 3
             observation = "sectors:25"
+            stuck_window = 20
+            stuck_progress_m = 0.4
+            stuck_reward = -5.0
             [dynamics]
             accel_v = 2.0
             decel_v = 2.5

@@ -1019,6 +1019,36 @@ mod tests {
         assert_eq!(ex.test_worlds.len(), 225);
     }
 
+    /// The stuck ablation's velocity arm trains exactly as rl-dwa.toml's (the same seeds,
+    /// worlds, networks and TD3 settings) except for the reward's stuck term.
+    #[test]
+    fn the_stuck_ablation_differs_from_rl_dwa_only_in_the_stuck_term() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/experiments");
+        let base = Experiment::load(&dir.join("rl-dwa.toml"), &Restrict::default()).unwrap();
+        let stuck = Experiment::load(&dir.join("rl-dwa-stuck.toml"), &Restrict::default()).unwrap();
+        assert_eq!(stuck.arms.len(), 1);
+        let velocity = base.arms.iter().find(|a| a.id() == stuck.arms[0].id()).unwrap();
+        for seed in 0..3 {
+            let mut ablation = stuck.train_config(&stuck.arms[0], seed);
+            let original = base.train_config(velocity, seed);
+            let env = ablation.env;
+            assert_eq!(
+                (env.stuck_window, env.stuck_progress_m, env.stuck_reward),
+                (20, 0.5, -5.0)
+            );
+            assert_eq!(original.env.stuck_window, 0);
+            ablation.env.stuck_window = 0;
+            ablation.env.stuck_progress_m = original.env.stuck_progress_m;
+            ablation.env.stuck_reward = original.env.stuck_reward;
+            assert_eq!(ablation, original, "seed {seed}");
+        }
+        assert_eq!(
+            (stuck.eval.runs, stuck.eval.trim),
+            (base.eval.runs, base.eval.trim)
+        );
+        assert_eq!(stuck.test_worlds, base.test_worlds);
+    }
+
     #[test]
     fn minimal_file_takes_the_defaults() {
         let ex = parse(MINIMAL).unwrap();
