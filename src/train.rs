@@ -128,12 +128,17 @@ fn print_summary(s: &TrainSummary, out: &Path, space: &str, command: &str) {
     }
 }
 
+/// The actor processes `[run] actors = 0` starts: one per core.
+pub fn default_actors() -> u32 {
+    std::thread::available_parallelism().map_or(2, |n| n.get() as u32)
+}
+
 /// `adp train`.
 pub fn train(config: Option<&Path>, o: &Overrides, resume: bool) -> anyhow::Result<()> {
     let (cfg, out) = prepare(config, o, resume)?;
     let (token_path, token) = run_token(&out)?;
     let actors = match cfg.run.actors {
-        0 => std::thread::available_parallelism().map_or(2, |n| n.get() as u32),
+        0 => default_actors(),
         n => n,
     };
     let learner = Learner::start(cfg.learner_options(&out, token, resume)?)?;

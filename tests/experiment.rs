@@ -4,7 +4,9 @@
 //! trained again); the learner's greedy evaluations make the learning curves; a changed
 //! experiment file or a second start in the same directory is refused; evaluation in two
 //! shards, merged, equals the unsharded one. A one-condition sensing sweep (dropout 0, the
-//! configuration's own lidar) reproduces the main DDP evaluation run for run.
+//! configuration's own lidar) reproduces the main DDP evaluation run for run. A second
+//! experiment file sharing the arm finds its results in the store of results: it computes
+//! nothing for that arm and reports the same numbers for it.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -57,40 +59,70 @@ batch_size = 32
 warmup_steps = 100
 "#;
 
-/// The stage outputs of the experiment in `out`, sorted, each with its modification time:
-/// the training markers (`runs/**/trained.json`) and the JSON files of the constant searches
-/// and evaluations (`search/`, `eval/`, without the exported untrained policies).
-fn stage_outputs(out: &Path) -> Vec<(PathBuf, SystemTime)> {
-    fn walk(dir: &Path, keep: &dyn Fn(&Path) -> bool, found: &mut Vec<(PathBuf, SystemTime)>) {
-        for path in std::fs::read_dir(dir)
-            .into_iter()
-            .flatten()
-            .flatten()
-            .map(|e| e.path())
-        {
-            if path.is_dir() && !path.ends_with("untrained-policy") {
-                walk(&path, keep, found);
-            } else if path.is_file() && keep(&path) {
-                let modified = std::fs::metadata(&path).unwrap().modified().unwrap();
-                found.push((path, modified));
+/// The stage results in the store `store`, sorted, each with its modification time: the
+/// training markers (`train/*/trained.json`) and the JSON results of the constant searches
+/// and evaluations (`search/`, `eval/`, without their `.stage.json` records and shards).
+fn stage_outputs(store: &Path) -> Vec<(PathBuf, SystemTime)> {
+    let mut found = Vec::new();
+    let mut add = |p: PathBuf| {
+        let t = std::fs::metadata(&p).unwrap().modified().unwrap();
+        found.push((p, t));
+    };
+    if let Ok(d) = std::fs::read_dir(store.join("train")) {
+        for e in d.flatten() {
+            let marker = e.path().join("trained.json");
+            if marker.is_file() {
+                add(marker);
             }
         }
     }
-    let mut found = Vec::new();
-    walk(&out.join("runs"), &|p| p.ends_with("trained.json"), &mut found);
-    for dir in ["search", "eval"] {
-        walk(
-            &out.join(dir),
-            &|p| p.extension().is_some_and(|e| e == "json"),
-            &mut found,
-        );
+    for kind in ["search", "eval"] {
+        if let Ok(d) = std::fs::read_dir(store.join(kind)) {
+            for e in d.flatten() {
+                let name = e.file_name().to_string_lossy().to_string();
+                if name.ends_with(".json") && !name.ends_with(".stage.json") {
+                    add(e.path());
+                }
+            }
+        }
     }
     found.sort();
     found
 }
 
+/// The experiment's stages as its `stages.json` lists them: (stage in words, result in the
+/// store, the experiment that computed it).
+fn stages(out: &Path) -> Vec<(String, PathBuf, Option<String>)> {
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("stages.json")).unwrap()).unwrap();
+    v.as_array()
+        .unwrap()
+        .iter()
+        .map(|e| {
+            (
+                e["stage"].as_str().unwrap().to_string(),
+                PathBuf::from(e["result"].as_str().unwrap()),
+                e["computed_by"].as_str().map(str::to_string),
+            )
+        })
+        .collect()
+}
+
+/// The result of the stage whose words start with `prefix`.
+fn result_of(out: &Path, prefix: &str) -> PathBuf {
+    stages(out)
+        .into_iter()
+        .find(|(s, _, _)| s.starts_with(prefix))
+        .unwrap_or_else(|| panic!("no stage {prefix:?} in {}", out.display()))
+        .1
+}
+
+fn read_json(path: &Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()
+}
+
 fn is_png(path: &Path) -> bool {
-    std::fs::read(path).is_ok_and(|b| b.starts_with(b"\x89PNG\r\n\x1a\n") && b.len() > 1000)
+    std::fs::read(path).is_ok_and(|b| b.starts_with(b"\x89PNG\r\n\x1a\n"))
 }
 
 #[test]
@@ -98,16 +130,23 @@ fn tiny_experiment_reports_resumes_and_refuses_mixing() {
     let dir = fresh_dir("experiment-tiny");
     let config = dir.join("tiny.toml");
     std::fs::write(&config, TINY).unwrap();
-    let out = dir.join("out");
-    let (c, o) = (config.to_str().unwrap(), out.to_str().unwrap());
+    let (out, store) = (dir.join("out"), dir.join("store"));
+    let (c, o, st) = (
+        config.to_str().unwrap(),
+        out.to_str().unwrap(),
+        store.to_str().unwrap(),
+    );
 
-    let first = adp(&["experiment", "--config", c, "--out", o]);
+    let first = adp(&["experiment", "--config", c, "--out", o, "--store", st]);
     assert!(first.status.success(), "{}", stderr(&first));
     // The seven stages (training, constant search; DDP, constant, untrained, ADP and shuffled
     // evaluations) and the three of the sensing sweep (DDP, constant, ADP) each left their
-    // output.
-    let outputs = stage_outputs(&out);
+    // result in the store, and each was computed by this experiment.
+    let outputs = stage_outputs(&store);
     assert_eq!(outputs.len(), 10, "{outputs:#?}");
+    let listed = stages(&out);
+    assert_eq!(listed.len(), 10);
+    assert!(listed.iter().all(|(_, _, by)| by.as_deref() == Some("tiny")), "{listed:#?}");
     let report = std::fs::read_to_string(out.join("report.md")).unwrap();
     for needle in [
         "## Table I",
@@ -120,6 +159,7 @@ fn tiny_experiment_reports_resumes_and_refuses_mixing() {
         "greedy-evaluation learning curves",
         "## Sensing conditions",
         "| method | 720 beams, noise 0.001 m |",
+        "10 stage(s), 10 computed by this experiment",
     ] {
         assert!(report.contains(needle), "report lacks {needle:?}:\n{report}");
     }
@@ -128,23 +168,17 @@ fn tiny_experiment_reports_resumes_and_refuses_mixing() {
         let p = out.join("figures").join(format!("{fig}-{arm}.png"));
         assert!(is_png(&p), "{} is not a PNG", p.display());
     }
-    let results: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("results.json")).unwrap()).unwrap();
+    let results = read_json(&out.join("results.json"));
     assert_eq!(results[0]["comparisons"].as_array().unwrap().len(), 4);
     assert_eq!(results[0]["sensing"].as_array().unwrap().len(), 1);
     // The sensing condition is the configuration's own lidar: DDP's runs are the main ones.
-    let read = |file: &str| -> serde_json::Value {
-        serde_json::from_str(&std::fs::read_to_string(out.join(file)).unwrap()).unwrap()
-    };
-    let (main, sensing) = (
-        read("eval/ddp-dwa-1.5.json"),
-        read("eval/sensing-0/ddp-dwa-1.5.json"),
-    );
+    let main = read_json(&result_of(&out, "evaluate DDP"));
+    let sensing = read_json(&result_of(&out, "sensing condition 0 of dwa-decremental-1.5-150_153: Ddp"));
     assert_eq!(main["per_world"], sensing["per_world"]);
     assert_eq!(sensing["lidar"]["dropout"], 0.0);
 
     // Starting again in the same directory is refused; so is resuming with another file.
-    let again = adp(&["experiment", "--config", c, "--out", o]);
+    let again = adp(&["experiment", "--config", c, "--out", o, "--store", st]);
     assert!(
         !again.status.success() && stderr(&again).contains("--resume"),
         "{}",
@@ -158,6 +192,8 @@ fn tiny_experiment_reports_resumes_and_refuses_mixing() {
         changed.to_str().unwrap(),
         "--out",
         o,
+        "--store",
+        st,
         "--resume",
     ]);
     assert!(
@@ -167,49 +203,92 @@ fn tiny_experiment_reports_resumes_and_refuses_mixing() {
     );
 
     // A resumed experiment skips every finished stage: nothing is trained or evaluated again.
-    let resumed = adp(&["experiment", "--config", c, "--out", o, "--resume"]);
+    let resumed = adp(&["experiment", "--config", c, "--out", o, "--store", st, "--resume"]);
     assert!(resumed.status.success(), "{}", stderr(&resumed));
-    assert_eq!(stage_outputs(&out), outputs);
+    assert_eq!(stage_outputs(&store), outputs);
 
     // Sharded evaluation (as the SLURM job runs it) gives the same results once merged: a
-    // copy of the trained experiment evaluates in two shards, then merges and reports.
-    let out2 = dir.join("out2");
-    copy_tree(&out.join("runs"), &out2.join("runs"));
-    copy_tree(&out.join("search"), &out2.join("search"));
+    // second store with the trained policy and the search evaluates in two shards, then
+    // merges and reports.
+    let (out2, store2) = (dir.join("out2"), dir.join("store2"));
+    copy_tree(&store.join("train"), &store2.join("train"));
+    copy_tree(&store.join("search"), &store2.join("search"));
+    std::fs::create_dir_all(&out2).unwrap();
     std::fs::copy(out.join("experiment.toml"), out2.join("experiment.toml")).unwrap();
-    let o2 = out2.to_str().unwrap();
+    let (o2, st2) = (out2.to_str().unwrap(), store2.to_str().unwrap());
     for k in ["0/2", "1/2"] {
-        let s = adp(&["experiment", "--config", c, "--out", o2, "--shard", k]);
+        let s = adp(&["experiment", "--config", c, "--out", o2, "--store", st2, "--shard", k]);
         assert!(s.status.success(), "{}", stderr(&s));
         assert!(!out2.join("report.md").exists());
     }
-    let evals = [
-        "eval/ddp-dwa-1.5.json".to_string(),
-        format!("eval/{arm}/constant.json"),
-        format!("eval/{arm}/untrained.json"),
-        format!("eval/{arm}/seed-0/adp.json"),
-        format!("eval/{arm}/seed-0/shuffled.json"),
-        "eval/sensing-0/ddp-dwa-1.5.json".to_string(),
-        format!("eval/{arm}/sensing-0/constant.json"),
-        format!("eval/{arm}/sensing-0/seed-0.json"),
-    ];
+    let evals: Vec<PathBuf> = stages(&out)
+        .into_iter()
+        .map(|(_, p, _)| p)
+        .filter(|p| p.parent().is_some_and(|d| d.ends_with("eval")))
+        .map(|p| p.strip_prefix(&store).unwrap().to_path_buf())
+        .collect();
+    assert_eq!(evals.len(), 8, "{evals:#?}");
     for file in &evals {
         // Each shard wrote its half; nothing is merged before the unsharded run.
-        let shard = |k: usize| out2.join(format!("{file}.shard-{k}-of-2"));
-        assert!(shard(0).is_file() && shard(1).is_file(), "{file}: shards missing");
-        assert!(!out2.join(file).exists(), "{file} exists before the merge");
+        let shard = |k: usize| store2.join(format!("{}.shard-{k}-of-2", file.display()));
+        assert!(shard(0).is_file() && shard(1).is_file(), "{}: shards missing", file.display());
+        assert!(!store2.join(file).exists(), "{} exists before the merge", file.display());
     }
-    let merged = adp(&["experiment", "--config", c, "--out", o2, "--resume"]);
+    let merged = adp(&["experiment", "--config", c, "--out", o2, "--store", st2, "--resume"]);
     assert!(merged.status.success(), "{}", stderr(&merged));
     for file in &evals {
-        let read = |root: &Path| -> serde_json::Value {
-            serde_json::from_str(&std::fs::read_to_string(root.join(file)).unwrap()).unwrap()
-        };
-        let (a, b) = (read(&out), read(&out2));
-        assert_eq!(a["per_world"], b["per_world"], "{file}");
-        assert_eq!(a["trace"], b["trace"], "{file}");
+        let (a, b) = (read_json(&store.join(file)), read_json(&store2.join(file)));
+        assert_eq!(a["per_world"], b["per_world"], "{}", file.display());
+        assert_eq!(a["trace"], b["trace"], "{}", file.display());
     }
     assert!(out2.join("report.md").exists());
+
+    // A second experiment file that contains this arm and adds another computes nothing for
+    // the shared arm: `--plan` says the store holds its stages, the run leaves their results
+    // untouched, and both reports print the same numbers for it.
+    let wider = dir.join("wider.toml");
+    std::fs::write(
+        &wider,
+        TINY.replace("name = \"tiny\"", "name = \"wider\"")
+            .replace("speeds = [1.5]", "speeds = [1.0, 1.5]"),
+    )
+    .unwrap();
+    let (w, out3) = (wider.to_str().unwrap(), dir.join("out3"));
+    let o3 = out3.to_str().unwrap();
+    let plan = adp(&["experiment", "--config", w, "--out", o3, "--store", st, "--plan"]);
+    assert!(plan.status.success(), "{}", stderr(&plan));
+    let plan_text = String::from_utf8_lossy(&plan.stdout).to_string();
+    assert!(
+        plan_text.contains("already in the store: 10 stage(s) (10 by tiny)"),
+        "{plan_text}"
+    );
+    assert!(plan_text.contains("train dwa-decremental-1.0-150_153 seed 0"), "{plan_text}");
+    assert!(!plan_text.contains("train dwa-decremental-1.5"), "{plan_text}");
+    assert!(plan_text.contains("core-h"), "{plan_text}");
+    assert!(!out3.exists(), "--plan created {}", out3.display());
+    let second = adp(&["experiment", "--config", w, "--out", o3, "--store", st]);
+    assert!(second.status.success(), "{}", stderr(&second));
+    let after = stage_outputs(&store);
+    for (file, time) in &outputs {
+        let now = after.iter().find(|(f, _)| f == file).map(|(_, t)| t);
+        assert_eq!(now, Some(time), "{} was computed again", file.display());
+    }
+    assert_eq!(after.len(), 20, "the new arm's ten results: {after:#?}");
+    let report3 = std::fs::read_to_string(out3.join("report.md")).unwrap();
+    assert!(
+        report3.contains("20 stage(s), 10 computed by this experiment, reused from the store: 10 computed by `tiny`"),
+        "{report3}"
+    );
+    let arm_results = |out: &Path| -> serde_json::Value {
+        let all = read_json(&out.join("results.json"));
+        all.as_array()
+            .unwrap()
+            .iter()
+            .find(|a| a["arm"] == arm)
+            .unwrap()
+            .clone()
+    };
+    assert_eq!(arm_results(&out), arm_results(&out3));
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
@@ -249,6 +328,8 @@ fn emitted_slurm_job_runs_the_experiment() {
         config.to_str().unwrap(),
         "--out",
         out.to_str().unwrap(),
+        "--store",
+        dir.join("store").to_str().unwrap(),
         "--emit-slurm",
     ]);
     assert!(emitted.status.success(), "{}", stderr(&emitted));

@@ -59,6 +59,11 @@ pub struct ExperimentSection {
     /// id it has without this key; the others' ids end in the layout (`-sectors15`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub observations: Option<Vec<String>>,
+    /// The store of results (default `runs/store`; `--store` overrides): every stage's
+    /// result lives there under the key of what decides it, so experiments that share a
+    /// stage compute it once. Relative to the directory `adp experiment` runs in.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub store: Option<std::path::PathBuf>,
 }
 
 fn default_spaces() -> Vec<String> {

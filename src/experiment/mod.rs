@@ -11,14 +11,17 @@
 
 pub mod config;
 pub mod controls;
+pub mod estimate;
 pub mod figures;
 pub mod plan;
+pub mod recipe;
 pub mod record;
 pub mod report;
 pub mod runner;
 pub mod shard;
 pub mod slurm;
 pub mod stats;
+pub mod store;
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -39,7 +42,9 @@ use controls::{
     best_constant, candidates, halving, keep_best, search_pairs, shuffle_pool, write_untrained_export,
     Candidate, SearchResult,
 };
-use plan::{pending, stages, write_atomic, Layout, SensingPlan, Stage, SweepPlan, SweepWho, Sweeps};
+use estimate::{progress_line, Rates};
+use plan::{pending, stages, write_atomic, SensingPlan, Stage, SweepPlan, SweepWho, Sweeps};
+use store::{Layout, StageMeta, Store};
 use record::{EvalRecord, Summary};
 use report::{comparisons, sensing_results, ArmData, Comparison, SensingResult};
 use runner::{evaluate, observations, Controller, RunSpec};
@@ -60,6 +65,15 @@ pub struct Args {
     /// Continue the experiment in --out, skipping the stages whose results exist.
     #[arg(long)]
     pub resume: bool,
+    /// The store of results shared by experiments (default: `[experiment] store`, else
+    /// `runs/store`). A stage whose result the store holds, whichever experiment computed
+    /// it, is read instead of computed.
+    #[arg(long)]
+    pub store: Option<PathBuf>,
+    /// List the stages still to compute with their estimated core-hours (from the rates the
+    /// store measured), say which the store already holds, and stop.
+    #[arg(long, conflicts_with_all = ["emit_slurm", "shard", "no_eval"])]
+    pub plan: bool,
     /// Command-line restrictions.
     #[command(flatten)]
     pub restrict: Restrict,
@@ -112,7 +126,7 @@ fn same_file(copy: &Path, text: &str, config: &Path, dir: &Path) -> anyhow::Resu
 
 /// `--emit-slurm`: creates the experiment directory (its `experiment.toml` and `logs/`) and
 /// prints the job script.
-fn emit_slurm(ex: &Experiment, text: &str, dir: &Path, args: &Args) -> anyhow::Result<()> {
+fn emit_slurm(ex: &Experiment, text: &str, dir: &Path, store: &Store, args: &Args) -> anyhow::Result<()> {
     let dir = std::path::absolute(dir).with_context(|| format!("cannot resolve {}", dir.display()))?;
     let logs = dir.join("logs");
     std::fs::create_dir_all(&logs).with_context(|| format!("cannot create {}", logs.display()))?;
@@ -122,6 +136,9 @@ fn emit_slurm(ex: &Experiment, text: &str, dir: &Path, args: &Args) -> anyhow::R
     } else {
         write_atomic(&copy, text.as_bytes())?;
     }
+    let store = std::path::absolute(&store.dir).with_context(|| format!("cannot resolve {}", store.dir.display()))?;
+    let mut step_args = slurm::restrict_args(&args.restrict);
+    step_args.extend(["--store".to_string(), store.display().to_string()]);
     let adp = if ex.slurm.adp.is_empty() {
         std::env::current_exe().context("cannot find this executable for the job script")?
     } else {
@@ -134,7 +151,7 @@ fn emit_slurm(ex: &Experiment, text: &str, dir: &Path, args: &Args) -> anyhow::R
             &ex.slurm,
             &dir,
             &adp,
-            &slurm::restrict_args(&args.restrict)
+            &step_args
         )
     );
     Ok(())
@@ -150,14 +167,26 @@ pub fn run(args: &Args) -> anyhow::Result<Option<PathBuf>> {
         .out
         .clone()
         .unwrap_or_else(|| PathBuf::from("runs/experiments").join(&ex.section.name));
+    let store = Store {
+        dir: args
+            .store
+            .clone()
+            .or_else(|| ex.section.store.clone())
+            .unwrap_or_else(|| PathBuf::from("runs/store")),
+    };
     if args.emit_slurm {
-        return emit_slurm(&ex, &text, &dir, args).map(|()| None);
+        return emit_slurm(&ex, &text, &dir, &store, args).map(|()| None);
+    }
+    let cfg = eval_config(&ex)?;
+    let layout = Layout::new(dir.clone(), store, &ex, &cfg, crate::train::default_actors());
+    if args.plan {
+        print_plan(&ex, &layout, &args.config);
+        return Ok(None);
     }
     claim_dir(args, &dir, &text)?;
-    let cfg = eval_config(&ex)?;
     let ctx = Ctx {
         ex: &ex,
-        layout: Layout { dir: dir.clone() },
+        layout,
         cfg,
         worlds: sim::catalog::worlds(),
         test_worlds: args
@@ -169,15 +198,18 @@ pub fn run(args: &Args) -> anyhow::Result<Option<PathBuf>> {
         .build()
         .context("cannot start worker threads")?;
     let all = stages(&ex.arms, ex.seeds, &sweeps(&ex));
-    let todo = pending(&all, &ctx.layout, &ex.arms, Path::exists);
+    let todo = pending(&all, |s| ctx.layout.done(s));
     tracing::info!(
-        "adp experiment {}: {} arm(s) x {} seed(s), {} stage(s), {} to run, in {}",
+        "adp experiment {}: {} arm(s) x {} seed(s), {} stage(s), {} in the store, {} to run; \
+         report in {}, results in the store {}",
         ex.section.name,
         ex.arms.len(),
         ex.seeds,
         all.len(),
+        all.len() - todo.len(),
         todo.len(),
-        dir.display()
+        dir.display(),
+        ctx.layout.store.dir.display()
     );
     if let (Some(sh), Some(first)) = (args.shard, todo.iter().find(|s| !is_eval(s))) {
         bail!(
@@ -249,10 +281,32 @@ fn eval_config(ex: &Experiment) -> anyhow::Result<EvalConfig> {
 /// without it an evaluation whose shards are all there is merged instead of run.
 fn run_stages(ctx: &Ctx<'_>, args: &Args, pool: &rayon::ThreadPool, todo: &[Stage]) -> anyhow::Result<()> {
     let ex = ctx.ex;
+    let rates = Rates::measured(&ctx.layout.store.all_meta());
+    let estimates: Vec<f64> = todo.iter().map(|s| rates.cost(ex, s).0).collect();
+    let started = Instant::now();
+    let threads = pool.current_num_threads();
     for (i, stage) in todo.iter().enumerate() {
         let t0 = Instant::now();
         let step = format!("[{}/{}]", i + 1, todo.len());
-        let out = ctx.layout.output(stage, &ex.arms);
+        let out = ctx.layout.output(stage);
+        if i > 0 {
+            tracing::info!(
+                "{}",
+                progress_line(
+                    i,
+                    todo.len(),
+                    estimates[..i].iter().sum(),
+                    estimates[i..].iter().sum(),
+                    started.elapsed().as_secs_f64(),
+                    threads
+                )
+            );
+        }
+        if out.exists() {
+            // Another experiment sharing the store finished it meanwhile.
+            tracing::info!("{step} {}: in the store", describe(stage, &ex.arms));
+            continue;
+        }
         if is_eval(stage) {
             if args.no_eval {
                 continue;
@@ -286,6 +340,8 @@ fn run_stages(ctx: &Ctx<'_>, args: &Args, pool: &rayon::ThreadPool, todo: &[Stag
                 shard::merge(records, &ex.test_worlds)
                     .with_context(|| format!("merging the shards of {}", out.display()))?
                     .save(&out)?;
+                // Merged from shards computed elsewhere: no time of its own to record.
+                record_meta(ctx, stage, 0.0, threads)?;
                 tracing::info!(
                     "{step} {}: merged {} shards",
                     describe(stage, &ex.arms),
@@ -295,13 +351,107 @@ fn run_stages(ctx: &Ctx<'_>, args: &Args, pool: &rayon::ThreadPool, todo: &[Stag
             }
         }
         tracing::info!("{step} {}", describe(stage, &ex.arms));
-        match stage {
-            Stage::Train { arm, seed } => train(ctx, *arm, *seed)?,
-            _ => pool.install(|| run_stage(ctx, stage, &out))?,
-        }
-        tracing::info!("{step} done in {:.0} s", t0.elapsed().as_secs_f64());
+        let used = match stage {
+            Stage::Train { arm, seed } => {
+                train(ctx, *arm, *seed)?;
+                crate::train::default_actors() as usize
+            }
+            _ => {
+                pool.install(|| run_stage(ctx, stage, &out))?;
+                threads
+            }
+        };
+        let seconds = t0.elapsed().as_secs_f64();
+        record_meta(ctx, stage, seconds, used)?;
+        tracing::info!("{step} done in {seconds:.0} s");
     }
     Ok(())
+}
+
+/// Records in the store how `stage` was computed (by this experiment, in `seconds` on
+/// `threads` cores).
+fn record_meta(ctx: &Ctx<'_>, stage: &Stage, seconds: f64, threads: usize) -> anyhow::Result<()> {
+    let recipe = ctx.layout.recipe(stage);
+    let (units, class) = estimate::units(ctx.ex, stage);
+    let meta = StageMeta {
+        description: describe(stage, &ctx.ex.arms),
+        experiment: ctx.ex.section.name.clone(),
+        class,
+        units,
+        seconds,
+        threads,
+        finished_unix_s: std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_secs()),
+        recipe: serde_json::to_value(&recipe).expect("recipes serialize"),
+    };
+    ctx.layout.store.write_meta(&recipe, &meta)
+}
+
+/// `--plan`: every stage still to compute with its estimated core-hours, and what the store
+/// already holds.
+fn print_plan(ex: &Experiment, layout: &Layout, config: &Path) {
+    let all = stages(&ex.arms, ex.seeds, &sweeps(ex));
+    let rates = Rates::measured(&layout.store.all_meta());
+    let mut held: std::collections::BTreeMap<String, usize> = Default::default();
+    let mut todo = Vec::new();
+    for s in &all {
+        if layout.done(s) {
+            let by = layout
+                .store
+                .meta(&layout.recipe(s))
+                .map_or_else(|| "an unrecorded run".to_string(), |m| m.experiment);
+            *held.entry(by).or_default() += 1;
+        } else {
+            todo.push(s.clone());
+        }
+    }
+    println!(
+        "adp experiment --config {}: {} arm(s) x {} seed(s), {} stage(s); store {}",
+        config.display(),
+        ex.arms.len(),
+        ex.seeds,
+        all.len(),
+        layout.store.dir.display()
+    );
+    let in_store = all.len() - todo.len();
+    if in_store > 0 {
+        let by: Vec<String> = held.iter().map(|(e, n)| format!("{n} by {e}")).collect();
+        println!("already in the store: {in_store} stage(s) ({})", by.join(", "));
+    }
+    if todo.is_empty() {
+        println!("nothing left to compute");
+        return;
+    }
+    println!("\nto compute: {} stage(s)", todo.len());
+    println!("| stage | units | core-s per unit | est. core-h |");
+    println!("|---|---:|---:|---:|");
+    let mut total = 0.0;
+    let mut defaults = 0;
+    for s in &todo {
+        let (units, class) = estimate::units(ex, s);
+        let (rate, measured) = rates.rate(&class);
+        defaults += usize::from(!measured);
+        total += units * rate;
+        println!(
+            "| {} | {units:.0} | {rate:.3}{} | {:.2} |",
+            describe(s, &ex.arms),
+            if measured { "" } else { " (default)" },
+            units * rate / 3600.0
+        );
+    }
+    let cores = crate::train::default_actors().max(1) as f64;
+    println!(
+        "\ntotal: {:.1} core-h, about {:.1} h on this machine's {cores:.0} core(s)",
+        total / 3600.0,
+        total / 3600.0 / cores
+    );
+    if defaults > 0 {
+        println!(
+            "{defaults} estimate(s) use a default rate: the store has measured no stage of their \
+             class yet (units: agent steps of a training, episodes otherwise)"
+        );
+    }
 }
 
 /// A stage in words.
@@ -362,7 +512,7 @@ fn sweeps(ex: &Experiment) -> Sweeps {
 
 /// The best constant action of arm `arm`, from its search's file.
 fn best_action(ctx: &Ctx<'_>, arm: usize) -> anyhow::Result<Vec<f64>> {
-    let search_file = ctx.layout.output(&Stage::Search { arm }, &ctx.ex.arms);
+    let search_file = ctx.layout.output(&Stage::Search { arm });
     let text = std::fs::read_to_string(&search_file)
         .with_context(|| format!("cannot read {}", search_file.display()))?;
     let search: SearchResult = serde_json::from_str(&text)
@@ -396,7 +546,7 @@ struct Trained {
 fn train(ctx: &Ctx<'_>, arm: usize, seed: usize) -> anyhow::Result<()> {
     let a = &ctx.ex.arms[arm];
     let cfg = ctx.ex.train_config(a, seed);
-    let run_dir = ctx.layout.run_dir(a, seed);
+    let run_dir = ctx.layout.run_dir(arm, seed);
     let file = run_dir.join("experiment-train.toml");
     write_atomic(
         &file,
@@ -439,7 +589,7 @@ fn train(ctx: &Ctx<'_>, arm: usize, seed: usize) -> anyhow::Result<()> {
         export,
     };
     write_atomic(
-        &ctx.layout.output(&Stage::Train { arm, seed }, &ctx.ex.arms),
+        &ctx.layout.output(&Stage::Train { arm, seed }),
         &serde_json::to_vec_pretty(&marker).expect("serializes"),
     )
 }
@@ -522,7 +672,7 @@ fn run_stage(ctx: &Ctx<'_>, stage: &Stage, out: &Path) -> anyhow::Result<()> {
         }
         Stage::EvalUntrained { arm } => {
             let a = &ex.arms[arm];
-            let dir = ctx.layout.untrained_export(a);
+            let dir = ctx.layout.untrained_export(arm);
             if !dir.join(learner::export::JSON_FILE).exists() {
                 write_untrained_export(&ex.train_config(a, 0), a.space, &dir)?;
             }
@@ -534,7 +684,7 @@ fn run_stage(ctx: &Ctx<'_>, stage: &Stage, out: &Path) -> anyhow::Result<()> {
         }
         Stage::EvalAdp { arm, seed } | Stage::EvalShuffled { arm, seed } => {
             let a = &ex.arms[arm];
-            let dir = ctx.layout.run_dir(a, seed).join("export");
+            let dir = ctx.layout.run_dir(arm, seed).join("export");
             let p = load_policy(&dir, a.space)?;
             let policy = Controller::of(&p);
             let (name, ev) = if matches!(stage, Stage::EvalAdp { .. }) {
@@ -701,7 +851,7 @@ fn sweep_record(
             ("constant", evaluate(&spec, &ctrl)?, Some(action), None)
         }
         SweepWho::Adp { seed } => {
-            let dir = ctx.layout.run_dir(a, seed).join("export");
+            let dir = ctx.layout.run_dir(arm, seed).join("export");
             let p = load_policy(&dir, a.space)?;
             let ctrl = Controller::of(&p);
             (
@@ -748,14 +898,14 @@ fn arm_data(ctx: &Ctx<'_>, arm: usize) -> anyhow::Result<ArmData> {
     let ex = ctx.ex;
     let a = &ex.arms[arm];
     let read = |stage: Stage| -> anyhow::Result<Option<EvalRecord>> {
-        let path = ctx.layout.output(&stage, &ex.arms);
+        let path = ctx.layout.output(&stage);
         if path.exists() {
             EvalRecord::load(&path).map(Some)
         } else {
             Ok(None)
         }
     };
-    let search_file = ctx.layout.output(&Stage::Search { arm }, &ex.arms);
+    let search_file = ctx.layout.output(&Stage::Search { arm });
     let search = if search_file.exists() {
         let text = std::fs::read_to_string(&search_file)?;
         Some(
@@ -859,6 +1009,63 @@ fn drive(ctx: &Ctx<'_>, a: &Arm, p: &LearnedPolicy, world: usize) -> anyhow::Res
     })
 }
 
+/// One stage's result as `stages.json` lists it.
+#[derive(Serialize)]
+struct StageEntry {
+    /// The stage in words.
+    stage: String,
+    /// Its recipe's key.
+    key: String,
+    /// Its result in the store.
+    result: PathBuf,
+    /// The experiment that computed it (`None`: not finished).
+    computed_by: Option<String>,
+    /// Wall-clock seconds it took there.
+    seconds: Option<f64>,
+}
+
+/// Writes `stages.json` (every stage, its key, its result in the store and who computed
+/// it) and returns the report's line on where the results came from.
+fn provenance(ctx: &Ctx<'_>) -> anyhow::Result<String> {
+    let ex = ctx.ex;
+    let mut entries = Vec::new();
+    let mut by: std::collections::BTreeMap<String, usize> = Default::default();
+    for s in stages(&ex.arms, ex.seeds, &sweeps(ex)) {
+        let recipe = ctx.layout.recipe(&s);
+        let meta = ctx.layout.done(&s).then(|| ctx.layout.store.meta(&recipe)).flatten();
+        if ctx.layout.done(&s) {
+            let who = meta
+                .as_ref()
+                .map_or_else(|| "an unrecorded run".to_string(), |m| m.experiment.clone());
+            *by.entry(who).or_default() += 1;
+        }
+        entries.push(StageEntry {
+            stage: describe(&s, &ex.arms),
+            key: recipe.key.0.clone(),
+            result: ctx.layout.store.path(&recipe),
+            computed_by: meta.as_ref().map(|m| m.experiment.clone()),
+            seconds: meta.as_ref().map(|m| m.seconds),
+        });
+    }
+    write_atomic(
+        &ctx.layout.dir.join("stages.json"),
+        &serde_json::to_vec_pretty(&entries).expect("serializes"),
+    )?;
+    let own = by.remove(&ex.section.name).unwrap_or(0);
+    let others: Vec<String> = by.iter().map(|(e, n)| format!("{n} computed by `{e}`")).collect();
+    Ok(format!(
+        "results: {} stage(s), {own} computed by this experiment{}; every result lives in the \
+         store `{}` under the key of what decides it (`stages.json` lists them)",
+        entries.len(),
+        if others.is_empty() {
+            String::new()
+        } else {
+            format!(", reused from the store: {}", others.join(", "))
+        },
+        ctx.layout.store.dir.display()
+    ))
+}
+
 /// Writes the figures, `results.json` and `report.md`; returns the report's path.
 fn write_report(ctx: &Ctx<'_>) -> anyhow::Result<PathBuf> {
     let ex = ctx.ex;
@@ -872,21 +1079,16 @@ fn write_report(ctx: &Ctx<'_>) -> anyhow::Result<PathBuf> {
     let mut rendered = false;
     for (arm, d) in data.iter().enumerate() {
         let id = d.arm.id();
-        learning_figure(ctx, d, &fig_dir, &mut figs, &mut notes)?;
+        learning_figure(ctx, arm, d, &fig_dir, &mut figs, &mut notes)?;
         scatter_figure(d, &fig_dir, &mut figs)?;
         compute_figure(d, &fig_dir, &mut figs)?;
         clutter_figure(d, &fig_dir, &mut figs)?;
         // One rendered episode, of the first arm with a trained policy.
         if !rendered && !d.adp.is_empty() {
-            episode_figure(ctx, d, &fig_dir, &mut figs)?;
+            episode_figure(ctx, arm, d, &fig_dir, &mut figs)?;
             rendered = true;
         }
-        let missing = pending(
-            &stages(&ex.arms, ex.seeds, &sweeps(ex)),
-            &ctx.layout,
-            &ex.arms,
-            Path::exists,
-        )
+        let missing = pending(&stages(&ex.arms, ex.seeds, &sweeps(ex)), |s| ctx.layout.done(s))
         .into_iter()
         .filter(|s| stage_arm(s, &ex.arms) == Some(arm))
         .count();
@@ -896,6 +1098,7 @@ fn write_report(ctx: &Ctx<'_>) -> anyhow::Result<PathBuf> {
             ));
         }
     }
+    notes.push(provenance(ctx)?);
     let results = arm_results(&data, ex);
     write_atomic(
         &ctx.layout.dir.join("results.json"),
@@ -910,6 +1113,7 @@ fn write_report(ctx: &Ctx<'_>) -> anyhow::Result<PathBuf> {
 /// note that no run wrote them.
 fn learning_figure(
     ctx: &Ctx<'_>,
+    arm: usize,
     d: &ArmData,
     fig_dir: &Path,
     figs: &mut Vec<(String, String)>,
@@ -918,7 +1122,7 @@ fn learning_figure(
     let id = d.arm.id();
     let curves: Vec<(String, Vec<figures::GreedyPoint>)> = (0..ctx.ex.seeds)
         .filter_map(|s| {
-            figures::read_greedy(&ctx.layout.run_dir(&d.arm, s)).map(|g| (format!("seed {s}"), g))
+            figures::read_greedy(&ctx.layout.run_dir(arm, s)).map(|g| (format!("seed {s}"), g))
         })
         .filter(|(_, g)| !g.is_empty())
         .collect();
@@ -1062,13 +1266,14 @@ fn clutter_figure(d: &ArmData, fig_dir: &Path, figs: &mut Vec<(String, String)>)
 /// chosen rollout horizon.
 fn episode_figure(
     ctx: &Ctx<'_>,
+    arm: usize,
     d: &ArmData,
     fig_dir: &Path,
     figs: &mut Vec<(String, String)>,
 ) -> anyhow::Result<()> {
     let ex = ctx.ex;
     let id = d.arm.id();
-    let p = load_policy(&ctx.layout.run_dir(&d.arm, 0).join("export"), d.arm.space)?;
+    let p = load_policy(&ctx.layout.run_dir(arm, 0).join("export"), d.arm.space)?;
     let dr = drive(ctx, &d.arm, &p, ex.render_world)?;
     let file = format!("episode-{id}.png");
     figures::episode(
@@ -1145,12 +1350,10 @@ mod tests {
         Experiment::load(&path, &Restrict::default()).unwrap()
     }
 
-    /// The shipped experiments without the new keys keep their arms, stages and files:
-    /// table1 (9 arms x 3 seeds, the budget sweep of arm 0 at 4 points) and rl-dwa (4
-    /// arms x 3 seeds, no sweep).
+    /// The shipped experiments keep their arms and stages: table1 (9 arms x 3 seeds, the
+    /// budget sweep of arm 0 at 4 points) and rl-dwa (4 arms x 3 seeds, no sweep).
     #[test]
     fn existing_experiments_keep_their_stages_and_ids() {
-        let layout = Layout { dir: "/e".into() };
         let ex = shipped("table1.toml");
         let ids: Vec<String> = ex.arms.iter().map(Arm::id).collect();
         assert_eq!(
@@ -1172,16 +1375,22 @@ mod tests {
         // Training 27, searches 9, DDP 9, per arm constant, untrained, 3 ADP and 3 shuffled
         // (72), the budget sweep 4 x (DDP, constant, 3 seeds).
         assert_eq!(all.len(), 27 + 9 + 9 + 72 + 20);
-        let files: Vec<PathBuf> = all.iter().map(|s| layout.output(s, &ex.arms)).collect();
-        assert_eq!(files[27], PathBuf::from("/e/search/dwa-decremental-1.0-fit.json"));
-        assert_eq!(files[36], PathBuf::from("/e/eval/ddp-dwa-1.0.json"));
+        assert_eq!(all[27], Stage::Search { arm: 0 });
         assert_eq!(
-            files[45],
-            PathBuf::from("/e/eval/dwa-decremental-1.0-fit/constant.json")
+            all[36],
+            Stage::EvalDdp {
+                planner: PlannerKind::Dwa,
+                speed: 1.0
+            }
         );
+        assert_eq!(all[45], Stage::EvalConstant { arm: 0 });
         assert_eq!(
-            files.last().unwrap(),
-            &PathBuf::from("/e/eval/dwa-decremental-1.0-fit/sweep-3/seed-2.json")
+            all.last(),
+            Some(&Stage::Sweep {
+                arm: 0,
+                point: 3,
+                who: SweepWho::Adp { seed: 2 }
+            })
         );
         let ex = shipped("rl-dwa.toml");
         assert_eq!(sweeps(&ex), Sweeps::default());
@@ -1213,15 +1422,17 @@ mod tests {
         assert_eq!(ex.arms.len(), 5);
         let all = stages(&ex.arms, ex.seeds, &sweeps(&ex));
         assert_eq!(all.len(), 15 + 1 + 1 + 1 + 1 + 5 * (3 + 3));
-        let layout = Layout { dir: "/e".into() };
-        let owner = "/e/eval/dwa-decremental-1.5-150_154_157_163_169_174_177_181_184_189_201_209_214_218_225_229_235_242_246_250_262_268_281_285_290";
-        for arm in 0..5 {
-            for (stage, file) in [
-                (Stage::EvalConstant { arm }, "constant.json"),
-                (Stage::EvalUntrained { arm }, "untrained.json"),
-            ] {
-                assert_eq!(layout.output(&stage, &ex.arms), Path::new(owner).join(file));
+        let cfg = eval_config(&ex).unwrap();
+        let layout = Layout::new("/e".into(), Store { dir: "/s".into() }, &ex, &cfg, 2);
+        for arm in 1..5 {
+            for stage in [Stage::EvalConstant { arm }, Stage::EvalUntrained { arm }] {
+                let first = match stage {
+                    Stage::EvalConstant { .. } => Stage::EvalConstant { arm: 0 },
+                    _ => Stage::EvalUntrained { arm: 0 },
+                };
+                assert_eq!(layout.output(&stage), layout.output(&first), "{stage:?}");
             }
+            assert_ne!(layout.run_dir(arm, 0), layout.run_dir(0, 0));
         }
     }
 
@@ -1248,15 +1459,16 @@ mod tests {
             eval_toml.display().to_string()
         );
         let ex = Experiment::parse("t.toml", &text, &Restrict::default()).unwrap();
+        let cfg = eval_config(&ex).unwrap();
         let ctx = Ctx {
             ex: &ex,
-            layout: Layout { dir: dir.clone() },
-            cfg: eval_config(&ex).unwrap(),
+            layout: Layout::new(dir.clone(), Store { dir: dir.join("store") }, &ex, &cfg, 2),
+            cfg,
             worlds: sim::catalog::worlds(),
             test_worlds: ex.test_worlds.clone(),
         };
         let run = |stage: Stage| {
-            let out = ctx.layout.output(&stage, &ex.arms);
+            let out = ctx.layout.output(&stage);
             run_stage(&ctx, &stage, &out).unwrap();
             EvalRecord::load(&out).unwrap()
         };

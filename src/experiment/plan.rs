@@ -1,32 +1,21 @@
-//! The stages of an experiment and where each writes its result: pure bookkeeping, so that
-//! `--resume` can skip what is finished.
+//! The stages of an experiment, in the order they run: pure bookkeeping, so that a stage
+//! whose result exists is skipped.
 //!
-//! Every stage writes one file (through a temporary file and a rename, so a file that exists
-//! is complete); a training run's file is a marker written after its export exists. Layout of
-//! an experiment directory:
-//!
-//! | stage | output |
-//! |---|---|
-//! | train arm A, seed k | `runs/A/seed-k/` (the `adp train` run dir), marker `runs/A/seed-k/trained.json` |
-//! | constant search for A (training worlds) | `search/A.json` |
-//! | DDP on the test worlds (per planner and speed) | `eval/ddp-PLANNER-SPEED.json` |
-//! | best constant, untrained policy | `eval/A/constant.json`, `eval/A/untrained.json` (and its export `eval/A/untrained-policy/`) |
-//! | trained policy and its state-shuffled twin, seed k | `eval/A/seed-k/adp.json`, `eval/A/seed-k/shuffled.json` |
-//! | budget sweep point i: DDP, best constant, seed k | `eval/A/sweep-i/ddp.json`, `.../constant.json`, `.../seed-k.json` |
-//! | sensing condition i: DDP (per planner and speed) | `eval/sensing-i/ddp-PLANNER-SPEED.json` |
-//! | sensing condition i: best constant, seed k | `eval/A/sensing-i/constant.json`, `eval/A/sensing-i/seed-k.json` |
+//! Every stage writes one result into the store of results, under the key of what decides
+//! it ([`super::recipe`], [`super::store`]); a training run's result is its run directory,
+//! finished by a marker written after its export exists.
 //!
 //! Arms that differ only in their observation layout or training worlds share their constant
 //! search and best constant (which observe nothing and are searched on one set of worlds):
-//! those stages run once, for the first such arm ([`control_arm`]), whose files every arm of
-//! the group reads. Arms that differ only in training worlds share their untrained policy too
-//! ([`untrained_arm`]).
+//! those stages are listed once, for the first such arm ([`control_arm`]); arms that differ
+//! only in training worlds share their untrained policy too ([`untrained_arm`]). Their recipes
+//! are equal, so they would share one result in the store anyway.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use planner::PlannerKind;
 
-use super::config::{planner_name, speed_label, Arm};
+use super::config::Arm;
 
 /// One unit of work.
 #[derive(Clone, Debug, PartialEq)]
@@ -151,91 +140,6 @@ pub fn untrained_arm(arms: &[Arm], arm: usize) -> usize {
         .expect("an arm shares its untrained policy with itself")
 }
 
-/// Where the files of an experiment directory live.
-#[derive(Clone, Debug)]
-pub struct Layout {
-    /// The experiment directory.
-    pub dir: PathBuf,
-}
-
-impl Layout {
-    /// The training run directory of an arm's seed.
-    pub fn run_dir(&self, arm: &Arm, seed: usize) -> PathBuf {
-        self.dir.join("runs").join(arm.id()).join(format!("seed-{seed}"))
-    }
-
-    /// The evaluation directory of an arm.
-    pub fn arm_eval_dir(&self, arm: &Arm) -> PathBuf {
-        self.dir.join("eval").join(arm.id())
-    }
-
-    /// The export directory of an arm's untrained policy.
-    pub fn untrained_export(&self, arm: &Arm) -> PathBuf {
-        self.arm_eval_dir(arm).join("untrained-policy")
-    }
-
-    /// The DDP result of a planner and speed.
-    pub fn ddp_file(&self, planner: PlannerKind, speed: f64) -> PathBuf {
-        self.dir.join("eval").join(format!(
-            "ddp-{}-{}.json",
-            planner_name(planner),
-            speed_label(speed)
-        ))
-    }
-
-    /// The file a stage writes (see the module docs).
-    pub fn output(&self, stage: &Stage, arms: &[Arm]) -> PathBuf {
-        match *stage {
-            Stage::Train { arm, seed } => self.run_dir(&arms[arm], seed).join("trained.json"),
-            Stage::Search { arm } => {
-                let owner = &arms[control_arm(arms, arm)];
-                self.dir.join("search").join(format!("{}.json", owner.id()))
-            }
-            Stage::EvalDdp { planner, speed } => self.ddp_file(planner, speed),
-            Stage::EvalConstant { arm } => self
-                .arm_eval_dir(&arms[control_arm(arms, arm)])
-                .join("constant.json"),
-            Stage::EvalUntrained { arm } => self
-                .arm_eval_dir(&arms[untrained_arm(arms, arm)])
-                .join("untrained.json"),
-            Stage::EvalAdp { arm, seed } => self
-                .arm_eval_dir(&arms[arm])
-                .join(format!("seed-{seed}"))
-                .join("adp.json"),
-            Stage::EvalShuffled { arm, seed } => self
-                .arm_eval_dir(&arms[arm])
-                .join(format!("seed-{seed}"))
-                .join("shuffled.json"),
-            Stage::Sweep { arm, point, who } => {
-                let dir = self.arm_eval_dir(&arms[arm]).join(format!("sweep-{point}"));
-                match who {
-                    SweepWho::Ddp => dir.join("ddp.json"),
-                    SweepWho::Constant => dir.join("constant.json"),
-                    SweepWho::Adp { seed } => dir.join(format!("seed-{seed}.json")),
-                }
-            }
-            Stage::Sensing { arm, condition, who } => {
-                let dir = format!("sensing-{condition}");
-                match who {
-                    SweepWho::Ddp => {
-                        let ddp = self.ddp_file(arms[arm].planner, arms[arm].speed);
-                        let file = ddp.file_name().expect("a DDP file has a name");
-                        self.dir.join("eval").join(dir).join(file)
-                    }
-                    SweepWho::Constant => self
-                        .arm_eval_dir(&arms[control_arm(arms, arm)])
-                        .join(dir)
-                        .join("constant.json"),
-                    SweepWho::Adp { seed } => self
-                        .arm_eval_dir(&arms[arm])
-                        .join(dir)
-                        .join(format!("seed-{seed}.json")),
-                }
-            }
-        }
-    }
-}
-
 /// Every stage of `arms` x `seeds`, in an order that respects their dependencies: all
 /// training first (the longest work, so a job that stops early has its policies), then the
 /// constant searches, then the evaluations. DDP runs once per (planner, speed), shared by the
@@ -305,13 +209,9 @@ pub fn stages(arms: &[Arm], seeds: usize, sweeps: &Sweeps) -> Vec<Stage> {
     out
 }
 
-/// The stages whose output `done` does not report as finished, in order.
-pub fn pending(stages: &[Stage], layout: &Layout, arms: &[Arm], done: impl Fn(&Path) -> bool) -> Vec<Stage> {
-    stages
-        .iter()
-        .filter(|s| !done(&layout.output(s, arms)))
-        .cloned()
-        .collect()
+/// The stages that `done` does not report as finished, in order.
+pub fn pending(stages: &[Stage], done: impl Fn(&Stage) -> bool) -> Vec<Stage> {
+    stages.iter().filter(|s| !done(s)).cloned().collect()
 }
 
 /// Writes `bytes` to `path` through a temporary file in the same directory and a rename, so
@@ -365,10 +265,6 @@ mod tests {
         let sweep = &s[plain.len()..];
         assert_eq!(sweep.len(), 3 * (2 + 2));
         assert!(sweep.iter().all(|x| matches!(x, Stage::Sweep { arm: 1, .. })));
-        let layout = Layout { dir: "/e".into() };
-        let files: std::collections::BTreeSet<PathBuf> =
-            sweep.iter().map(|x| layout.output(x, &arms())).collect();
-        assert_eq!(files.len(), sweep.len(), "one file per sweep stage");
     }
 
     /// Arms that differ only in their training worlds train and evaluate their policies each,
@@ -398,28 +294,7 @@ mod tests {
         assert_eq!(count(&|x| matches!(x, Stage::EvalDdp { .. })), 1);
         assert_eq!(count(&|x| matches!(x, Stage::EvalUntrained { .. })), 2);
         assert_eq!((untrained_arm(&arms, 2), untrained_arm(&arms, 3)), (0, 3));
-        let layout = Layout { dir: "/e".into() };
-        let file = |stage: Stage| layout.output(&stage, &arms);
-        assert_eq!(
-            file(Stage::EvalUntrained { arm: 2 }),
-            PathBuf::from("/e/eval/dwa-decremental-1.5-train/untrained.json")
-        );
-        assert_eq!(
-            file(Stage::EvalUntrained { arm: 3 }),
-            PathBuf::from("/e/eval/dwa-decremental-1.5-generated_75-sectors15/untrained.json")
-        );
-        assert_eq!(
-            file(Stage::EvalConstant { arm: 3 }),
-            file(Stage::EvalConstant { arm: 0 })
-        );
-        assert_eq!(
-            file(Stage::EvalAdp { arm: 2, seed: 1 }),
-            PathBuf::from("/e/eval/dwa-decremental-1.5-generated/seed-1/adp.json")
-        );
-        // Every stage that runs writes a file of its own.
-        let outputs: std::collections::BTreeSet<PathBuf> =
-            s.iter().map(|x| layout.output(x, &arms)).collect();
-        assert_eq!(outputs.len(), s.len());
+        assert_eq!((control_arm(&arms, 2), control_arm(&arms, 3)), (0, 0));
     }
 
     /// The arms of one space in three observation layouts: the scan (no suffix) and two of
@@ -455,21 +330,6 @@ mod tests {
         assert_eq!(count(&|x| matches!(x, Stage::EvalConstant { .. })), 2);
         assert_eq!(count(&|x| matches!(x, Stage::EvalDdp { .. })), 1);
         assert_eq!((control_arm(&arms, 2), control_arm(&arms, 3)), (0, 3));
-        let layout = Layout { dir: "/e".into() };
-        let file = |stage: Stage| layout.output(&stage, &arms);
-        assert_eq!(file(Stage::Search { arm: 2 }), file(Stage::Search { arm: 0 }));
-        assert_eq!(
-            file(Stage::EvalConstant { arm: 1 }),
-            PathBuf::from("/e/eval/dwa-decremental-1.5-train/constant.json")
-        );
-        assert_eq!(
-            file(Stage::EvalAdp { arm: 1, seed: 0 }),
-            PathBuf::from("/e/eval/dwa-decremental-1.5-train-sectors15/seed-0/adp.json")
-        );
-        let mut outputs: Vec<PathBuf> = s.iter().map(|x| layout.output(x, &arms)).collect();
-        outputs.sort();
-        outputs.dedup();
-        assert_eq!(outputs.len(), s.len(), "distinct outputs");
     }
 
     /// The sensing sweep comes after the budget sweep: per covered arm and condition, DDP
@@ -548,33 +408,6 @@ mod tests {
                 },
             ]
         );
-        let layout = Layout { dir: "/e".into() };
-        let files: std::collections::BTreeSet<PathBuf> = s.iter().map(|x| layout.output(x, &arms)).collect();
-        assert_eq!(files.len(), s.len(), "one file per stage");
-        // Every covered arm reads the shared DDP and constant files.
-        let file = |arm, who| {
-            layout.output(
-                &Stage::Sensing {
-                    arm,
-                    condition: 2,
-                    who,
-                },
-                &arms,
-            )
-        };
-        assert_eq!(
-            file(2, SweepWho::Ddp),
-            PathBuf::from("/e/eval/sensing-2/ddp-dwa-1.5.json")
-        );
-        assert_eq!(file(3, SweepWho::Ddp), file(1, SweepWho::Ddp));
-        assert_eq!(
-            file(2, SweepWho::Constant),
-            PathBuf::from("/e/eval/dwa-decremental-1.5-train/sensing-2/constant.json")
-        );
-        assert_eq!(
-            file(2, SweepWho::Adp { seed: 1 }),
-            PathBuf::from("/e/eval/dwa-decremental-1.5-train-sectors50/sensing-2/seed-1.json")
-        );
     }
 
     #[test]
@@ -593,20 +426,12 @@ mod tests {
         let last_train = s.iter().rposition(|x| matches!(x, Stage::Train { .. })).unwrap();
         let first_adp = s.iter().position(|x| matches!(x, Stage::EvalAdp { .. })).unwrap();
         assert!(last_train < first_adp);
-        let layout = Layout { dir: "/e".into() };
-        let mut outputs: Vec<PathBuf> = s.iter().map(|x| layout.output(x, &arms())).collect();
-        outputs.sort();
-        outputs.dedup();
-        assert_eq!(outputs.len(), s.len(), "distinct outputs");
     }
 
-    /// A resumed experiment skips the stages whose files exist (here: the first arm's whole
-    /// training and evaluation, written atomically) and keeps the rest in order.
+    /// A resumed experiment skips the finished stages (here: the first arm's whole training
+    /// and evaluation) and keeps the rest in order.
     #[test]
     fn resume_skips_finished_stages() {
-        let dir = std::env::temp_dir().join(format!("adp-plan-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        let layout = Layout { dir: dir.clone() };
         let arms = arms();
         let all = stages(&arms, 1, &Sweeps::default());
         let first_arm = |s: &Stage| match *s {
@@ -620,10 +445,7 @@ mod tests {
             | Stage::Sensing { arm, .. } => arm == 0,
             Stage::EvalDdp { .. } => true,
         };
-        for s in all.iter().filter(|s| first_arm(s)) {
-            write_atomic(&layout.output(s, &arms), b"{}").unwrap();
-        }
-        let todo = pending(&all, &layout, &arms, Path::exists);
+        let todo = pending(&all, first_arm);
         assert_eq!(
             todo,
             vec![
@@ -635,25 +457,16 @@ mod tests {
                 Stage::EvalShuffled { arm: 1, seed: 0 },
             ]
         );
-        // No temporary file is left behind.
-        let leftovers = walk(&dir)
-            .into_iter()
-            .filter(|p| p.to_string_lossy().contains(".tmp-"))
-            .count();
-        assert_eq!(leftovers, 0);
-        std::fs::remove_dir_all(&dir).unwrap();
     }
 
-    fn walk(dir: &Path) -> Vec<PathBuf> {
-        let mut out = Vec::new();
-        for e in std::fs::read_dir(dir).unwrap() {
-            let p = e.unwrap().path();
-            if p.is_dir() {
-                out.extend(walk(&p));
-            } else {
-                out.push(p);
-            }
-        }
-        out
+    /// `write_atomic` leaves the complete file and no temporary one.
+    #[test]
+    fn atomic_writes_leave_no_temporary_file() {
+        let dir = std::env::temp_dir().join(format!("adp-plan-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        write_atomic(&dir.join("a/b.json"), b"{}").unwrap();
+        assert_eq!(std::fs::read(dir.join("a/b.json")).unwrap(), b"{}");
+        assert_eq!(std::fs::read_dir(dir.join("a")).unwrap().count(), 1);
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }
