@@ -146,7 +146,10 @@ fn tiny_experiment_reports_resumes_and_refuses_mixing() {
     assert_eq!(outputs.len(), 10, "{outputs:#?}");
     let listed = stages(&out);
     assert_eq!(listed.len(), 10);
-    assert!(listed.iter().all(|(_, _, by)| by.as_deref() == Some("tiny")), "{listed:#?}");
+    assert!(
+        listed.iter().all(|(_, _, by)| by.as_deref() == Some("tiny")),
+        "{listed:#?}"
+    );
     let report = std::fs::read_to_string(out.join("report.md")).unwrap();
     for needle in [
         "## Table I",
@@ -173,7 +176,10 @@ fn tiny_experiment_reports_resumes_and_refuses_mixing() {
     assert_eq!(results[0]["sensing"].as_array().unwrap().len(), 1);
     // The sensing condition is the configuration's own lidar: DDP's runs are the main ones.
     let main = read_json(&result_of(&out, "evaluate DDP"));
-    let sensing = read_json(&result_of(&out, "sensing condition 0 of dwa-decremental-1.5-150_153: Ddp"));
+    let sensing = read_json(&result_of(
+        &out,
+        "sensing condition 0 of dwa-decremental-1.5-150_153: Ddp",
+    ));
     assert_eq!(main["per_world"], sensing["per_world"]);
     assert_eq!(sensing["lidar"]["dropout"], 0.0);
 
@@ -217,7 +223,17 @@ fn tiny_experiment_reports_resumes_and_refuses_mixing() {
     std::fs::copy(out.join("experiment.toml"), out2.join("experiment.toml")).unwrap();
     let (o2, st2) = (out2.to_str().unwrap(), store2.to_str().unwrap());
     for k in ["0/2", "1/2"] {
-        let s = adp(&["experiment", "--config", c, "--out", o2, "--store", st2, "--shard", k]);
+        let s = adp(&[
+            "experiment",
+            "--config",
+            c,
+            "--out",
+            o2,
+            "--store",
+            st2,
+            "--shard",
+            k,
+        ]);
         assert!(s.status.success(), "{}", stderr(&s));
         assert!(!out2.join("report.md").exists());
     }
@@ -231,10 +247,27 @@ fn tiny_experiment_reports_resumes_and_refuses_mixing() {
     for file in &evals {
         // Each shard wrote its half; nothing is merged before the unsharded run.
         let shard = |k: usize| store2.join(format!("{}.shard-{k}-of-2", file.display()));
-        assert!(shard(0).is_file() && shard(1).is_file(), "{}: shards missing", file.display());
-        assert!(!store2.join(file).exists(), "{} exists before the merge", file.display());
+        assert!(
+            shard(0).is_file() && shard(1).is_file(),
+            "{}: shards missing",
+            file.display()
+        );
+        assert!(
+            !store2.join(file).exists(),
+            "{} exists before the merge",
+            file.display()
+        );
     }
-    let merged = adp(&["experiment", "--config", c, "--out", o2, "--store", st2, "--resume"]);
+    let merged = adp(&[
+        "experiment",
+        "--config",
+        c,
+        "--out",
+        o2,
+        "--store",
+        st2,
+        "--resume",
+    ]);
     assert!(merged.status.success(), "{}", stderr(&merged));
     for file in &evals {
         let (a, b) = (read_json(&store.join(file)), read_json(&store2.join(file)));
@@ -262,7 +295,10 @@ fn tiny_experiment_reports_resumes_and_refuses_mixing() {
         plan_text.contains("already in the store: 10 stage(s) (10 by tiny)"),
         "{plan_text}"
     );
-    assert!(plan_text.contains("train dwa-decremental-1.0-150_153 seed 0"), "{plan_text}");
+    assert!(
+        plan_text.contains("train dwa-decremental-1.0-150_153 seed 0"),
+        "{plan_text}"
+    );
     assert!(!plan_text.contains("train dwa-decremental-1.5"), "{plan_text}");
     assert!(plan_text.contains("core-h"), "{plan_text}");
     assert!(!out3.exists(), "--plan created {}", out3.display());
@@ -276,7 +312,9 @@ fn tiny_experiment_reports_resumes_and_refuses_mixing() {
     assert_eq!(after.len(), 20, "the new arm's ten results: {after:#?}");
     let report3 = std::fs::read_to_string(out3.join("report.md")).unwrap();
     assert!(
-        report3.contains("20 stage(s), 10 computed by this experiment, reused from the store: 10 computed by `tiny`"),
+        report3.contains(
+            "20 stage(s), 10 computed by this experiment, reused from the store: 10 computed by `tiny`"
+        ),
         "{report3}"
     );
     let arm_results = |out: &Path| -> serde_json::Value {

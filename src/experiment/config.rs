@@ -64,6 +64,49 @@ pub struct ExperimentSection {
     /// stage compute it once. Relative to the directory `adp experiment` runs in.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub store: Option<std::path::PathBuf>,
+    /// More arms: each group's cross product of planners, action spaces, speeds and training
+    /// worlds (a key it leaves out is this section's) joins the arms, after the section's own
+    /// and without repeating an arm. One file can so hold tables whose arms are not one cross
+    /// product (a planner x speed grid, and action spaces on one planner).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub groups: Vec<ArmGroup>,
+}
+
+/// `[[experiment.groups]]`: one more cross product of arms.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ArmGroup {
+    /// What the group is for (a table's name, for the reader).
+    #[serde(default)]
+    pub name: String,
+    /// Planners (default: `[experiment] planners`).
+    pub planners: Option<Vec<String>>,
+    /// Action spaces (default: `[experiment] action_spaces`).
+    pub action_spaces: Option<Vec<String>>,
+    /// Speed caps (default: `[experiment] speeds`).
+    pub speeds: Option<Vec<f64>>,
+    /// Training-world selections (default: `[experiment] train_worlds`).
+    pub train_worlds: Option<Vec<String>>,
+}
+
+impl ArmGroup {
+    /// The section with this group's keys in place of its own, and no groups.
+    fn over(&self, ex: &ExperimentSection) -> ExperimentSection {
+        ExperimentSection {
+            planners: self.planners.clone().unwrap_or_else(|| ex.planners.clone()),
+            action_spaces: self
+                .action_spaces
+                .clone()
+                .unwrap_or_else(|| ex.action_spaces.clone()),
+            speeds: self.speeds.clone().unwrap_or_else(|| ex.speeds.clone()),
+            train_worlds: self
+                .train_worlds
+                .clone()
+                .unwrap_or_else(|| ex.train_worlds.clone()),
+            groups: Vec::new(),
+            ..ex.clone()
+        }
+    }
 }
 
 fn default_spaces() -> Vec<String> {
@@ -99,6 +142,9 @@ pub struct EvalSection {
     /// An evaluation configuration (planner tunables; default: the embedded
     /// `configs/eval.toml`). Its `[episode] profile` is replaced by `[train.env] profile`.
     pub config: Option<String>,
+    /// Also evaluate the vanilla schedule (the planner's uniform fine grid) per planner and
+    /// speed: the DDP paper's calibration row.
+    pub vanilla: bool,
 }
 
 impl Default for EvalSection {
@@ -110,6 +156,7 @@ impl Default for EvalSection {
             start_jitter_m: 0.1,
             start_jitter_yaw_rad: 0.1,
             config: None,
+            vanilla: false,
         }
     }
 }
@@ -228,6 +275,10 @@ pub struct ShuffleSection {
     pub pool: usize,
     /// Seed of the reservoir and of the per-step draws.
     pub seed: u64,
+    /// The speed caps whose arms get the control (empty: every arm). It asks whether the
+    /// policy uses what it sees, which one speed answers; the others save its evaluations.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub speeds: Vec<f64>,
 }
 
 impl Default for ShuffleSection {
@@ -237,6 +288,7 @@ impl Default for ShuffleSection {
             max_worlds: 10,
             pool: 4096,
             seed: 2,
+            speeds: Vec::new(),
         }
     }
 }
@@ -858,9 +910,35 @@ impl Experiment {
             toml::from_str(text).map_err(|e| anyhow::anyhow!("{name}: {}", one_line(&e.to_string())))?;
         let train = parse_train(name, raw.train, restrict)?;
         let ex = &raw.experiment;
-        let (planners, spaces) = planners_and_spaces(name, ex)?;
+        let (mut planners, mut spaces) = planners_and_spaces(name, ex)?;
         let (test_worlds, search_worlds, pool_worlds) =
             world_splits(name, ex, &train, &raw.constant_search, &raw.shuffle)?;
+        // Every group is checked as a section of its own; restrictions may name what any
+        // group declares.
+        let mut declared = ex.clone();
+        let mut groups = Vec::new();
+        for (i, g) in ex.groups.iter().enumerate() {
+            let gx = g.over(ex);
+            let label = format!("{name}: [[experiment.groups]] {} ({:?})", i + 1, g.name);
+            let (gp, gs) = planners_and_spaces(&label, &gx)?;
+            world_splits(&label, &gx, &train, &raw.constant_search, &raw.shuffle)?;
+            for p in &gp {
+                if !planners.contains(p) {
+                    planners.push(*p);
+                }
+            }
+            for sp in &gs {
+                if !spaces.contains(sp) {
+                    spaces.push(*sp);
+                }
+            }
+            for v in &gx.speeds {
+                if !declared.speeds.contains(v) {
+                    declared.speeds.push(*v);
+                }
+            }
+            groups.push((gp, gs, gx));
+        }
         check_tables(
             name,
             &raw.eval,
@@ -876,9 +954,20 @@ impl Experiment {
             Some(w) => w,
             None => *test_worlds.last().context("no test worlds")?,
         };
-        let seeds = restricted_seeds(name, restrict, &planners, &spaces, ex)?;
+        let seeds = restricted_seeds(name, restrict, &planners, &spaces, &declared)?;
         let observations = observation_layouts(name, ex, train.env.observation)?;
-        let arms = restricted_arms(restrict, &planners, &spaces, ex, &observations);
+        let (own_planners, own_spaces) = planners_and_spaces(name, ex)?;
+        let mut arms = restricted_arms(restrict, &own_planners, &own_spaces, ex, &observations);
+        for (gp, gs, gx) in &groups {
+            for a in restricted_arms(restrict, gp, gs, gx, &observations) {
+                if !arms.contains(&a) {
+                    arms.push(a);
+                }
+            }
+        }
+        if arms.is_empty() {
+            bail!("{name}: the restrictions leave no arm");
+        }
         let sweep = raw.compute_sweep;
         check_sweep(name, &sweep, arms.len())?;
         let sensing = raw.sensing_sweep;
@@ -1052,6 +1141,46 @@ mod tests {
             (base.eval.runs, base.eval.trim)
         );
         assert_eq!(stuck.test_worlds, base.test_worlds);
+    }
+
+    /// Groups add their own cross products after the section's arms, without repeating an
+    /// arm; their world selections are checked like the section's, and a restriction may
+    /// name what only a group declares.
+    #[test]
+    fn groups_add_arms_of_their_own() {
+        let text = format!(
+            "{MINIMAL}[[experiment.groups]]\nname = \"spaces\"\naction_spaces = [\"decremental\", \
+             \"incremental\"]\n[[experiment.groups]]\nplanners = [\"system\"]\nspeeds = [1.0]\n"
+        );
+        let ex = parse(&text).unwrap();
+        let ids: Vec<String> = ex.arms.iter().map(Arm::id).collect();
+        assert_eq!(
+            ids,
+            [
+                "dwa-decremental-1.5-fit",
+                "dwa-incremental-1.5-fit",
+                "system-decremental-1.0-fit"
+            ]
+        );
+        let only = Restrict {
+            planners: vec![PlannerKind::System],
+            ..Restrict::default()
+        };
+        let ex = Experiment::parse("t.toml", &text, &only).unwrap();
+        assert_eq!(ex.arms.len(), 1);
+        let err = parse(&format!(
+            "{MINIMAL}[[experiment.groups]]\ntrain_worlds = [\"test\"]\n"
+        ))
+        .unwrap_err()
+        .to_string();
+        assert!(
+            err.contains("[[experiment.groups]] 1") && err.contains("test world"),
+            "{err}"
+        );
+        let err = parse(&format!("{MINIMAL}[[experiment.groups]]\nplanner = [\"dwa\"]\n"))
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("planner"), "{err}");
     }
 
     #[test]

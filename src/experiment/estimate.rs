@@ -39,7 +39,12 @@ pub fn units(ex: &Experiment, stage: &Stage) -> (f64, String) {
         Stage::Train { arm, .. } => (ex.train.run.steps as f64, class(arm, true, true)),
         Stage::Search { arm } => {
             let s = &ex.search;
-            let rungs = halving(s.candidates, s.eta, s.first_pairs, ex.search_worlds.len() * s.runs);
+            let rungs = halving(
+                s.candidates,
+                s.eta,
+                s.first_pairs,
+                ex.search_worlds.len() * s.runs,
+            );
             let mut before = 0;
             let mut episodes = 0;
             for (keep, upto) in rungs {
@@ -48,9 +53,13 @@ pub fn units(ex: &Experiment, stage: &Stage) -> (f64, String) {
             }
             (episodes as f64, class(arm, false, true))
         }
-        Stage::EvalDdp { planner, speed } => (evals(ex.eval.runs), class(arm_of(planner, speed), false, false)),
+        Stage::EvalDdp { planner, speed } | Stage::EvalVanilla { planner, speed } => {
+            (evals(ex.eval.runs), class(arm_of(planner, speed), false, false))
+        }
         Stage::EvalConstant { arm } => (evals(ex.eval.runs), class(arm, false, true)),
-        Stage::EvalUntrained { arm } | Stage::EvalAdp { arm, .. } => (evals(ex.eval.runs), class(arm, true, true)),
+        Stage::EvalUntrained { arm } | Stage::EvalAdp { arm, .. } => {
+            (evals(ex.eval.runs), class(arm, true, true))
+        }
         Stage::EvalShuffled { arm, .. } => (
             evals(ex.eval.runs) + ex.pool_worlds.len() as f64,
             class(arm, true, true),
@@ -134,7 +143,14 @@ impl Rates {
 /// `done_est` and `left_est` are the estimated core-seconds of the finished and the remaining
 /// stages, `elapsed_s` the wall time so far; the time left scales the remaining estimate by
 /// what the finished stages took against their estimate, over `cores`.
-pub fn progress_line(done: usize, total: usize, done_est: f64, left_est: f64, elapsed_s: f64, cores: usize) -> String {
+pub fn progress_line(
+    done: usize,
+    total: usize,
+    done_est: f64,
+    left_est: f64,
+    elapsed_s: f64,
+    cores: usize,
+) -> String {
     const WIDTH: usize = 20;
     let frac = if done_est + left_est > 0.0 {
         done_est / (done_est + left_est)

@@ -44,11 +44,11 @@ use controls::{
 };
 use estimate::{progress_line, Rates};
 use plan::{pending, stages, write_atomic, SensingPlan, Stage, SweepPlan, SweepWho, Sweeps};
-use store::{Layout, StageMeta, Store};
 use record::{EvalRecord, Summary};
 use report::{comparisons, sensing_results, ArmData, Comparison, SensingResult};
 use runner::{evaluate, observations, Controller, RunSpec};
 use shard::Shard;
+use store::{Layout, StageMeta, Store};
 
 /// The file in an experiment directory holding the experiment file it was started with.
 const CONFIG_COPY: &str = "experiment.toml";
@@ -136,7 +136,8 @@ fn emit_slurm(ex: &Experiment, text: &str, dir: &Path, store: &Store, args: &Arg
     } else {
         write_atomic(&copy, text.as_bytes())?;
     }
-    let store = std::path::absolute(&store.dir).with_context(|| format!("cannot resolve {}", store.dir.display()))?;
+    let store =
+        std::path::absolute(&store.dir).with_context(|| format!("cannot resolve {}", store.dir.display()))?;
     let mut step_args = slurm::restrict_args(&args.restrict);
     step_args.extend(["--store".to_string(), store.display().to_string()]);
     let adp = if ex.slurm.adp.is_empty() {
@@ -146,13 +147,7 @@ fn emit_slurm(ex: &Experiment, text: &str, dir: &Path, store: &Store, args: &Arg
     };
     print!(
         "{}",
-        slurm::script(
-            &ex.section.name,
-            &ex.slurm,
-            &dir,
-            &adp,
-            &step_args
-        )
+        slurm::script(&ex.section.name, &ex.slurm, &dir, &adp, &step_args)
     );
     Ok(())
 }
@@ -469,6 +464,11 @@ fn describe(stage: &Stage, arms: &[Arm]) -> String {
                 speed_label(speed)
             )
         }
+        Stage::EvalVanilla { planner, speed } => format!(
+            "evaluate vanilla ({} at {} m/s)",
+            planner_name(planner),
+            speed_label(speed)
+        ),
         Stage::EvalConstant { arm } => format!("evaluate the best constant of {}", arms[arm].id()),
         Stage::EvalUntrained { arm } => format!("evaluate the untrained policy of {}", arms[arm].id()),
         Stage::EvalAdp { arm, seed } => format!("evaluate {} seed {seed}", arms[arm].id()),
@@ -504,7 +504,17 @@ fn sensing_plan(ex: &Experiment) -> Option<SensingPlan> {
 
 /// The sweeps of `ex`.
 fn sweeps(ex: &Experiment) -> Sweeps {
+    let shuffled_speeds = &ex.shuffle.speeds;
     Sweeps {
+        vanilla: ex.eval.vanilla,
+        unshuffled: (0..ex.arms.len())
+            .filter(|&i| {
+                !shuffled_speeds.is_empty()
+                    && !shuffled_speeds
+                        .iter()
+                        .any(|v| (v - ex.arms[i].speed).abs() < 1e-9)
+            })
+            .collect(),
         budget: sweep_plan(ex),
         sensing: sensing_plan(ex),
     }
@@ -645,17 +655,18 @@ fn run_stage(ctx: &Ctx<'_>, stage: &Stage, out: &Path) -> anyhow::Result<()> {
     match *stage {
         Stage::Train { .. } => unreachable!("training runs outside the pool"),
         Stage::Search { arm } => search_stage(ctx, arm, out),
-        Stage::EvalDdp { planner, speed } => {
+        Stage::EvalDdp { planner, speed } | Stage::EvalVanilla { planner, speed } => {
             let a = ex
                 .arms
                 .iter()
                 .find(|a| a.planner == planner && a.speed == speed)
-                .expect("a DDP stage comes from an arm");
-            let ev = evaluate(
-                &test_spec(ctx, a, false),
-                &Controller::Schedule(Schedule::ddp_default()),
-            )?;
-            record(ctx, a, "ddp", ev).save(out)
+                .expect("a DDP or vanilla stage comes from an arm");
+            let (name, schedule) = match stage {
+                Stage::EvalDdp { .. } => ("ddp", Schedule::ddp_default()),
+                _ => ("vanilla", Schedule::vanilla()),
+            };
+            let ev = evaluate(&test_spec(ctx, a, false), &Controller::Schedule(schedule))?;
+            record(ctx, a, name, ev).save(out)
         }
         Stage::Sweep { arm, point, who } => sweep_stage(ctx, arm, point, who, out),
         Stage::Sensing { arm, condition, who } => sensing_stage(ctx, arm, condition, who, out),
@@ -959,6 +970,14 @@ fn arm_data(ctx: &Ctx<'_>, arm: usize) -> anyhow::Result<ArmData> {
             planner: a.planner,
             speed: a.speed,
         })?,
+        vanilla: if ex.eval.vanilla {
+            read(Stage::EvalVanilla {
+                planner: a.planner,
+                speed: a.speed,
+            })?
+        } else {
+            None
+        },
         constant: read(Stage::EvalConstant { arm })?,
         search,
         untrained: read(Stage::EvalUntrained { arm })?,
@@ -1032,7 +1051,11 @@ fn provenance(ctx: &Ctx<'_>) -> anyhow::Result<String> {
     let mut by: std::collections::BTreeMap<String, usize> = Default::default();
     for s in stages(&ex.arms, ex.seeds, &sweeps(ex)) {
         let recipe = ctx.layout.recipe(&s);
-        let meta = ctx.layout.done(&s).then(|| ctx.layout.store.meta(&recipe)).flatten();
+        let meta = ctx
+            .layout
+            .done(&s)
+            .then(|| ctx.layout.store.meta(&recipe))
+            .flatten();
         if ctx.layout.done(&s) {
             let who = meta
                 .as_ref()
@@ -1089,9 +1112,9 @@ fn write_report(ctx: &Ctx<'_>) -> anyhow::Result<PathBuf> {
             rendered = true;
         }
         let missing = pending(&stages(&ex.arms, ex.seeds, &sweeps(ex)), |s| ctx.layout.done(s))
-        .into_iter()
-        .filter(|s| stage_arm(s, &ex.arms) == Some(arm))
-        .count();
+            .into_iter()
+            .filter(|s| stage_arm(s, &ex.arms) == Some(arm))
+            .count();
         if missing > 0 {
             notes.push(format!(
                 "{id}: {missing} stage(s) not finished yet; their rows are missing"
@@ -1121,9 +1144,7 @@ fn learning_figure(
 ) -> anyhow::Result<()> {
     let id = d.arm.id();
     let curves: Vec<(String, Vec<figures::GreedyPoint>)> = (0..ctx.ex.seeds)
-        .filter_map(|s| {
-            figures::read_greedy(&ctx.layout.run_dir(arm, s)).map(|g| (format!("seed {s}"), g))
-        })
+        .filter_map(|s| figures::read_greedy(&ctx.layout.run_dir(arm, s)).map(|g| (format!("seed {s}"), g)))
         .filter(|(_, g)| !g.is_empty())
         .collect();
     if curves.is_empty() {
@@ -1332,7 +1353,7 @@ fn stage_arm(s: &Stage, arms: &[Arm]) -> Option<usize> {
         | Stage::EvalShuffled { arm, .. }
         | Stage::Sweep { arm, .. }
         | Stage::Sensing { arm, .. } => Some(arm),
-        Stage::EvalDdp { planner, speed } => {
+        Stage::EvalDdp { planner, speed } | Stage::EvalVanilla { planner, speed } => {
             arms.iter().position(|a| a.planner == planner && a.speed == speed)
         }
     }
@@ -1462,7 +1483,15 @@ mod tests {
         let cfg = eval_config(&ex).unwrap();
         let ctx = Ctx {
             ex: &ex,
-            layout: Layout::new(dir.clone(), Store { dir: dir.join("store") }, &ex, &cfg, 2),
+            layout: Layout::new(
+                dir.clone(),
+                Store {
+                    dir: dir.join("store"),
+                },
+                &ex,
+                &cfg,
+                2,
+            ),
             cfg,
             worlds: sim::catalog::worlds(),
             test_worlds: ex.test_worlds.clone(),

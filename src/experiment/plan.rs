@@ -39,6 +39,14 @@ pub enum Stage {
         /// The speed cap (m/s).
         speed: f64,
     },
+    /// Evaluate the vanilla schedule (the planner's uniform fine grid) for a planner and
+    /// speed: the calibration row of the DDP paper.
+    EvalVanilla {
+        /// The planner.
+        planner: PlannerKind,
+        /// The speed cap (m/s).
+        speed: f64,
+    },
     /// Evaluate an arm's best constant action.
     EvalConstant {
         /// Arm index.
@@ -115,9 +123,14 @@ pub struct SensingPlan {
     pub conditions: usize,
 }
 
-/// The sweeps after the main evaluations (each `None` when the experiment has none).
+/// The evaluations beyond the main protocol: the vanilla row and the sweeps after the main
+/// evaluations (each `None` when the experiment has none).
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct Sweeps {
+    /// Whether the vanilla schedule is evaluated per planner and speed (after DDP).
+    pub vanilla: bool,
+    /// The arms without the state-shuffled control (`[shuffle] speeds`).
+    pub unshuffled: Vec<usize>,
     /// The budget sweep.
     pub budget: Option<SweepPlan>,
     /// The sensing sweep.
@@ -167,10 +180,12 @@ pub fn stages(arms: &[Arm], seeds: usize, sweeps: &Sweeps) -> Vec<Stage> {
             ddp.push((a.planner, a.speed));
         }
     }
-    out.extend(
-        ddp.into_iter()
-            .map(|(planner, speed)| Stage::EvalDdp { planner, speed }),
-    );
+    for (planner, speed) in ddp {
+        out.push(Stage::EvalDdp { planner, speed });
+        if sweeps.vanilla {
+            out.push(Stage::EvalVanilla { planner, speed });
+        }
+    }
     for arm in 0..arms.len() {
         if owns_controls(arm) {
             out.push(Stage::EvalConstant { arm });
@@ -180,7 +195,9 @@ pub fn stages(arms: &[Arm], seeds: usize, sweeps: &Sweeps) -> Vec<Stage> {
         }
         for seed in 0..seeds {
             out.push(Stage::EvalAdp { arm, seed });
-            out.push(Stage::EvalShuffled { arm, seed });
+            if !sweeps.unshuffled.contains(&arm) {
+                out.push(Stage::EvalShuffled { arm, seed });
+            }
         }
     }
     if let Some(SweepPlan { arm, points }) = sweeps.budget {
@@ -258,7 +275,7 @@ mod tests {
             2,
             &Sweeps {
                 budget,
-                sensing: None,
+                ..Sweeps::default()
             },
         );
         assert_eq!(s[..plain.len()], plain[..]);
@@ -344,14 +361,22 @@ mod tests {
             2,
             &Sweeps {
                 budget,
-                sensing: None,
+                ..Sweeps::default()
             },
         );
         let sensing = Some(SensingPlan {
             arms: vec![1, 2, 3],
             conditions: 4,
         });
-        let s = stages(&arms, 2, &Sweeps { budget, sensing });
+        let s = stages(
+            &arms,
+            2,
+            &Sweeps {
+                budget,
+                sensing,
+                ..Sweeps::default()
+            },
+        );
         assert_eq!(s[..before.len()], before[..]);
         let sweep = &s[before.len()..];
         // Arm 1: DDP, constant, 2 seeds; arm 2: 2 seeds (its DDP and constant are arm 1's);
@@ -428,6 +453,55 @@ mod tests {
         assert!(last_train < first_adp);
     }
 
+    /// An arm without the state-shuffled control has its policies evaluated, not their
+    /// shuffled twins.
+    #[test]
+    fn unshuffled_arms_skip_the_shuffled_control() {
+        let s = stages(
+            &arms(),
+            2,
+            &Sweeps {
+                unshuffled: vec![0],
+                ..Sweeps::default()
+            },
+        );
+        let shuffled: Vec<usize> = s
+            .iter()
+            .filter_map(|x| match *x {
+                Stage::EvalShuffled { arm, .. } => Some(arm),
+                _ => None,
+            })
+            .collect();
+        assert_eq!(shuffled, [1, 1]);
+        assert_eq!(s.iter().filter(|x| matches!(x, Stage::EvalAdp { .. })).count(), 4);
+    }
+
+    /// With the vanilla row, each planner and speed's vanilla evaluation follows its DDP.
+    #[test]
+    fn the_vanilla_row_follows_ddp_once_per_planner_and_speed() {
+        let plain = stages(&arms(), 1, &Sweeps::default());
+        let with = stages(
+            &arms(),
+            1,
+            &Sweeps {
+                vanilla: true,
+                ..Sweeps::default()
+            },
+        );
+        assert_eq!(with.len(), plain.len() + 1);
+        let at = with
+            .iter()
+            .position(|s| matches!(s, Stage::EvalDdp { .. }))
+            .unwrap();
+        assert_eq!(
+            with[at + 1],
+            Stage::EvalVanilla {
+                planner: PlannerKind::Dwa,
+                speed: 1.5
+            }
+        );
+    }
+
     /// A resumed experiment skips the finished stages (here: the first arm's whole training
     /// and evaluation) and keeps the rest in order.
     #[test]
@@ -443,7 +517,7 @@ mod tests {
             | Stage::EvalShuffled { arm, .. }
             | Stage::Sweep { arm, .. }
             | Stage::Sensing { arm, .. } => arm == 0,
-            Stage::EvalDdp { .. } => true,
+            Stage::EvalDdp { .. } | Stage::EvalVanilla { .. } => true,
         };
         let todo = pending(&all, first_arm);
         assert_eq!(

@@ -23,7 +23,7 @@ use sha2::{Digest, Sha256};
 use crate::config::{EvalConfig, TrainConfig};
 
 use super::config::{planner_name, space_label, Arm, Experiment};
-use super::plan::{SweepWho, Stage};
+use super::plan::{Stage, SweepWho};
 
 /// The version of the code that changes results. Bump it in the commit that changes what any
 /// stage computes (simulator, planners, worlds, learner, evaluation protocol): every key
@@ -126,6 +126,11 @@ impl Inputs<'_> {
                 self.cfg,
                 (ex.eval.runs, ex.eval.trim),
             ),
+            Stage::EvalVanilla { planner, speed } => self.eval(
+                json!({"controller": "vanilla", "planner": planner_name(planner), "speed": speed}),
+                self.cfg,
+                (ex.eval.runs, ex.eval.trim),
+            ),
             Stage::EvalConstant { arm } => self.eval(
                 self.controller(arm, SweepWho::Constant),
                 self.cfg,
@@ -151,11 +156,16 @@ impl Inputs<'_> {
             ),
             Stage::EvalShuffled { arm, seed } => {
                 let a = &ex.arms[arm];
+                // Which arms get the control does not change what it computes.
+                let mut shuffle = serde_json::to_value(&ex.shuffle).expect("sections serialize");
+                if let Some(s) = shuffle.as_object_mut() {
+                    s.remove("speeds");
+                }
                 self.eval(
                     json!({
                         "controller": "shuffled",
                         "train": self.train(a, seed).key,
-                        "shuffle": ex.shuffle,
+                        "shuffle": shuffle,
                         "pool_worlds": ex.pool_worlds,
                     }),
                     self.cfg,
@@ -224,7 +234,9 @@ impl Inputs<'_> {
     fn controller(&self, arm: usize, who: SweepWho) -> Value {
         let a = &self.ex.arms[arm];
         match who {
-            SweepWho::Ddp => json!({"controller": "ddp", "planner": planner_name(a.planner), "speed": a.speed}),
+            SweepWho::Ddp => {
+                json!({"controller": "ddp", "planner": planner_name(a.planner), "speed": a.speed})
+            }
             SweepWho::Constant => json!({
                 "controller": "constant",
                 "search": self.search(a).key,
@@ -281,8 +293,7 @@ mod tests {
     use crate::experiment::plan::{stages, Sweeps};
 
     const ONE: &str = "[experiment]\nname = \"one\"\nplanners = [\"dwa\"]\nspeeds = [1.5]\n";
-    const TWO: &str =
-        "[experiment]\nname = \"two\"\nplanners = [\"dwa\", \"mppi\"]\nspeeds = [1.0, 1.5]\n";
+    const TWO: &str = "[experiment]\nname = \"two\"\nplanners = [\"dwa\", \"mppi\"]\nspeeds = [1.0, 1.5]\n";
 
     fn keys(text: &str) -> Vec<(String, Key)> {
         let ex = Experiment::parse("t.toml", text, &Restrict::default()).unwrap();
@@ -322,9 +333,15 @@ mod tests {
         for (what, text) in [
             ("runs per world", format!("{ONE}[eval]\nruns = 10\ntrim = 2\n")),
             ("training steps", format!("{ONE}[train.run]\nsteps = 1000\n")),
-            ("the learning rate", format!("{ONE}[train.td3]\nactor_lr = 0.001\n")),
+            (
+                "the learning rate",
+                format!("{ONE}[train.td3]\nactor_lr = 0.001\n"),
+            ),
             ("the test worlds", format!("{ONE}test_worlds = \"hardest50\"\n")),
-            ("the compute budget", format!("{ONE}[train.env.compute]\nbudget_scale = 2.0\n")),
+            (
+                "the compute budget",
+                format!("{ONE}[train.env.compute]\nbudget_scale = 2.0\n"),
+            ),
         ] {
             let other = keys(&text);
             let changed = base.iter().zip(&other).filter(|(a, b)| a.1 != b.1).count();
@@ -339,6 +356,65 @@ mod tests {
                 || stage.starts_with("EvalShuffled");
             assert_eq!(a != b, depends, "{stage}");
         }
+    }
+
+    /// The version of the code and the episodes it gives: DDP of every planner at 1.5 m/s on
+    /// three test worlds, two runs each (statuses and times to the centisecond).
+    const FINGERPRINT: (u32, &str) = (1, "5f055e75f0f75a4f");
+
+    /// [`RESULTS_VERSION`] moves with what the code computes: when DDP's episodes change and
+    /// the version did not, this fails and says what to write. (It watches the simulator, the
+    /// planners, the worlds and the evaluation protocol; a change of the learner alone must be
+    /// caught by its author.)
+    #[test]
+    fn results_fingerprint() {
+        use crate::experiment::runner::{evaluate, Controller, RunSpec};
+        use planner::{PlannerKind, Schedule};
+        let ex = Experiment::parse("t.toml", ONE, &Restrict::default()).unwrap();
+        let mut cfg = EvalConfig::load(None).unwrap();
+        cfg.episode = cfg
+            .episode
+            .with_profile(ex.train.env.profile, ex.train.env.dynamics);
+        cfg.compute = ex.train.env.compute;
+        let mut text = String::new();
+        for planner in [
+            PlannerKind::Dwa,
+            PlannerKind::Mppi,
+            PlannerKind::LogMppi,
+            PlannerKind::System,
+        ] {
+            let spec = RunSpec {
+                cfg: &cfg,
+                worlds: sim::catalog::worlds(),
+                planner,
+                speed: 1.5,
+                world_ids: &[0, 120, 224],
+                runs: 2,
+                pairs: &[],
+                seed: 0,
+                trace: false,
+                track: false,
+            };
+            let ev = evaluate(&spec, &Controller::Schedule(Schedule::ddp_default())).unwrap();
+            for w in &ev.per_world {
+                for r in &w.runs {
+                    text += &format!("{planner:?} {} {:?} {:.0}\n", w.world, r.status, r.time_s * 100.0);
+                }
+            }
+        }
+        let digest = Sha256::digest(text.as_bytes());
+        let hex: String = digest.iter().take(8).map(|b| format!("{b:02x}")).collect();
+        assert_eq!(
+            FINGERPRINT.0, RESULTS_VERSION,
+            "RESULTS_VERSION is {RESULTS_VERSION}: set FINGERPRINT in src/experiment/recipe.rs to \
+             ({RESULTS_VERSION}, {hex:?})"
+        );
+        assert_eq!(
+            FINGERPRINT.1, hex,
+            "DDP's episodes changed (now:\n{text}): a change of the code changes results, so bump \
+             RESULTS_VERSION in src/experiment/recipe.rs and set FINGERPRINT to (the new version, \
+             {hex:?})"
+        );
     }
 
     #[test]

@@ -19,6 +19,8 @@ pub struct ArmData {
     pub arm: Arm,
     /// DDP of the arm's planner and speed.
     pub ddp: Option<EvalRecord>,
+    /// The vanilla schedule of the arm's planner and speed (with `[eval] vanilla`).
+    pub vanilla: Option<EvalRecord>,
     /// The best constant action.
     pub constant: Option<EvalRecord>,
     /// The search that chose it.
@@ -339,6 +341,7 @@ fn cells(recs: &[&EvalRecord]) -> [String; 6] {
 fn methods(d: &ArmData) -> Vec<(String, Vec<&EvalRecord>)> {
     let space = space_label(d.arm.space);
     vec![
+        ("vanilla".to_string(), d.vanilla.iter().collect()),
         ("DDP".to_string(), d.ddp.iter().collect()),
         (format!("best constant ({space})"), d.constant.iter().collect()),
         ("untrained (DDP init)".to_string(), d.untrained.iter().collect()),
@@ -500,6 +503,9 @@ fn table_two(out: &mut String, ex: &Experiment, data: &[ArmData]) {
                 .iter()
                 .filter(|d| planner_name(d.arm.planner) == p && speed_label(d.arm.speed) == v)
                 .collect();
+            if let Some(vanilla) = group.iter().find_map(|d| d.vanilla.as_ref()) {
+                let _ = writeln!(out, "| vanilla | {} |", cells(&[vanilla]).join(" | "));
+            }
             if let Some(ddp) = group.iter().find_map(|d| d.ddp.as_ref()) {
                 let _ = writeln!(out, "| DDP | {} |", cells(&[ddp]).join(" | "));
             }
@@ -932,6 +938,7 @@ mod tests {
         let d = ArmData {
             arm: ex.arms[0].clone(),
             ddp: None,
+            vanilla: None,
             constant: None,
             search: None,
             untrained: None,
@@ -984,6 +991,7 @@ mod tests {
             .map(|(arm, &score)| ArmData {
                 arm: arm.clone(),
                 ddp: Some(rec("ddp", &[(3, true, 0.5)])),
+                vanilla: None,
                 constant: None,
                 search: None,
                 untrained: None,

@@ -195,7 +195,8 @@ impl Layout {
 
     /// The export directory of arm `arm`'s untrained policy.
     pub fn untrained_export(&self, arm: usize) -> PathBuf {
-        self.store.path(&self.inputs().untrained_policy(&self.ex.arms[arm]))
+        self.store
+            .path(&self.inputs().untrained_policy(&self.ex.arms[arm]))
     }
 
     /// Whether `stage` is finished.
