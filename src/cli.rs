@@ -53,6 +53,9 @@ pub enum Cmd {
     /// untrained policy and the state-shuffled policy, and write report.md with tables,
     /// paired statistics and figures. Resumable.
     Experiment(experiment::Args),
+    /// Where the width of ADP's paired interval comes from (runs within a world, worlds,
+    /// seeds) in finished evaluation records, and what other protocols would give.
+    Protocol(experiment::ProtocolArgs),
     /// List, inspect, generate or compare worlds and splits.
     Worlds {
         #[command(subcommand)]
@@ -72,6 +75,7 @@ pub enum Cmd {
 pub fn run(cmd: Cmd) -> anyhow::Result<()> {
     match cmd {
         Cmd::Bench(args) => bench::run(&args),
+        Cmd::Protocol(args) => experiment::protocol_command(&args),
         Cmd::Train(a) => train::train_command(a),
         Cmd::Learner(a) => train::learner_command(a),
         Cmd::Actor(args) => actor_process::command(args),

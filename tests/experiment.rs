@@ -283,7 +283,11 @@ fn tiny_experiment_reports_resumes_and_refuses_mixing() {
     std::fs::write(
         &wider,
         TINY.replace("name = \"tiny\"", "name = \"wider\"")
-            .replace("speeds = [1.5]", "speeds = [1.0, 1.5]"),
+            .replace("speeds = [1.5]", "speeds = [1.0, 1.5]")
+            .replace(
+                "[stats]",
+                "[report]\npaper_tables = true\nhardest = \"1\"\n\n[stats]",
+            ),
     )
     .unwrap();
     let (w, out3) = (wider.to_str().unwrap(), dir.join("out3"));
@@ -317,8 +321,24 @@ fn tiny_experiment_reports_resumes_and_refuses_mixing() {
         ),
         "{report3}"
     );
+    // The wider file leads with the paper's tables and keeps the arms under "arms".
+    assert!(report3.contains("### Table I: ADP against DDP"), "{report3}");
+    assert!(
+        report3.contains("### Table III: the hardest test worlds (`1`)"),
+        "{report3}"
+    );
+    let table1 = std::fs::read_to_string(out3.join("table1.md")).unwrap();
+    assert_eq!(table1.lines().count(), 4, "{table1}");
+    let paper = read_json(&out3.join("results.json"));
+    assert_eq!(paper["paper"]["table1"].as_array().unwrap().len(), 2);
+    assert_eq!(paper["paper"]["table3"][0]["ddp"]["seeds"], 1);
     let arm_results = |out: &Path| -> serde_json::Value {
         let all = read_json(&out.join("results.json"));
+        let all = if all.get("arms").is_some() {
+            all["arms"].clone()
+        } else {
+            all
+        };
         all.as_array()
             .unwrap()
             .iter()

@@ -323,6 +323,27 @@ pub struct FiguresSection {
     pub render_world: Option<usize>,
 }
 
+/// `[report]`: what the report shows besides the per-arm tables.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ReportSection {
+    /// Lead with the ADP paper's Tables I-III, beside the papers' numbers, and write them
+    /// to `results.json` (`{"paper": ..., "arms": ...}`) and the compact Table I to
+    /// `table1.md`.
+    pub paper_tables: bool,
+    /// The hardest test worlds of Table III (a subset of the test worlds).
+    pub hardest: String,
+}
+
+impl Default for ReportSection {
+    fn default() -> Self {
+        Self {
+            paper_tables: false,
+            hardest: "hardest50".into(),
+        }
+    }
+}
+
 /// `[slurm]`: the job `adp experiment --emit-slurm` writes.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -379,6 +400,8 @@ struct RawFile {
     stats: StatsSection,
     #[serde(default)]
     figures: FiguresSection,
+    #[serde(default)]
+    report: ReportSection,
     #[serde(default)]
     slurm: SlurmJob,
     #[serde(default)]
@@ -511,6 +534,10 @@ pub struct Experiment {
     pub pool_worlds: Vec<usize>,
     /// The world of the rendered episode.
     pub render_world: usize,
+    /// `[report]`.
+    pub report: ReportSection,
+    /// The hardest test worlds of `[report] hardest` (with `paper_tables`; else empty).
+    pub hardest_worlds: Vec<usize>,
 }
 
 /// Deep merge: `over`'s values replace `base`'s, tables merge key by key.
@@ -968,6 +995,19 @@ impl Experiment {
         if arms.is_empty() {
             bail!("{name}: the restrictions leave no arm");
         }
+        let hardest_worlds = if raw.report.paper_tables {
+            let ids = sim::splits::select(&raw.report.hardest)
+                .map_err(|e| anyhow::anyhow!("{name}: [report] hardest = {:?}: {e}", raw.report.hardest))?;
+            if let Some(w) = ids.iter().find(|w| !test_worlds.contains(w)) {
+                bail!(
+                    "{name}: [report] hardest = {:?} includes world {w}, which is not a test world",
+                    raw.report.hardest
+                );
+            }
+            ids
+        } else {
+            Vec::new()
+        };
         let sweep = raw.compute_sweep;
         check_sweep(name, &sweep, arms.len())?;
         let sensing = raw.sensing_sweep;
@@ -988,6 +1028,8 @@ impl Experiment {
             search_worlds,
             pool_worlds,
             render_world,
+            report: raw.report,
+            hardest_worlds,
         })
     }
 

@@ -13,7 +13,9 @@ pub mod config;
 pub mod controls;
 pub mod estimate;
 pub mod figures;
+pub mod paper;
 pub mod plan;
+pub mod protocol;
 pub mod recipe;
 pub mod record;
 pub mod report;
@@ -92,6 +94,45 @@ pub struct Args {
     /// the [slurm] tasks, merge and report) and create --out with its experiment.toml.
     #[arg(long, conflicts_with = "resume")]
     pub emit_slurm: bool,
+}
+
+/// What `adp protocol` was asked.
+#[derive(Clone, Debug, clap::Args)]
+pub struct ProtocolArgs {
+    /// DDP's evaluation record (an `eval/KEY.json` of the store).
+    #[arg(long)]
+    pub ddp: PathBuf,
+    /// The trained policy's evaluation records, one per seed (same worlds and runs).
+    #[arg(long, required = true, num_args = 1..)]
+    pub adp: Vec<PathBuf>,
+    /// Bootstrap resamples.
+    #[arg(long, default_value_t = 10_000)]
+    pub resamples: usize,
+    /// Interval confidence.
+    #[arg(long, default_value_t = 0.95)]
+    pub confidence: f64,
+    /// Resampling seed.
+    #[arg(long, default_value_t = 3)]
+    pub seed: u64,
+    /// Also write the markdown here.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+}
+
+/// `adp protocol`: prints the study of the records (markdown).
+pub fn protocol_command(args: &ProtocolArgs) -> anyhow::Result<()> {
+    let ddp = EvalRecord::load(&args.ddp)?;
+    let seeds = args
+        .adp
+        .iter()
+        .map(|p| EvalRecord::load(p))
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    let text = protocol::study(&ddp, &seeds, args.resamples, args.confidence, args.seed)?.markdown();
+    if let Some(out) = &args.out {
+        write_atomic(out, text.as_bytes())?;
+    }
+    print!("{text}");
+    Ok(())
 }
 
 /// Everything a stage needs.
@@ -1123,12 +1164,34 @@ fn write_report(ctx: &Ctx<'_>) -> anyhow::Result<PathBuf> {
     }
     notes.push(provenance(ctx)?);
     let results = arm_results(&data, ex);
-    write_atomic(
-        &ctx.layout.dir.join("results.json"),
-        &serde_json::to_vec_pretty(&results).expect("serializes"),
-    )?;
+    let mut text = report::render(ex, &data, &figs, &notes);
+    let json = if ex.report.paper_tables {
+        let t = paper::tables(ex, &data, &ex.report.hardest, &ex.hardest_worlds);
+        write_atomic(
+            &ctx.layout.dir.join("table1.md"),
+            paper::summary_table(&t).as_bytes(),
+        )?;
+        // The paper's tables lead; the per-arm report follows under its own title.
+        let (title, rest) = text.split_once('\n').unwrap_or((&text, ""));
+        text = format!("{title}\n\n{}{rest}", paper::render(&t));
+        serde_json::to_vec_pretty(&serde_json::json!({"paper": t, "arms": results}))
+    } else {
+        serde_json::to_vec_pretty(&results)
+    };
+    write_atomic(&ctx.layout.dir.join("results.json"), &json.expect("serializes"))?;
+    // Where the width of the intervals comes from, on the first arm with two seeds or more.
+    if let Some(d) = data.iter().find(|d| d.ddp.is_some() && d.adp.len() > 1) {
+        let st = &ex.stats;
+        let ddp = d.ddp.as_ref().expect("found with DDP");
+        match protocol::study(ddp, &d.adp, st.resamples, st.confidence, st.seed) {
+            Ok(s) => {
+                text += &format!("\nOn `{}`:\n\n{}", d.arm.id(), s.markdown());
+            }
+            Err(e) => text += &format!("\nNo protocol study on `{}`: {e:#}\n", d.arm.id()),
+        }
+    }
     let path = ctx.layout.dir.join("report.md");
-    write_atomic(&path, report::render(ex, &data, &figs, &notes).as_bytes())?;
+    write_atomic(&path, text.as_bytes())?;
     Ok(path)
 }
 

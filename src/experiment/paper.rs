@@ -1,0 +1,825 @@
+//! The ADP paper's tables from an experiment's results, set beside the papers' numbers.
+//!
+//! - Table I: per planner and speed cap (the decremental arms trained on the experiment's
+//!   first training-world selection), the rows vanilla, DDP, the best constant schedule and
+//!   ADP (mean ± sd over seeds), the untrained and state-shuffled controls where evaluated,
+//!   and ADP against DDP and against the best constant (paired intervals over worlds,
+//!   McNemar's test over runs).
+//! - Table II: per planner at 1.5 m/s with more than one of the paper's action spaces, one
+//!   row per space; per planner at 1.5 m/s with more than one training-world selection (the
+//!   decremental space), one row per selection.
+//! - Table III: Table I's records restricted to the hardest test worlds (no extra runs).
+//!
+//! The papers' numbers are data (the ADP paper's Tables I-III, the DDP paper's Table I for
+//! the vanilla planners), kept here as published. Pure: records in, tables and text out.
+
+use std::fmt::Write as _;
+
+use serde::Serialize;
+
+use planner::{ActionSpace, PlannerKind};
+
+use super::config::{planner_name, space_label, speed_label, Experiment};
+use super::record::EvalRecord;
+use super::report::{compare, ArmData, Comparison};
+use super::stats::{mean, sample_sd};
+
+/// A published row: success (%), time (s), score, and collision and timeout (%) where the
+/// paper gives them.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct Published {
+    /// Which paper and table.
+    pub source: &'static str,
+    /// Task success (%).
+    pub success_pct: f64,
+    /// Mean time (s).
+    pub time_s: f64,
+    /// Mean score.
+    pub score: f64,
+    /// Collisions (%), when given.
+    pub collision_pct: Option<f64>,
+}
+
+const ADP_I: &str = "ADP paper, Table I";
+const DDP_I: &str = "DDP paper, Table I";
+
+/// The papers' Table I rows of `planner` at `speed` for `method` (`vanilla`, `ddp`, `adp`).
+pub fn published_table1(planner: PlannerKind, speed: f64, method: &str) -> Option<Published> {
+    let col = [1.0, 1.5, 2.0].iter().position(|v| (v - speed).abs() < 1e-9)?;
+    // (success x3, time x3, score x3, collision x3) per row, columns 1.0 / 1.5 / 2.0 m/s.
+    let row: ([f64; 3], [f64; 3], [f64; 3], [f64; 3], &str) = match (planner, method) {
+        (PlannerKind::Dwa, "vanilla") => (
+            [90.75, 81.83, 62.73],
+            [10.00, 7.14, 5.89],
+            [0.454, 0.409, 0.313],
+            [9.25, 18.17, 37.27],
+            DDP_I,
+        ),
+        (PlannerKind::Mppi, "vanilla") => (
+            [86.06, 82.72, 71.01],
+            [10.98, 7.64, 6.10],
+            [0.430, 0.414, 0.355],
+            [13.82, 17.28, 28.99],
+            DDP_I,
+        ),
+        (PlannerKind::LogMppi, "vanilla") => (
+            [40.58, 27.65, 20.85],
+            [13.80, 8.84, 6.93],
+            [0.203, 0.138, 0.104],
+            [52.40, 71.68, 72.58],
+            DDP_I,
+        ),
+        (PlannerKind::Dwa, "ddp") => (
+            [93.74, 86.46, 73.94],
+            [12.47, 13.10, 17.67],
+            [0.469, 0.432, 0.370],
+            [6.26, 13.54, 26.06],
+            ADP_I,
+        ),
+        (PlannerKind::Dwa, "adp") => (
+            [97.03, 94.98, 82.20],
+            [10.47, 8.62, 11.82],
+            [0.485, 0.475, 0.411],
+            [2.97, 5.02, 17.80],
+            ADP_I,
+        ),
+        (PlannerKind::Mppi, "ddp") => (
+            [91.45, 90.54, 82.39],
+            [14.46, 12.11, 14.31],
+            [0.457, 0.453, 0.412],
+            [8.41, 9.32, 17.61],
+            ADP_I,
+        ),
+        (PlannerKind::Mppi, "adp") => (
+            [96.70, 94.13, 93.28],
+            [11.56, 8.22, 10.28],
+            [0.482, 0.461, 0.466],
+            [1.02, 1.01, 0.33],
+            ADP_I,
+        ),
+        (PlannerKind::LogMppi, "ddp") => (
+            [61.24, 53.86, 50.41],
+            [26.79, 27.54, 31.15],
+            [0.294, 0.269, 0.240],
+            [34.74, 45.71, 46.81],
+            ADP_I,
+        ),
+        (PlannerKind::LogMppi, "adp") => (
+            [65.85, 57.82, 54.38],
+            [22.46, 21.74, 25.14],
+            [0.320, 0.298, 0.264],
+            [31.31, 42.11, 43.45],
+            ADP_I,
+        ),
+        (PlannerKind::System, "ddp") => (
+            [95.38, 96.61, 93.05],
+            [14.28, 11.63, 11.32],
+            [0.473, 0.483, 0.465],
+            [1.02, 0.00, 5.03],
+            ADP_I,
+        ),
+        (PlannerKind::System, "adp") => (
+            [99.61, 99.22, 99.11],
+            [12.85, 10.22, 8.66],
+            [0.491, 0.494, 0.494],
+            [0.33, 0.59, 0.60],
+            ADP_I,
+        ),
+        _ => return None,
+    };
+    Some(Published {
+        source: row.4,
+        success_pct: row.0[col],
+        time_s: row.1[col],
+        score: row.2[col],
+        collision_pct: Some(row.3[col]),
+    })
+}
+
+/// The ADP paper's Table II row of the standalone system at 1.5 m/s: by action space
+/// (`space`) or by the number of training worlds (`worlds`).
+pub fn published_table2(space: Option<ActionSpace>, worlds: Option<usize>) -> Option<Published> {
+    let (success_pct, time_s, score) = match (space, worlds) {
+        (Some(ActionSpace::Unconstrained), None) => (99.20, 10.55, 0.491),
+        (Some(ActionSpace::Decremental), None) => (99.22, 10.22, 0.494),
+        (Some(ActionSpace::Incremental), None) => (96.85, 11.87, 0.480),
+        (None, Some(25)) => (96.87, 11.16, 0.484),
+        (None, Some(75)) => (99.22, 10.22, 0.494),
+        (None, Some(125)) => (99.11, 10.79, 0.494),
+        (None, Some(175)) => (98.92, 10.98, 0.491),
+        _ => return None,
+    };
+    Some(Published {
+        source: "ADP paper, Table II",
+        success_pct,
+        time_s,
+        score,
+        collision_pct: None,
+    })
+}
+
+/// The ADP paper's Table III row (50 hardest test worlds) of `planner` for `method`.
+pub fn published_table3(planner: PlannerKind, method: &str) -> Option<Published> {
+    let (success_pct, time_s, score) = match (planner, method) {
+        (PlannerKind::Dwa, "ddp") => (44.00, 31.74, 0.220),
+        (PlannerKind::Dwa, "adp") => (80.00, 14.81, 0.399),
+        (PlannerKind::Mppi, "ddp") => (50.67, 29.90, 0.253),
+        (PlannerKind::Mppi, "adp") => (80.30, 13.36, 0.401),
+        (PlannerKind::LogMppi, "ddp") => (2.67, 48.88, 0.013),
+        (PlannerKind::LogMppi, "adp") => (8.51, 41.87, 0.085),
+        (PlannerKind::System, "ddp") => (79.63, 21.33, 0.397),
+        (PlannerKind::System, "adp") => (95.80, 14.92, 0.470),
+        _ => return None,
+    };
+    Some(Published {
+        source: "ADP paper, Table III",
+        success_pct,
+        time_s,
+        score,
+        collision_pct: None,
+    })
+}
+
+/// One measured row: the table values of one controller, averaged over its records (the
+/// seeds of a policy; one record otherwise), with the sd over seeds.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Row {
+    /// Records averaged (seeds).
+    pub seeds: usize,
+    /// Task success (%).
+    pub success_pct: f64,
+    /// Its sd over seeds (0 for one record).
+    pub success_sd: f64,
+    /// Mean time (s), failures counted as 50 s.
+    pub time_s: f64,
+    /// Mean BARN score.
+    pub score: f64,
+    /// Its sd over seeds.
+    pub score_sd: f64,
+    /// Collisions (%).
+    pub collision_pct: f64,
+    /// Timeouts (%).
+    pub timeout_pct: f64,
+    /// Modelled compute per planning cycle (ms).
+    pub compute_ms: f64,
+}
+
+impl Row {
+    /// The row of `recs` (`None` without records).
+    pub fn of(recs: &[EvalRecord]) -> Option<Row> {
+        if recs.is_empty() {
+            return None;
+        }
+        let s: Vec<_> = recs.iter().map(EvalRecord::summary).collect();
+        let pick = |f: fn(&super::record::Summary) -> f64| s.iter().map(f).collect::<Vec<_>>();
+        Some(Row {
+            seeds: recs.len(),
+            success_pct: mean(&pick(|x| x.success_pct)),
+            success_sd: sample_sd(&pick(|x| x.success_pct)),
+            time_s: mean(&pick(|x| x.time_s)),
+            score: mean(&pick(|x| x.score)),
+            score_sd: sample_sd(&pick(|x| x.score)),
+            collision_pct: mean(&pick(|x| x.collision_pct)),
+            timeout_pct: mean(&pick(|x| x.timeout_pct)),
+            compute_ms: mean(&pick(|x| x.compute_ms)),
+        })
+    }
+}
+
+/// How one schedule parameter follows clutter: its Pearson correlation with the local
+/// clutter over the traced agent steps (run 0 of every test world, every seed).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct ClutterFollow {
+    /// Parameter name.
+    pub param: String,
+    /// Correlation with clutter.
+    pub corr: f64,
+    /// Its mean value in the open (clutter below the median) and in clutter (above).
+    pub open: f64,
+    /// See `open`.
+    pub cluttered: f64,
+}
+
+/// One arm's results as a table cell.
+#[derive(Clone, Debug, Serialize)]
+pub struct Cell {
+    /// Planner.
+    pub planner: String,
+    /// Speed cap (m/s).
+    pub speed: f64,
+    /// Action space.
+    pub space: String,
+    /// Training-world selection.
+    pub train_worlds: String,
+    /// Training worlds it selects (`None`: an unbounded generated supply).
+    pub train_world_count: Option<usize>,
+    /// The vanilla schedule.
+    pub vanilla: Option<Row>,
+    /// DDP.
+    pub ddp: Option<Row>,
+    /// The best constant schedule.
+    pub constant: Option<Row>,
+    /// The untrained, DDP-initialized policy.
+    pub untrained: Option<Row>,
+    /// The state-shuffled policies.
+    pub shuffled: Option<Row>,
+    /// ADP, over its seeds.
+    pub adp: Option<Row>,
+    /// ADP against DDP.
+    pub adp_vs_ddp: Option<Comparison>,
+    /// ADP against the best constant.
+    pub adp_vs_constant: Option<Comparison>,
+    /// The papers' rows for this cell (method, row).
+    pub published: Vec<(String, Published)>,
+    /// How ADP's schedule follows clutter.
+    pub clutter: Vec<ClutterFollow>,
+}
+
+/// Every table.
+#[derive(Clone, Debug, Serialize)]
+pub struct Tables {
+    /// Runs per world and runs trimmed from each end.
+    pub runs: usize,
+    /// See `runs`.
+    pub trim: usize,
+    /// Test worlds.
+    pub test_worlds: usize,
+    /// Agent steps per training.
+    pub steps: u64,
+    /// Table I, planner-major, then speed.
+    pub table1: Vec<Cell>,
+    /// Table II, action spaces.
+    pub table2_spaces: Vec<Cell>,
+    /// Table II, training worlds.
+    pub table2_worlds: Vec<Cell>,
+    /// The hardest worlds' selection of Table III.
+    pub hardest: String,
+    /// Table III: Table I's cells on the hardest worlds.
+    pub table3: Vec<Cell>,
+}
+
+/// `recs` restricted to the worlds `keep` (every world when `None`).
+fn restrict(recs: &[EvalRecord], keep: Option<&[usize]>) -> Vec<EvalRecord> {
+    recs.iter()
+        .map(|r| match keep {
+            None => r.clone(),
+            Some(k) => EvalRecord {
+                per_world: r
+                    .per_world
+                    .iter()
+                    .filter(|w| k.contains(&w.world))
+                    .cloned()
+                    .collect(),
+                trace: r.trace.iter().filter(|t| k.contains(&t.world)).cloned().collect(),
+                ..r.clone()
+            },
+        })
+        .collect()
+}
+
+fn clutter_follow(space: ActionSpace, adp: &[EvalRecord]) -> Vec<ClutterFollow> {
+    let trace: Vec<_> = adp.iter().flat_map(|r| r.trace.iter()).collect();
+    let names = space.ranges();
+    if trace.len() < 3 || trace.iter().any(|t| t.params.len() != names.len()) {
+        return Vec::new();
+    }
+    let mut clutter: Vec<f64> = trace.iter().map(|t| t.clutter).collect();
+    let xs = clutter.clone();
+    clutter.sort_by(f64::total_cmp);
+    let median = clutter[clutter.len() / 2];
+    names
+        .iter()
+        .enumerate()
+        .map(|(k, (name, _, _))| {
+            let ys: Vec<f64> = trace.iter().map(|t| t.params[k]).collect();
+            let part = |open: bool| {
+                let v: Vec<f64> = xs
+                    .iter()
+                    .zip(&ys)
+                    .filter(|(c, _)| (**c < median) == open)
+                    .map(|(_, y)| *y)
+                    .collect();
+                mean(&v)
+            };
+            ClutterFollow {
+                param: (*name).to_string(),
+                corr: pearson(&xs, &ys),
+                open: part(true),
+                cluttered: part(false),
+            }
+        })
+        .collect()
+}
+
+/// Pearson's correlation (0 when either side is constant).
+fn pearson(x: &[f64], y: &[f64]) -> f64 {
+    let (mx, my) = (mean(x), mean(y));
+    let (mut sxy, mut sxx, mut syy) = (0.0, 0.0, 0.0);
+    for (a, b) in x.iter().zip(y) {
+        sxy += (a - mx) * (b - my);
+        sxx += (a - mx) * (a - mx);
+        syy += (b - my) * (b - my);
+    }
+    if sxx <= 0.0 || syy <= 0.0 {
+        0.0
+    } else {
+        sxy / (sxx * syy).sqrt()
+    }
+}
+
+/// The cell of `d` on the worlds `keep` (all when `None`).
+fn cell(ex: &Experiment, d: &ArmData, keep: Option<&[usize]>) -> Cell {
+    let one = |r: &Option<EvalRecord>| restrict(&r.iter().cloned().collect::<Vec<_>>(), keep);
+    let (ddp, constant, adp) = (one(&d.ddp), one(&d.constant), restrict(&d.adp, keep));
+    let st = &ex.stats;
+    let vs = |name: &str, control: &[EvalRecord]| {
+        compare(name, &adp, control, st.resamples, st.confidence, st.seed)
+    };
+    let count = sim::splits::select(&d.arm.train_worlds).ok().map(|w| w.len());
+    Cell {
+        planner: planner_name(d.arm.planner),
+        speed: d.arm.speed,
+        space: space_label(d.arm.space),
+        train_worlds: d.arm.train_worlds.clone(),
+        train_world_count: count,
+        vanilla: Row::of(&one(&d.vanilla)),
+        ddp: Row::of(&ddp),
+        constant: Row::of(&constant),
+        untrained: Row::of(&one(&d.untrained)),
+        shuffled: Row::of(&restrict(&d.shuffled, keep)),
+        adp: Row::of(&adp),
+        adp_vs_ddp: vs("DDP", &ddp),
+        adp_vs_constant: vs("best constant", &constant),
+        published: Vec::new(),
+        clutter: clutter_follow(d.arm.space, &adp),
+    }
+}
+
+/// The paper's tables from every arm's data (`data[i]` is arm i's).
+pub fn tables(ex: &Experiment, data: &[ArmData], hardest: &str, hardest_worlds: &[usize]) -> Tables {
+    let main_worlds = &ex.section.train_worlds[0];
+    let is_table1 =
+        |d: &ArmData| d.arm.space == ActionSpace::Decremental && &d.arm.train_worlds == main_worlds;
+    let mut table1 = Vec::new();
+    let mut table3 = Vec::new();
+    for d in data
+        .iter()
+        .filter(|d| is_table1(d) && d.arm.observation.is_none())
+    {
+        let mut c = cell(ex, d, None);
+        for m in ["vanilla", "ddp", "adp"] {
+            if let Some(p) = published_table1(d.arm.planner, d.arm.speed, m) {
+                c.published.push((m.to_string(), p));
+            }
+        }
+        table1.push(c);
+        let mut h = cell(ex, d, Some(hardest_worlds));
+        if (d.arm.speed - 1.5).abs() < 1e-9 {
+            for m in ["ddp", "adp"] {
+                if let Some(p) = published_table3(d.arm.planner, m) {
+                    h.published.push((m.to_string(), p));
+                }
+            }
+        }
+        table3.push(h);
+    }
+    let paper_spaces = [
+        ActionSpace::Decremental,
+        ActionSpace::Incremental,
+        ActionSpace::Unconstrained,
+    ];
+    let at15 = |d: &&ArmData| (d.arm.speed - 1.5).abs() < 1e-9 && d.arm.observation.is_none();
+    let mut table2_spaces = Vec::new();
+    let mut table2_worlds = Vec::new();
+    let mut planners: Vec<PlannerKind> = Vec::new();
+    for d in data {
+        if !planners.contains(&d.arm.planner) {
+            planners.push(d.arm.planner);
+        }
+    }
+    for p in planners {
+        let spaces: Vec<&ArmData> = data
+            .iter()
+            .filter(at15)
+            .filter(|d| {
+                d.arm.planner == p
+                    && &d.arm.train_worlds == main_worlds
+                    && paper_spaces.contains(&d.arm.space)
+            })
+            .collect();
+        if spaces.len() > 1 {
+            for d in spaces {
+                let mut c = cell(ex, d, None);
+                if p == PlannerKind::System {
+                    c.published
+                        .extend(published_table2(Some(d.arm.space), None).map(|x| ("adp".to_string(), x)));
+                }
+                table2_spaces.push(c);
+            }
+        }
+        let worlds: Vec<&ArmData> = data
+            .iter()
+            .filter(at15)
+            .filter(|d| d.arm.planner == p && d.arm.space == ActionSpace::Decremental)
+            .collect();
+        if worlds.len() > 1 {
+            for d in worlds {
+                let mut c = cell(ex, d, None);
+                if p == PlannerKind::System {
+                    if let Some(n) = c.train_world_count {
+                        c.published
+                            .extend(published_table2(None, Some(n)).map(|x| ("adp".to_string(), x)));
+                    }
+                }
+                table2_worlds.push(c);
+            }
+        }
+    }
+    Tables {
+        runs: ex.eval.runs,
+        trim: ex.eval.trim,
+        test_worlds: ex.test_worlds.len(),
+        steps: ex.train.run.steps,
+        table1,
+        table2_spaces,
+        table2_worlds,
+        hardest: hardest.to_string(),
+        table3,
+    }
+}
+
+fn pct(r: &Option<Row>) -> String {
+    r.as_ref().map_or_else(
+        || "–".into(),
+        |r| {
+            if r.seeds > 1 {
+                format!("{:.2} ± {:.2}", r.success_pct, r.success_sd)
+            } else {
+                format!("{:.2}", r.success_pct)
+            }
+        },
+    )
+}
+
+fn score(r: &Option<Row>) -> String {
+    r.as_ref().map_or_else(
+        || "–".into(),
+        |r| {
+            if r.seeds > 1 {
+                format!("{:.3} ± {:.3}", r.score, r.score_sd)
+            } else {
+                format!("{:.3}", r.score)
+            }
+        },
+    )
+}
+
+fn measured_row(out: &mut String, name: &str, r: &Option<Row>, published: Option<&Published>) {
+    let paper = published.map_or_else(
+        || "–".to_string(),
+        |p| format!("{:.2} / {:.2} / {:.3}", p.success_pct, p.time_s, p.score),
+    );
+    let rest = r.as_ref().map_or_else(
+        || "– | – | – | –".to_string(),
+        |r| {
+            format!(
+                "{:.2} | {:.2} | {:.2} | {:.1}",
+                r.time_s, r.collision_pct, r.timeout_pct, r.compute_ms
+            )
+        },
+    );
+    let _ = writeln!(out, "| {name} | {} | {} | {rest} | {paper} |", pct(r), score(r));
+}
+
+fn delta(c: &Option<Comparison>) -> String {
+    c.as_ref().map_or_else(
+        || "–".into(),
+        |c| {
+            format!(
+                "{:+.4} [{:+.4}, {:+.4}]; success {:+.2} pp [{:+.2}, {:+.2}]; McNemar p {:.3}",
+                c.d_score.mean,
+                c.d_score.lo,
+                c.d_score.hi,
+                100.0 * c.d_success.mean,
+                100.0 * c.d_success.lo,
+                100.0 * c.d_success.hi,
+                c.mcnemar.p_exact
+            )
+        },
+    )
+}
+
+/// A verdict in words: whether ADP's score beats the control's, from the interval.
+fn verdict(c: &Option<Comparison>) -> &'static str {
+    match c {
+        None => "not measured yet",
+        Some(c) if c.d_score.lo > 0.0 => "ADP better",
+        Some(c) if c.d_score.hi < 0.0 => "ADP worse",
+        Some(_) => "a tie (the interval holds 0)",
+    }
+}
+
+const HEAD: &str = "| method | success (%) | score | time (s) | collision (%) | timeout (%) | ms per cycle | paper: success / time / score |\n|---|---|---|---|---|---|---|---|";
+
+fn cell_block(out: &mut String, title: &str, c: &Cell) {
+    let pub_of = |m: &str| c.published.iter().find(|(k, _)| k == m).map(|(_, p)| p);
+    let _ = writeln!(out, "#### {title}\n\n{HEAD}");
+    measured_row(out, "vanilla", &c.vanilla, pub_of("vanilla"));
+    measured_row(out, "DDP", &c.ddp, pub_of("ddp"));
+    measured_row(out, "best constant", &c.constant, None);
+    if c.untrained.is_some() {
+        measured_row(out, "untrained (DDP init)", &c.untrained, None);
+    }
+    if c.shuffled.is_some() {
+        measured_row(out, "state-shuffled ADP", &c.shuffled, None);
+    }
+    measured_row(
+        out,
+        &format!("ADP ({} seeds)", c.adp.as_ref().map_or(0, |r| r.seeds)),
+        &c.adp,
+        pub_of("adp"),
+    );
+    let _ = writeln!(
+        out,
+        "\nADP − DDP: {} ({}). ADP − best constant: {} ({}).",
+        delta(&c.adp_vs_ddp),
+        verdict(&c.adp_vs_ddp),
+        delta(&c.adp_vs_constant),
+        verdict(&c.adp_vs_constant)
+    );
+    if !c.clutter.is_empty() {
+        let parts: Vec<String> = c
+            .clutter
+            .iter()
+            .map(|f| {
+                format!(
+                    "{} r = {:+.2} ({:.2} open, {:.2} cluttered)",
+                    f.param, f.corr, f.open, f.cluttered
+                )
+            })
+            .collect();
+        let _ = writeln!(out, "Schedule against clutter: {}.", parts.join("; "));
+    }
+    let _ = writeln!(out);
+}
+
+/// The compact Table I: one line per cell (DDP, best constant and ADP score and success, and
+/// the verdicts), the table README shows.
+pub fn summary_table(t: &Tables) -> String {
+    let mut out = String::from(
+        "| planner | speed (m/s) | vanilla | DDP | best constant | ADP | ADP − DDP score | ADP − constant score |\n|---|---|---|---|---|---|---|---|\n",
+    );
+    let both = |r: &Option<Row>| {
+        r.as_ref().map_or_else(
+            || "–".into(),
+            |r| format!("{:.1} % / {:.3}", r.success_pct, r.score),
+        )
+    };
+    let d = |c: &Option<Comparison>| {
+        c.as_ref().map_or_else(
+            || "–".into(),
+            |c| {
+                format!(
+                    "{:+.3} [{:+.3}, {:+.3}]",
+                    c.d_score.mean, c.d_score.lo, c.d_score.hi
+                )
+            },
+        )
+    };
+    for c in &t.table1 {
+        let _ = writeln!(
+            out,
+            "| {} | {} | {} | {} | {} | {} | {} | {} |",
+            c.planner,
+            speed_label(c.speed),
+            both(&c.vanilla),
+            both(&c.ddp),
+            both(&c.constant),
+            both(&c.adp),
+            d(&c.adp_vs_ddp),
+            d(&c.adp_vs_constant)
+        );
+    }
+    out
+}
+
+/// The tables as the report's first sections.
+pub fn render(t: &Tables) -> String {
+    let mut out = String::new();
+    let _ = writeln!(
+        out,
+        "## The paper's tables\n\nEvery row: {} runs on each of the {} test worlds, the {} fastest and \
+         slowest of each world dropped; ADP rows are mean ± sd over seeds of {} agent steps each. \
+         Intervals are 95 % paired bootstrap intervals over worlds; McNemar's test pairs runs by \
+         seed. Each table sets the papers' published numbers (success / time / score) beside ours; \
+         they were measured in Gazebo with the authors' planners, so they calibrate, they do not \
+         decide.\n",
+        t.runs, t.test_worlds, t.trim, t.steps
+    );
+    let _ = writeln!(out, "### Table I: ADP against DDP, per planner and speed cap\n");
+    out += &summary_table(t);
+    let _ = writeln!(out);
+    for c in &t.table1 {
+        cell_block(
+            &mut out,
+            &format!("{} at {} m/s", c.planner, speed_label(c.speed)),
+            c,
+        );
+    }
+    if !t.table2_spaces.is_empty() {
+        let _ = writeln!(out, "### Table II (a): the action spaces at 1.5 m/s\n");
+        for c in &t.table2_spaces {
+            cell_block(&mut out, &format!("{}, {}", c.planner, c.space), c);
+        }
+    }
+    if !t.table2_worlds.is_empty() {
+        let _ = writeln!(
+            out,
+            "### Table II (b): the number of training worlds at 1.5 m/s\n"
+        );
+        for c in &t.table2_worlds {
+            let n = c
+                .train_world_count
+                .map_or_else(|| "unbounded".to_string(), |n| n.to_string());
+            cell_block(
+                &mut out,
+                &format!("{}, {n} training worlds (`{}`)", c.planner, c.train_worlds),
+                c,
+            );
+        }
+    }
+    let _ = writeln!(
+        out,
+        "### Table III: the hardest test worlds (`{}`)\n\nTable I's evaluations restricted to these \
+         worlds: no extra training and no extra runs. The paper does not state the speed of its \
+         Table III; its numbers stand beside our 1.5 m/s cells.\n",
+        t.hardest
+    );
+    for c in &t.table3 {
+        cell_block(
+            &mut out,
+            &format!("{} at {} m/s, hardest worlds", c.planner, speed_label(c.speed)),
+            c,
+        );
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::experiment::config::Restrict;
+    use crate::experiment::runner::WorldOutcome;
+    use sim::{EpisodeResult, Status};
+
+    fn rec(controller: &str, worlds: &[(usize, bool, f64)]) -> EvalRecord {
+        EvalRecord {
+            controller: controller.into(),
+            planner: "dwa".into(),
+            space: None,
+            speed: 1.5,
+            seed_index: None,
+            action: None,
+            policy: None,
+            runs: 1,
+            trim: 0,
+            seed: 0,
+            per_world: worlds
+                .iter()
+                .map(|&(world, ok, score)| WorldOutcome {
+                    world,
+                    runs: vec![EpisodeResult {
+                        world,
+                        status: if ok { Status::Succeeded } else { Status::Collided },
+                        time_s: 10.0,
+                        sim_time_s: 10.0,
+                        score,
+                        distance_m: 0.0,
+                    }],
+                })
+                .collect(),
+            trace: vec![],
+            compute: Default::default(),
+            lidar: None,
+        }
+    }
+
+    #[test]
+    fn published_numbers_are_the_papers() {
+        let p = published_table1(PlannerKind::Dwa, 1.5, "ddp").unwrap();
+        assert_eq!((p.success_pct, p.score), (86.46, 0.432));
+        assert_eq!(
+            published_table1(PlannerKind::System, 2.0, "adp")
+                .unwrap()
+                .success_pct,
+            99.11
+        );
+        assert_eq!(
+            published_table1(PlannerKind::Mppi, 1.0, "vanilla")
+                .unwrap()
+                .source,
+            DDP_I
+        );
+        assert!(published_table1(PlannerKind::System, 1.5, "vanilla").is_none());
+        assert_eq!(
+            published_table3(PlannerKind::Dwa, "adp").unwrap().success_pct,
+            80.0
+        );
+        assert_eq!(published_table2(None, Some(125)).unwrap().time_s, 10.79);
+    }
+
+    /// Table I takes the decremental arms of the first training worlds; Table III is the
+    /// same records on the hardest worlds only; a cell's verdict follows its interval.
+    #[test]
+    fn tables_place_each_arm_and_restrict_table_three() {
+        let text = "[experiment]\nname = \"p\"\nplanners = [\"dwa\"]\nspeeds = [1.5]\nseeds = 2\n\
+                    [[experiment.groups]]\naction_spaces = [\"incremental\"]\n[stats]\nresamples = 200\n";
+        let ex = Experiment::parse("p.toml", text, &Restrict::default()).unwrap();
+        let good: Vec<_> = (1..=8).map(|w| (w, true, 0.5)).collect();
+        let bad: Vec<_> = (1..=8)
+            .map(|w| (w, w > 4, if w > 4 { 0.5 } else { 0.0 }))
+            .collect();
+        let data: Vec<ArmData> = ex
+            .arms
+            .iter()
+            .map(|a| ArmData {
+                arm: a.clone(),
+                ddp: Some(rec("ddp", &bad)),
+                vanilla: Some(rec("vanilla", &bad)),
+                constant: None,
+                search: None,
+                untrained: None,
+                adp: vec![rec("adp", &good), rec("adp", &good)],
+                shuffled: vec![],
+                sweep: vec![],
+                sensing: vec![],
+            })
+            .collect();
+        let t = tables(&ex, &data, "hard", &[5, 6, 7, 8]);
+        assert_eq!(t.table1.len(), 1);
+        assert_eq!(t.table2_spaces.len(), 2, "decremental and incremental at 1.5 m/s");
+        assert!(t.table2_worlds.is_empty());
+        let c = &t.table1[0];
+        assert_eq!(c.adp.as_ref().unwrap().seeds, 2);
+        assert_eq!(c.ddp.as_ref().unwrap().success_pct, 50.0);
+        assert_eq!(verdict(&c.adp_vs_ddp), "ADP better");
+        assert_eq!(verdict(&c.adp_vs_constant), "not measured yet");
+        assert_eq!(c.published.len(), 3);
+        // On worlds 5 to 8 both succeed everywhere: a tie, on four worlds.
+        let h = &t.table3[0];
+        assert_eq!(h.ddp.as_ref().unwrap().success_pct, 100.0);
+        assert_eq!(h.adp_vs_ddp.as_ref().unwrap().d_score.n, 4);
+        assert_eq!(verdict(&h.adp_vs_ddp), "a tie (the interval holds 0)");
+        let md = render(&t);
+        assert!(md.contains("### Table I") && md.contains("### Table III"), "{md}");
+        assert!(md.contains("| DDP | 50.00 | 0.250 |"), "{md}");
+        assert!(summary_table(&t)
+            .contains("| dwa | 1.5 | 50.0 % / 0.250 | 50.0 % / 0.250 | – | 100.0 % / 0.500 |"));
+    }
+
+    #[test]
+    fn pearson_sees_a_line_and_nothing_in_a_constant() {
+        assert!((pearson(&[1.0, 2.0, 3.0], &[2.0, 4.0, 6.0]) - 1.0).abs() < 1e-12);
+        assert_eq!(pearson(&[1.0, 2.0, 3.0], &[5.0, 5.0, 5.0]), 0.0);
+    }
+}
