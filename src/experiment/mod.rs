@@ -114,19 +114,47 @@ pub struct ProtocolArgs {
     /// Resampling seed.
     #[arg(long, default_value_t = 3)]
     pub seed: u64,
+    /// Study only the first R runs of every world (default: all), as if the evaluation had
+    /// run R per world.
+    #[arg(long)]
+    pub runs: Option<usize>,
+    /// With `--runs`: the runs trimmed from each end of a world (default: the records').
+    #[arg(long, requires = "runs")]
+    pub trim: Option<usize>,
     /// Also write the markdown here.
     #[arg(long)]
     pub out: Option<PathBuf>,
 }
 
+/// `rec` as if it had run the first `runs` runs of every world, trimmed by `trim`.
+fn first_runs(mut rec: EvalRecord, runs: usize, trim: usize) -> anyhow::Result<EvalRecord> {
+    if runs > rec.runs {
+        bail!("--runs {runs}: the records hold {} runs per world", rec.runs);
+    }
+    for w in &mut rec.per_world {
+        w.runs.truncate(runs);
+    }
+    rec.runs = runs;
+    rec.trim = trim;
+    Ok(rec)
+}
+
 /// `adp protocol`: prints the study of the records (markdown).
 pub fn protocol_command(args: &ProtocolArgs) -> anyhow::Result<()> {
-    let ddp = EvalRecord::load(&args.ddp)?;
-    let seeds = args
+    let mut ddp = EvalRecord::load(&args.ddp)?;
+    let mut seeds = args
         .adp
         .iter()
         .map(|p| EvalRecord::load(p))
         .collect::<anyhow::Result<Vec<_>>>()?;
+    if let Some(runs) = args.runs {
+        let trim = args.trim.unwrap_or(ddp.trim);
+        ddp = first_runs(ddp, runs, trim)?;
+        seeds = seeds
+            .into_iter()
+            .map(|r| first_runs(r, runs, trim))
+            .collect::<anyhow::Result<_>>()?;
+    }
     let text = protocol::study(&ddp, &seeds, args.resamples, args.confidence, args.seed)?.markdown();
     if let Some(out) = &args.out {
         write_atomic(out, text.as_bytes())?;
