@@ -536,25 +536,26 @@ fn delta(c: &Option<Comparison>) -> String {
         || "–".into(),
         |c| {
             format!(
-                "{:+.4} [{:+.4}, {:+.4}]; success {:+.2} pp [{:+.2}, {:+.2}]; McNemar p {:.3}",
-                c.d_score.mean,
-                c.d_score.lo,
-                c.d_score.hi,
-                100.0 * c.d_success.mean,
-                100.0 * c.d_success.lo,
-                100.0 * c.d_success.hi,
+                "score {:+.4} [{:+.4}, {:+.4}]; success {:+.2} pp [{:+.2}, {:+.2}]; McNemar p {:.3}",
+                c.d_score_seeds.mean,
+                c.d_score_seeds.lo,
+                c.d_score_seeds.hi,
+                100.0 * c.d_success_seeds.mean,
+                100.0 * c.d_success_seeds.lo,
+                100.0 * c.d_success_seeds.hi,
                 c.mcnemar.p_exact
             )
         },
     )
 }
 
-/// A verdict in words: whether ADP's score beats the control's, from the interval.
+/// A verdict in words: whether ADP's score beats the control's, from the interval over
+/// seeds and worlds.
 fn verdict(c: &Option<Comparison>) -> &'static str {
     match c {
         None => "not measured yet",
-        Some(c) if c.d_score.lo > 0.0 => "ADP better",
-        Some(c) if c.d_score.hi < 0.0 => "ADP worse",
+        Some(c) if c.d_score_seeds.lo > 0.0 => "ADP better",
+        Some(c) if c.d_score_seeds.hi < 0.0 => "ADP worse",
         Some(_) => "a tie (the interval holds 0)",
     }
 }
@@ -621,7 +622,7 @@ pub fn summary_table(t: &Tables) -> String {
             |c| {
                 format!(
                     "{:+.3} [{:+.3}, {:+.3}]",
-                    c.d_score.mean, c.d_score.lo, c.d_score.hi
+                    c.d_score_seeds.mean, c.d_score_seeds.lo, c.d_score_seeds.hi
                 )
             },
         )
@@ -650,8 +651,9 @@ pub fn render(t: &Tables) -> String {
         out,
         "## The paper's tables\n\nEvery row: {} runs on each of the {} test worlds, the {} fastest and \
          slowest of each world dropped; ADP rows are mean ± sd over seeds of {} agent steps each. \
-         Intervals are 95 % paired bootstrap intervals over worlds; McNemar's test pairs runs by \
-         seed. Each table sets the papers' published numbers (success / time / score) beside ours; \
+         Intervals are 95 % paired bootstrap intervals that resample the training seeds and the \
+         worlds (`results.json` also holds the narrower ones over worlds alone); McNemar's test \
+         pairs runs by seed. Each table sets the papers' published numbers (success / time / score) beside ours; \
          they were measured in Gazebo with the authors' planners, so they calibrate, they do not \
          decide.\n",
         t.runs, t.test_worlds, t.trim, t.steps

@@ -10,7 +10,10 @@ use serde::Serialize;
 use super::config::{planner_name, space_label, speed_label, Arm, Experiment};
 use super::controls::SearchResult;
 use super::record::{EvalRecord, Summary};
-use super::stats::{bootstrap_mean, mcnemar, mean, paired_differences, sample_sd, Interval, McNemar};
+use super::stats::{
+    bootstrap_mean, bootstrap_seeds_and_worlds, mcnemar, mean, paired_differences, sample_sd, Interval,
+    McNemar,
+};
 
 /// Everything evaluated for one arm (missing stages are `None` or absent).
 #[derive(Clone, Debug)]
@@ -62,6 +65,13 @@ pub struct Comparison {
     pub d_success: Interval,
     /// The same for the BARN score.
     pub d_score: Interval,
+    /// The score difference's interval from the two-level bootstrap over seeds and worlds
+    /// ([`super::stats::bootstrap_seeds_and_worlds`]): it counts how much training seeds
+    /// differ, which the interval over worlds alone does not (one seed: the same as
+    /// `d_score`).
+    pub d_score_seeds: Interval,
+    /// The same for success.
+    pub d_success_seeds: Interval,
     /// McNemar's test on success, pairs (seed, world, run) with the same run seed.
     pub mcnemar: McNemar,
     /// The same test for each seed alone (pairs (world, run); a control's runs are then used
@@ -226,10 +236,26 @@ pub fn compare(
         })
         .collect();
     let pairs: Vec<(bool, bool)> = seed_pairs.iter().flatten().copied().collect();
+    // Per seed, its per-world differences from the control (a control with seeds of its
+    // own, the state-shuffled one, pairs seed by seed).
+    let by_seed = |pick: fn(&(usize, f64, f64)) -> f64| -> Vec<Vec<f64>> {
+        adp.iter()
+            .enumerate()
+            .map(|(i, a)| {
+                let c = &control[i % control.len()];
+                paired_differences(
+                    &a.per_world_values().iter().map(pick).collect::<Vec<_>>(),
+                    &c.per_world_values().iter().map(pick).collect::<Vec<_>>(),
+                )
+            })
+            .collect()
+    };
     Some(Comparison {
         control: name.into(),
         d_success: bootstrap_mean(&ds, resamples, confidence, seed),
         d_score: bootstrap_mean(&dc, resamples, confidence, seed ^ 1),
+        d_score_seeds: bootstrap_seeds_and_worlds(&by_seed(score), resamples, confidence, seed ^ 1),
+        d_success_seeds: bootstrap_seeds_and_worlds(&by_seed(success), resamples, confidence, seed),
         mcnemar: mcnemar(pairs),
         per_seed: seed_pairs.into_iter().map(mcnemar).collect(),
     })
@@ -719,7 +745,9 @@ fn statistics_section(out: &mut String, ex: &Experiment, data: &[ArmData]) {
          same run seed, untrimmed (a control's runs are paired with each seed's, so these pairs \
          are not independent across seeds): n pairs, ADP-only and control-only successes, the \
          exact binomial p-value and the chi-square with continuity correction; then the exact \
-         p-value of each seed alone (pairs (world, run), ADP-only/control-only).\n",
+         p-value of each seed alone (pairs (world, run), ADP-only/control-only). Δ score over \
+         seeds: the two-level bootstrap that resamples the training seeds, then the worlds (it \
+         counts how much seeds differ; with one seed it is the interval over worlds).\n",
         ex.stats.resamples
     );
     for d in data {
@@ -730,12 +758,12 @@ fn statistics_section(out: &mut String, ex: &Experiment, data: &[ArmData]) {
         let _ = writeln!(out, "### {}\n", d.arm.id());
         let _ = writeln!(
             out,
-            "| control | worlds | Δ success (pp) [{conf:.0} % CI] | Δ score [{conf:.0} % CI] | pairs | ADP only | control only | p exact | χ² | p χ² | p exact per seed |\n|---|---|---|---|---|---|---|---|---|---|---|"
+            "| control | worlds | Δ success (pp) [{conf:.0} % CI] | Δ score [{conf:.0} % CI] | Δ score over seeds [{conf:.0} % CI] | pairs | ADP only | control only | p exact | χ² | p χ² | p exact per seed |\n|---|---|---|---|---|---|---|---|---|---|---|---|"
         );
         for c in cmp {
             let _ = writeln!(
                 out,
-                "| {} | {} | {:+.2} [{:+.2}, {:+.2}] | {:+.4} [{:+.4}, {:+.4}] | {} | {} | {} | {:.4} | {:.3} | {:.4} | {} |",
+                "| {} | {} | {:+.2} [{:+.2}, {:+.2}] | {:+.4} [{:+.4}, {:+.4}] | [{:+.4}, {:+.4}] | {} | {} | {} | {:.4} | {:.3} | {:.4} | {} |",
                 c.control,
                 c.d_success.n,
                 100.0 * c.d_success.mean,
@@ -744,6 +772,8 @@ fn statistics_section(out: &mut String, ex: &Experiment, data: &[ArmData]) {
                 c.d_score.mean,
                 c.d_score.lo,
                 c.d_score.hi,
+                c.d_score_seeds.lo,
+                c.d_score_seeds.hi,
                 c.mcnemar.n,
                 c.mcnemar.adp_only,
                 c.mcnemar.control_only,

@@ -114,6 +114,55 @@ pub fn bootstrap_mean(values: &[f64], resamples: usize, confidence: f64, seed: u
     }
 }
 
+/// The mean of a seeds x worlds table of paired differences (`values[s][w]`, every row as
+/// long) with its two-level percentile-bootstrap interval: each resample draws the seeds with
+/// replacement, then the worlds with replacement, and averages the drawn cells, so the
+/// interval counts how much training seeds differ as well as worlds. With one seed it is
+/// [`bootstrap_mean`] over the worlds (with the same resamples for the same seed).
+pub fn bootstrap_seeds_and_worlds(
+    values: &[Vec<f64>],
+    resamples: usize,
+    confidence: f64,
+    seed: u64,
+) -> Interval {
+    let s = values.len();
+    let w = values.first().map_or(0, Vec::len);
+    let all: Vec<f64> = values.iter().flatten().copied().collect();
+    let m = mean(&all);
+    if s <= 1 || w == 0 || resamples == 0 {
+        return bootstrap_mean(
+            values.first().map_or(&[][..], Vec::as_slice),
+            resamples,
+            confidence,
+            seed,
+        );
+    }
+    let mut rng = SplitMix64::new(seed);
+    let mut drawn = vec![0usize; s];
+    let mut means: Vec<f64> = (0..resamples)
+        .map(|_| {
+            for d in drawn.iter_mut() {
+                *d = rng.below(s);
+            }
+            let mut sum = 0.0;
+            for _ in 0..w {
+                let world = rng.below(w);
+                sum += drawn.iter().map(|&k| values[k][world]).sum::<f64>();
+            }
+            sum / (s * w) as f64
+        })
+        .collect();
+    means.sort_by(f64::total_cmp);
+    let (lo, hi) = percentile_bounds(resamples, confidence);
+    Interval {
+        n: w,
+        mean: m,
+        lo: means[lo],
+        hi: means[hi],
+        confidence,
+    }
+}
+
 /// Indices of the lower and upper ends of a percentile interval at `confidence` among
 /// `b >= 1` sorted values: `floor(b (1 - c) / 2)` and `ceil(b (1 + c) / 2) - 1`, within
 /// `0..b`.
@@ -220,6 +269,29 @@ fn erfc(x: f64) -> f64 {
 
 #[cfg(test)]
 mod tests {
+
+    /// Seeds that disagree widen the two-level interval; seeds that agree give the worlds'
+    /// interval; one seed is the one-level bootstrap.
+    #[test]
+    fn the_two_level_bootstrap_counts_the_seeds() {
+        let mut rng = SplitMix64::new(7);
+        let worlds: Vec<f64> = (0..200)
+            .map(|_| (rng.below(1000) as f64 / 1000.0 - 0.5) * 0.1)
+            .collect();
+        let same = vec![worlds.clone(), worlds.clone(), worlds.clone()];
+        let apart: Vec<Vec<f64>> = [-0.03, 0.0, 0.03]
+            .iter()
+            .map(|o| worlds.iter().map(|x| x + o).collect())
+            .collect();
+        let one = bootstrap_mean(&worlds, 4000, 0.95, 1);
+        let a = bootstrap_seeds_and_worlds(&same, 4000, 0.95, 1);
+        let b = bootstrap_seeds_and_worlds(&apart, 4000, 0.95, 1);
+        assert!((a.mean - one.mean).abs() < 1e-12 && (b.mean - one.mean).abs() < 1e-12);
+        assert!(((a.hi - a.lo) - (one.hi - one.lo)).abs() < 0.25 * (one.hi - one.lo));
+        assert!(b.hi - b.lo > 2.0 * (one.hi - one.lo), "{b:?} against {one:?}");
+        assert_eq!(bootstrap_seeds_and_worlds(&[worlds.clone()], 4000, 0.95, 1), one);
+    }
+
     use super::*;
 
     #[test]
