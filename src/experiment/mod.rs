@@ -76,6 +76,10 @@ pub struct Args {
     /// store measured), say which the store already holds, and stop.
     #[arg(long, conflicts_with_all = ["emit_slurm", "shard", "no_eval"])]
     pub plan: bool,
+    /// Write the report from the results the store holds, computing nothing (a table cell
+    /// whose stages are missing shows "–").
+    #[arg(long, conflicts_with_all = ["emit_slurm", "shard", "no_eval", "plan"])]
+    pub report_only: bool,
     /// Command-line restrictions.
     #[command(flatten)]
     pub restrict: Restrict,
@@ -247,7 +251,16 @@ pub fn run(args: &Args) -> anyhow::Result<Option<PathBuf>> {
         print_plan(&ex, &layout, &args.config);
         return Ok(None);
     }
-    claim_dir(args, &dir, &text)?;
+    if args.report_only {
+        let copy = dir.join(CONFIG_COPY);
+        if copy.exists() {
+            same_file(&copy, &text, &args.config, &dir)?;
+        } else {
+            write_atomic(&copy, text.as_bytes())?;
+        }
+    } else {
+        claim_dir(args, &dir, &text)?;
+    }
     let ctx = Ctx {
         ex: &ex,
         layout,
@@ -261,6 +274,11 @@ pub fn run(args: &Args) -> anyhow::Result<Option<PathBuf>> {
         .num_threads(args.jobs.unwrap_or(0))
         .build()
         .context("cannot start worker threads")?;
+    if args.report_only {
+        let report = pool.install(|| write_report(&ctx))?;
+        tracing::info!("report: {}", report.display());
+        return Ok(Some(report));
+    }
     let all = stages(&ex.arms, ex.seeds, &sweeps(&ex));
     let todo = pending(&all, |s| ctx.layout.done(s));
     tracing::info!(

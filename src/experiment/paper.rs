@@ -819,6 +819,22 @@ mod tests {
             .contains("| dwa | 1.5 | 50.0 % / 0.250 | 50.0 % / 0.250 | – | 100.0 % / 0.500 |"));
     }
 
+    /// README's results table is the one the paper's report generated.
+    #[test]
+    fn readme_shows_the_generated_table_one() {
+        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+        let readme = std::fs::read_to_string(root.join("README.md")).unwrap();
+        let table = std::fs::read_to_string(root.join("docs/paper/table1.md")).unwrap();
+        let open = "<!-- table1: docs/paper/table1.md -->\n";
+        let start = readme.find(open).expect("README has the table1 block") + open.len();
+        let end = readme[start..].find("<!-- /table1 -->").expect("the block closes") + start;
+        assert_eq!(
+            &readme[start..end],
+            table,
+            "README's Table I differs from docs/paper/table1.md: paste the file between the markers"
+        );
+    }
+
     #[test]
     fn pearson_sees_a_line_and_nothing_in_a_constant() {
         assert!((pearson(&[1.0, 2.0, 3.0], &[2.0, 4.0, 6.0]) - 1.0).abs() < 1e-12);
