@@ -827,7 +827,10 @@ mod tests {
         let table = std::fs::read_to_string(root.join("docs/paper/table1.md")).unwrap();
         let open = "<!-- table1: docs/paper/table1.md -->\n";
         let start = readme.find(open).expect("README has the table1 block") + open.len();
-        let end = readme[start..].find("<!-- /table1 -->").expect("the block closes") + start;
+        let end = readme[start..]
+            .find("<!-- /table1 -->")
+            .expect("the block closes")
+            + start;
         assert_eq!(
             &readme[start..end],
             table,

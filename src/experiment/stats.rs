@@ -289,7 +289,10 @@ mod tests {
         assert!((a.mean - one.mean).abs() < 1e-12 && (b.mean - one.mean).abs() < 1e-12);
         assert!(((a.hi - a.lo) - (one.hi - one.lo)).abs() < 0.25 * (one.hi - one.lo));
         assert!(b.hi - b.lo > 2.0 * (one.hi - one.lo), "{b:?} against {one:?}");
-        assert_eq!(bootstrap_seeds_and_worlds(std::slice::from_ref(&worlds), 4000, 0.95, 1), one);
+        assert_eq!(
+            bootstrap_seeds_and_worlds(std::slice::from_ref(&worlds), 4000, 0.95, 1),
+            one
+        );
     }
 
     use super::*;
