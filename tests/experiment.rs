@@ -347,6 +347,52 @@ fn tiny_experiment_reports_resumes_and_refuses_mixing() {
             .clone()
     };
     assert_eq!(arm_results(&out), arm_results(&out3));
+
+    // A finished training run adopted into a fresh store is that store's training: the plan
+    // no longer lists it. A run of another configuration is refused, naming what differs.
+    let (out4, store4) = (dir.join("out4"), dir.join("store4"));
+    let (o4, st4) = (out4.to_str().unwrap(), store4.to_str().unwrap());
+    let run = result_of(&out, "train dwa-decremental-1.5-150_153 seed 0");
+    let run_dir = run.to_str().unwrap();
+    let adopted = adp(&[
+        "experiment",
+        "--config",
+        c,
+        "--out",
+        o4,
+        "--store",
+        st4,
+        "--adopt",
+        run_dir,
+    ]);
+    assert!(adopted.status.success(), "{}", stderr(&adopted));
+    assert!(
+        stderr(&adopted).contains("adopted 1 of 1"),
+        "{}",
+        stderr(&adopted)
+    );
+    let plan4 = adp(&["experiment", "--config", c, "--out", o4, "--store", st4, "--plan"]);
+    let plan4 = String::from_utf8_lossy(&plan4.stdout).to_string();
+    assert!(plan4.contains("already in the store: 1 stage(s)"), "{plan4}");
+    assert!(!plan4.contains("| train "), "{plan4}");
+    let other = dir.join("other.toml");
+    std::fs::write(&other, TINY.replace("steps = 200", "steps = 300")).unwrap();
+    let refused = adp(&[
+        "experiment",
+        "--config",
+        other.to_str().unwrap(),
+        "--out",
+        dir.join("out5").to_str().unwrap(),
+        "--store",
+        st4,
+        "--adopt",
+        run_dir,
+    ]);
+    assert!(
+        stderr(&refused).contains("run.steps: 200 against 300"),
+        "{}",
+        stderr(&refused)
+    );
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

@@ -9,6 +9,7 @@
 //! skips the stages whose file exists. Evaluation runs in parallel over (world, run) on the
 //! local cores; training uses `adp train` with the configured actors.
 
+pub mod adopt;
 pub mod config;
 pub mod controls;
 pub mod estimate;
@@ -80,6 +81,12 @@ pub struct Args {
     /// whose stages are missing shows "–").
     #[arg(long, conflicts_with_all = ["emit_slurm", "shard", "no_eval", "plan"])]
     pub report_only: bool,
+    /// Adopt finished `adp train` run directories as this experiment's trainings: a run whose
+    /// resolved `config.toml` is one of the experiment's trainings (the same recipe) and whose
+    /// export holds its steps is copied into the store; the others are named with what differs.
+    /// Computes nothing else.
+    #[arg(long, num_args = 1.., conflicts_with_all = ["emit_slurm", "shard", "no_eval", "plan", "report_only"])]
+    pub adopt: Vec<PathBuf>,
     /// Command-line restrictions.
     #[command(flatten)]
     pub restrict: Restrict,
@@ -251,7 +258,7 @@ pub fn run(args: &Args) -> anyhow::Result<Option<PathBuf>> {
         print_plan(&ex, &layout, &args.config);
         return Ok(None);
     }
-    if args.report_only {
+    if args.report_only || !args.adopt.is_empty() {
         let copy = dir.join(CONFIG_COPY);
         if copy.exists() {
             same_file(&copy, &text, &args.config, &dir)?;
@@ -274,6 +281,11 @@ pub fn run(args: &Args) -> anyhow::Result<Option<PathBuf>> {
         .num_threads(args.jobs.unwrap_or(0))
         .build()
         .context("cannot start worker threads")?;
+    if !args.adopt.is_empty() {
+        let n = adopt::adopt(&ctx, &args.adopt, crate::train::default_actors())?;
+        tracing::info!("adopted {n} of {} run(s)", args.adopt.len());
+        return Ok(None);
+    }
     if args.report_only {
         let report = pool.install(|| write_report(&ctx))?;
         tracing::info!("report: {}", report.display());
