@@ -81,6 +81,10 @@ pub struct Args {
     /// whose stages are missing shows "–").
     #[arg(long, conflicts_with_all = ["emit_slurm", "shard", "no_eval", "plan"])]
     pub report_only: bool,
+    /// Run only the stages of these kinds (comma-separated: train, search, ddp, vanilla,
+    /// constant, untrained, adp, shuffled, sweep, sensing); the others wait for a later run.
+    #[arg(long, value_delimiter = ',', value_parser = ["train", "search", "ddp", "vanilla", "constant", "untrained", "adp", "shuffled", "sweep", "sensing"])]
+    pub only: Vec<String>,
     /// Adopt finished `adp train` run directories as this experiment's trainings: a run whose
     /// resolved `config.toml` is one of the experiment's trainings (the same recipe) and whose
     /// export holds its steps is copied into the store; the others are named with what differs.
@@ -292,7 +296,10 @@ pub fn run(args: &Args) -> anyhow::Result<Option<PathBuf>> {
         return Ok(Some(report));
     }
     let all = stages(&ex.arms, ex.seeds, &sweeps(&ex));
-    let todo = pending(&all, |s| ctx.layout.done(s));
+    let todo: Vec<Stage> = pending(&all, |s| ctx.layout.done(s))
+        .into_iter()
+        .filter(|s| args.only.is_empty() || args.only.iter().any(|k| k == stage_kind(s)))
+        .collect();
     tracing::info!(
         "adp experiment {}: {} arm(s) x {} seed(s), {} stage(s), {} in the store, {} to run; \
          report in {}, results in the store {}",
@@ -300,7 +307,7 @@ pub fn run(args: &Args) -> anyhow::Result<Option<PathBuf>> {
         ex.arms.len(),
         ex.seeds,
         all.len(),
-        all.len() - todo.len(),
+        all.iter().filter(|s| ctx.layout.done(s)).count(),
         todo.len(),
         dir.display(),
         ctx.layout.store.dir.display()
@@ -545,6 +552,22 @@ fn print_plan(ex: &Experiment, layout: &Layout, config: &Path) {
             "{defaults} estimate(s) use a default rate: the store has measured no stage of their \
              class yet (units: agent steps of a training, episodes otherwise)"
         );
+    }
+}
+
+/// A stage's kind, as `--only` names it.
+fn stage_kind(stage: &Stage) -> &'static str {
+    match stage {
+        Stage::Train { .. } => "train",
+        Stage::Search { .. } => "search",
+        Stage::EvalDdp { .. } => "ddp",
+        Stage::EvalVanilla { .. } => "vanilla",
+        Stage::EvalConstant { .. } => "constant",
+        Stage::EvalUntrained { .. } => "untrained",
+        Stage::EvalAdp { .. } => "adp",
+        Stage::EvalShuffled { .. } => "shuffled",
+        Stage::Sweep { .. } => "sweep",
+        Stage::Sensing { .. } => "sensing",
     }
 }
 
