@@ -12,6 +12,7 @@
 //! thread, so the actors keep (almost) both cores; DDP is evaluated once.
 
 use planner::PlannerKind;
+use std::borrow::Cow;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -25,7 +26,7 @@ use actor::{EnvConfig, MlpPolicy};
 use learner::tensorboard::EventWriter;
 use learner_service::PolicyError;
 use planner::{ActionSpace, Schedule};
-use sim::Status;
+use sim::{Status, World};
 
 use crate::config::{EvalConfig, GreedySection};
 use crate::eval::{eval_run, run_seed};
@@ -140,6 +141,13 @@ struct Setup {
 type Outcome = (f64, f64, Vec<StepRecord>);
 
 impl Setup {
+    /// World `w` for either side of the comparison. A world that cannot be loaded fails the
+    /// evaluation with this one error on both sides, never skipped by one of them: the policy
+    /// and DDP always cover the same worlds and seeds.
+    fn world(w: usize) -> anyhow::Result<Cow<'static, World>> {
+        sim::catalog::load(w).with_context(|| format!("greedy evaluation world {w} cannot be loaded"))
+    }
+
     fn seeds(&self) -> impl Iterator<Item = (usize, u64)> + '_ {
         self.worlds
             .iter()
@@ -153,7 +161,7 @@ impl Setup {
         let (mut wins, mut score, mut n) = (0usize, 0.0, 0usize);
         let mut records = Vec::new();
         for (w, seed) in self.seeds() {
-            let world = sim::catalog::load(w).with_context(|| format!("world {w}"))?;
+            let world = Self::world(w)?;
             let run = eval_run(&self.eval, &world, self.planner, self.max_speed, seed);
             let chooser = Chooser::Env {
                 space: self.space,
@@ -187,9 +195,7 @@ impl Setup {
         let schedule = Schedule::ddp_default();
         let (mut wins, mut score, mut n) = (0usize, 0.0, 0usize);
         for (w, seed) in self.seeds() {
-            let Ok(world) = sim::catalog::load(w) else {
-                continue;
-            };
+            let world = Self::world(w)?;
             let mut planner = self.planner.build(&self.eval.planners(), planner_seed(seed));
             let (r, _) = planner::run::run_episode(
                 &world,
@@ -471,6 +477,34 @@ mod tests {
             describe(&r).contains("(open 0.50, cluttered none)"),
             "{}",
             describe(&r)
+        );
+    }
+
+    /// A world that cannot be loaded (360: no world has that id) fails both sides of the
+    /// comparison with the same error naming it; neither side skips it and reports numbers
+    /// over fewer worlds than the other.
+    #[test]
+    fn a_world_that_cannot_be_loaded_fails_both_sides_alike() {
+        let setup = Setup {
+            worlds: vec![1, 360],
+            runs: 1,
+            planner: PlannerKind::Dwa,
+            space: ActionSpace::Decremental,
+            max_speed: 1.5,
+            env: EnvConfig::default(),
+            eval: EvalConfig::load(None).unwrap(),
+            seed: 3,
+        };
+        let ddp = format!("{:#}", setup.ddp().unwrap_err());
+        // The DDP-initialized policy (zero output layer).
+        let mut flat = vec![0.0f32; 730 * 4];
+        flat.extend([0.0f32; 4]);
+        let net = MlpPolicy::from_flat(&[730, 4], flat).unwrap();
+        let policy = format!("{:#}", setup.policy(&net).unwrap_err());
+        assert_eq!(ddp, policy);
+        assert!(
+            ddp.starts_with("greedy evaluation world 360 cannot be loaded: world 360 does not exist"),
+            "{ddp}"
         );
     }
 

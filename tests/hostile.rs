@@ -2,8 +2,10 @@
 //! the HTTP/2 preface are closed while an honest client is served; unread `WatchPolicy`
 //! streams share one copy of the policy; thousands of distinct ranks do not grow `status.json`
 //! without bound; a report with an enum value outside the contract is refused, naming the
-//! field, and the run goes on. Every wait is a bounded poll (a watchdog), never a timing
-//! assertion.
+//! field, and the run goes on; at a 64-file limit (`prlimit`: the test skips without it, unless
+//! `ADP_REQUIRE_PRLIMIT=1`, set by `.ci/run`, where that is a failure) an honest actor is served
+//! and the SIGTERM checkpoint completes. Every wait is a bounded poll (a watchdog), never a
+//! timing assertion.
 
 use std::io::Read;
 use std::net::TcpStream;
@@ -388,17 +390,48 @@ fn the_run_spec_is_typed_and_an_unknown_outcome_is_refused_while_the_run_goes_on
     });
 }
 
+/// Whether `program` (the `prlimit` of util-linux, or a stand-in in a test) runs here, as
+/// `program --version`; when it does not, the test that needs it is skipped with the reason,
+/// unless `required` (`ADP_REQUIRE_PRLIMIT=1`, set by `.ci/run`), where that is a failure.
+fn prlimit_or_skip(program: &str, required: bool) -> bool {
+    let why = match std::process::Command::new(program).arg("--version").output() {
+        Ok(o) if o.status.success() => return true,
+        Ok(o) => format!("`{program} --version` failed ({})", o.status),
+        Err(e) => format!("`{program}` cannot run: {e}"),
+    };
+    assert!(
+        !required,
+        "ADP_REQUIRE_PRLIMIT=1 but prlimit is not usable (Debian's util-linux provides it): {why}"
+    );
+    eprintln!("SKIPPED: no prlimit: {why}");
+    false
+}
+
+/// Without `prlimit` the 64-file test skips, saying why; with `ADP_REQUIRE_PRLIMIT=1` it fails
+/// instead, naming the switch and the reason.
+#[test]
+fn a_missing_prlimit_skips_unless_required() {
+    let missing = "adp-test-no-such-prlimit";
+    assert!(!prlimit_or_skip(missing, false));
+    let failure = std::panic::catch_unwind(|| prlimit_or_skip(missing, true)).unwrap_err();
+    let msg = failure
+        .downcast_ref::<String>()
+        .expect("a formatted panic message");
+    assert!(
+        msg.starts_with("ADP_REQUIRE_PRLIMIT=1 but prlimit is not usable")
+            && msg.contains("`adp-test-no-such-prlimit` cannot run"),
+        "{msg}"
+    );
+}
+
 /// With the open-file limit at 64 (soft and hard, so the learner cannot raise it) and silent
 /// connections queued far beyond it, the learner still serves an honest actor, and on SIGTERM
-/// its checkpoint completes: the run resumes from it.
+/// its checkpoint completes: the run resumes from it. Skipped without `prlimit`, unless
+/// `ADP_REQUIRE_PRLIMIT=1`.
 #[test]
 fn at_a_64_file_limit_an_honest_actor_is_served_and_the_sigterm_checkpoint_completes() {
-    if std::process::Command::new("prlimit")
-        .arg("--version")
-        .output()
-        .is_err()
-    {
-        eprintln!("skipped: no prlimit");
+    let required = std::env::var("ADP_REQUIRE_PRLIMIT").as_deref() == Ok("1");
+    if !prlimit_or_skip("prlimit", required) {
         return;
     }
     let dir = fresh_dir("hostile-nofile");

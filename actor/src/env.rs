@@ -137,14 +137,11 @@ impl BeamChoices {
 }
 
 impl TryFrom<Vec<usize>> for BeamChoices {
-    type Error = String;
+    type Error = RandomizeError;
 
-    fn try_from(v: Vec<usize>) -> Result<Self, String> {
+    fn try_from(v: Vec<usize>) -> Result<Self, RandomizeError> {
         if v.len() > MAX_BEAM_CHOICES {
-            return Err(format!(
-                "randomize.beams lists {} beam counts; at most {MAX_BEAM_CHOICES}",
-                v.len()
-            ));
+            return Err(RandomizeError::TooManyBeams { count: v.len() });
         }
         let mut values = [0; MAX_BEAM_CHOICES];
         values[..v.len()].copy_from_slice(&v);
@@ -178,32 +175,64 @@ pub struct Randomize {
     pub dropout: Option<[f64; 2]>,
 }
 
+/// A `[env.randomize]` value out of range (from [`EnvConfig::validate`], or reading a
+/// [`BeamChoices`]); the message names the field (`randomize.<field>`) and the value.
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum RandomizeError {
+    /// `beams` lists more than [`MAX_BEAM_CHOICES`] beam counts.
+    #[error("randomize.beams lists {count} beam counts; at most {MAX_BEAM_CHOICES}")]
+    TooManyBeams {
+        /// How many it lists.
+        count: usize,
+    },
+    /// `beams` lists a beam count below 2.
+    #[error("randomize.beams = {beams:?}: {beam} beams is too few (at least 2)")]
+    TooFewBeams {
+        /// The listed beam counts.
+        beams: Vec<usize>,
+        /// The first one below 2.
+        beam: usize,
+    },
+    /// `noise_fraction` is not a range `low <= high` within [0, 1].
+    #[error("randomize.noise_fraction = [{low}, {high}] must be a range low <= high within [0, 1]")]
+    NoiseFraction {
+        /// The range's low end.
+        low: f64,
+        /// The range's high end.
+        high: f64,
+    },
+    /// `dropout` is not a range `low <= high` within [0, 1).
+    #[error("randomize.dropout = [{low}, {high}] must be a range low <= high within [0, 1)")]
+    Dropout {
+        /// The range's low end.
+        low: f64,
+        /// The range's high end.
+        high: f64,
+    },
+}
+
 impl Randomize {
     /// Whether it draws anything.
     pub fn is_on(&self) -> bool {
         !self.beams.as_slice().is_empty() || self.noise_fraction.is_some() || self.dropout.is_some()
     }
 
-    /// Checks the values; the message names the field and the value.
-    fn validate(&self) -> Result<(), String> {
-        if let Some(&b) = self.beams.as_slice().iter().find(|&&b| b < 2) {
-            return Err(format!(
-                "randomize.beams = {:?}: {b} beams is too few (at least 2)",
-                self.beams.as_slice()
-            ));
+    /// Checks the values; the error names the field and the value.
+    fn validate(&self) -> Result<(), RandomizeError> {
+        if let Some(&beam) = self.beams.as_slice().iter().find(|&&b| b < 2) {
+            return Err(RandomizeError::TooFewBeams {
+                beams: self.beams.as_slice().to_vec(),
+                beam,
+            });
         }
-        if let Some([lo, hi]) = self.noise_fraction {
-            if !(0.0 <= lo && lo <= hi && hi <= 1.0) {
-                return Err(format!(
-                    "randomize.noise_fraction = [{lo}, {hi}] must be a range low <= high within [0, 1]"
-                ));
+        if let Some([low, high]) = self.noise_fraction {
+            if !(0.0 <= low && low <= high && high <= 1.0) {
+                return Err(RandomizeError::NoiseFraction { low, high });
             }
         }
-        if let Some([lo, hi]) = self.dropout {
-            if !(0.0 <= lo && lo <= hi && hi < 1.0) {
-                return Err(format!(
-                    "randomize.dropout = [{lo}, {hi}] must be a range low <= high within [0, 1)"
-                ));
+        if let Some([low, high]) = self.dropout {
+            if !(0.0 <= low && low <= high && high < 1.0) {
+                return Err(RandomizeError::Dropout { low, high });
             }
         }
         Ok(())
@@ -311,7 +340,7 @@ impl EnvConfig {
                 observation::MAX_OBSERVED_TRACKS
             ));
         }
-        self.randomize.validate().map_err(EnvError::Config)?;
+        self.randomize.validate()?;
         if !(self.reward_scale.is_finite() && self.reward_scale > 0.0) {
             return bad(format!(
                 "reward_scale = {} must be finite and > 0",
@@ -334,6 +363,9 @@ pub enum EnvError {
     /// A configuration value is out of range (the message names it).
     #[error("invalid environment configuration: {0}")]
     Config(String),
+    /// A `[env.randomize]` value is out of range (the error names the field).
+    #[error("invalid environment configuration: {0}")]
+    Randomize(#[from] RandomizeError),
     /// The action was refused (wrong length or a non-finite value); nothing was simulated.
     #[error("action refused: {0}")]
     Action(#[from] ActionError),
@@ -1194,6 +1226,8 @@ mod tests {
         );
     }
 
+    /// A bad `[env.randomize]` value is the typed [`EnvError::Randomize`], whose variant is
+    /// the field and whose message names it with the value.
     #[test]
     fn bad_randomization_is_refused_by_name() {
         let err = |r: Randomize| {
@@ -1203,28 +1237,50 @@ mod tests {
             }
             .validate()
             .unwrap_err()
-            .to_string()
         };
+        let e = err(Randomize {
+            beams: vec![720, 1].try_into().unwrap(),
+            ..Randomize::default()
+        });
         assert_eq!(
-            err(Randomize {
-                beams: vec![720, 1].try_into().unwrap(),
-                ..Randomize::default()
-            }),
-            "invalid environment configuration: randomize.beams = [720, 1]: 1 beams is too few (at least 2)"
+            e,
+            EnvError::Randomize(RandomizeError::TooFewBeams {
+                beams: vec![720, 1],
+                beam: 1
+            })
         );
         assert_eq!(
-            err(Randomize {
-                noise_fraction: Some([0.2, 0.1]),
-                ..Randomize::default()
-            }),
+            e.to_string(),
+            "invalid environment configuration: randomize.beams = [720, 1]: 1 beams is too few (at least 2)"
+        );
+        let e = err(Randomize {
+            noise_fraction: Some([0.2, 0.1]),
+            ..Randomize::default()
+        });
+        assert_eq!(
+            e,
+            EnvError::Randomize(RandomizeError::NoiseFraction { low: 0.2, high: 0.1 })
+        );
+        assert_eq!(
+            e.to_string(),
             "invalid environment configuration: randomize.noise_fraction = [0.2, 0.1] must be a range \
              low <= high within [0, 1]"
         );
-        assert!(err(Randomize {
+        let e = err(Randomize {
             dropout: Some([0.0, 1.0]),
             ..Randomize::default()
-        })
-        .contains("randomize.dropout = [0, 1] must be a range low <= high within [0, 1)"));
+        });
+        assert_eq!(
+            e,
+            EnvError::Randomize(RandomizeError::Dropout { low: 0.0, high: 1.0 })
+        );
+        assert!(e
+            .to_string()
+            .contains("randomize.dropout = [0, 1] must be a range low <= high within [0, 1)"));
+        assert_eq!(
+            BeamChoices::try_from(vec![90; 9]),
+            Err(RandomizeError::TooManyBeams { count: 9 })
+        );
         let too_many = toml::from_str::<EnvConfig>("[randomize]\nbeams = [2, 3, 4, 5, 6, 7, 8, 9, 10]\n")
             .unwrap_err()
             .to_string();

@@ -224,10 +224,10 @@ pub fn env_from_wire(m: &pb::EnvConfig) -> Result<EnvConfig, SpecError> {
         observe_tracks: m.observe_tracks as usize,
         observation,
         randomize: Randomize {
-            beams: BeamChoices::try_from(beams).map_err(|why| SpecError::OutOfRange {
+            beams: BeamChoices::try_from(beams).map_err(|e| SpecError::OutOfRange {
                 field: "env.randomize.beams",
                 value: format!("{:?}", randomize.beams),
-                why,
+                why: e.to_string(),
             })?,
             noise_fraction: randomize.noise_fraction.map(range_from_wire),
             dropout: randomize.dropout.map(range_from_wire),
