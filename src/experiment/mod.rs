@@ -1567,6 +1567,41 @@ mod tests {
         );
     }
 
+    /// The paper's file: Table I's 12 cells, then Table II's arms (the incremental and
+    /// unconstrained spaces on the system and DWA; 4 training-world selections on the system),
+    /// 20 arms x 3 seeds; the vanilla row per planner and speed; the state-shuffled control on
+    /// the 1.5 m/s arms only; 10 runs per world trimmed by 2; the hardest 50 test worlds.
+    #[test]
+    fn the_paper_experiment_plans_its_tables() {
+        let ex = shipped("paper.toml");
+        assert_eq!(ex.arms.len(), 20);
+        assert_eq!(
+            ex.arms[..12]
+                .iter()
+                .filter(|a| a.space == ActionSpace::Decremental)
+                .count(),
+            12
+        );
+        assert_eq!((ex.eval.runs, ex.eval.trim, ex.seeds), (10, 2, 3));
+        assert_eq!(ex.hardest_worlds.len(), 50);
+        assert!(ex.hardest_worlds.iter().all(|w| ex.test_worlds.contains(w)));
+        let all = stages(&ex.arms, ex.seeds, &sweeps(&ex));
+        let count = |kind: &str| all.iter().filter(|s| stage_kind(s) == kind).count();
+        assert_eq!(count("train"), 60);
+        assert_eq!((count("ddp"), count("vanilla")), (12, 12));
+        // Training-world arms share the system's 1.5 m/s search; the others search their own.
+        assert_eq!(count("search"), 16);
+        assert_eq!(count("adp"), 60);
+        let shuffled_arms: Vec<f64> = all
+            .iter()
+            .filter_map(|s| match *s {
+                Stage::EvalShuffled { arm, .. } => Some(ex.arms[arm].speed),
+                _ => None,
+            })
+            .collect();
+        assert!(!shuffled_arms.is_empty() && shuffled_arms.iter().all(|&v| v == 1.5));
+    }
+
     /// The sensing experiment: 4 layouts x 3 seeds trained, one search and one best constant
     /// shared by the layouts, and per condition DDP, the constant and 12 policies.
     #[test]
