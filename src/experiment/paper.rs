@@ -588,6 +588,9 @@ fn cell_block(out: &mut String, title: &str, c: &Cell) {
         delta(&c.adp_vs_constant),
         verdict(&c.adp_vs_constant)
     );
+    if let Some(line) = calibration(c) {
+        let _ = writeln!(out, "{line}");
+    }
     if !c.clutter.is_empty() {
         let parts: Vec<String> = c
             .clutter
@@ -602,6 +605,31 @@ fn cell_block(out: &mut String, title: &str, c: &Cell) {
         let _ = writeln!(out, "Schedule against clutter: {}.", parts.join("; "));
     }
     let _ = writeln!(out);
+}
+
+/// Points of success by which our vanilla row may differ from the DDP paper's and still be
+/// called calibrated.
+pub const CALIBRATION_POINTS: f64 = 8.0;
+
+/// The vanilla row against the DDP paper's: within [`CALIBRATION_POINTS`] of success, or by
+/// how much it differs (`None` without both rows).
+pub fn calibration(c: &Cell) -> Option<String> {
+    let ours = c.vanilla.as_ref()?;
+    let (_, paper) = c.published.iter().find(|(m, _)| m == "vanilla")?;
+    let d = ours.success_pct - paper.success_pct;
+    Some(if d.abs() <= CALIBRATION_POINTS {
+        format!(
+            "Calibration: vanilla's success is within {CALIBRATION_POINTS:.0} points of the DDP paper's ({d:+.1})."
+        )
+    } else {
+        format!(
+            "Calibration: vanilla's success differs from the DDP paper's by {d:+.1} points, more than \
+             {CALIBRATION_POINTS:.0}: this simulator's {} at {} m/s is {} than the paper's Gazebo runs.",
+            c.planner,
+            speed_label(c.speed),
+            if d > 0.0 { "easier" } else { "harder" }
+        )
+    })
 }
 
 /// The compact Table I: one line per cell (DDP, best constant and ADP score and success, and
@@ -815,6 +843,17 @@ mod tests {
         let md = render(&t);
         assert!(md.contains("### Table I") && md.contains("### Table III"), "{md}");
         assert!(md.contains("| DDP | 50.00 | 0.250 |"), "{md}");
+        // DWA's vanilla at 1.5 m/s succeeds 50 % here against the DDP paper's 81.83 %.
+        let line = calibration(c).unwrap();
+        assert!(line.contains("by -31.8 points"), "{line}");
+        let near = Cell {
+            vanilla: Some(Row {
+                success_pct: 85.0,
+                ..c.vanilla.clone().unwrap()
+            }),
+            ..c.clone()
+        };
+        assert!(calibration(&near).unwrap().contains("within 8 points"));
         assert!(summary_table(&t)
             .contains("| dwa | 1.5 | 50.0 % / 0.250 | 50.0 % / 0.250 | – | 100.0 % / 0.500 |"));
     }
