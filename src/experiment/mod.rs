@@ -392,7 +392,7 @@ fn run_stages(ctx: &Ctx<'_>, args: &Args, pool: &rayon::ThreadPool, todo: &[Stag
         let out = ctx.layout.output(stage);
         if i > 0 {
             tracing::info!(
-                "{}",
+                "{}{}",
                 progress_line(
                     i,
                     todo.len(),
@@ -400,6 +400,11 @@ fn run_stages(ctx: &Ctx<'_>, args: &Args, pool: &rayon::ThreadPool, todo: &[Stag
                     estimates[i..].iter().sum(),
                     started.elapsed().as_secs_f64(),
                     threads
+                ),
+                eta_clock(
+                    estimates[..i].iter().sum(),
+                    estimates[i..].iter().sum(),
+                    started.elapsed().as_secs_f64()
                 )
             );
         }
@@ -467,6 +472,19 @@ fn run_stages(ctx: &Ctx<'_>, args: &Args, pool: &rayon::ThreadPool, todo: &[Stag
         tracing::info!("{step} done in {seconds:.0} s");
     }
     Ok(())
+}
+
+/// The wall-clock time (UTC) at which the remaining stages should finish, as ` (ETA HH:MM
+/// UTC)`, from how long the finished ones took against their estimate.
+fn eta_clock(done_est: f64, left_est: f64, elapsed_s: f64) -> String {
+    if done_est <= 0.0 || elapsed_s <= 0.0 {
+        return String::new();
+    }
+    let now = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0.0, |d| d.as_secs_f64());
+    let at = (now + left_est * elapsed_s / done_est) as u64 % 86_400;
+    format!(" (ETA {:02}:{:02} UTC)", at / 3600, at % 3600 / 60)
 }
 
 /// Records in the store how `stage` was computed (by this experiment, in `seconds` on
