@@ -12,6 +12,8 @@ mod experiment;
 mod export;
 mod greedy;
 mod policy;
+#[cfg(test)]
+mod reference;
 mod render;
 mod slurm;
 mod stop;
