@@ -413,6 +413,17 @@ fn run_stages(ctx: &Ctx<'_>, args: &Args, pool: &rayon::ThreadPool, todo: &[Stag
             tracing::info!("{step} {}: in the store", describe(stage, &ex.arms));
             continue;
         }
+        if let Some((arm, seed)) = policy_of(stage) {
+            if !ctx.layout.done(&Stage::Train { arm, seed }) {
+                // Only with --only or a training that failed: the policy is not there yet.
+                tracing::warn!(
+                    "{step} {}: waits for `{}`",
+                    describe(stage, &ex.arms),
+                    describe(&Stage::Train { arm, seed }, &ex.arms)
+                );
+                continue;
+            }
+        }
         if is_eval(stage) {
             if args.no_eval {
                 continue;
@@ -570,6 +581,25 @@ fn print_plan(ex: &Experiment, layout: &Layout, config: &Path) {
             "{defaults} estimate(s) use a default rate: the store has measured no stage of their \
              class yet (units: agent steps of a training, episodes otherwise)"
         );
+    }
+}
+
+/// The trained policy (arm, seed) a stage evaluates, if any.
+fn policy_of(stage: &Stage) -> Option<(usize, usize)> {
+    match *stage {
+        Stage::EvalAdp { arm, seed }
+        | Stage::EvalShuffled { arm, seed }
+        | Stage::Sweep {
+            arm,
+            who: SweepWho::Adp { seed },
+            ..
+        }
+        | Stage::Sensing {
+            arm,
+            who: SweepWho::Adp { seed },
+            ..
+        } => Some((arm, seed)),
+        _ => None,
     }
 }
 
