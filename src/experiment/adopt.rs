@@ -15,10 +15,10 @@ use serde_json::Value;
 
 use crate::config::TrainConfig;
 
-use super::plan::{write_atomic, Stage};
+use super::plan::Stage;
 use super::recipe::train_inputs;
 use super::store::StageMeta;
-use super::{describe, load_policy, Ctx, Trained};
+use super::{describe, load_policy, write_trained, Ctx};
 
 /// Where two JSON values differ: up to `max` paths (`run.steps: 120000 against 40000`).
 pub fn differences(a: &Value, b: &Value, max: usize) -> Vec<String> {
@@ -156,19 +156,7 @@ fn adopt_one(ctx: &Ctx<'_>, dir: &Path, cores: u32) -> anyhow::Result<Option<Sta
             recipe: serde_json::to_value(&recipe).expect("recipes serialize"),
         },
     )?;
-    let marker = Trained {
-        arm: a.id(),
-        seed_index: seed,
-        td3_seed: cfg.td3.seed,
-        steps: cfg.run.steps,
-        agent_steps: src.inserts,
-        updates: src.updates,
-        export: to.join("export"),
-    };
-    write_atomic(
-        &ctx.layout.output(&stage),
-        &serde_json::to_vec_pretty(&marker).expect("serializes"),
-    )?;
+    write_trained(ctx, arm, seed, &cfg, &policy, to.join("export"))?;
     Ok(Some(stage))
 }
 

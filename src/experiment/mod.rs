@@ -759,8 +759,22 @@ fn train(ctx: &Ctx<'_>, arm: usize, seed: usize) -> anyhow::Result<()> {
             cfg.run.steps
         );
     }
+    write_trained(ctx, arm, seed, &cfg, &policy, export)
+}
+
+/// Writes the marker of arm `arm`'s finished training `seed` (configuration `cfg`, exported
+/// `policy` in `export`): the stage's result.
+fn write_trained(
+    ctx: &Ctx<'_>,
+    arm: usize,
+    seed: usize,
+    cfg: &crate::config::TrainConfig,
+    policy: &LearnedPolicy,
+    export: PathBuf,
+) -> anyhow::Result<()> {
+    let src = &policy.card.source;
     let marker = Trained {
-        arm: a.id(),
+        arm: ctx.ex.arms[arm].id(),
         seed_index: seed,
         td3_seed: cfg.td3.seed,
         steps: cfg.run.steps,

@@ -739,39 +739,10 @@ pub fn render(t: &Tables) -> String {
 mod tests {
     use super::*;
     use crate::experiment::config::Restrict;
-    use crate::experiment::runner::WorldOutcome;
-    use sim::{EpisodeResult, Status};
+    use crate::experiment::record::one_run_record;
 
     fn rec(controller: &str, worlds: &[(usize, bool, f64)]) -> EvalRecord {
-        EvalRecord {
-            controller: controller.into(),
-            planner: "dwa".into(),
-            space: None,
-            speed: 1.5,
-            seed_index: None,
-            action: None,
-            policy: None,
-            runs: 1,
-            trim: 0,
-            seed: 0,
-            per_world: worlds
-                .iter()
-                .map(|&(world, ok, score)| WorldOutcome {
-                    world,
-                    runs: vec![EpisodeResult {
-                        world,
-                        status: if ok { Status::Succeeded } else { Status::Collided },
-                        time_s: 10.0,
-                        sim_time_s: 10.0,
-                        score,
-                        distance_m: 0.0,
-                    }],
-                })
-                .collect(),
-            trace: vec![],
-            compute: Default::default(),
-            lidar: None,
-        }
+        one_run_record(controller, worlds)
     }
 
     #[test]

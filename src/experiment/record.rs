@@ -116,6 +116,43 @@ impl EvalRecord {
     }
 }
 
+/// A record of one run per world, at 10 s each: `(world, succeeded, score)` per world (for
+/// the tests of what reads records).
+#[cfg(test)]
+pub fn one_run_record(controller: &str, worlds: &[(usize, bool, f64)]) -> EvalRecord {
+    use super::runner::WorldOutcome;
+    use sim::EpisodeResult;
+    EvalRecord {
+        controller: controller.into(),
+        planner: "dwa".into(),
+        space: None,
+        speed: 1.5,
+        seed_index: None,
+        action: None,
+        policy: None,
+        runs: 1,
+        trim: 0,
+        seed: 0,
+        per_world: worlds
+            .iter()
+            .map(|&(world, ok, score)| WorldOutcome {
+                world,
+                runs: vec![EpisodeResult {
+                    world,
+                    status: if ok { Status::Succeeded } else { Status::Collided },
+                    time_s: 10.0,
+                    sim_time_s: 10.0,
+                    score,
+                    distance_m: 0.0,
+                }],
+            })
+            .collect(),
+        trace: vec![],
+        compute: Default::default(),
+        lidar: None,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -132,16 +169,8 @@ mod tests {
             distance_m: 0.0,
         };
         let rec = EvalRecord {
-            controller: "ddp".into(),
-            planner: "dwa".into(),
-            space: None,
-            speed: 1.5,
-            seed_index: None,
-            action: None,
-            policy: None,
             runs: 4,
             trim: 1,
-            seed: 0,
             per_world: vec![WorldOutcome {
                 world: 4,
                 runs: vec![
@@ -151,9 +180,7 @@ mod tests {
                     run(Status::TimedOut, 100.0, 0.0),
                 ],
             }],
-            trace: vec![],
-            compute: Default::default(),
-            lidar: None,
+            ..one_run_record("ddp", &[])
         };
         // Charged times 10, 50, 8, 50: trim 1 drops 8 and one 50; kept: 10 (success), 50.
         assert_eq!(rec.per_world_values(), vec![(4, 0.5, 0.2)]);

@@ -884,39 +884,10 @@ fn wins_section(out: &mut String, data: &[ArmData]) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::experiment::runner::WorldOutcome;
-    use sim::{EpisodeResult, Status};
+    use crate::experiment::record::one_run_record;
 
     fn rec(name: &str, runs: &[(usize, bool, f64)]) -> EvalRecord {
-        EvalRecord {
-            controller: name.into(),
-            planner: "dwa".into(),
-            space: None,
-            speed: 1.5,
-            seed_index: None,
-            action: None,
-            policy: None,
-            runs: 1,
-            trim: 0,
-            seed: 0,
-            per_world: runs
-                .iter()
-                .map(|&(world, ok, score)| WorldOutcome {
-                    world,
-                    runs: vec![EpisodeResult {
-                        world,
-                        status: if ok { Status::Succeeded } else { Status::Collided },
-                        time_s: 10.0,
-                        sim_time_s: 10.0,
-                        score,
-                        distance_m: 0.0,
-                    }],
-                })
-                .collect(),
-            trace: vec![],
-            compute: Default::default(),
-            lidar: None,
-        }
+        one_run_record(name, runs)
     }
 
     /// Two worlds, two ADP seeds, one control record, by hand: per-world ADP success 0.5 and
