@@ -576,7 +576,10 @@ fn cell_block(out: &mut String, title: &str, c: &Cell) {
     }
     measured_row(
         out,
-        &format!("ADP ({} seeds)", c.adp.as_ref().map_or(0, |r| r.seeds)),
+        &match c.adp.as_ref().map_or(0, |r| r.seeds) {
+            1 => "ADP (1 seed)".to_string(),
+            n => format!("ADP ({n} seeds)"),
+        },
         &c.adp,
         pub_of("adp"),
     );
