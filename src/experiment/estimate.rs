@@ -117,7 +117,9 @@ impl Rates {
         let mut measured: BTreeMap<String, (f64, f64)> = BTreeMap::new();
         for m in metas.iter().filter(|m| m.units > 0.0 && m.seconds > 0.0) {
             let e = measured.entry(m.class.clone()).or_default();
-            e.0 += m.seconds * m.threads.max(1) as f64;
+            // The CPU time it used where measured (a machine shared with other work inflates
+            // wall time, not CPU time), else its wall time on every thread it had.
+            e.0 += m.cpu_s.unwrap_or(m.seconds * m.threads.max(1) as f64);
             e.1 += m.units;
         }
         Rates { measured }
@@ -185,9 +187,22 @@ mod tests {
             units,
             seconds,
             threads,
+            cpu_s: None,
             finished_unix_s: 0,
             recipe: serde_json::Value::Null,
         }
+    }
+
+    #[test]
+    fn cpu_time_is_the_cost_where_it_was_measured() {
+        let shared = StageMeta {
+            cpu_s: Some(100.0),
+            ..meta("eval:dwa:schedule:-", 1000.0, 200.0, 2)
+        };
+        assert_eq!(
+            Rates::measured(&[shared]).rate("eval:dwa:schedule:-"),
+            (0.1, true)
+        );
     }
 
     #[test]

@@ -458,7 +458,7 @@ fn run_stages(ctx: &Ctx<'_>, args: &Args, pool: &rayon::ThreadPool, todo: &[Stag
                     .with_context(|| format!("merging the shards of {}", out.display()))?
                     .save(&out)?;
                 // Merged from shards computed elsewhere: no time of its own to record.
-                record_meta(ctx, stage, 0.0, threads)?;
+                record_meta(ctx, stage, 0.0, threads, None)?;
                 tracing::info!(
                     "{step} {}: merged {} shards",
                     describe(stage, &ex.arms),
@@ -468,6 +468,7 @@ fn run_stages(ctx: &Ctx<'_>, args: &Args, pool: &rayon::ThreadPool, todo: &[Stag
             }
         }
         tracing::info!("{step} {}", describe(stage, &ex.arms));
+        let cpu0 = cpu_seconds();
         let used = match stage {
             Stage::Train { arm, seed } => {
                 train(ctx, *arm, *seed)?;
@@ -479,10 +480,26 @@ fn run_stages(ctx: &Ctx<'_>, args: &Args, pool: &rayon::ThreadPool, todo: &[Stag
             }
         };
         let seconds = t0.elapsed().as_secs_f64();
-        record_meta(ctx, stage, seconds, used)?;
+        let cpu = cpu0.zip(cpu_seconds()).map(|(a, b)| b - a);
+        record_meta(ctx, stage, seconds, used, cpu)?;
         tracing::info!("{step} done in {seconds:.0} s");
     }
     Ok(())
+}
+
+/// CPU seconds (user and system) used so far by this process and by the child processes it
+/// has waited for (a training's actors and learner threads); `None` where the system does not
+/// say.
+fn cpu_seconds() -> Option<f64> {
+    let used = |who| {
+        // SAFETY: getrusage writes one rusage into the zeroed struct it is given.
+        let mut r: libc::rusage = unsafe { std::mem::zeroed() };
+        (unsafe { libc::getrusage(who, &mut r) } == 0).then(|| {
+            let t = |v: libc::timeval| v.tv_sec as f64 + v.tv_usec as f64 * 1e-6;
+            t(r.ru_utime) + t(r.ru_stime)
+        })
+    };
+    Some(used(libc::RUSAGE_SELF)? + used(libc::RUSAGE_CHILDREN)?)
 }
 
 /// The wall-clock time (UTC) at which the remaining stages should finish, as ` (ETA HH:MM
@@ -500,7 +517,13 @@ fn eta_clock(done_est: f64, left_est: f64, elapsed_s: f64) -> String {
 
 /// Records in the store how `stage` was computed (by this experiment, in `seconds` on
 /// `threads` cores).
-fn record_meta(ctx: &Ctx<'_>, stage: &Stage, seconds: f64, threads: usize) -> anyhow::Result<()> {
+fn record_meta(
+    ctx: &Ctx<'_>,
+    stage: &Stage,
+    seconds: f64,
+    threads: usize,
+    cpu_s: Option<f64>,
+) -> anyhow::Result<()> {
     let recipe = ctx.layout.recipe(stage);
     let (units, class) = estimate::units(ctx.ex, stage);
     let meta = StageMeta {
@@ -510,6 +533,7 @@ fn record_meta(ctx: &Ctx<'_>, stage: &Stage, seconds: f64, threads: usize) -> an
         units,
         seconds,
         threads,
+        cpu_s,
         finished_unix_s: std::time::SystemTime::now()
             .duration_since(std::time::UNIX_EPOCH)
             .map_or(0, |d| d.as_secs()),

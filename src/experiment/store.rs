@@ -53,6 +53,10 @@ pub struct StageMeta {
     pub seconds: f64,
     /// Worker threads it ran on (the cores it had).
     pub threads: usize,
+    /// CPU seconds it used (this process and the processes it waited for: a training's
+    /// actors), when measured: the cost, whatever else shared the machine.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cpu_s: Option<f64>,
     /// When it finished (seconds since the Unix epoch).
     pub finished_unix_s: u64,
     /// The recipe whose key names it.
@@ -250,6 +254,7 @@ mod tests {
             units: 4500.0,
             seconds: 180.0,
             threads: 2,
+            cpu_s: None,
             finished_unix_s: 1,
             recipe: serde_json::to_value(&r).unwrap(),
         };
