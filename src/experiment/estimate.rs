@@ -81,7 +81,7 @@ fn who_class(ex: &Experiment, stage: &Stage, arm: usize, who: SweepWho) -> Strin
 }
 
 /// Core-seconds per unit when the store has measured nothing of a class: measured on a
-/// 2-core x86-64 VM (DWA at 1.5 m/s: a 40,000-step training in about 780 s; 225 worlds x 20
+/// 2-core x86-64 VM (DWA at 1.5 m/s: a 120,000-step training in about 1,120 s; 225 worlds x 20
 /// runs of DDP in about 180 s, of a policy choosing DWA's weights about 400 s, of a policy
 /// driving the robot itself about 510 s, every run to its time limit). The other planners'
 /// episodes cost about 2.5 times DWA's.
@@ -99,7 +99,7 @@ fn default_rate(class: &str) -> f64 {
         1.0
     };
     match kind {
-        "train" => 0.039 * if planner == "dwa" { 1.0 } else { 1.5 },
+        "train" => 0.019 * if planner == "dwa" { 1.0 } else { 1.5 },
         _ => 0.08 * planner_factor * space_factor,
     }
 }
