@@ -147,7 +147,7 @@ fn adopt_one(ctx: &Ctx<'_>, dir: &Path, cores: u32) -> anyhow::Result<Option<Sta
         &recipe,
         &StageMeta {
             description: describe(&stage, &ex.arms),
-            experiment: format!("adopted from {}", dir.display()),
+            experiment: format!("adopted from {}", short(dir)),
             class: super::estimate::units(ex, &stage).1,
             units: cfg.run.steps as f64,
             seconds: 0.0,
@@ -159,6 +159,18 @@ fn adopt_one(ctx: &Ctx<'_>, dir: &Path, cores: u32) -> anyhow::Result<Option<Sta
     )?;
     write_trained(ctx, arm, seed, &cfg, &policy, to.join("export"))?;
     Ok(Some(stage))
+}
+
+/// The last two components of `dir` (`steps120k/seed-0`): where an adopted run came from,
+/// without the machine's absolute path, which a report kept in a repository should not carry.
+fn short(dir: &Path) -> String {
+    let parts: Vec<String> = dir
+        .components()
+        .rev()
+        .take(2)
+        .map(|c| c.as_os_str().to_string_lossy().to_string())
+        .collect();
+    parts.into_iter().rev().collect::<Vec<_>>().join("/")
 }
 
 /// Copies the regular files of `from` into `to` (created).
@@ -178,6 +190,15 @@ fn copy_dir(from: &Path, to: &Path) -> anyhow::Result<()> {
 mod tests {
     use super::*;
     use serde_json::json;
+
+    #[test]
+    fn an_adopted_run_is_named_without_the_machine_path() {
+        assert_eq!(
+            short(Path::new("/work/runs/steps120k/seed-0")),
+            "steps120k/seed-0"
+        );
+        assert_eq!(short(Path::new("seed-0")), "seed-0");
+    }
 
     #[test]
     fn differences_name_the_paths_that_differ() {
