@@ -5,9 +5,11 @@
 //! the state-shuffled policy), optionally sweep compute budgets and lidar conditions, and
 //! write `report.md` with paper-style tables, paired statistics and figures.
 //!
-//! The work is a list of stages ([`plan`]), each writing one file atomically; `--resume`
-//! skips the stages whose file exists. Evaluation runs in parallel over (world, run) on the
-//! local cores; training uses `adp train` with the configured actors.
+//! The work is a list of stages ([`plan`]), each writing one result atomically into the store
+//! of results under the key of what decides it ([`recipe`], [`store`]), so a stage that any
+//! experiment finished is read, not computed again; `--plan` estimates what is left
+//! ([`estimate`]). Evaluation runs in parallel over (world, run) on the local cores; training
+//! uses `adp train` with the configured actors.
 
 pub mod adopt;
 pub mod config;
