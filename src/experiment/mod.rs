@@ -210,18 +210,24 @@ fn same_file(copy: &Path, text: &str, config: &Path, dir: &Path) -> anyhow::Resu
     Ok(())
 }
 
+/// Writes `dir`'s `experiment.toml` from `text` (the file `config`), or checks that the one
+/// there is `text`.
+fn keep_copy(dir: &Path, text: &str, config: &Path) -> anyhow::Result<()> {
+    let copy = dir.join(CONFIG_COPY);
+    if copy.exists() {
+        same_file(&copy, text, config, dir)
+    } else {
+        write_atomic(&copy, text.as_bytes())
+    }
+}
+
 /// `--emit-slurm`: creates the experiment directory (its `experiment.toml` and `logs/`) and
 /// prints the job script.
 fn emit_slurm(ex: &Experiment, text: &str, dir: &Path, store: &Store, args: &Args) -> anyhow::Result<()> {
     let dir = std::path::absolute(dir).with_context(|| format!("cannot resolve {}", dir.display()))?;
     let logs = dir.join("logs");
     std::fs::create_dir_all(&logs).with_context(|| format!("cannot create {}", logs.display()))?;
-    let copy = dir.join(CONFIG_COPY);
-    if copy.exists() {
-        same_file(&copy, text, &args.config, &dir)?;
-    } else {
-        write_atomic(&copy, text.as_bytes())?;
-    }
+    keep_copy(&dir, text, &args.config)?;
     let store =
         std::path::absolute(&store.dir).with_context(|| format!("cannot resolve {}", store.dir.display()))?;
     let mut step_args = slurm::restrict_args(&args.restrict);
@@ -265,12 +271,7 @@ pub fn run(args: &Args) -> anyhow::Result<Option<PathBuf>> {
         return Ok(None);
     }
     if args.report_only || !args.adopt.is_empty() {
-        let copy = dir.join(CONFIG_COPY);
-        if copy.exists() {
-            same_file(&copy, &text, &args.config, &dir)?;
-        } else {
-            write_atomic(&copy, text.as_bytes())?;
-        }
+        keep_copy(&dir, &text, &args.config)?;
     } else {
         claim_dir(args, &dir, &text)?;
     }
