@@ -45,17 +45,9 @@ impl WorldData {
         all.get(id).with_context(|| Self::missing(all, id))
     }
 
-    /// Why world `id` is not in `all` (a generated id says how to evaluate generated worlds).
+    /// Why world `id` is not in `all` (see [`eval::evaluate::missing_world`]).
     pub fn missing(all: &[World], id: usize) -> String {
-        if sim::catalog::is_generated(id) {
-            format!(
-                "world {id} is a generated world, made on demand for training only: to evaluate \
-                 generated worlds, write them with `adp worlds generate` and pass --obstacles \
-                 and --paths"
-            )
-        } else {
-            format!("world {id} does not exist ({} worlds)", all.len())
-        }
+        eval::evaluate::missing_world(all, id)
     }
 }
 

@@ -6,12 +6,9 @@ mod bench;
 mod calibrate;
 mod cli;
 mod config;
-mod corrector;
 mod eval;
 mod experiment;
 mod export;
-mod greedy;
-mod policy;
 #[cfg(test)]
 mod reference;
 mod render;

@@ -20,7 +20,7 @@ use planner::run::CycleDriver;
 use planner::{PlannerKind, Schedule, TrackingConfig};
 
 use crate::args::EvalRunArgs;
-use crate::eval::{eval_run, run_seed};
+use eval::{eval_run, run_seed};
 
 /// `adp tracks`.
 #[derive(clap::Subcommand, Debug)]

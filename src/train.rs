@@ -15,7 +15,7 @@ use proto::auth::{read_or_create_token_file, read_token_file};
 use scheduler::{BackoffPolicy, Sandbox, Supervisor, SupervisorConfig, SupervisorEvent};
 
 use crate::config::{error_line, TrainConfig};
-use crate::greedy::GreedyMonitor;
+use eval::greedy::GreedyMonitor;
 
 impl TrainConfig {
     /// The learner options of this config for `run_dir`.
@@ -204,7 +204,7 @@ pub fn train(config: Option<&Path>, o: &Overrides, resume: bool) -> anyhow::Resu
         let s = learner.status();
         if let Some(g) = greedy.as_mut() {
             match g.poll(s.inserts, || learner.latest_policy()) {
-                Some(Ok(r)) => bar.println(crate::greedy::describe(&r)),
+                Some(Ok(r)) => bar.println(eval::greedy::describe(&r)),
                 Some(Err(e)) => bar.println(error_line(&e)),
                 None => {}
             }
@@ -231,7 +231,7 @@ pub fn train(config: Option<&Path>, o: &Overrides, resume: bool) -> anyhow::Resu
         for r in g.finish(inserts, || learner.latest_policy()) {
             eprintln!(
                 "{}",
-                r.map_or_else(|e| error_line(&e), |r| crate::greedy::describe(&r))
+                r.map_or_else(|e| error_line(&e), |r| eval::greedy::describe(&r))
             );
         }
     }

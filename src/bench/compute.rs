@@ -245,7 +245,7 @@ pub(super) fn measure_calls(
                 for (sched, ddp) in schedules {
                     for &w in &ids {
                         let world = sim::catalog::world(w).with_context(|| format!("world {w}"))?;
-                        let seed = crate::eval::run_seed(7, w, 0);
+                        let seed = eval::run_seed(7, w, 0);
                         let mut timed = Timed {
                             inner: kind.build(&cfg.planners(), seed),
                             kind,

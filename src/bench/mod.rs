@@ -405,7 +405,7 @@ fn collect(steps: u64) -> anyhow::Result<Vec<Figure>> {
         figure(
             format!(
                 "collection with the compute model ({}) / free (the episodes differ: latency)",
-                crate::eval::compute_label(&cfg.env.compute)
+                eval::compute_label(&cfg.env.compute)
             ),
             single / single_free,
             "x",

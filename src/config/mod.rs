@@ -1,92 +1,15 @@
-//! The configuration files: the evaluation configuration (`configs/eval.toml`, embedded as
-//! the default; [`EvalConfig`]) and a training run's ([`TrainConfig`], with its `[greedy]` and
-//! `[slurm]` tables), and the one-line error helpers every command uses.
+//! The configuration files: a training run's ([`TrainConfig`], with its `[greedy]` and
+//! `[slurm]` tables), the evaluation configuration (from the `eval` library) and the one-line error helper every
+//! command uses.
 
-mod greedy;
 mod slurm;
 mod train;
 
-pub use greedy::GreedySection;
 pub use slurm::{check_time, SlurmSection};
 pub use train::TrainConfig;
 
-use anyhow::Context;
-use serde::Deserialize;
-
-use planner::{
-    ComputeConfig, DwaConfig, LogMppiConfig, MppiConfig, PadpConfig, PlannerConfigs, SystemConfig,
-};
-use sim::EpisodeConfig;
-
-/// The embedded default.
-pub const EVAL_TOML: &str = include_str!("../../configs/eval.toml");
-
-/// Settings for `adp eval` and friends.
-#[derive(Clone, Debug, Default, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct EvalConfig {
-    /// Simulator and protocol.
-    pub episode: EpisodeConfig,
-    /// DWA planner.
-    pub dwa: DwaConfig,
-    /// MPPI planner.
-    pub mppi: MppiConfig,
-    /// Log-MPPI planner.
-    pub log_mppi: LogMppiConfig,
-    /// The standalone navigation system.
-    pub system: SystemConfig,
-    /// The onboard compute model every planner runs under (`[compute]`).
-    pub compute: ComputeConfig,
-    /// PADP's settings for the rows of `--prediction padp-path` and `padp` (`[prediction]`).
-    pub prediction: PadpConfig,
-}
-
-impl EvalConfig {
-    /// Every planner's tunables, for [`planner::PlannerKind::build`].
-    pub fn planners(&self) -> PlannerConfigs {
-        PlannerConfigs {
-            dwa: self.dwa,
-            mppi: self.mppi,
-            log_mppi: self.log_mppi,
-            system: self.system,
-        }
-    }
-
-    /// Reads `path`, or the embedded default when `None`.
-    pub fn load(path: Option<&std::path::Path>) -> anyhow::Result<Self> {
-        let (name, text) = match path {
-            Some(p) => (
-                p.display().to_string(),
-                std::fs::read_to_string(p).with_context(|| format!("cannot read config {}", p.display()))?,
-            ),
-            None => ("configs/eval.toml (embedded)".to_string(), EVAL_TOML.to_string()),
-        };
-        let cfg: EvalConfig =
-            toml::from_str(&text).map_err(|e| anyhow::anyhow!("{name}: {}", one_line(&e.to_string())))?;
-        cfg.episode
-            .validate()
-            .map_err(|e| anyhow::anyhow!("{name}: [episode] {e}"))?;
-        cfg.compute
-            .validate()
-            .map_err(|e| anyhow::anyhow!("{name}: {e}"))?;
-        cfg.prediction
-            .validate()
-            .map_err(|e| anyhow::anyhow!("{name}: {e}"))?;
-        Ok(cfg)
-    }
-}
-
-/// A name that is none of the known ones (a planner, a simulator profile).
-#[derive(Debug, thiserror::Error)]
-#[error("unknown {kind} `{name}` (expected {expected})")]
-pub struct UnknownName {
-    /// What the name should name, e.g. `planner`.
-    pub kind: &'static str,
-    /// The name given.
-    pub name: String,
-    /// The known names, e.g. `dwa, mppi, log-mppi or system`.
-    pub expected: &'static str,
-}
+pub use eval::config::{one_line, EvalConfig, UnknownName};
+pub use eval::GreedySection;
 
 /// `e` and its causes on one line, `outer: inner: ...` like anyhow's `{:#}`, leaving out a cause
 /// whose message the text already ends with (the component errors include their source in
@@ -104,39 +27,4 @@ pub fn error_line(e: &anyhow::Error) -> String {
     one_line(&line)
 }
 
-/// Collapses a multi-line parser message (toml prints a snippet) into one line.
-pub fn one_line(s: &str) -> String {
-    s.lines()
-        .map(str::trim)
-        .filter(|l| !l.is_empty() && !l.starts_with('|') && !l.chars().all(|c| c == '^' || c == ' '))
-        .collect::<Vec<_>>()
-        .join(" ")
-}
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn embedded_config_equals_built_in_defaults() {
-        let cfg = EvalConfig::load(None).unwrap();
-        assert_eq!(cfg.episode, EpisodeConfig::default());
-        assert_eq!(cfg.dwa, DwaConfig::default());
-        assert_eq!(cfg.mppi, MppiConfig::default());
-        assert_eq!(cfg.log_mppi, LogMppiConfig::default());
-        assert_eq!(cfg.system, SystemConfig::default());
-    }
-
-    #[test]
-    fn unknown_field_is_named() {
-        let dir = std::env::temp_dir().join(format!("adp-cfg-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let p = dir.join("bad.toml");
-        std::fs::write(&p, "[dwa]\nv_sampels = 3\n").unwrap();
-        let e = EvalConfig::load(Some(&p)).unwrap_err().to_string();
-        assert!(e.contains("v_sampels") && !e.contains('\n'), "{e}");
-        std::fs::write(&p, "[episode]\nphysics_dt = 0.5\n").unwrap();
-        let e = EvalConfig::load(Some(&p)).unwrap_err().to_string();
-        assert!(e.contains("physics_dt"), "{e}");
-    }
-}

@@ -21,7 +21,7 @@ use sim::lidar::LidarConfig;
 
 use crate::config::one_line;
 use crate::config::TrainConfig;
-use crate::eval::LidarOverride;
+use eval::LidarOverride;
 use planner::PlannerKind;
 
 /// The embedded training defaults that `[train]` is laid over.

@@ -314,7 +314,7 @@ mod tests {
         let dir = std::env::temp_dir().join(format!("adp-untrained-{}", std::process::id()));
         let cfg = TrainConfig::load(None).unwrap();
         write_untrained_export(&cfg, ActionSpace::Decremental, &dir).unwrap();
-        let crate::policy::EvalPolicy::Learned(p) = crate::policy::load(&dir, None).unwrap() else {
+        let eval::policy::EvalPolicy::Learned(p) = eval::policy::load(&dir, None).unwrap() else {
             panic!("a learned policy")
         };
         assert_eq!(p.space, ActionSpace::Decremental);

@@ -10,7 +10,6 @@
 //!   horizon the policy chose at each agent step.
 
 use std::path::Path;
-use std::sync::Once;
 
 use anyhow::Context;
 use plotters::prelude::*;
@@ -21,22 +20,10 @@ use sim::World;
 
 use super::runner::TracePoint;
 
-/// DejaVu Sans (Bitstream Vera license, see `assets/fonts/LICENSE-DejaVu.txt`).
-const FONT: &[u8] = include_bytes!("../../assets/fonts/DejaVuSans.ttf");
-/// The family name every figure asks for.
-pub(crate) const FAMILY: &str = "sans-serif";
-
-/// Registers the embedded font once per process (bitmap pictures need it for their text).
-pub(crate) fn fonts() {
-    static ONCE: Once = Once::new();
-    ONCE.call_once(|| {
-        plotters::style::register_font(FAMILY, FontStyle::Normal, FONT)
-            .unwrap_or_else(|_| panic!("the embedded DejaVu Sans is a valid font"));
-    });
-}
+pub(crate) use eval::render::{fonts, FAMILY};
 
 /// One line of a run's `greedy_eval.jsonl`: the greedy evaluation's own record.
-pub use crate::greedy::GreedyResult as GreedyPoint;
+pub use eval::greedy::GreedyResult as GreedyPoint;
 
 /// Reads `greedy_eval.jsonl` of a run directory: `None` when there is none; lines that do not
 /// parse are skipped (a line being written when the run stopped).

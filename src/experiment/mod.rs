@@ -39,8 +39,8 @@ use planner::{ActionSpace, Schedule};
 use sim::World;
 
 use crate::config::EvalConfig;
-use crate::eval::{eval_run, run_seed};
-use crate::policy::{EvalPolicy, LearnedPolicy};
+use eval::{eval_run, run_seed};
+use eval::policy::{EvalPolicy, LearnedPolicy};
 
 use config::{planner_name, space_label, speed_label, Arm, Experiment, Restrict};
 use controls::{
@@ -817,7 +817,7 @@ fn write_trained(
 
 /// The trained (or untrained) policy of an export directory, in `space`.
 fn load_policy(dir: &Path, space: ActionSpace) -> anyhow::Result<LearnedPolicy> {
-    match crate::policy::load(dir, Some(space))? {
+    match eval::policy::load(dir, Some(space))? {
         EvalPolicy::Learned(p) => Ok(*p),
         EvalPolicy::Constant { .. } => bail!("{}: not an export directory", dir.display()),
     }
@@ -1152,7 +1152,7 @@ fn arm_data(ctx: &Ctx<'_>, arm: usize) -> anyhow::Result<ArmData> {
                 adp.extend(at(SweepWho::Adp { seed })?);
             }
             sweep.push(report::SweepPoint {
-                label: crate::eval::compute_label(compute),
+                label: eval::compute_label(compute),
                 ddp: at(SweepWho::Ddp)?,
                 constant: at(SweepWho::Constant)?,
                 adp,
@@ -1168,7 +1168,7 @@ fn arm_data(ctx: &Ctx<'_>, arm: usize) -> anyhow::Result<ArmData> {
                 adp.extend(at(SweepWho::Adp { seed })?);
             }
             sensing.push(report::SweepPoint {
-                label: crate::eval::lidar_label(&sensing_lidar(ctx, condition)?),
+                label: eval::lidar_label(&sensing_lidar(ctx, condition)?),
                 ddp: at(SweepWho::Ddp)?,
                 constant: at(SweepWho::Constant)?,
                 adp,

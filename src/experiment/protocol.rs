@@ -29,7 +29,7 @@ use serde::Serialize;
 
 use sim::{EpisodeResult, Status};
 
-use crate::eval::{summarize, WorldRuns};
+use eval::{summarize, WorldRuns};
 
 use super::record::EvalRecord;
 use super::stats::{bootstrap_mean, mean, paired_differences, Interval};

@@ -8,7 +8,7 @@ use serde::{Deserialize, Serialize};
 
 use sim::Status;
 
-use crate::eval::summarize;
+use eval::summarize;
 
 use super::plan::write_atomic;
 use super::runner::{TracePoint, WorldOutcome};

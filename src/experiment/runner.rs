@@ -1,6 +1,6 @@
 //! Runs one controller on a set of worlds with the papers' protocol, in parallel over
 //! (world, run) with rayon like `adp eval`: run r of world w uses the seed
-//! [`crate::eval::run_seed`]`(seed, w, r)` whatever the controller, so the runs of two
+//! [`eval::run_seed`]`(seed, w, r)` whatever the controller, so the runs of two
 //! controllers pair by seed (the same sensor noise, drift and start jitter).
 //!
 //! A controller is a schedule held for the whole run (DDP, a constant action: the plain
@@ -20,7 +20,7 @@ use planner::{ActionSpace, ComputeTally, Schedule, TrackingConfig};
 use sim::{EpisodeResult, World};
 
 use crate::config::EvalConfig;
-use crate::eval::{eval_run, run_seed, WorldRuns};
+use eval::{eval_run, run_seed, WorldRuns};
 
 use super::stats::SplitMix64;
 
@@ -92,7 +92,7 @@ impl<'a> Controller<'a> {
     }
 
     /// A trained (or untrained) policy run greedily on each step's own observation.
-    pub fn of(p: &'a crate::policy::LearnedPolicy) -> Self {
+    pub fn of(p: &'a eval::policy::LearnedPolicy) -> Self {
         Controller::Policy {
             net: &p.net,
             env: p.env,
@@ -139,7 +139,7 @@ pub struct WorldOutcome {
 }
 
 impl WorldOutcome {
-    /// As `adp eval`'s type, for [`crate::eval::summarize`].
+    /// As `adp eval`'s type, for [`eval::summarize`].
     pub fn to_world_runs(&self) -> WorldRuns {
         WorldRuns {
             world: self.world,

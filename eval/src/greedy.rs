@@ -24,12 +24,12 @@ use serde::{Deserialize, Serialize};
 use actor::closed_loop::{self, planner_seed, Chooser, Greedy};
 use actor::{EnvConfig, MlpPolicy};
 use learner::tensorboard::EventWriter;
-use learner_service::PolicyError;
 use planner::{ActionSpace, Schedule};
 use sim::{Status, World};
 
-use crate::config::{EvalConfig, GreedySection};
-use crate::eval::{eval_run, run_seed};
+use crate::config::EvalConfig;
+use crate::GreedySection;
+use crate::{eval_run, run_seed};
 
 /// How one physical schedule parameter varied over an evaluation's agent steps.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -276,10 +276,10 @@ impl GreedyMonitor {
     /// newest policy `(version, layer sizes, flat weights)`: collects a finished evaluation
     /// (returning it for display) and starts the next one when due. A failed evaluation is
     /// reported and skipped; training goes on.
-    pub fn poll(
+    pub fn poll<E: std::error::Error + Send + Sync + 'static>(
         &mut self,
         inserts: u64,
-        latest: impl FnOnce() -> Result<(u64, Vec<usize>, Vec<f32>), PolicyError>,
+        latest: impl FnOnce() -> Result<(u64, Vec<usize>, Vec<f32>), E>,
     ) -> Option<anyhow::Result<GreedyResult>> {
         let done = self.collect(false);
         if self.job.is_none() && inserts >= self.next_at {
@@ -293,10 +293,10 @@ impl GreedyMonitor {
 
     /// Evaluates the newest policy now and waits for it (and for one still running): the
     /// final point of the curve.
-    pub fn finish(
+    pub fn finish<E: std::error::Error + Send + Sync + 'static>(
         mut self,
         inserts: u64,
-        latest: impl FnOnce() -> Result<(u64, Vec<usize>, Vec<f32>), PolicyError>,
+        latest: impl FnOnce() -> Result<(u64, Vec<usize>, Vec<f32>), E>,
     ) -> Vec<anyhow::Result<GreedyResult>> {
         let mut out: Vec<_> = self.collect(true).into_iter().collect();
         match self.start(inserts, latest) {
@@ -306,10 +306,10 @@ impl GreedyMonitor {
         out
     }
 
-    fn start(
+    fn start<E: std::error::Error + Send + Sync + 'static>(
         &mut self,
         inserts: u64,
-        latest: impl FnOnce() -> Result<(u64, Vec<usize>, Vec<f32>), PolicyError>,
+        latest: impl FnOnce() -> Result<(u64, Vec<usize>, Vec<f32>), E>,
     ) -> anyhow::Result<()> {
         let (version, dims, weights) = latest()?;
         if version == 0 {
@@ -534,7 +534,7 @@ mod tests {
         // The DDP-initialized output (zeros) is DDP: same success and score as DDP's row.
         let mut flat = vec![0.0f32; 730 * 4];
         flat.extend([0.0f32; 4]);
-        let latest = || Ok((7, vec![730, 4], flat.clone()));
+        let latest = || Ok::<_, std::io::Error>((7, vec![730, 4], flat.clone()));
         assert!(m.poll(299, latest).is_none() && m.job.is_none(), "not due yet");
         assert!(m.poll(300, latest).is_none() && m.job.is_some(), "started");
         let results = m.finish(300, latest);

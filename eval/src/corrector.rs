@@ -9,7 +9,7 @@ use planner::residual::Corrector;
 
 /// The corrector trained on `dynabarn-fit` that `--prediction kf-res` uses when the
 /// configuration names none (`assets/kf-residual/README.md` says how it was made).
-pub const DEFAULT_CORRECTOR: &str = include_str!("../assets/kf-residual/corrector.json");
+pub const DEFAULT_CORRECTOR: &str = include_str!("../../assets/kf-residual/corrector.json");
 
 /// The embedded corrector's name in errors.
 pub const DEFAULT_CORRECTOR_NAME: &str = "assets/kf-residual/corrector.json (embedded)";

@@ -1,0 +1,34 @@
+//! Evaluation of navigation planners on BARN and DynaBARN worlds, as a library.
+//!
+//! - [`evaluate`]: planners x fidelities x speeds x predictions x lidars over a set of worlds,
+//!   run in parallel and reduced to the papers' table (success, time, score, collision,
+//!   timeout, and the counted planner work); [`run`] is its entry point, [`eval_run`] one
+//!   episode with the seed every comparison shares ([`run_seed`]).
+//! - [`policy`]: a trained export or a constant action, loaded and checked against this
+//!   build's environment.
+//! - [`greedy`]: the greedy monitor a training run starts on its newest policy.
+//! - [`calibrate`]: the DDP paper's Table I and the checks of our rows against it.
+//! - [`render`]: a picture or a frame strip of one episode.
+//! - [`config`]: the evaluation configuration every one of them reads.
+//!
+//! The `adp` binary's `eval`, `calibrate` and `render` commands parse their arguments into
+//! these types and print what they return; another program links this crate to do the same.
+//! Every function that can fail returns an error of one line that names what failed and
+//! where (the file, the world, the planner).
+
+pub mod calibrate;
+pub mod config;
+pub mod corrector;
+pub mod evaluate;
+pub mod greedy;
+mod greedy_section;
+pub mod policy;
+pub mod render;
+
+pub use config::EvalConfig;
+pub use evaluate::{
+    compute_label, eval_run, lidar_label, run, run_seed, summarize, table, AdpSetting, EvalPlan,
+    Fidelity, ForecastRmse, LidarOverride, ObstaclePrediction, Row, UnitsPerCycle, WorldRuns,
+    FAILED_RUN_TIME,
+};
+pub use greedy_section::GreedySection;
