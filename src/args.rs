@@ -58,14 +58,14 @@ pub struct Setup {
     /// Configuration file (default: the embedded configs/eval.toml).
     #[arg(long)]
     pub config: Option<PathBuf>,
-    /// Simulator profile (ideal, gazebo-jackal, custom): overrides [episode] profile.
+    /// Simulator profile (ideal, gazebo-jackal, custom): overrides `[episode]` profile.
     #[arg(long, value_parser = parse_profile)]
     pub profile: Option<Profile>,
-    /// Onboard compute model (free, jackal-onboard-v2, jackal-onboard, custom): overrides [compute] model, for
+    /// Onboard compute model (free, jackal-onboard-v2, jackal-onboard, custom): overrides `[compute]` model, for
     /// every row (a policy's own model otherwise applies to the rows of its evaluation).
     #[arg(long, value_parser = parse_compute)]
     pub compute: Option<ComputeModel>,
-    /// Multiplies every planner's cycle budget: overrides [compute] budget_scale.
+    /// Multiplies every planner's cycle budget: overrides `[compute]` budget_scale.
     #[arg(long)]
     pub budget_scale: Option<f64>,
     #[command(flatten)]

@@ -97,4 +97,3 @@ pub fn command(a: &CalibrateArgs) -> anyhow::Result<()> {
     }
     Ok(())
 }
-

@@ -38,16 +38,16 @@ pub struct EvalArgs {
     #[arg(long, value_enum, value_delimiter = ',', default_value = "off")]
     pub prediction: Vec<ObstaclePrediction>,
     /// Lidar beam count(s) over the field of view, comma-separated: one row per value
-    /// (overrides [episode.lidar] beams). A trained policy reads any beam count, resampled to
+    /// (overrides `[episode.lidar]` beams). A trained policy reads any beam count, resampled to
     /// its own layout (README "Sensing conditions").
     #[arg(long, value_delimiter = ',')]
     pub lidar_beams: Vec<usize>,
-    /// Lidar range noise as a fraction of each scan's mean range (replaces [episode.lidar]
+    /// Lidar range noise as a fraction of each scan's mean range (replaces `[episode.lidar]`
     /// noise_sigma), comma-separated: one row per value, e.g. 0.05,0.1,0.2.
     #[arg(long, value_delimiter = ',')]
     pub lidar_noise_fraction: Vec<f64>,
     /// Probability that a lidar beam returns nothing (reads max range), comma-separated: one
-    /// row per value (overrides [episode.lidar] dropout).
+    /// row per value (overrides `[episode.lidar]` dropout).
     #[arg(long, value_delimiter = ',')]
     pub lidar_dropout: Vec<f64>,
     /// Worlds: comma-separated splits (BARN: train, test, hardest50, all; DynaBARN: dynabarn,
@@ -131,4 +131,3 @@ pub fn command(a: &EvalArgs) -> anyhow::Result<()> {
     print!("{}", table(&rows));
     a.run.write_json(&rows)
 }
-

@@ -96,4 +96,3 @@ pub fn command(a: &RenderArgs) -> anyhow::Result<()> {
     );
     Ok(())
 }
-

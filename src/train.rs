@@ -10,42 +10,12 @@ use std::time::{Duration, Instant};
 use anyhow::{bail, Context};
 
 use learner::export::space_name;
-use learner_service::{Learner, LearnerOptions, TrainSummary};
+use learner_service::{Learner, TrainSummary};
 use proto::auth::{read_or_create_token_file, read_token_file};
 use scheduler::{BackoffPolicy, Sandbox, Supervisor, SupervisorConfig, SupervisorEvent};
 
 use crate::config::{error_line, TrainConfig};
 use eval::greedy::GreedyMonitor;
-
-impl TrainConfig {
-    /// The learner options of this config for `run_dir`.
-    fn learner_options(&self, run_dir: &Path, token: String, resume: bool) -> anyhow::Result<LearnerOptions> {
-        let worlds = self.worlds()?;
-        Ok(LearnerOptions {
-            run_dir: run_dir.to_owned(),
-            run_id: run_id(&self.run.name),
-            td3: self.td3.clone(),
-            service: self.service.clone(),
-            planner: self.run.planner,
-            max_speed: self.run.max_speed,
-            space: self.run.action_space,
-            env: self.env,
-            worlds,
-            budget_steps: self.run.steps,
-            token,
-            resume,
-            handle_signals: true,
-        })
-    }
-}
-
-/// A run id: the name plus the start time, unique per fresh run.
-fn run_id(name: &str) -> String {
-    let secs = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.as_secs());
-    format!("{name}-{secs}-{}", std::process::id())
-}
 
 /// Creates `dir` (and missing parents) readable by this user only (mode 0700), as the learner
 /// would: the run directory holds the run's token and the operator credential.
@@ -205,7 +175,7 @@ pub fn train(config: Option<&Path>, o: &Overrides, resume: bool) -> anyhow::Resu
         if let Some(g) = greedy.as_mut() {
             match g.poll(s.inserts, || learner.latest_policy()) {
                 Some(Ok(r)) => bar.println(eval::greedy::describe(&r)),
-                Some(Err(e)) => bar.println(error_line(&e)),
+                Some(Err(e)) => bar.println(error_line(&e.into())),
                 None => {}
             }
         }
@@ -231,7 +201,7 @@ pub fn train(config: Option<&Path>, o: &Overrides, resume: bool) -> anyhow::Resu
         for r in g.finish(inserts, || learner.latest_policy()) {
             eprintln!(
                 "{}",
-                r.map_or_else(|e| error_line(&e), |r| eval::greedy::describe(&r))
+                r.map_or_else(|e| error_line(&e.into()), |r| eval::greedy::describe(&r))
             );
         }
     }
@@ -286,10 +256,10 @@ pub struct TrainArgs {
     /// Run configuration (default: the embedded configs/local.toml).
     #[arg(long)]
     pub config: Option<PathBuf>,
-    /// Total agent steps of the run (overrides [run] steps).
+    /// Total agent steps of the run (overrides `[run]` steps).
     #[arg(long)]
     pub steps: Option<u64>,
-    /// Actor processes (overrides [run] actors; 0 = one per core).
+    /// Actor processes (overrides `[run]` actors; 0 = one per core).
     #[arg(long)]
     pub actors: Option<u32>,
     /// Run directory (default: runs/<name>).
@@ -306,16 +276,16 @@ pub struct LearnerArgs {
     /// Run configuration (default: the embedded configs/local.toml).
     #[arg(long)]
     pub config: Option<PathBuf>,
-    /// Total agent steps of the run (overrides [run] steps).
+    /// Total agent steps of the run (overrides `[run]` steps).
     #[arg(long)]
     pub steps: Option<u64>,
     /// Run directory (default: runs/<name>).
     #[arg(long)]
     pub out: Option<PathBuf>,
-    /// Address to listen on (overrides [service] listen), e.g. 0.0.0.0:50051.
+    /// Address to listen on (overrides `[service]` listen), e.g. 0.0.0.0:50051.
     #[arg(long)]
     pub listen: Option<String>,
-    /// Allow --listen on a non-loopback address without [service.tls] (the token then
+    /// Allow --listen on a non-loopback address without `[service.tls]` (the token then
     /// crosses the network in clear text); for trusted networks only.
     #[arg(long)]
     pub allow_insecure_listen: bool,

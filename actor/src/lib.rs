@@ -18,7 +18,11 @@
 //!   that evaluation, training's greedy evaluation, experiments and the actor process share.
 //!
 //! * [`spec`] converts the run's planner, action space and environment settings to and from
-//!   their `adp.v1` messages.
+//!   their `adp.v1` messages (`proto::spec`, re-exported).
+//!
+//! The plain settings ([`EnvConfig`], the action spaces, the planner kind) are the
+//! `adp-settings` crate's, which the learner shares without linking the simulator; they are
+//! re-exported here and in `planner` under their usual paths.
 //!
 //! * [`run`] is the actor process loop (register, take assignments, stream steps, report
 //!   episodes) over the learner's planes.

@@ -1,8 +1,9 @@
 //! The evaluation configuration (`configs/eval.toml`, embedded as the default;
 //! [`EvalConfig`]) and the one-line form of a parser's message.
 
-use anyhow::Context;
 use serde::Deserialize;
+
+use crate::error::{Error, Result};
 
 use planner::{
     ComputeConfig, DwaConfig, LogMppiConfig, MppiConfig, PadpConfig, PlannerConfigs, SystemConfig,
@@ -43,26 +44,28 @@ impl EvalConfig {
         }
     }
 
-    /// Reads `path`, or the embedded default when `None`.
-    pub fn load(path: Option<&std::path::Path>) -> anyhow::Result<Self> {
+    /// Reads `path`, or the embedded default when `None`; an [`Error::Io`] or an
+    /// [`Error::Config`] naming the file and the key.
+    pub fn load(path: Option<&std::path::Path>) -> Result<Self> {
         let (name, text) = match path {
             Some(p) => (
                 p.display().to_string(),
-                std::fs::read_to_string(p).with_context(|| format!("cannot read config {}", p.display()))?,
+                std::fs::read_to_string(p).map_err(|e| Error::io("read config", p, e))?,
             ),
             None => ("configs/eval.toml (embedded)".to_string(), EVAL_TOML.to_string()),
         };
-        let cfg: EvalConfig =
-            toml::from_str(&text).map_err(|e| anyhow::anyhow!("{name}: {}", one_line(&e.to_string())))?;
+        let config_error = |message: String| Error::Config {
+            origin: name.clone(),
+            message,
+        };
+        let cfg: EvalConfig = toml::from_str(&text).map_err(|e| config_error(one_line(&e.to_string())))?;
         cfg.episode
             .validate()
-            .map_err(|e| anyhow::anyhow!("{name}: [episode] {e}"))?;
-        cfg.compute
-            .validate()
-            .map_err(|e| anyhow::anyhow!("{name}: {e}"))?;
+            .map_err(|e| config_error(format!("[episode] {e}")))?;
+        cfg.compute.validate().map_err(|e| config_error(e.to_string()))?;
         cfg.prediction
             .validate()
-            .map_err(|e| anyhow::anyhow!("{name}: {e}"))?;
+            .map_err(|e| config_error(e.to_string()))?;
         Ok(cfg)
     }
 }

@@ -7,6 +7,8 @@ use std::sync::Arc;
 
 use planner::residual::Corrector;
 
+use crate::error::{Error, Result};
+
 /// The corrector trained on `dynabarn-fit` that `--prediction kf-res` uses when the
 /// configuration names none (`assets/kf-residual/README.md` says how it was made).
 pub const DEFAULT_CORRECTOR: &str = include_str!("../../assets/kf-residual/corrector.json");
@@ -15,12 +17,13 @@ pub const DEFAULT_CORRECTOR: &str = include_str!("../../assets/kf-residual/corre
 pub const DEFAULT_CORRECTOR_NAME: &str = "assets/kf-residual/corrector.json (embedded)";
 
 /// The corrector at `path`, or the embedded default.
-pub fn load_corrector(path: Option<&Path>) -> anyhow::Result<Arc<Corrector>> {
+pub fn load_corrector(path: Option<&Path>) -> Result<Arc<Corrector>> {
     let c = match path {
-        Some(p) => Corrector::load(p)?,
-        None => Corrector::from_json(DEFAULT_CORRECTOR, DEFAULT_CORRECTOR_NAME)?,
+        Some(p) => Corrector::load(p),
+        None => Corrector::from_json(DEFAULT_CORRECTOR, DEFAULT_CORRECTOR_NAME),
     };
-    Ok(Arc::new(c))
+    c.map(Arc::new)
+        .map_err(|e| Error::component("the residual corrector", e))
 }
 
 #[cfg(test)]

@@ -12,7 +12,6 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::Instant;
 
-use anyhow::{bail, Context};
 use indicatif::{ProgressBar, ProgressStyle};
 use rayon::prelude::*;
 use serde::Serialize;
@@ -30,6 +29,14 @@ use sim::robot::Twist;
 use sim::{EpisodeResult, Status, World};
 
 use crate::config::EvalConfig;
+use crate::error::{Error, Result};
+
+/// Returns an [`Error::Refused`] with the formatted message.
+macro_rules! refuse {
+    ($($t:tt)*) => {
+        return Err(Error::Refused(format!($($t)*)))
+    };
+}
 
 /// Time charged to a failed run when averaging times (s), as in the ADP paper.
 pub const FAILED_RUN_TIME: f64 = 50.0;
@@ -129,13 +136,14 @@ impl Fidelity {
     /// The schedule of this strategy (`adp` uses the given setting). Without a policy the
     /// planner runs with its configured gains, so a constant action of an objective-weight
     /// space must keep them (factors of 1); the velocity space has no schedule.
-    pub fn schedule(self, adp: &AdpSetting) -> anyhow::Result<Schedule> {
+    pub fn schedule(self, adp: &AdpSetting) -> Result<Schedule> {
         Ok(match self {
             Fidelity::Vanilla => Schedule::vanilla(),
             Fidelity::Ddp => Schedule::ddp_default(),
             Fidelity::Adp => adp
                 .space
-                .schedule_only(&adp.action, planner::schedule::DEFAULT_BOUNDARY_POINTS)?,
+                .schedule_only(&adp.action, planner::schedule::DEFAULT_BOUNDARY_POINTS)
+                .map_err(|e| Error::component("the --fidelity adp action", e))?,
         })
     }
 }
@@ -186,7 +194,7 @@ impl LidarOverride {
     }
 
     /// `lidar` with these values, checked; the error names the flags that made it.
-    pub fn apply(&self, lidar: LidarConfig) -> anyhow::Result<LidarConfig> {
+    pub fn apply(&self, lidar: LidarConfig) -> Result<LidarConfig> {
         let mut out = lidar;
         let mut flags = Vec::new();
         if let Some(b) = self.beams {
@@ -202,8 +210,10 @@ impl LidarOverride {
             out.dropout = d;
             flags.push(format!("--lidar-dropout {d}"));
         }
-        out.validate()
-            .map_err(|e| anyhow::anyhow!("{}: {e}", flags.join(" ")))?;
+        out.validate().map_err(|e| Error::Config {
+            origin: flags.join(" "),
+            message: e.to_string(),
+        })?;
         Ok(out)
     }
 }
@@ -509,7 +519,7 @@ pub fn summarize(per_world: &[WorldRuns], trim: usize) -> (f64, f64, f64, f64, f
 
 /// Runs the whole plan on `worlds` (indexed by id) and returns one row per
 /// (planner, fidelity, speed, prediction, sensing condition).
-pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Result<Vec<Row>> {
+pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> Result<Vec<Row>> {
     let lidars = check_plan(plan, cfg, worlds)?;
     let policy = plan
         .policy
@@ -547,7 +557,7 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
             bar.inc(1);
             out
         })
-        .collect::<anyhow::Result<_>>()?;
+        .collect::<Result<_>>()?;
     bar.finish_and_clear();
     let cycles: u64 = results.iter().map(|x| x.4.cycles).sum();
     let secs = t0.elapsed().as_secs_f64();
@@ -572,12 +582,12 @@ pub fn run(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Resul
 /// Checks `plan` against `cfg` and `worlds` (runs and trim, speeds, the policy's layout and
 /// profile, the predictions and sensing conditions a learned policy can run); returns the
 /// lidar of each sensing condition.
-fn check_plan(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Result<Vec<LidarConfig>> {
+fn check_plan(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> Result<Vec<LidarConfig>> {
     if plan.runs == 0 {
-        bail!("--runs must be at least 1");
+        refuse!("--runs must be at least 1");
     }
     if 2 * plan.trim >= plan.runs {
-        bail!(
+        refuse!(
             "--trim {} drops every run: it must be less than half of --runs {}",
             plan.trim,
             plan.runs
@@ -585,7 +595,7 @@ fn check_plan(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Re
     }
     for &s in &plan.speeds {
         if !(s > 0.0 && s <= cfg.episode.robot.max_v) {
-            bail!("--max-speed {s} must be in (0, {}] m/s", cfg.episode.robot.max_v);
+            refuse!("--max-speed {s} must be in (0, {}] m/s", cfg.episode.robot.max_v);
         }
     }
     // A learned policy runs in its own environment, which runs the tracker exactly when the
@@ -597,40 +607,40 @@ fn check_plan(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Re
             .iter()
             .any(|&p| p.padp() != PadpParts::default() || p == ObstaclePrediction::KfRes)
         {
-            bail!(
+            refuse!(
                 "--prediction kf-res, padp-path and padp run with the planning loop of --fidelity \
                  vanilla, ddp or a constant adp action, not with a learned policy (its environment \
                  runs the tracker alone): use --prediction kf"
             );
         }
         if tracks == 0 && plan.predictions.contains(&ObstaclePrediction::Kf) {
-            bail!(
+            refuse!(
                 "--prediction kf with --fidelity adp needs a policy that observes tracks ([env] \
                  observe_tracks > 0): this policy's environment runs no tracker"
             );
         }
         if tracks > 0 && plan.predictions.contains(&ObstaclePrediction::Off) {
-            bail!(
+            refuse!(
                 "this policy observes {tracks} moving tracks ([env] observe_tracks), so its \
                  environment always runs the tracker: evaluate it with --prediction kf"
             );
         }
     }
     if plan.predictions.is_empty() {
-        bail!("--prediction needs at least one value (off, kf)");
+        refuse!("--prediction needs at least one value (off, kf)");
     }
     if plan.lidars.is_empty() {
-        bail!("an evaluation needs at least one sensing condition");
+        refuse!("an evaluation needs at least one sensing condition");
     }
     let lidars: Vec<LidarConfig> = plan
         .lidars
         .iter()
         .map(|o| o.apply(cfg.episode.lidar))
-        .collect::<anyhow::Result<_>>()?;
+        .collect::<Result<_>>()?;
     for &w in &plan.worlds {
-        worlds
-            .get(w)
-            .with_context(|| crate::evaluate::missing_world(worlds, w))?;
+        if worlds.get(w).is_none() {
+            return Err(Error::Refused(missing_world(worlds, w)));
+        }
     }
     let policy = plan
         .policy
@@ -641,7 +651,7 @@ fn check_plan(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Re
         let laser = plan.policy_env.observation;
         let obs_dim = actor::obs_dim(laser, space, plan.policy_env.observe_tracks);
         if (net.obs_dim(), net.act_dim()) != (obs_dim, space.dim()) {
-            bail!(
+            refuse!(
                 "the policy maps {} observation values to {} actions; the {} action space with the \
                  {laser} laser layout needs {} to {}",
                 net.obs_dim(),
@@ -652,7 +662,7 @@ fn check_plan(plan: &EvalPlan, cfg: &EvalConfig, worlds: &[World]) -> anyhow::Re
             );
         }
         if plan.policy_env.profile != cfg.episode.profile {
-            bail!(
+            refuse!(
                 "the policy was trained on the {} simulator profile but this evaluation runs {}: \
                  pass --profile {} (or set [episode] profile) so every row runs the same robot",
                 plan.policy_env.profile.name(),
@@ -687,7 +697,7 @@ fn run_one(
     policy: Option<&MlpPolicy>,
     corrector: Option<&Arc<Corrector>>,
     job: &Job,
-) -> anyhow::Result<RunOut> {
+) -> Result<RunOut> {
     let Job {
         row: ri,
         combo: (p, f, s, pr, li),
@@ -702,7 +712,12 @@ fn run_one(
         inner: run.planner,
         cost: Arc::clone(&cost),
     });
-    let no_steps = |_: &Step<'_>| Ok::<(), anyhow::Error>(());
+    let no_steps = |_: &Step<'_>| Ok::<(), actor::EnvError>(());
+    let episode_error = |source| Error::Episode {
+        world: w,
+        run: r,
+        source,
+    };
     let (out, forecast) = match policy.filter(|_| f == Fidelity::Adp) {
         Some(net) => {
             let chooser = Chooser::Env {
@@ -710,19 +725,22 @@ fn run_one(
                 env: &eval_env_config(plan.policy_env, cfg.compute),
                 act: &mut Greedy::new(net),
             };
-            let out =
-                closed_loop::run(run, chooser, no_steps).with_context(|| format!("world {w}, run {r}"))?;
+            let out = closed_loop::run(run, chooser, no_steps).map_err(episode_error)?;
             (out, None)
         }
         None => {
-            let driver = CycleDriver::new(cfg.compute.resolve(p.name())?, cfg.episode.control_dt);
+            let compute = cfg
+                .compute
+                .resolve(p.name())
+                .map_err(|e| Error::component(format!("the compute model of {}", p.name()), e))?;
+            let driver = CycleDriver::new(compute, cfg.episode.control_dt);
             let mut driver = pr.driver(driver, cfg, corrector).with_forecast_errors();
             let schedule = f.schedule(&plan.adp)?;
             let chooser = Chooser::Fixed {
                 schedule: &schedule,
                 driver: &mut driver,
             };
-            let out = closed_loop::run(run, chooser, no_steps)?;
+            let out = closed_loop::run(run, chooser, no_steps).map_err(episode_error)?;
             let forecast = driver.tracking().and(driver.forecast_errors().copied());
             (out, forecast)
         }
@@ -1057,7 +1075,7 @@ mod tests {
                 env: &eval_env_config(EnvConfig::default(), cfg.compute),
                 act: &mut Greedy::new(&net),
             };
-            let out = closed_loop::run(run, chooser, |_| anyhow::Ok(())).unwrap();
+            let out = closed_loop::run(run, chooser, |_| Ok::<(), actor::EnvError>(())).unwrap();
             let closed = (out.episode, out.compute);
             let mut planner = PlannerKind::Dwa.build(&cfg.planners(), seed);
             let plain = planner::run::run_episode(

@@ -18,7 +18,6 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::thread::JoinHandle;
 
-use anyhow::Context;
 use serde::{Deserialize, Serialize};
 
 use actor::closed_loop::{self, planner_seed, Chooser, Greedy};
@@ -28,6 +27,7 @@ use planner::{ActionSpace, Schedule};
 use sim::{Status, World};
 
 use crate::config::EvalConfig;
+use crate::error::{Error, Result};
 use crate::GreedySection;
 use crate::{eval_run, run_seed};
 
@@ -144,8 +144,11 @@ impl Setup {
     /// World `w` for either side of the comparison. A world that cannot be loaded fails the
     /// evaluation with this one error on both sides, never skipped by one of them: the policy
     /// and DDP always cover the same worlds and seeds.
-    fn world(w: usize) -> anyhow::Result<Cow<'static, World>> {
-        sim::catalog::load(w).with_context(|| format!("greedy evaluation world {w} cannot be loaded"))
+    fn world(w: usize) -> Result<Cow<'static, World>> {
+        sim::catalog::load(w).map_err(|e| Error::World {
+            world: w,
+            message: e.to_string(),
+        })
     }
 
     fn seeds(&self) -> impl Iterator<Item = (usize, u64)> + '_ {
@@ -156,7 +159,7 @@ impl Setup {
 
     /// The greedy policy closed-loop through the training environment (no step cap: the BARN
     /// clock of `[episode]` ends runs, as in `adp eval`; no domain randomization).
-    fn policy(&self, net: &MlpPolicy) -> anyhow::Result<Outcome> {
+    fn policy(&self, net: &MlpPolicy) -> Result<Outcome> {
         let env = self.env.for_evaluation();
         let (mut wins, mut score, mut n) = (0usize, 0.0, 0usize);
         let mut records = Vec::new();
@@ -169,9 +172,12 @@ impl Setup {
                 act: &mut Greedy::new(net),
             };
             let r = closed_loop::run(run, chooser, |step| {
-                let params = step.env.chosen_params().context("a step without its schedule")?;
+                let params = step
+                    .env
+                    .chosen_params()
+                    .ok_or_else(|| Error::component("greedy evaluation", "a step without its schedule"))?;
                 records.push((step.clutter, params));
-                anyhow::Ok(())
+                Ok::<(), Error>(())
             })?
             .episode;
             wins += usize::from(r.status == Status::Succeeded);
@@ -186,8 +192,12 @@ impl Setup {
     }
 
     /// DDP through the plain episode driver on the same worlds and seeds.
-    fn ddp(&self) -> anyhow::Result<(f64, f64)> {
-        let compute = self.env.compute.resolve(self.planner.name())?;
+    fn ddp(&self) -> Result<(f64, f64)> {
+        let compute = self
+            .env
+            .compute
+            .resolve(self.planner.name())
+            .map_err(|e| Error::component(format!("the compute model of {}", self.planner.name()), e))?;
         let episode = self
             .eval
             .episode
@@ -216,7 +226,7 @@ impl Setup {
 }
 
 /// What a background evaluation returns: the result, and DDP's numbers when it computed them.
-type Job = JoinHandle<anyhow::Result<(GreedyResult, (f64, f64))>>;
+type Job = JoinHandle<Result<(GreedyResult, (f64, f64))>>;
 
 /// Drives the greedy evaluations of one training run (owned by the `adp train` loop; not
 /// shared between threads).
@@ -243,13 +253,15 @@ impl GreedyMonitor {
         env: EnvConfig,
         seed: u64,
         resumed_at: u64,
-    ) -> anyhow::Result<Option<Self>> {
+    ) -> Result<Option<Self>> {
         if section.every_steps == 0 {
             return Ok(None);
         }
-        anyhow::ensure!(section.runs >= 1, "[greedy] runs must be at least 1");
+        if section.runs == 0 {
+            return Err(Error::Refused("[greedy] runs must be at least 1".into()));
+        }
         let worlds = sim::splits::select(&section.worlds)
-            .map_err(|e| anyhow::anyhow!("[greedy] worlds = {:?}: {e}", section.worlds))?;
+            .map_err(|e| Error::Refused(format!("[greedy] worlds = {:?}: {e}", section.worlds)))?;
         let setup = Setup {
             worlds,
             runs: section.runs,
@@ -280,7 +292,7 @@ impl GreedyMonitor {
         &mut self,
         inserts: u64,
         latest: impl FnOnce() -> Result<(u64, Vec<usize>, Vec<f32>), E>,
-    ) -> Option<anyhow::Result<GreedyResult>> {
+    ) -> Option<Result<GreedyResult>> {
         let done = self.collect(false);
         if self.job.is_none() && inserts >= self.next_at {
             self.next_at = (inserts / self.every + 1) * self.every;
@@ -297,7 +309,7 @@ impl GreedyMonitor {
         mut self,
         inserts: u64,
         latest: impl FnOnce() -> Result<(u64, Vec<usize>, Vec<f32>), E>,
-    ) -> Vec<anyhow::Result<GreedyResult>> {
+    ) -> Vec<Result<GreedyResult>> {
         let mut out: Vec<_> = self.collect(true).into_iter().collect();
         match self.start(inserts, latest) {
             Ok(()) => out.extend(self.collect(true)),
@@ -310,13 +322,13 @@ impl GreedyMonitor {
         &mut self,
         inserts: u64,
         latest: impl FnOnce() -> Result<(u64, Vec<usize>, Vec<f32>), E>,
-    ) -> anyhow::Result<()> {
-        let (version, dims, weights) = latest()?;
+    ) -> Result<()> {
+        let (version, dims, weights) = latest().map_err(|e| Error::component("the newest policy", e))?;
         if version == 0 {
             return Ok(()); // nothing published yet
         }
         let net = MlpPolicy::from_flat(&dims, weights)
-            .with_context(|| format!("greedy evaluation: policy {version}"))?;
+            .map_err(|e| Error::component(format!("greedy evaluation: policy {version}"), e))?;
         let setup = self.setup.clone();
         let ddp = self.ddp;
         self.job = Some(std::thread::spawn(move || {
@@ -345,7 +357,7 @@ impl GreedyMonitor {
     }
 
     /// Takes a finished job's result (waiting for it when `wait`), and records it.
-    fn collect(&mut self, wait: bool) -> Option<anyhow::Result<GreedyResult>> {
+    fn collect(&mut self, wait: bool) -> Option<Result<GreedyResult>> {
         if !wait && !self.job.as_ref().is_some_and(JoinHandle::is_finished) {
             return None;
         }
@@ -353,28 +365,29 @@ impl GreedyMonitor {
         let result = match job.join() {
             Ok(Ok((r, ddp))) => {
                 self.ddp = Some(ddp);
-                self.record(&r).map(|()| r).context("greedy evaluation")
+                self.record(&r).map(|()| r)
             }
-            Ok(Err(e)) => Err(e.context("greedy evaluation failed")),
-            Err(_) => Err(anyhow::anyhow!("greedy evaluation panicked")),
+            Ok(Err(e)) => Err(Error::Greedy(Box::new(e))),
+            Err(_) => Err(Error::Panicked),
         };
         Some(result)
     }
 
     /// Appends `r` to `greedy_eval.jsonl` and to the `greedy/` TensorBoard run.
-    fn record(&mut self, r: &GreedyResult) -> anyhow::Result<()> {
+    fn record(&mut self, r: &GreedyResult) -> Result<()> {
         let path = self.run_dir.join("greedy_eval.jsonl");
-        std::fs::create_dir_all(&self.run_dir)
-            .with_context(|| format!("cannot create {}", self.run_dir.display()))?;
+        std::fs::create_dir_all(&self.run_dir).map_err(|e| Error::io("create", &self.run_dir, e))?;
         let mut file = std::fs::OpenOptions::new()
             .create(true)
             .append(true)
             .open(&path)
-            .with_context(|| format!("cannot open {}", path.display()))?;
-        writeln!(file, "{}", serde_json::to_string(r)?)
-            .with_context(|| format!("cannot write {}", path.display()))?;
+            .map_err(|e| Error::io("open", &path, e))?;
+        let line = serde_json::to_string(r).expect("a greedy result serializes");
+        writeln!(file, "{line}").map_err(|e| Error::io("write", &path, e))?;
         if self.writer.is_none() {
-            self.writer = Some(EventWriter::create(&self.run_dir.join("greedy"))?);
+            let board = EventWriter::create(&self.run_dir.join("greedy"))
+                .map_err(|e| Error::component("greedy evaluation", e))?;
+            self.writer = Some(board);
         }
         let w = self.writer.as_mut().expect("just created");
         let mut values: Vec<(String, f64)> = vec![
@@ -398,8 +411,9 @@ impl GreedyMonitor {
             }
         }
         let refs: Vec<(&str, f64)> = values.iter().map(|(t, v)| (t.as_str(), *v)).collect();
-        w.scalars(r.agent_steps, &refs)?;
-        w.flush()?;
+        w.scalars(r.agent_steps, &refs)
+            .and_then(|()| w.flush())
+            .map_err(|e| Error::component("greedy evaluation", e))?;
         Ok(())
     }
 }
@@ -503,7 +517,7 @@ mod tests {
         let policy = format!("{:#}", setup.policy(&net).unwrap_err());
         assert_eq!(ddp, policy);
         assert!(
-            ddp.starts_with("greedy evaluation world 360 cannot be loaded: world 360 does not exist"),
+            ddp.starts_with("world 360 cannot be loaded: world 360 does not exist"),
             "{ddp}"
         );
     }

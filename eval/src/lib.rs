@@ -13,12 +13,13 @@
 //!
 //! The `adp` binary's `eval`, `calibrate` and `render` commands parse their arguments into
 //! these types and print what they return; another program links this crate to do the same.
-//! Every function that can fail returns an error of one line that names what failed and
-//! where (the file, the world, the planner).
+//! Every function that can fail returns an [`Error`], whose message is one line that names
+//! what failed and where (the file, the world and run, the option or the configuration key).
 
 pub mod calibrate;
 pub mod config;
 pub mod corrector;
+mod error;
 pub mod evaluate;
 pub mod greedy;
 mod greedy_section;
@@ -26,9 +27,9 @@ pub mod policy;
 pub mod render;
 
 pub use config::EvalConfig;
+pub use error::{Error, Result};
 pub use evaluate::{
-    compute_label, eval_run, lidar_label, run, run_seed, summarize, table, AdpSetting, EvalPlan,
-    Fidelity, ForecastRmse, LidarOverride, ObstaclePrediction, Row, UnitsPerCycle, WorldRuns,
-    FAILED_RUN_TIME,
+    compute_label, eval_run, lidar_label, run, run_seed, summarize, table, AdpSetting, EvalPlan, Fidelity,
+    ForecastRmse, LidarOverride, ObstaclePrediction, Row, UnitsPerCycle, WorldRuns, FAILED_RUN_TIME,
 };
 pub use greedy_section::GreedySection;

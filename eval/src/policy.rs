@@ -13,7 +13,6 @@
 
 use std::path::{Path, PathBuf};
 
-use anyhow::{bail, Context};
 use serde::Deserialize;
 
 use actor::observation;
@@ -21,6 +20,8 @@ use actor::policy::MlpPolicy;
 use actor::EnvConfig;
 use learner::export::{read_actor_safetensors, space_name, PolicyCard, JSON_FILE};
 use planner::ActionSpace;
+
+use crate::error::{Error, Result};
 
 /// A constant-action policy file:
 ///
@@ -71,7 +72,7 @@ pub struct LearnedPolicy {
 /// `--action` when it was given: the policy's action space must then be the same; without
 /// it the space is the policy's own (the card's `action.space`, the TOML's `space`, else
 /// decremental).
-pub fn load(path: &Path, requested: Option<ActionSpace>) -> anyhow::Result<EvalPolicy> {
+pub fn load(path: &Path, requested: Option<ActionSpace>) -> Result<EvalPolicy> {
     if path.is_dir() {
         let card = path.join(JSON_FILE);
         return Ok(EvalPolicy::Learned(Box::new(load_learned(&card, requested)?)));
@@ -83,63 +84,59 @@ pub fn load(path: &Path, requested: Option<ActionSpace>) -> anyhow::Result<EvalP
         .extension()
         .is_some_and(|e| e == "onnx" || e == "safetensors")
     {
-        bail!(
-            "policy {}: give the export directory (or its {JSON_FILE}), which describes the weights",
-            path.display()
-        );
+        return Err(Error::policy(
+            path,
+            format!("give the export directory (or its {JSON_FILE}), which describes the weights"),
+        ));
     }
     let (space, action) = load_constant(path, requested)?;
     Ok(EvalPolicy::Constant { space, action })
 }
 
 /// Reads a constant action for `space` from `path`, checking that it makes a schedule.
-pub fn load_constant_action(path: &Path, space: ActionSpace) -> anyhow::Result<Vec<f64>> {
+pub fn load_constant_action(path: &Path, space: ActionSpace) -> Result<Vec<f64>> {
     if path.is_dir() {
-        bail!(
-            "policy {}: a directory (a trained policy); only `adp eval` runs trained policies, \
-             here --policy takes a constant-action TOML file",
-            path.display()
-        );
+        return Err(Error::policy(
+            path,
+            "a directory (a trained policy); only `adp eval` runs trained policies, here \
+             --policy takes a constant-action TOML file",
+        ));
     }
     Ok(load_constant(path, Some(space))?.1)
 }
 
 /// The space and action of a constant-action TOML file (see [`load`] for `requested`).
-fn load_constant(path: &Path, requested: Option<ActionSpace>) -> anyhow::Result<(ActionSpace, Vec<f64>)> {
-    let text =
-        std::fs::read_to_string(path).with_context(|| format!("cannot read policy {}", path.display()))?;
-    let f: ConstantPolicyFile = toml::from_str(&text).map_err(|e| {
-        anyhow::anyhow!(
-            "policy {}: {}",
-            path.display(),
-            crate::config::one_line(&e.to_string())
-        )
-    })?;
+fn load_constant(path: &Path, requested: Option<ActionSpace>) -> Result<(ActionSpace, Vec<f64>)> {
+    let text = std::fs::read_to_string(path).map_err(|e| Error::io("read policy", path, e))?;
+    let f: ConstantPolicyFile =
+        toml::from_str(&text).map_err(|e| Error::policy(path, crate::config::one_line(&e.to_string())))?;
     let space = match (f.space, requested) {
         (Some(s), Some(r)) if s != r => {
-            bail!("policy {}: space = {s} but --action is {r}", path.display())
+            return Err(Error::policy(path, format!("space = {s} but --action is {r}")));
         }
         (Some(s), _) => s,
         (None, r) => r.unwrap_or(ActionSpace::Decremental),
     };
     space
         .schedule_only(&f.action, planner::schedule::DEFAULT_BOUNDARY_POINTS)
-        .with_context(|| format!("policy {}: field `action`", path.display()))?;
+        .map_err(|e| Error::policy(path, format!("field `action`: {e}")))?;
     Ok((space, f.action))
 }
 
 /// Reads and checks the card `card_path` and the weights it names (see the module docs).
-fn load_learned(card_path: &Path, requested: Option<ActionSpace>) -> anyhow::Result<LearnedPolicy> {
+fn load_learned(card_path: &Path, requested: Option<ActionSpace>) -> Result<LearnedPolicy> {
     let dir = card_path.parent().unwrap_or(Path::new("."));
     let text = std::fs::read_to_string(card_path).map_err(|e| match e.kind() {
-        std::io::ErrorKind::NotFound => anyhow::anyhow!(
-            "policy {}: not found (an export directory of `adp export` or `adp train` holds \
-             {JSON_FILE} and the weights)",
-            card_path.display()
+        std::io::ErrorKind::NotFound => Error::policy(
+            card_path,
+            format!(
+                "not found (an export directory of `adp export` or `adp train` holds {JSON_FILE} \
+                 and the weights)"
+            ),
         ),
-        _ => anyhow::anyhow!("policy {}: cannot read: {e}", card_path.display()),
+        _ => Error::policy(card_path, format!("cannot read: {e}")),
     })?;
-    let bad = |what: String| anyhow::anyhow!("policy {}: {what}", card_path.display());
+    let bad = |what: String| Error::policy(card_path, what);
     let card = PolicyCard::parse(&text).map_err(|e| bad(e.to_string()))?;
     let space = card.action.space;
     if let Some(r) = requested.filter(|&r| r != space) {
@@ -227,8 +224,7 @@ fn load_learned(card_path: &Path, requested: Option<ActionSpace>) -> anyhow::Res
     }
     let weights_path = dir.join(&card.network.safetensors_file);
     let flat = read_weights(&weights_path, dims)?;
-    let net = MlpPolicy::from_flat(dims, flat)
-        .map_err(|e| anyhow::anyhow!("policy {}: {e}", weights_path.display()))?;
+    let net = MlpPolicy::from_flat(dims, flat).map_err(|e| Error::policy(&weights_path, e.to_string()))?;
     Ok(LearnedPolicy {
         space,
         net,
@@ -240,8 +236,8 @@ fn load_learned(card_path: &Path, requested: Option<ActionSpace>) -> anyhow::Res
 
 /// Reads the weights file `path` for the layer sizes `dims` in [`MlpPolicy`]'s flat layout
 /// (see [`read_actor_safetensors`]).
-fn read_weights(path: &Path, dims: &[usize]) -> anyhow::Result<Vec<f32>> {
-    let bad = |what: String| anyhow::anyhow!("policy {}: {what}", path.display());
+fn read_weights(path: &Path, dims: &[usize]) -> Result<Vec<f32>> {
+    let bad = |what: String| Error::policy(path, what);
     let bytes = std::fs::read(path).map_err(|e| bad(format!("cannot read: {e}")))?;
     read_actor_safetensors(&bytes, dims).map_err(|e| bad(e.to_string()))
 }
@@ -295,7 +291,7 @@ mod tests {
         std::fs::write(dir.join("policy.safetensors"), st).unwrap();
     }
 
-    fn learned(path: &Path, requested: Option<ActionSpace>) -> anyhow::Result<LearnedPolicy> {
+    fn learned(path: &Path, requested: Option<ActionSpace>) -> Result<LearnedPolicy> {
         match load(path, requested)? {
             EvalPolicy::Learned(l) => Ok(*l),
             EvalPolicy::Constant { .. } => panic!("{} loaded as a constant action", path.display()),
@@ -303,8 +299,8 @@ mod tests {
     }
 
     /// The error as the command line prints it; asserts it is one line holding `needles`.
-    fn one_line_error<T: std::fmt::Debug>(r: anyhow::Result<T>, needles: &[&str]) {
-        let e = format!("{:#}", r.unwrap_err());
+    fn one_line_error<T: std::fmt::Debug>(r: Result<T>, needles: &[&str]) {
+        let e = r.unwrap_err().to_string();
         assert!(!e.contains('\n'), "{e}");
         for n in needles {
             assert!(e.contains(n), "`{n}` not in: {e}");

@@ -22,7 +22,7 @@
 use std::path::Path;
 use std::sync::Once;
 
-use anyhow::{bail, Context};
+use crate::error::{Error, Result};
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
@@ -31,7 +31,6 @@ use planner::{run::CycleDriver, Planner, Prediction, Schedule};
 use sim::geometry::{Footprint, Pose, Vec2};
 use sim::robot::{approach, RobotLimits, Twist};
 use sim::{Episode, EpisodeConfig, EpisodeResult, Status, World};
-
 
 /// DejaVu Sans (Bitstream Vera license, see `assets/fonts/LICENSE-DejaVu.txt`).
 const FONT: &[u8] = include_bytes!("../../assets/fonts/DejaVuSans.ttf");
@@ -173,20 +172,27 @@ impl Record {
 }
 
 /// Runs the episode and writes the picture to `out`; returns the episode result.
-pub fn render(mut job: RenderJob<'_>, out: &Path) -> anyhow::Result<EpisodeResult> {
+pub fn render(mut job: RenderJob<'_>, out: &Path) -> Result<EpisodeResult> {
     let ext = out
         .extension()
         .and_then(|e| e.to_str())
         .unwrap_or("")
         .to_ascii_lowercase();
     if ext != "png" && ext != "svg" {
-        bail!("--out {}: the file name must end in .png or .svg", out.display());
+        return Err(Error::Refused(format!(
+            "--out {}: the file name must end in .png or .svg",
+            out.display()
+        )));
     }
     if !(job.rollout_every_s > 0.0 && job.footprint_every_s > 0.0) {
-        bail!("--rollouts-every and --footprint-every must be > 0 s");
+        return Err(Error::Refused(
+            "--rollouts-every and --footprint-every must be > 0 s".into(),
+        ));
     }
     if let Some(n) = job.frames.filter(|n| !(2..=MAX_FRAMES).contains(n)) {
-        bail!("--frames {n}: a strip has 2 to {MAX_FRAMES} frames");
+        return Err(Error::Refused(format!(
+            "--frames {n}: a strip has 2 to {MAX_FRAMES} frames"
+        )));
     }
     let dt = job.episode.control_dt;
     let prediction = Prediction::for_profile(job.episode.profile);
@@ -241,15 +247,18 @@ pub fn render(mut job: RenderJob<'_>, out: &Path) -> anyhow::Result<EpisodeResul
         fonts();
         let root = BitMapBackend::new(out, size).into_drawing_area();
         draw_any(&root, &job, &view, &record)?;
-        root.present()
-            .with_context(|| format!("cannot write {}", out.display()))?;
+        root.present().map_err(|e| written(out, e))?;
     } else {
         let root = SVGBackend::new(out, size).into_drawing_area();
         draw_any(&root, &job, &view, &record)?;
-        root.present()
-            .with_context(|| format!("cannot write {}", out.display()))?;
+        root.present().map_err(|e| written(out, e))?;
     }
     Ok(result)
+}
+
+/// The error of writing the picture `out`.
+fn written<E: std::error::Error + Send + Sync>(out: &Path, err: DrawingAreaErrorKind<E>) -> Error {
+    Error::Draw(format!("cannot write {}: {err:?}", out.display()))
 }
 
 /// What the planning cycles of an episode leave to draw, gathered as they happen.
@@ -404,11 +413,11 @@ fn moving_paths(world: &World, phase: f64, from: f64, to: f64, dt: f64) -> Vec<V
 }
 
 /// What every drawing step returns.
-type DrawResult = anyhow::Result<()>;
+type DrawResult = Result<()>;
 
 /// The error of a plotters drawing call, as a one-line error.
-fn drawing_error<E: std::error::Error + Send + Sync>(err: DrawingAreaErrorKind<E>) -> anyhow::Error {
-    anyhow::anyhow!("drawing failed: {err:?}")
+fn drawing_error<E: std::error::Error + Send + Sync>(err: DrawingAreaErrorKind<E>) -> Error {
+    Error::Draw(format!("{err:?}"))
 }
 
 /// The goal region, the walls and the static cylinders.

@@ -2,9 +2,9 @@
 
 use std::path::PathBuf;
 
-use planner::{ActionSpace, PlannerKind};
 use proto::auth::TlsFiles;
 use serde::{Deserialize, Serialize};
+use settings::{ActionSpace, EnvConfig, PlannerKind};
 
 use crate::error::SettingsError;
 use learner::config::Td3Config;
@@ -178,7 +178,7 @@ pub struct LearnerOptions {
     /// The ADP action space.
     pub space: ActionSpace,
     /// The actors' environment settings (sent to actors as the run spec's `EnvConfig`).
-    pub env: actor::EnvConfig,
+    pub env: EnvConfig,
     /// The training worlds: a list of world ids (embedded or generated, see
     /// `sim::catalog::load`), or a fresh generated world for every assignment.
     pub worlds: scheduler::WorldPool,

@@ -187,10 +187,10 @@ pub enum StartError {
     },
     /// The environment settings the actors would be sent are invalid.
     #[error("[env]: {0}")]
-    Env(#[source] actor::EnvError),
+    Env(#[source] settings::EnvConfigError),
     /// The run's settings cannot be put on the wire (`RunSpec`).
     #[error("the run spec: {0}")]
-    Spec(#[source] actor::spec::SpecError),
+    Spec(#[source] proto::spec::SpecError),
     /// The TensorBoard event file could not be created or resumed.
     #[error(transparent)]
     TensorBoard(#[from] learner::tensorboard::TensorBoardError),

@@ -116,7 +116,7 @@ impl Learner {
         let svc = opts.service.clone();
         opts.env.validate().map_err(StartError::Env)?;
         // Before the run directory is touched: the run must be expressible on the wire.
-        let planner = actor::spec::planner_to_wire(opts.planner);
+        let planner = proto::spec::planner_to_wire(opts.planner);
         let run = RunDir::open(&opts)?;
         let registry_cfg = RegistryConfig {
             lease_ttl_ms: u64::from(svc.lease_ttl_ms),
@@ -313,7 +313,7 @@ fn run_spec(
     pb::RunSpec {
         obs_dim: cfg.obs_dim as u32,
         act_dim: cfg.act_dim as u32,
-        action_space: Some(actor::spec::action_space_to_wire(opts.space)),
+        action_space: Some(proto::spec::action_space_to_wire(opts.space)),
         planner: planner as i32,
         max_speed: opts.max_speed,
         run_seed: cfg.seed,
@@ -324,7 +324,7 @@ fn run_spec(
         },
         heartbeat_ms: opts.service.heartbeat_ms,
         lease_ttl_ms: opts.service.lease_ttl_ms,
-        env: Some(actor::spec::env_to_wire(&opts.env)),
+        env: Some(proto::spec::env_to_wire(&opts.env)),
     }
 }
 

@@ -182,7 +182,7 @@ impl RunDir {
             }
             (false, None) => {
                 let mut td3 = Td3::new(opts.td3.clone(), &Device::flex()).map_err(StartError::Td3)?;
-                if opts.service.ddp_init && opts.space == planner::ActionSpace::Velocity {
+                if opts.service.ddp_init && opts.space == settings::ActionSpace::Velocity {
                     // The velocity space drives the robot itself: there is no DDP to start
                     // from, and a constant fitted action would only be a fixed command.
                     tracing::info!(

@@ -8,10 +8,10 @@ use std::sync::atomic::Ordering;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use planner::ActionSpace;
 use proto::pb;
 use proto::shm::{ShmConfig, ShmPolicyPublisher};
 use rand_pcg::Pcg64Mcg;
+use settings::ActionSpace;
 use tokio::sync::watch;
 
 use crate::error::TrainError;

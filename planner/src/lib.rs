@@ -5,13 +5,16 @@
 //! [`Planner`]. Schedules come from fixed strategies (vanilla, DDP) or a trained policy (ADP);
 //! the [`Prediction`] says how rollouts model the robot (the papers' forward Euler with checks
 //! at grid points, or exact arcs with conservative checks).
+//!
+//! The plain settings (the [`Schedule`], [`ActionSpace`], [`Gains`], [`PlannerKind`] and the
+//! compute model's [`ComputeConfig`]) live in the `adp-settings` crate, which the learner
+//! shares without linking the planners; they are re-exported here under their old paths.
 
 pub mod action;
 pub mod check_points;
 pub mod complexity;
 pub mod compute;
 pub mod dwa;
-pub mod gains;
 pub mod kind;
 pub mod local_map;
 pub mod log_mppi;
@@ -24,15 +27,16 @@ pub mod recovery;
 pub mod residual;
 pub mod residual_fit;
 pub mod run;
-pub mod schedule;
 pub mod system;
 pub mod tracker;
 
-pub use action::{ActionMap, ActionSpace, NameError};
+pub use settings::{gains, schedule};
+
+pub use action::{ActionMap, ActionSpace, NameError, VelocityCommand};
 pub use compute::{Budget, Compute, ComputeConfig, ComputeModel, ComputeTally, CycleWork, Work};
 pub use dwa::{Dwa, DwaConfig};
 pub use gains::{GainRole, Gains, GainsError};
-pub use kind::{PlannerConfigs, PlannerKind, UnknownPlanner};
+pub use kind::{PlannerConfigs, PlannerFactory, PlannerKind, UnknownPlanner};
 pub use log_mppi::{LogMppi, LogMppiConfig};
 pub use moving::{ForecastErrors, Predicted, Tracking, TrackingConfig};
 pub use mppi::{Mppi, MppiConfig};

@@ -13,6 +13,8 @@
 //! - [`plane`]: the actor-side interface of a data plane ([`plane::StepSink`],
 //!   [`plane::PolicySource`]) with its gRPC ([`grpc`]) and shared-memory ([`shm`])
 //!   implementations.
+//! - [`spec`]: the run's settings (planner, action space, environment: the `adp-settings`
+//!   types) to and from their `RunSpec` messages.
 
 pub mod auth;
 pub mod checksum;
@@ -20,6 +22,7 @@ pub mod floats;
 pub mod grpc;
 pub mod plane;
 pub mod shm;
+pub mod spec;
 
 pub mod validate;
 

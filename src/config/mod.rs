@@ -1,15 +1,10 @@
-//! The configuration files: a training run's ([`TrainConfig`], with its `[greedy]` and
-//! `[slurm]` tables), the evaluation configuration (from the `eval` library) and the one-line error helper every
-//! command uses.
+//! The configuration files the commands read (a training run's [`TrainConfig`], from the
+//! `train_config` library; the evaluation's [`EvalConfig`], from `eval`) and the one-line
+//! error helper every command uses.
 
-mod slurm;
-mod train;
-
-pub use slurm::{check_time, SlurmSection};
-pub use train::TrainConfig;
+pub use train_config::TrainConfig;
 
 pub use eval::config::{one_line, EvalConfig, UnknownName};
-pub use eval::GreedySection;
 
 /// `e` and its causes on one line, `outer: inner: ...` like anyhow's `{:#}`, leaving out a cause
 /// whose message the text already ends with (the component errors include their source in
@@ -26,5 +21,3 @@ pub fn error_line(e: &anyhow::Error) -> String {
     }
     one_line(&line)
 }
-
-

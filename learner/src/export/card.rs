@@ -1,8 +1,8 @@
 //! The JSON card of an exported policy: what it holds, how it is made, and how it is read back.
 
 use layout::{LaserLayout, DEFAULT_LASER_CLIP_M, MAX_OBSERVED_TRACKS, MAX_SECTORS};
-use planner::ActionSpace;
 use serde::{Deserialize, Serialize};
+use settings::ActionSpace;
 use thiserror::Error;
 
 use super::onnx::{INPUT_NAME, OPSET, OUTPUT_NAME};

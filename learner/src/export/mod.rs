@@ -25,7 +25,7 @@ mod weights;
 use std::path::{Path, PathBuf};
 
 use burn::tensor::Device;
-use planner::ActionSpace;
+use settings::ActionSpace;
 use thiserror::Error;
 
 pub use card::{
@@ -187,8 +187,8 @@ mod tests {
             ActionSpace::Incremental,
             ActionSpace::Unconstrained,
             ActionSpace::Fixed,
-            ActionSpace::Weights(planner::Gains::System),
-            ActionSpace::DecrementalWeights(planner::Gains::Dwa),
+            ActionSpace::Weights(settings::Gains::System),
+            ActionSpace::DecrementalWeights(settings::Gains::Dwa),
             ActionSpace::Velocity,
         ] {
             for (tracks, laser) in [
@@ -627,7 +627,7 @@ mod tests {
             };
             PolicyCard::new(space, &manifest(config), &serde_json::Value::Null).unwrap()
         };
-        let space = ActionSpace::DecrementalWeights(planner::Gains::Mppi);
+        let space = ActionSpace::DecrementalWeights(settings::Gains::Mppi);
         let card = card_of(space);
         let dims: Vec<(&str, f64, f64)> = card
             .action

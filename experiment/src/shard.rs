@@ -136,7 +136,7 @@ pub fn merge(shards: Vec<EvalRecord>, worlds: &[usize]) -> anyhow::Result<EvalRe
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::experiment::runner::{TracePoint, WorldOutcome};
+    use crate::runner::{TracePoint, WorldOutcome};
 
     #[test]
     fn shards_parse_split_and_name() {

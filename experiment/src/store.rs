@@ -25,7 +25,7 @@ use std::path::PathBuf;
 
 use serde::{Deserialize, Serialize};
 
-use crate::config::EvalConfig;
+use eval::EvalConfig;
 
 use super::config::Experiment;
 use super::plan::{write_atomic, Stage};
@@ -212,7 +212,7 @@ impl Layout {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::experiment::recipe::Key;
+    use crate::recipe::Key;
 
     fn recipe(kind: Kind) -> Recipe {
         let mut r = Recipe::new(kind, serde_json::json!({"x": 1}));

@@ -20,7 +20,8 @@ use serde::Serialize;
 use serde_json::{json, Value};
 use sha2::{Digest, Sha256};
 
-use crate::config::{EvalConfig, TrainConfig};
+use eval::EvalConfig;
+use train_config::TrainConfig;
 
 use super::config::{planner_name, space_label, Arm, Experiment};
 use super::plan::{Stage, SweepWho};
@@ -289,8 +290,8 @@ pub fn train_inputs(cfg: &TrainConfig, cores: u32) -> Value {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::experiment::config::Restrict;
-    use crate::experiment::plan::{stages, Sweeps};
+    use crate::config::Restrict;
+    use crate::plan::{stages, Sweeps};
 
     const ONE: &str = "[experiment]\nname = \"one\"\nplanners = [\"dwa\"]\nspeeds = [1.5]\n";
     const TWO: &str = "[experiment]\nname = \"two\"\nplanners = [\"dwa\", \"mppi\"]\nspeeds = [1.0, 1.5]\n";
@@ -368,7 +369,7 @@ mod tests {
     /// caught by its author.)
     #[test]
     fn results_fingerprint() {
-        use crate::experiment::runner::{evaluate, Controller, RunSpec};
+        use crate::runner::{evaluate, Controller, RunSpec};
         use planner::{PlannerKind, Schedule};
         let ex = Experiment::parse("t.toml", ONE, &Restrict::default()).unwrap();
         let mut cfg = EvalConfig::load(None).unwrap();
@@ -406,13 +407,13 @@ mod tests {
         let hex: String = digest.iter().take(8).map(|b| format!("{b:02x}")).collect();
         assert_eq!(
             FINGERPRINT.0, RESULTS_VERSION,
-            "RESULTS_VERSION is {RESULTS_VERSION}: set FINGERPRINT in src/experiment/recipe.rs to \
+            "RESULTS_VERSION is {RESULTS_VERSION}: set FINGERPRINT in experiment/src/recipe.rs to \
              ({RESULTS_VERSION}, {hex:?})"
         );
         assert_eq!(
             FINGERPRINT.1, hex,
             "DDP's episodes changed (now:\n{text}): a change of the code changes results, so bump \
-             RESULTS_VERSION in src/experiment/recipe.rs and set FINGERPRINT to (the new version, \
+             RESULTS_VERSION in experiment/src/recipe.rs and set FINGERPRINT to (the new version, \
              {hex:?})"
         );
     }

@@ -38,9 +38,10 @@ use actor::closed_loop::{self, Chooser, Greedy};
 use planner::{ActionSpace, Schedule};
 use sim::World;
 
-use crate::config::EvalConfig;
-use eval::{eval_run, run_seed};
 use eval::policy::{EvalPolicy, LearnedPolicy};
+use eval::EvalConfig;
+use eval::{eval_run, run_seed};
+use train_config::TrainConfig;
 
 use config::{planner_name, space_label, speed_label, Arm, Experiment, Restrict};
 use controls::{
@@ -58,93 +59,50 @@ use store::{Layout, StageMeta, Store};
 /// The file in an experiment directory holding the experiment file it was started with.
 const CONFIG_COPY: &str = "experiment.toml";
 
-/// What `adp experiment` was asked.
-#[derive(Clone, Debug, clap::Args)]
-pub struct Args {
+/// What an experiment run is asked: the options of `adp experiment`.
+#[derive(Clone, Debug, Default)]
+pub struct Options {
     /// The experiment file.
-    #[arg(long)]
     pub config: PathBuf,
     /// Experiment directory (default: runs/experiments/<name>).
-    #[arg(long)]
     pub out: Option<PathBuf>,
     /// Continue the experiment in --out, skipping the stages whose results exist.
-    #[arg(long)]
     pub resume: bool,
     /// The store of results shared by experiments (default: `[experiment] store`, else
     /// `runs/store`). A stage whose result the store holds, whichever experiment computed
     /// it, is read instead of computed.
-    #[arg(long)]
     pub store: Option<PathBuf>,
     /// List the stages still to compute with their estimated core-hours (from the rates the
     /// store measured), say which the store already holds, and stop.
-    #[arg(long, conflicts_with_all = ["emit_slurm", "shard", "no_eval"])]
     pub plan: bool,
     /// Write the report from the results the store holds, computing nothing (a table cell
     /// whose stages are missing shows "–").
-    #[arg(long, conflicts_with_all = ["emit_slurm", "shard", "no_eval", "plan"])]
     pub report_only: bool,
     /// Run only the stages of these kinds (comma-separated: train, search, ddp, vanilla,
     /// constant, untrained, adp, shuffled, sweep, sensing); the others wait for a later run.
-    #[arg(long, value_delimiter = ',', value_parser = ["train", "search", "ddp", "vanilla", "constant", "untrained", "adp", "shuffled", "sweep", "sensing"])]
     pub only: Vec<String>,
     /// Adopt finished `adp train` run directories as this experiment's trainings: a run whose
     /// resolved `config.toml` is one of the experiment's trainings (the same recipe) and whose
     /// export holds its steps is copied into the store; the others are named with what differs.
     /// Computes nothing else.
-    #[arg(long, num_args = 1.., conflicts_with_all = ["emit_slurm", "shard", "no_eval", "plan", "report_only"])]
     pub adopt: Vec<PathBuf>,
     /// Command-line restrictions.
-    #[command(flatten)]
     pub restrict: Restrict,
     /// Worker threads of the evaluations (default: all cores).
-    #[arg(long)]
     pub jobs: Option<usize>,
     /// Evaluate only shard K of N of the test worlds (e.g. 0/8) of every pending
     /// evaluation, into `<stage file>.shard-K-of-N`; a later run without --shard merges a
     /// complete set. Training and constant searches must be finished.
-    #[arg(long, conflicts_with_all = ["no_eval", "emit_slurm"])]
     pub shard: Option<Shard>,
     /// Run only the training and constant-search stages (no evaluation, no report).
-    #[arg(long, conflicts_with = "emit_slurm")]
     pub no_eval: bool,
     /// Print a SLURM job script that runs this experiment (training, evaluation sharded over
-    /// the [slurm] tasks, merge and report) and create --out with its experiment.toml.
-    #[arg(long, conflicts_with = "resume")]
+    /// the `[slurm]` tasks, merge and report) and create --out with its experiment.toml.
     pub emit_slurm: bool,
 }
 
-/// What `adp protocol` was asked.
-#[derive(Clone, Debug, clap::Args)]
-pub struct ProtocolArgs {
-    /// DDP's evaluation record (an `eval/KEY.json` of the store).
-    #[arg(long)]
-    pub ddp: PathBuf,
-    /// The trained policy's evaluation records, one per seed (same worlds and runs).
-    #[arg(long, required = true, num_args = 1..)]
-    pub adp: Vec<PathBuf>,
-    /// Bootstrap resamples.
-    #[arg(long, default_value_t = 10_000)]
-    pub resamples: usize,
-    /// Interval confidence.
-    #[arg(long, default_value_t = 0.95)]
-    pub confidence: f64,
-    /// Resampling seed.
-    #[arg(long, default_value_t = 3)]
-    pub seed: u64,
-    /// Study only the first R runs of every world (default: all), as if the evaluation had
-    /// run R per world.
-    #[arg(long)]
-    pub runs: Option<usize>,
-    /// With `--runs`: the runs trimmed from each end of a world (default: the records').
-    #[arg(long, requires = "runs")]
-    pub trim: Option<usize>,
-    /// Also write the markdown here.
-    #[arg(long)]
-    pub out: Option<PathBuf>,
-}
-
 /// `rec` as if it had run the first `runs` runs of every world, trimmed by `trim`.
-fn first_runs(mut rec: EvalRecord, runs: usize, trim: usize) -> anyhow::Result<EvalRecord> {
+pub fn first_runs(mut rec: EvalRecord, runs: usize, trim: usize) -> anyhow::Result<EvalRecord> {
     if runs > rec.runs {
         bail!("--runs {runs}: the records hold {} runs per world", rec.runs);
     }
@@ -156,33 +114,23 @@ fn first_runs(mut rec: EvalRecord, runs: usize, trim: usize) -> anyhow::Result<E
     Ok(rec)
 }
 
-/// `adp protocol`: prints the study of the records (markdown).
-pub fn protocol_command(args: &ProtocolArgs) -> anyhow::Result<()> {
-    let mut ddp = EvalRecord::load(&args.ddp)?;
-    let mut seeds = args
-        .adp
-        .iter()
-        .map(|p| EvalRecord::load(p))
-        .collect::<anyhow::Result<Vec<_>>>()?;
-    if let Some(runs) = args.runs {
-        let trim = args.trim.unwrap_or(ddp.trim);
-        ddp = first_runs(ddp, runs, trim)?;
-        seeds = seeds
-            .into_iter()
-            .map(|r| first_runs(r, runs, trim))
-            .collect::<anyhow::Result<_>>()?;
-    }
-    let text = protocol::study(&ddp, &seeds, args.resamples, args.confidence, args.seed)?.markdown();
-    if let Some(out) = &args.out {
-        write_atomic(out, text.as_bytes())?;
-    }
-    print!("{text}");
-    Ok(())
+/// How an experiment trains a seed of an arm: the caller's training loop. The `adp` binary
+/// runs `adp train`'s loop in its own process, with the configured actor processes.
+///
+/// Called from the experiment's thread, one training at a time.
+pub trait Trainer: Sync {
+    /// Trains the run whose resolved training configuration is the file `config` into
+    /// `run_dir`, or with `resume` continues the run there from its checkpoint; returns when
+    /// the run ends (finished or stopped). A finished run holds its policy in `run_dir/export`.
+    fn train(&self, config: &Path, run_dir: &Path, resume: bool) -> anyhow::Result<()>;
+    /// The actor processes a training with `[run] actors = 0` starts: its cores.
+    fn actors(&self) -> u32;
 }
 
 /// Everything a stage needs.
 struct Ctx<'a> {
     ex: &'a Experiment,
+    trainer: &'a dyn Trainer,
     layout: Layout,
     cfg: EvalConfig,
     worlds: &'a [World],
@@ -223,7 +171,7 @@ fn keep_copy(dir: &Path, text: &str, config: &Path) -> anyhow::Result<()> {
 
 /// `--emit-slurm`: creates the experiment directory (its `experiment.toml` and `logs/`) and
 /// prints the job script.
-fn emit_slurm(ex: &Experiment, text: &str, dir: &Path, store: &Store, args: &Args) -> anyhow::Result<()> {
+fn emit_slurm(ex: &Experiment, text: &str, dir: &Path, store: &Store, args: &Options) -> anyhow::Result<()> {
     let dir = std::path::absolute(dir).with_context(|| format!("cannot resolve {}", dir.display()))?;
     let logs = dir.join("logs");
     std::fs::create_dir_all(&logs).with_context(|| format!("cannot create {}", logs.display()))?;
@@ -246,7 +194,7 @@ fn emit_slurm(ex: &Experiment, text: &str, dir: &Path, store: &Store, args: &Arg
 
 /// Runs the experiment; returns the path of its report (`None` when this process does not
 /// write one: `--emit-slurm`, `--shard`, `--no-eval`).
-pub fn run(args: &Args) -> anyhow::Result<Option<PathBuf>> {
+pub fn run(args: &Options, trainer: &dyn Trainer) -> anyhow::Result<Option<PathBuf>> {
     let ex = Experiment::load(&args.config, &args.restrict)?;
     let text = std::fs::read_to_string(&args.config)
         .with_context(|| format!("cannot read {}", args.config.display()))?;
@@ -265,9 +213,9 @@ pub fn run(args: &Args) -> anyhow::Result<Option<PathBuf>> {
         return emit_slurm(&ex, &text, &dir, &store, args).map(|()| None);
     }
     let cfg = eval_config(&ex)?;
-    let layout = Layout::new(dir.clone(), store, &ex, &cfg, crate::train::default_actors());
+    let layout = Layout::new(dir.clone(), store, &ex, &cfg, trainer.actors());
     if args.plan {
-        print_plan(&ex, &layout, &args.config);
+        print_plan(&ex, &layout, &args.config, &args.only, trainer.actors());
         return Ok(None);
     }
     if args.report_only || !args.adopt.is_empty() {
@@ -277,6 +225,7 @@ pub fn run(args: &Args) -> anyhow::Result<Option<PathBuf>> {
     }
     let ctx = Ctx {
         ex: &ex,
+        trainer,
         layout,
         cfg,
         worlds: sim::catalog::worlds(),
@@ -289,7 +238,7 @@ pub fn run(args: &Args) -> anyhow::Result<Option<PathBuf>> {
         .build()
         .context("cannot start worker threads")?;
     if !args.adopt.is_empty() {
-        let n = adopt::adopt(&ctx, &args.adopt, crate::train::default_actors())?;
+        let n = adopt::adopt(&ctx, &args.adopt, trainer.actors())?;
         tracing::info!("adopted {n} of {} run(s)", args.adopt.len());
         return Ok(None);
     }
@@ -334,7 +283,7 @@ pub fn run(args: &Args) -> anyhow::Result<Option<PathBuf>> {
 
 /// Starts the experiment in `dir` (writes its `experiment.toml`), or with `--resume` or
 /// `--shard` continues the one there, which must have been started with `text`.
-fn claim_dir(args: &Args, dir: &Path, text: &str) -> anyhow::Result<()> {
+fn claim_dir(args: &Options, dir: &Path, text: &str) -> anyhow::Result<()> {
     let copy = dir.join(CONFIG_COPY);
     match (copy.exists(), args.resume || args.shard.is_some()) {
         (true, false) => bail!(
@@ -383,7 +332,7 @@ fn eval_config(ex: &Experiment) -> anyhow::Result<EvalConfig> {
 /// Runs the pending stages `todo` in order (training outside `pool`, the others in it):
 /// with `--no-eval` no evaluation, with `--shard` this shard's part of each evaluation, and
 /// without it an evaluation whose shards are all there is merged instead of run.
-fn run_stages(ctx: &Ctx<'_>, args: &Args, pool: &rayon::ThreadPool, todo: &[Stage]) -> anyhow::Result<()> {
+fn run_stages(ctx: &Ctx<'_>, args: &Options, pool: &rayon::ThreadPool, todo: &[Stage]) -> anyhow::Result<()> {
     let ex = ctx.ex;
     let rates = Rates::measured(&ctx.layout.store.all_meta());
     let estimates: Vec<f64> = todo.iter().map(|s| rates.cost(ex, s).0).collect();
@@ -475,7 +424,7 @@ fn run_stages(ctx: &Ctx<'_>, args: &Args, pool: &rayon::ThreadPool, todo: &[Stag
         let used = match stage {
             Stage::Train { arm, seed } => {
                 train(ctx, *arm, *seed)?;
-                crate::train::default_actors() as usize
+                ctx.trainer.actors() as usize
             }
             _ => {
                 pool.install(|| run_stage(ctx, stage, &out))?;
@@ -547,8 +496,11 @@ fn record_meta(
 
 /// `--plan`: every stage still to compute with its estimated core-hours, and what the store
 /// already holds.
-fn print_plan(ex: &Experiment, layout: &Layout, config: &Path) {
-    let all = stages(&ex.arms, ex.seeds, &sweeps(ex));
+fn print_plan(ex: &Experiment, layout: &Layout, config: &Path, only: &[String], cores: u32) {
+    let all: Vec<Stage> = stages(&ex.arms, ex.seeds, &sweeps(ex))
+        .into_iter()
+        .filter(|s| only.is_empty() || only.iter().any(|k| k == stage_kind(s)))
+        .collect();
     let rates = Rates::measured(&layout.store.all_meta());
     let mut held: std::collections::BTreeMap<String, usize> = Default::default();
     let mut todo = Vec::new();
@@ -597,7 +549,7 @@ fn print_plan(ex: &Experiment, layout: &Layout, config: &Path) {
             units * rate / 3600.0
         );
     }
-    let cores = crate::train::default_actors().max(1) as f64;
+    let cores = cores.max(1) as f64;
     println!(
         "\ntotal: {:.1} core-h, about {:.1} h on this machine's {cores:.0} core(s)",
         total / 3600.0,
@@ -762,18 +714,9 @@ fn train(ctx: &Ctx<'_>, arm: usize, seed: usize) -> anyhow::Result<()> {
             .as_bytes(),
     )?;
     let resume = has_checkpoint(&run_dir);
-    crate::train::train(
-        Some(&file),
-        &crate::train::Overrides {
-            steps: None,
-            actors: None,
-            out: Some(run_dir.clone()),
-            listen: None,
-            allow_insecure_listen: false,
-        },
-        resume,
-    )
-    .with_context(|| format!("training {} seed {seed} in {}", a.id(), run_dir.display()))?;
+    ctx.trainer
+        .train(&file, &run_dir, resume)
+        .with_context(|| format!("training {} seed {seed} in {}", a.id(), run_dir.display()))?;
     let export = run_dir.join("export");
     let policy = load_policy(&export, a.space)?;
     let src = &policy.card.source;
@@ -795,7 +738,7 @@ fn write_trained(
     ctx: &Ctx<'_>,
     arm: usize,
     seed: usize,
-    cfg: &crate::config::TrainConfig,
+    cfg: &TrainConfig,
     policy: &LearnedPolicy,
     export: PathBuf,
 ) -> anyhow::Result<()> {
@@ -1597,8 +1540,21 @@ mod tests {
     use super::*;
     use planner::PlannerKind;
 
+    /// A trainer for tests that train nothing.
+    struct NoTraining;
+
+    impl Trainer for NoTraining {
+        fn train(&self, _: &Path, _: &Path, _: bool) -> anyhow::Result<()> {
+            anyhow::bail!("this test trains nothing")
+        }
+
+        fn actors(&self) -> u32 {
+            2
+        }
+    }
+
     fn shipped(file: &str) -> Experiment {
-        let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+        let path = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/.."))
             .join("configs/experiments")
             .join(file);
         Experiment::load(&path, &Restrict::default()).unwrap()
@@ -1751,6 +1707,7 @@ mod tests {
         let cfg = eval_config(&ex).unwrap();
         let ctx = Ctx {
             ex: &ex,
+            trainer: &NoTraining,
             layout: Layout::new(
                 dir.clone(),
                 Store {

@@ -21,7 +21,7 @@ use learner::export::{actor_onnx, actor_safetensors, space_name, JSON_FILE, ONNX
 use learner::{Device, FitOptions, PolicyCard, Td3};
 use planner::ActionSpace;
 
-use crate::config::TrainConfig;
+use train_config::TrainConfig;
 
 use super::plan::write_atomic;
 use super::stats::SplitMix64;

@@ -884,7 +884,7 @@ fn wins_section(out: &mut String, data: &[ArmData]) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::experiment::record::one_run_record;
+    use crate::record::one_run_record;
 
     fn rec(name: &str, runs: &[(usize, bool, f64)]) -> EvalRecord {
         one_run_record(name, runs)

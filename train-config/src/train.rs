@@ -10,11 +10,14 @@ use serde::{Deserialize, Serialize};
 
 use actor::EnvConfig;
 use learner::Td3Config;
-use learner_service::ServiceConfig;
+use learner_service::{LearnerOptions, ServiceConfig};
 use planner::{ActionSpace, PlannerKind};
 use scheduler::{BwrapMode, SandboxConfig};
 
-use super::{one_line, GreedySection, SlurmSection};
+use eval::config::one_line;
+use eval::GreedySection;
+
+use crate::SlurmSection;
 
 /// The embedded default of `configs/local.toml`.
 const LOCAL_TOML: &str = include_str!("../../configs/local.toml");
@@ -186,7 +189,7 @@ impl TrainConfig {
 
     /// The training worlds of `[run] worlds`: a selection, or `generated` (a fresh generated
     /// world for every assignment).
-    pub(crate) fn worlds(&self) -> anyhow::Result<scheduler::WorldPool> {
+    pub fn worlds(&self) -> anyhow::Result<scheduler::WorldPool> {
         if self.run.worlds.trim() == sim::splits::FRESH_GENERATED {
             return Ok(scheduler::WorldPool::Fresh {
                 first: sim::catalog::GENERATED_FIRST,
@@ -196,6 +199,41 @@ impl TrainConfig {
             .map(scheduler::WorldPool::Listed)
             .map_err(|e| anyhow::anyhow!("[run] worlds = {:?}: {e}", self.run.worlds))
     }
+}
+
+impl TrainConfig {
+    /// The learner options of this config for `run_dir`.
+    pub fn learner_options(
+        &self,
+        run_dir: &Path,
+        token: String,
+        resume: bool,
+    ) -> anyhow::Result<LearnerOptions> {
+        let worlds = self.worlds()?;
+        Ok(LearnerOptions {
+            run_dir: run_dir.to_owned(),
+            run_id: run_id(&self.run.name),
+            td3: self.td3.clone(),
+            service: self.service.clone(),
+            planner: self.run.planner,
+            max_speed: self.run.max_speed,
+            space: self.run.action_space,
+            env: self.env,
+            worlds,
+            budget_steps: self.run.steps,
+            token,
+            resume,
+            handle_signals: true,
+        })
+    }
+}
+
+/// A run id: the name plus the start time, unique per fresh run.
+fn run_id(name: &str) -> String {
+    let secs = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_secs());
+    format!("{name}-{secs}-{}", std::process::id())
 }
 
 #[cfg(test)]

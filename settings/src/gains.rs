@@ -1,10 +1,11 @@
 //! Objective gains a policy may set every agent step (the 3D RL-DWA paper's RL-tuned weights).
 //!
-//! A planner with gains names them ([`Gains::names`]) and takes one *factor* per name
-//! ([`crate::Planner::set_gain_factors`]): each factor multiplies the weight its planner's
-//! configuration sets (the hand-tuned value), so factor 1 is today's planner bit for bit
-//! (`w * 1.0 == w` exactly), 0 switches the term off and 2 doubles it. The action spaces of
-//! [`crate::action`] map a normalized output onto [`FACTOR_RANGE`], whose centre is 1.
+//! A planner with gains names them ([`Gains::names`]) and takes one *factor* per name (the
+//! planner crate's `Planner::set_gain_factors` applies them): each factor multiplies the
+//! weight its planner's configuration sets (the hand-tuned value), so factor 1 is today's
+//! planner bit for bit (`w * 1.0 == w` exactly), 0 switches the term off and 2 doubles it. The
+//! action spaces of [`crate::action`] map a normalized output onto [`FACTOR_RANGE`], whose
+//! centre is 1.
 //!
 //! Factors rather than absolute weights keep one action space per planner whatever weights a
 //! configuration sets, and make the hand-tuned gains the box centre exactly under both action
@@ -20,14 +21,14 @@ pub const FACTOR_RANGE: (f64, f64) = (0.0, 2.0);
 /// distribution, so there is no trade-off between objectives for a policy to tune.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum Gains {
-    /// DWA: `w_goal`, `w_path`, `w_obstacle`, `w_speed` of [`crate::DwaConfig`].
+    /// DWA: `w_goal`, `w_path`, `w_obstacle`, `w_speed` of `planner::DwaConfig`.
     Dwa,
     /// MPPI: `w_goal`, `w_path`, `w_obstacle`, `w_heading`, `w_smooth` of
-    /// [`crate::MppiConfig`].
+    /// `planner::MppiConfig`.
     Mppi,
     /// The navigation system: `goal`, `obstacle`, `heading`, `space`, each scaling the term's
     /// weight in both the normal and the low-speed / recovery modes of
-    /// [`crate::SystemConfig`] (`normal_goal` and `low_goal`, ...), so the modes keep their
+    /// `planner::SystemConfig` (`normal_goal` and `low_goal`, ...), so the modes keep their
     /// hand-tuned balance.
     System,
 }
@@ -36,7 +37,7 @@ const DWA: &[&str] = &["w_goal", "w_path", "w_obstacle", "w_speed"];
 const MPPI: &[&str] = &["w_goal", "w_path", "w_obstacle", "w_heading", "w_smooth"];
 const SYSTEM: &[&str] = &["goal", "obstacle", "heading", "space"];
 
-/// What a gain weighs, as PADP's pressure modes see it ([`crate::complexity::ModeEffects`]).
+/// What a gain weighs, as PADP's pressure modes see it (`planner::complexity::ModeEffects`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum GainRole {
     /// Efficiency: progress to the goal, speed.
@@ -56,7 +57,8 @@ impl Gains {
     /// Every gain set.
     pub const ALL: [Gains; 3] = [Gains::Dwa, Gains::Mppi, Gains::System];
 
-    /// The planner's name (as in configs and [`crate::Planner::name`]).
+    /// The planner's name (as in configs, [`crate::PlannerKind::name`] and the
+    /// planner crate's `Planner::name`).
     pub fn planner(self) -> &'static str {
         match self {
             Gains::Dwa => "dwa",

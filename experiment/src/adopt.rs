@@ -13,7 +13,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{bail, Context};
 use serde_json::Value;
 
-use crate::config::TrainConfig;
+use train_config::TrainConfig;
 
 use super::plan::Stage;
 use super::recipe::train_inputs;

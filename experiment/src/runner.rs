@@ -19,7 +19,7 @@ use planner::run::CycleDriver;
 use planner::{ActionSpace, ComputeTally, Schedule, TrackingConfig};
 use sim::{EpisodeResult, World};
 
-use crate::config::EvalConfig;
+use eval::EvalConfig;
 use eval::{eval_run, run_seed, WorldRuns};
 
 use super::stats::SplitMix64;

@@ -741,8 +741,8 @@ pub fn render(t: &Tables) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::experiment::config::Restrict;
-    use crate::experiment::record::one_run_record;
+    use crate::config::Restrict;
+    use crate::record::one_run_record;
 
     fn rec(controller: &str, worlds: &[(usize, bool, f64)]) -> EvalRecord {
         one_run_record(controller, worlds)
@@ -835,7 +835,7 @@ mod tests {
     /// README's results table is the one the paper's report generated.
     #[test]
     fn readme_shows_the_generated_table_one() {
-        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+        let root = std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/.."));
         let readme = std::fs::read_to_string(root.join("README.md")).unwrap();
         let table = std::fs::read_to_string(root.join("docs/paper/table1.md")).unwrap();
         let open = "<!-- table1: docs/paper/table1.md -->\n";

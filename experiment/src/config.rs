@@ -10,19 +10,61 @@
 //! `[experiment] observations`), `[td3] seed`, `obs_dim` and `act_dim` (see
 //! [`Experiment::train_config`]).
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
-use anyhow::{bail, Context};
 use serde::{Deserialize, Serialize};
 
 use actor::LaserLayout;
 use planner::ActionSpace;
 use sim::lidar::LidarConfig;
 
-use crate::config::one_line;
-use crate::config::TrainConfig;
+use eval::config::one_line;
 use eval::LidarOverride;
 use planner::PlannerKind;
+use train_config::TrainConfig;
+
+/// Why an experiment file cannot be used. The message is one line naming the file and the key,
+/// or the command-line restriction.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    /// The file cannot be read.
+    #[error("cannot read experiment config {}: {source}", path.display())]
+    Read {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        #[source]
+        source: std::io::Error,
+    },
+    /// A key of the file holds a value the experiment cannot use (or is unknown).
+    #[error("{file}: {message}")]
+    Invalid {
+        /// The file's name as given.
+        file: String,
+        /// The table, the key and what is wrong, e.g. `[eval] runs = 0 ...`.
+        message: String,
+    },
+    /// `[train]` is not a valid training configuration; the message names the file.
+    #[error("{0}")]
+    Train(String),
+    /// A command-line restriction (`--planners`, `--spaces`, `--speeds`, `--seeds`) is not a
+    /// subset of what the file declares.
+    #[error("{0}")]
+    Restriction(String),
+}
+
+impl ConfigError {
+    /// An [`ConfigError::Invalid`] of the file `file`.
+    fn invalid(file: &str, message: impl Into<String>) -> Self {
+        Self::Invalid {
+            file: file.to_owned(),
+            message: message.into(),
+        }
+    }
+}
+
+/// A result of reading an experiment file.
+pub type Result<T, E = ConfigError> = std::result::Result<T, E>;
 
 /// The embedded training defaults that `[train]` is laid over.
 const LOCAL_TOML: &str = include_str!("../../configs/local.toml");
@@ -481,23 +523,18 @@ pub fn speed_label(v: f64) -> String {
     format!("{v:.1}")
 }
 
-/// Command-line restrictions of an experiment (each must be a subset of the file's).
-#[derive(Clone, Debug, Default, clap::Args)]
+/// Restrictions of an experiment, e.g. from the command line (each must be a subset of the file's).
+#[derive(Clone, Debug, Default)]
 pub struct Restrict {
     /// Only these planners (comma-separated; a subset of the file's).
-    #[arg(long, value_enum, value_delimiter = ',')]
     pub planners: Vec<PlannerKind>,
     /// Only these action spaces (comma-separated; a subset of the file's).
-    #[arg(long, value_delimiter = ',')]
     pub spaces: Vec<ActionSpace>,
     /// Only these speed caps (comma-separated; a subset of the file's).
-    #[arg(long, value_delimiter = ',')]
     pub speeds: Vec<f64>,
     /// Only the first this many training seeds of each arm.
-    #[arg(long)]
     pub seeds: Option<usize>,
-    /// Agent steps per training run (overrides [train.run] steps).
-    #[arg(long)]
+    /// Agent steps per training run (overrides `[train.run]` steps).
     pub steps: Option<u64>,
 }
 
@@ -554,16 +591,17 @@ fn merge(base: &mut toml::Table, over: toml::Table) {
 
 /// `[train]` laid over the embedded `configs/local.toml` and checked, with `--steps` applied;
 /// unknown keys of `[train]` are named as written.
-fn parse_train(name: &str, table: toml::Table, restrict: &Restrict) -> anyhow::Result<TrainConfig> {
+fn parse_train(name: &str, table: toml::Table, restrict: &Restrict) -> Result<TrainConfig> {
     // Unknown keys of [train] are named before the merge (whose text has other lines).
     TrainConfig::deserialize(table.clone())
-        .map_err(|e| anyhow::anyhow!("{name}: [train]: {}", one_line(&e.to_string())))?;
+        .map_err(|e| ConfigError::invalid(name, format!("[train]: {}", one_line(&e.to_string()))))?;
     let mut base: toml::Table = toml::from_str(LOCAL_TOML).expect("the embedded local.toml parses");
     merge(&mut base, table);
     let mut train = TrainConfig::parse(
         &format!("{name}: [train]"),
         &toml::to_string(&base).expect("a TOML table serializes"),
-    )?;
+    )
+    .map_err(|e| ConfigError::Train(one_line(&e.to_string())))?;
     if let Some(steps) = restrict.steps {
         train.run.steps = steps;
     }
@@ -571,23 +609,20 @@ fn parse_train(name: &str, table: toml::Table, restrict: &Restrict) -> anyhow::R
 }
 
 /// The planners and action spaces of `[experiment]`, checked with its speeds and seeds.
-fn planners_and_spaces(
-    name: &str,
-    ex: &ExperimentSection,
-) -> anyhow::Result<(Vec<PlannerKind>, Vec<ActionSpace>)> {
-    let err = |key: &str, what: String| anyhow::anyhow!("{name}: [experiment] {key}: {what}");
+fn planners_and_spaces(name: &str, ex: &ExperimentSection) -> Result<(Vec<PlannerKind>, Vec<ActionSpace>)> {
+    let err = |key: &str, what: String| ConfigError::invalid(name, format!("[experiment] {key}: {what}"));
     let planners: Vec<PlannerKind> = ex
         .planners
         .iter()
         .map(|p| {
-            <PlannerKind as clap::ValueEnum>::from_str(p, false).map_err(|_| {
+            p.parse::<PlannerKind>().map_err(|_| {
                 err(
                     "planners",
                     format!("unknown planner `{p}` (dwa, mppi, log-mppi, system)"),
                 )
             })
         })
-        .collect::<anyhow::Result<_>>()?;
+        .collect::<Result<_>>()?;
     let spaces: Vec<ActionSpace> = ex
         .action_spaces
         .iter()
@@ -595,9 +630,12 @@ fn planners_and_spaces(
             s.parse()
                 .map_err(|e: planner::NameError| err("action_spaces", e.to_string()))
         })
-        .collect::<anyhow::Result<_>>()?;
+        .collect::<Result<_>>()?;
     if planners.is_empty() || spaces.is_empty() || ex.speeds.is_empty() || ex.train_worlds.is_empty() {
-        bail!("{name}: [experiment] planners, action_spaces, speeds and train_worlds must not be empty");
+        return Err(ConfigError::invalid(
+            name,
+            "[experiment] planners, action_spaces, speeds and train_worlds must not be empty",
+        ));
     }
     // A space that sets a planner's objective gains pairs only with that planner.
     for s in &spaces {
@@ -633,22 +671,29 @@ fn world_splits(
     train: &TrainConfig,
     search: &SearchSection,
     shuffle: &ShuffleSection,
-) -> anyhow::Result<(Vec<usize>, Vec<usize>, Vec<usize>)> {
+) -> Result<(Vec<usize>, Vec<usize>, Vec<usize>)> {
     let select = |section: &str, key: &str, sel: &str| {
-        sim::splits::select(sel).map_err(|e| anyhow::anyhow!("{name}: [{section}] {key} = {sel:?}: {e}"))
+        sim::splits::select(sel)
+            .map_err(|e| ConfigError::invalid(name, format!("[{section}] {key} = {sel:?}: {e}")))
     };
     let test_worlds = select("experiment", "test_worlds", &ex.test_worlds)?;
-    let disjoint = |section: &str, key: &str, sel: &str| -> anyhow::Result<Vec<usize>> {
+    let disjoint = |section: &str, key: &str, sel: &str| -> Result<Vec<usize>> {
         let ids = select(section, key, sel)?;
         if let Some(w) = ids.iter().find(|w| test_worlds.contains(w)) {
-            bail!(
-                "{name}: [{section}] {key} = {sel:?} includes test world {w}: the test worlds \
+            return Err(ConfigError::invalid(
+                name,
+                format!(
+                    "[{section}] {key} = {sel:?} includes test world {w}: the test worlds \
                  ({}) are never used for training or selection",
-                ex.test_worlds
-            );
+                    ex.test_worlds
+                ),
+            ));
         }
         if ids.is_empty() {
-            bail!("{name}: [{section}] {key} = {sel:?} selects no world");
+            return Err(ConfigError::invalid(
+                name,
+                format!("[{section}] {key} = {sel:?} selects no world"),
+            ));
         }
         Ok(ids)
     };
@@ -656,10 +701,13 @@ fn world_splits(
         if tw.trim() == sim::splits::FRESH_GENERATED {
             // A new generated world for every assignment: none may be a test world.
             if let Some(w) = test_worlds.iter().find(|&&w| sim::catalog::is_generated(w)) {
-                bail!(
-                    "{name}: [experiment] train_worlds = \"generated\" may deal test world {w} \
+                return Err(ConfigError::invalid(
+                    name,
+                    format!(
+                        "[experiment] train_worlds = \"generated\" may deal test world {w} \
                      (the test worlds include generated ones)"
-                );
+                    ),
+                ));
             }
             continue;
         }
@@ -682,14 +730,16 @@ fn check_tables(
     sl: &SlurmJob,
     shuffle: &ShuffleSection,
     st: &StatsSection,
-) -> anyhow::Result<()> {
+) -> Result<()> {
     if ev.runs == 0 || 2 * ev.trim >= ev.runs {
-        bail!(
-            "{name}: [eval] runs = {} and trim = {}: runs must be at least 1 and trim less than \
+        return Err(ConfigError::invalid(
+            name,
+            format!(
+                "[eval] runs = {} and trim = {}: runs must be at least 1 and trim less than \
              half of runs",
-            ev.runs,
-            ev.trim
-        );
+                ev.runs, ev.trim
+            ),
+        ));
     }
     let jitter = sim::EpisodeConfig {
         start_jitter_m: ev.start_jitter_m,
@@ -698,25 +748,31 @@ fn check_tables(
     };
     jitter
         .validate()
-        .map_err(|e| anyhow::anyhow!("{name}: [eval] {e}"))?;
+        .map_err(|e| ConfigError::invalid(name, format!("[eval] {e}")))?;
     if cs.candidates == 0 || cs.runs == 0 || cs.first_pairs == 0 || cs.eta < 2 {
-        bail!(
-            "{name}: [constant_search] candidates, runs and first_pairs must be at least 1 and \
-             eta at least 2"
-        );
+        return Err(ConfigError::invalid(
+            name,
+            "[constant_search] candidates, runs and first_pairs must be at least 1 and \
+             eta at least 2",
+        ));
     }
     if sl.nodes == 0 || sl.tasks == 0 || sl.cpus_per_task == 0 || sl.time.is_empty() {
-        bail!("{name}: [slurm] nodes, tasks and cpus_per_task must be at least 1 and time set");
+        return Err(ConfigError::invalid(
+            name,
+            "[slurm] nodes, tasks and cpus_per_task must be at least 1 and time set",
+        ));
     }
     if shuffle.pool == 0 {
-        bail!("{name}: [shuffle] pool must be at least 1");
+        return Err(ConfigError::invalid(name, "[shuffle] pool must be at least 1"));
     }
     if !(st.confidence > 0.0 && st.confidence < 1.0) || st.resamples == 0 {
-        bail!(
-            "{name}: [stats] confidence = {} must be in (0, 1) and resamples = {} at least 1",
-            st.confidence,
-            st.resamples
-        );
+        return Err(ConfigError::invalid(
+            name,
+            format!(
+                "[stats] confidence = {} must be in (0, 1) and resamples = {} at least 1",
+                st.confidence, st.resamples
+            ),
+        ));
     }
     Ok(())
 }
@@ -729,13 +785,15 @@ fn restricted_seeds(
     planners: &[PlannerKind],
     spaces: &[ActionSpace],
     ex: &ExperimentSection,
-) -> anyhow::Result<usize> {
+) -> Result<usize> {
     // Restrictions: each a subset of what the file declares.
-    let keep = |flag: &str, listed: bool, value: String| -> anyhow::Result<()> {
+    let keep = |flag: &str, listed: bool, value: String| -> Result<()> {
         if listed {
             Ok(())
         } else {
-            bail!("{flag} {value}: not in the experiment's {name}")
+            Err(ConfigError::Restriction(format!(
+                "{flag} {value}: not in the experiment's {name}"
+            )))
         }
     };
     for p in &restrict.planners {
@@ -752,8 +810,13 @@ fn restricted_seeds(
         )?;
     }
     let seeds = match restrict.seeds {
-        Some(0) => bail!("--seeds must be at least 1"),
-        Some(s) if s > ex.seeds => bail!("--seeds {s}: the experiment declares {} seeds", ex.seeds),
+        Some(0) => return Err(ConfigError::Restriction("--seeds must be at least 1".into())),
+        Some(s) if s > ex.seeds => {
+            return Err(ConfigError::Restriction(format!(
+                "--seeds {s}: the experiment declares {} seeds",
+                ex.seeds
+            )))
+        }
         Some(s) => s,
         None => ex.seeds,
     };
@@ -805,22 +868,26 @@ fn observation_layouts(
     name: &str,
     ex: &ExperimentSection,
     base: LaserLayout,
-) -> anyhow::Result<Vec<Option<LaserLayout>>> {
+) -> Result<Vec<Option<LaserLayout>>> {
     let Some(listed) = &ex.observations else {
         return Ok(vec![None]);
     };
     if listed.is_empty() {
-        bail!(
-            "{name}: [experiment] observations must not be empty (leave it out for [train.env] observation)"
-        );
+        return Err(ConfigError::invalid(
+            name,
+            "[experiment] observations must not be empty (leave it out for [train.env] observation)",
+        ));
     }
     let mut layouts: Vec<LaserLayout> = Vec::new();
     for text in listed {
         let layout: LaserLayout = text
             .parse()
-            .map_err(|e| anyhow::anyhow!("{name}: [experiment] observations: {e}"))?;
+            .map_err(|e| ConfigError::invalid(name, format!("[experiment] observations: {e}")))?;
         if layouts.contains(&layout) {
-            bail!("{name}: [experiment] observations: `{text}` is listed twice");
+            return Err(ConfigError::invalid(
+                name,
+                format!("[experiment] observations: `{text}` is listed twice"),
+            ));
         }
         layouts.push(layout);
     }
@@ -829,8 +896,8 @@ fn observation_layouts(
 
 /// Checks `[sensing_sweep]` against the experiment's `arm_count` arms: every value a lidar
 /// can take, no value twice, its runs and trim, and its arms.
-fn check_sensing(name: &str, s: &SensingSection, arm_count: usize) -> anyhow::Result<()> {
-    let err = |key: &str, what: String| anyhow::anyhow!("{name}: [sensing_sweep] {key}{what}");
+fn check_sensing(name: &str, s: &SensingSection, arm_count: usize) -> Result<()> {
+    let err = |key: &str, what: String| ConfigError::invalid(name, format!("[sensing_sweep] {key}{what}"));
     let check = |key: &str, value: String, lidar: LidarConfig| {
         lidar.validate().map_err(|e| err(key, format!(" = {value}: {e}")))
     };
@@ -898,25 +965,29 @@ fn check_sensing(name: &str, s: &SensingSection, arm_count: usize) -> anyhow::Re
 }
 
 /// Checks `[compute_sweep]` against the experiment's `arm_count` arms.
-fn check_sweep(name: &str, sweep: &SweepSection, arm_count: usize) -> anyhow::Result<()> {
+fn check_sweep(name: &str, sweep: &SweepSection, arm_count: usize) -> Result<()> {
     if !sweep.budget_scales.is_empty() || sweep.free {
         if sweep.arm >= arm_count {
-            bail!(
-                "{name}: [compute_sweep] arm = {} but the experiment has {} arm(s)",
-                sweep.arm,
-                arm_count
-            );
+            return Err(ConfigError::invalid(
+                name,
+                format!(
+                    "[compute_sweep] arm = {} but the experiment has {} arm(s)",
+                    sweep.arm, arm_count
+                ),
+            ));
         }
         if sweep.runs == 0
             || 2 * sweep.trim >= sweep.runs
             || sweep.budget_scales.iter().any(|k| !(k.is_finite() && *k > 0.0))
         {
-            bail!(
-                "{name}: [compute_sweep] runs = {} and trim = {}: runs must be at least 1, trim \
+            return Err(ConfigError::invalid(
+                name,
+                format!(
+                    "[compute_sweep] runs = {} and trim = {}: runs must be at least 1, trim \
                  less than half of runs, and every budget scale finite and > 0",
-                sweep.runs,
-                sweep.trim
-            );
+                    sweep.runs, sweep.trim
+                ),
+            ));
         }
     }
     Ok(())
@@ -924,17 +995,19 @@ fn check_sweep(name: &str, sweep: &SweepSection, arm_count: usize) -> anyhow::Re
 
 impl Experiment {
     /// Reads and checks the experiment file `path`.
-    pub fn load(path: &Path, restrict: &Restrict) -> anyhow::Result<Self> {
-        let text = std::fs::read_to_string(path)
-            .with_context(|| format!("cannot read experiment config {}", path.display()))?;
+    pub fn load(path: &Path, restrict: &Restrict) -> Result<Self> {
+        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+            path: path.to_owned(),
+            source,
+        })?;
         Self::parse(&path.display().to_string(), &text, restrict)
     }
 
     /// Parses and checks the experiment file `text`; every error is one line starting with
     /// `name`.
-    pub fn parse(name: &str, text: &str, restrict: &Restrict) -> anyhow::Result<Self> {
+    pub fn parse(name: &str, text: &str, restrict: &Restrict) -> Result<Self> {
         let raw: RawFile =
-            toml::from_str(text).map_err(|e| anyhow::anyhow!("{name}: {}", one_line(&e.to_string())))?;
+            toml::from_str(text).map_err(|e| ConfigError::invalid(name, one_line(&e.to_string())))?;
         let train = parse_train(name, raw.train, restrict)?;
         let ex = &raw.experiment;
         let (mut planners, mut spaces) = planners_and_spaces(name, ex)?;
@@ -976,10 +1049,15 @@ impl Experiment {
         )?;
         let render_world = match raw.figures.render_world {
             Some(w) if !test_worlds.contains(&w) => {
-                bail!("{name}: [figures] render_world = {w} is not one of the test worlds")
+                return Err(ConfigError::invalid(
+                    name,
+                    format!("[figures] render_world = {w} is not one of the test worlds"),
+                ))
             }
             Some(w) => w,
-            None => *test_worlds.last().context("no test worlds")?,
+            None => *test_worlds
+                .last()
+                .ok_or_else(|| ConfigError::invalid(name, "[experiment] test_worlds selects no world"))?,
         };
         let seeds = restricted_seeds(name, restrict, &planners, &spaces, &declared)?;
         let observations = observation_layouts(name, ex, train.env.observation)?;
@@ -993,16 +1071,20 @@ impl Experiment {
             }
         }
         if arms.is_empty() {
-            bail!("{name}: the restrictions leave no arm");
+            return Err(ConfigError::invalid(name, "the restrictions leave no arm"));
         }
         let hardest_worlds = if raw.report.paper_tables {
-            let ids = sim::splits::select(&raw.report.hardest)
-                .map_err(|e| anyhow::anyhow!("{name}: [report] hardest = {:?}: {e}", raw.report.hardest))?;
+            let ids = sim::splits::select(&raw.report.hardest).map_err(|e| {
+                ConfigError::invalid(name, format!("[report] hardest = {:?}: {e}", raw.report.hardest))
+            })?;
             if let Some(w) = ids.iter().find(|w| !test_worlds.contains(w)) {
-                bail!(
-                    "{name}: [report] hardest = {:?} includes world {w}, which is not a test world",
-                    raw.report.hardest
-                );
+                return Err(ConfigError::invalid(
+                    name,
+                    format!(
+                        "[report] hardest = {:?} includes world {w}, which is not a test world",
+                        raw.report.hardest
+                    ),
+                ));
             }
             ids
         } else {
@@ -1095,14 +1177,14 @@ mod tests {
 
     const MINIMAL: &str = "[experiment]\nname = \"t\"\nplanners = [\"dwa\"]\nspeeds = [1.5]\n";
 
-    fn parse(text: &str) -> anyhow::Result<Experiment> {
+    fn parse(text: &str) -> Result<Experiment> {
         Experiment::parse("x.toml", text, &Restrict::default())
     }
 
     #[test]
     fn shipped_experiments_parse() {
         for (file, arms) in [("table1.toml", 9), ("table2.toml", 3)] {
-            let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+            let path = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/.."))
                 .join("configs/experiments")
                 .join(file);
             let ex = Experiment::load(&path, &Restrict::default()).unwrap();
@@ -1116,7 +1198,7 @@ mod tests {
     /// worlds, and observes 4 tracks (so its networks take 746 inputs).
     #[test]
     fn the_dynamic_experiment_parses() {
-        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/experiments/dynamic.toml");
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/experiments/dynamic.toml");
         let ex = Experiment::load(&path, &Restrict::default()).unwrap();
         assert_eq!(ex.arms.len(), 1);
         assert_eq!(ex.test_worlds.len(), 30);
@@ -1130,7 +1212,7 @@ mod tests {
     /// from its space.
     #[test]
     fn the_rl_dwa_experiment_parses() {
-        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/experiments/rl-dwa.toml");
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/experiments/rl-dwa.toml");
         let ex = Experiment::load(&path, &Restrict::default()).unwrap();
         let ids: Vec<String> = ex.arms.iter().map(|a| a.id()).collect();
         assert!(ids.iter().all(|id| id
@@ -1159,7 +1241,7 @@ mod tests {
     /// worlds, networks and TD3 settings) except for the reward's stuck term.
     #[test]
     fn the_stuck_ablation_differs_from_rl_dwa_only_in_the_stuck_term() {
-        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/experiments");
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/experiments");
         let base = Experiment::load(&dir.join("rl-dwa.toml"), &Restrict::default()).unwrap();
         let stuck = Experiment::load(&dir.join("rl-dwa-stuck.toml"), &Restrict::default()).unwrap();
         assert_eq!(stuck.arms.len(), 1);
@@ -1324,7 +1406,7 @@ mod tests {
         .to_string();
         assert!(e.contains("may deal test world 1000000"), "{e}");
         // The shipped training-world table: five arms, the last one fresh.
-        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/experiments/worlds.toml");
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/experiments/worlds.toml");
         let ex = Experiment::load(&path, &Restrict::default()).unwrap();
         let pools: Vec<scheduler::WorldPool> = (ex.arms.iter())
             .map(|a| ex.train_config(a, 0).worlds().unwrap())
@@ -1514,7 +1596,7 @@ mod tests {
     /// worlds, swept over four noise levels of a 720-beam lidar.
     #[test]
     fn the_sensing_experiment_parses() {
-        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/experiments/sensing.toml");
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/experiments/sensing.toml");
         let ex = Experiment::load(&path, &Restrict::default()).unwrap();
         let ids: Vec<String> = ex.arms.iter().map(Arm::id).collect();
         assert_eq!(

@@ -177,7 +177,7 @@ pub fn progress_line(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::experiment::config::Restrict;
+    use crate::config::Restrict;
 
     fn meta(class: &str, units: f64, seconds: f64, threads: usize) -> StageMeta {
         StageMeta {
