@@ -32,7 +32,7 @@ use crate::config::TrainConfig;
 /// Options of `adp actor`.
 #[derive(clap::Args, Debug)]
 pub struct ActorArgs {
-    /// The learner's host:port, or unix:PATH for its Unix socket (<run dir>/learner.sock)
+    /// The learner's host:port, or unix:PATH for its Unix socket (`<run dir>/learner.sock`)
     /// on the same host.
     #[arg(long)]
     pub learner: String,

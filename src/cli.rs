@@ -74,7 +74,7 @@ pub enum Cmd {
 /// Runs the command `cmd`.
 pub fn run(cmd: Cmd) -> anyhow::Result<()> {
     match cmd {
-        Cmd::Bench(args) => bench::run(&args),
+        Cmd::Bench(args) => bench::run(args),
         Cmd::Protocol(args) => experiment::protocol_command(&args),
         Cmd::Train(a) => train::train_command(a),
         Cmd::Learner(a) => train::learner_command(a),

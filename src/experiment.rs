@@ -14,7 +14,7 @@ pub struct Args {
     /// The experiment file.
     #[arg(long)]
     pub config: PathBuf,
-    /// Experiment directory (default: runs/experiments/<name>).
+    /// Experiment directory (default: `runs/experiments/<name>`).
     #[arg(long)]
     pub out: Option<PathBuf>,
     /// Continue the experiment in --out, skipping the stages whose results exist.

@@ -13,7 +13,7 @@ pub struct SlurmArgs {
     /// Overrides of the config's `[slurm]` and `[run]` values.
     #[command(flatten)]
     pub overrides: SlurmOverrides,
-    /// Run directory (default: runs/<name>; made absolute; its logs/ is created now).
+    /// Run directory (default: `runs/<name>`; made absolute; its logs/ is created now).
     #[arg(long)]
     pub run_dir: Option<PathBuf>,
     /// The adp executable on the compute nodes (default: `[slurm]` adp, else this one).

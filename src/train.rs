@@ -262,7 +262,7 @@ pub struct TrainArgs {
     /// Actor processes (overrides `[run]` actors; 0 = one per core).
     #[arg(long)]
     pub actors: Option<u32>,
-    /// Run directory (default: runs/<name>).
+    /// Run directory (default: `runs/<name>`).
     #[arg(long)]
     pub out: Option<PathBuf>,
     /// Continue the run in --out from its newest valid checkpoint up to --steps.
@@ -279,7 +279,7 @@ pub struct LearnerArgs {
     /// Total agent steps of the run (overrides `[run]` steps).
     #[arg(long)]
     pub steps: Option<u64>,
-    /// Run directory (default: runs/<name>).
+    /// Run directory (default: `runs/<name>`).
     #[arg(long)]
     pub out: Option<PathBuf>,
     /// Address to listen on (overrides `[service]` listen), e.g. 0.0.0.0:50051.
@@ -289,7 +289,7 @@ pub struct LearnerArgs {
     /// crosses the network in clear text); for trusted networks only.
     #[arg(long)]
     pub allow_insecure_listen: bool,
-    /// The run's token file (mode 0600; default: <out>/token, created if missing).
+    /// The run's token file (mode 0600; default: `<out>/token`, created if missing).
     #[arg(long)]
     pub token_file: Option<PathBuf>,
     /// Continue the run in --out from its newest valid checkpoint.

@@ -13,6 +13,34 @@
 //!
 //! The `adp` binary's `eval`, `calibrate` and `render` commands parse their arguments into
 //! these types and print what they return; another program links this crate to do the same.
+//! DWA with DDP's schedule on BARN world 0, one run, as `adp eval --worlds 0` prints it:
+//!
+//! ```
+//! use eval::{AdpSetting, EvalConfig, EvalPlan, Fidelity, LidarOverride, ObstaclePrediction};
+//! use planner::{ActionSpace, PlannerKind};
+//!
+//! let cfg = EvalConfig::load(None)?; // the embedded configs/eval.toml
+//! let space = ActionSpace::Decremental;
+//! let plan = EvalPlan {
+//!     planners: vec![PlannerKind::Dwa],
+//!     fidelities: vec![Fidelity::Ddp],
+//!     speeds: vec![1.5],
+//!     worlds: vec![0],
+//!     runs: 1,
+//!     trim: 0,
+//!     seed: 1,
+//!     adp: AdpSetting { space, action: space.ddp_action() },
+//!     policy: None,
+//!     policy_env: actor::EnvConfig::default(),
+//!     predictions: vec![ObstaclePrediction::Off],
+//!     lidars: vec![LidarOverride::default()],
+//! };
+//! let rows = eval::run(&plan, &cfg, sim::catalog::worlds())?;
+//! assert_eq!((rows.len(), rows[0].episodes), (1, 1));
+//! print!("{}", eval::table(&rows));
+//! # Ok::<(), eval::Error>(())
+//! ```
+//!
 //! Every function that can fail returns an [`Error`], whose message is one line that names
 //! what failed and where (the file, the world and run, the option or the configuration key).
 

@@ -139,7 +139,7 @@ pub struct RenderJob<'a> {
     /// Noise seed.
     pub seed: u64,
     /// The planning cycles' driver: the compute model, and the tracker when the planner
-    /// predicts moving obstacles ([`ObstaclePrediction::driver`]).
+    /// predicts moving obstacles (`ObstaclePrediction::driver`).
     pub driver: CycleDriver,
     /// Rollouts are drawn every this many seconds of simulated time.
     pub rollout_every_s: f64,

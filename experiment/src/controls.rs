@@ -175,7 +175,7 @@ pub fn search_pairs(worlds: &[usize], runs: usize, seed: u64) -> Vec<(usize, usi
     out
 }
 
-/// The indices of the `k` best of `ids` by [`rank_key`] (best first).
+/// The indices of the `k` best of `ids` by `rank_key` (best first).
 pub fn keep_best(c: &[Candidate], ids: &[usize], k: usize) -> Vec<usize> {
     let mut ids = ids.to_vec();
     ids.sort_by(|&a, &b| rank_key(&c[b], &c[a]).then(a.cmp(&b)));

@@ -259,7 +259,7 @@ fn horizon_range(space: ActionSpace) -> (f64, f64) {
 /// Bins of clutter for [`schedule_vs_clutter`].
 const BINS: usize = 10;
 
-/// Per clutter bin (width 1/[`BINS`]): (bin centre, mean, sd, count) of `value` over the
+/// Per clutter bin (width 1/`BINS`): (bin centre, mean, sd, count) of `value` over the
 /// trace points in it; empty bins are left out.
 pub fn binned(trace: &[TracePoint], value: &dyn Fn(&[f64]) -> f64) -> Vec<(f64, f64, f64, usize)> {
     let mut bins: Vec<Vec<f64>> = vec![Vec::new(); BINS];

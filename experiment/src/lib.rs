@@ -1,4 +1,4 @@
-//! `adp experiment --config configs/experiments/NAME.toml [--out DIR] [--resume]`: train S
+//! Experiments, as a library ([`run`]; the `adp experiment` command is its command line): train S
 //! seeds per arm (planner x action space x speed x training worlds x observation layout),
 //! evaluate every greedy policy with the papers' protocol against DDP and three controls (the
 //! untrained DDP-initialized policy, the best constant schedule found on the training worlds,
@@ -9,7 +9,9 @@
 //! of results under the key of what decides it ([`recipe`], [`store`]), so a stage that any
 //! experiment finished is read, not computed again; `--plan` estimates what is left
 //! ([`estimate`]). Evaluation runs in parallel over (world, run) on the local cores; training
-//! uses `adp train` with the configured actors.
+//! goes through the caller's [`Trainer`] (the `adp` binary's runs `adp train`'s loop with the
+//! configured actors). Errors are `anyhow` errors of one line naming the stage, the file or the
+//! key; reading an experiment file fails with a typed [`config::ConfigError`].
 
 pub mod adopt;
 pub mod config;
@@ -64,7 +66,7 @@ const CONFIG_COPY: &str = "experiment.toml";
 pub struct Options {
     /// The experiment file.
     pub config: PathBuf,
-    /// Experiment directory (default: runs/experiments/<name>).
+    /// Experiment directory (default: `runs/experiments/<name>`).
     pub out: Option<PathBuf>,
     /// Continue the experiment in --out, skipping the stages whose results exist.
     pub resume: bool,

@@ -36,7 +36,7 @@ pub const RESULTS_VERSION: u32 = 1;
 /// Hexadecimal digits of a key (64 bits: collisions are out of reach for any store).
 const KEY_HEX: usize = 16;
 
-/// A stage's name in the store: hexadecimal, [`KEY_HEX`] digits.
+/// A stage's name in the store: hexadecimal, `KEY_HEX` digits.
 #[derive(Clone, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize)]
 pub struct Key(pub String);
 

@@ -110,7 +110,7 @@ mod tests {
     use scheduler::{Registry, RegistryConfig};
 
     use super::*;
-    use learner::bench::random_batch;
+    use learner::batch::random_batch;
     use learner::Td3Config;
     use testkit::fresh_dir as temp_dir;
 

@@ -2,7 +2,7 @@
 //! progress bar of `adp train`, for tests and for people watching a cluster job.
 //!
 //! Plain data: the learner's shared state fills a [`Status`] from a snapshot of its counters
-//! ([`crate::shared::Shared::status`]).
+//! (`Shared::status`).
 
 use std::path::Path;
 

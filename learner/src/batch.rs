@@ -1,6 +1,11 @@
 //! A mini-batch of n-step transitions in host memory: what the replay buffer fills and a TD3
 //! update consumes.
 
+use rand::Rng;
+use rand_pcg::Pcg64Mcg;
+
+use crate::config::Td3Config;
+
 /// `len` n-step transitions, row-major (`obs[i * obs_dim..(i + 1) * obs_dim]` is row `i`).
 ///
 /// For row `i` with `m` rewards summed (`1 <= m <= n`):
@@ -61,4 +66,18 @@ impl Batch {
         self.discount.resize(len, 0.0);
         self.done.resize(len, 0.0);
     }
+}
+
+/// A batch of uniform random values in [-1, 1] (every 5th row terminal, discount gamma^6):
+/// the work of a real update without a replay buffer behind it (benchmarks and tests).
+pub fn random_batch(config: &Td3Config, rows: usize, rng: &mut Pcg64Mcg) -> Batch {
+    let mut b = Batch::new(config.obs_dim, config.act_dim);
+    let mut uniform = |n: usize| -> Vec<f32> { (0..n).map(|_| rng.random_range(-1.0..=1.0)).collect() };
+    b.obs = uniform(rows * config.obs_dim);
+    b.next_obs = uniform(rows * config.obs_dim);
+    b.action = uniform(rows * config.act_dim);
+    b.reward = uniform(rows);
+    b.discount = vec![config.gamma.powi(6) as f32; rows];
+    b.done = (0..rows).map(|i| f32::from(u8::from(i % 5 == 0))).collect();
+    b
 }

@@ -10,7 +10,6 @@
 
 pub mod adam;
 pub mod batch;
-pub mod bench;
 pub mod checkpoint;
 pub mod config;
 pub mod ddp_init;

@@ -37,7 +37,7 @@ pub(crate) fn tiny_config() -> Td3Config {
     }
 }
 
-pub(crate) use crate::bench::random_batch;
+pub(crate) use crate::batch::random_batch;
 
 /// A fresh, empty directory under the system temp dir, unique per test and process.
 pub(crate) use testkit::fresh_dir as temp_dir;

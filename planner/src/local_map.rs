@@ -144,7 +144,7 @@ impl LocalMap {
     /// in `f32`, so any exact method gives the same bits): along each row that holds an
     /// obstacle, the distance to its nearest obstacle cell (two linear scans), written into
     /// the column-major field; then along each column, contiguous in memory, the lower envelope
-    /// of parabolas ([`edt_1d`]); then metres, in one pass over the field.
+    /// of parabolas (`edt_1d`); then metres, in one pass over the field.
     pub fn build(&mut self, points: &[Vec2], back: f64, reach: f64) {
         self.origin = Vec2::new(-back, -reach);
         self.nx = ((back + reach) / self.res).ceil() as usize + 1;

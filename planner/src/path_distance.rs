@@ -5,9 +5,9 @@
 //! segments. [`PathDistance`] prepares the segments once per cycle and answers each query with
 //! the value of the plain projection formula, bit for bit, while doing less of it:
 //!
-//! - segments are grouped in runs of [`RUN`], each run inside a disk; a query measures the run
+//! - segments are grouped in runs of `RUN`, each run inside a disk; a query measures the run
 //!   whose disk is nearest first, then skips every run whose disk is farther than the best
-//!   distance so far by more than [`SLACK`] (far more than the rounding of either distance,
+//!   distance so far by more than `SLACK` (far more than the rounding of either distance,
 //!   so a skipped segment could not have been the minimum, and the minimum is exact whatever
 //!   order it is taken in);
 //! - a segment divides only when the projection falls strictly inside it (one or two for a

@@ -196,7 +196,7 @@ pub enum SplitError {
     Unknown {
         /// The entry given.
         name: String,
-        /// ` in `<whole selection>`` when the selection has several entries.
+        /// `` in `<whole selection>` `` when the selection has several entries.
         context: String,
         /// The known names.
         known: String,
@@ -206,7 +206,7 @@ pub enum SplitError {
     Bad {
         /// The entry at fault.
         entry: String,
-        /// ` in `<whole selection>`` when the selection has several entries.
+        /// `` in `<whole selection>` `` when the selection has several entries.
         context: String,
         /// What is wrong with it.
         msg: String,

@@ -1,6 +1,8 @@
 //! Helpers shared by the tests of every crate in the workspace: defined once here, used as a
 //! dev-dependency (nothing in it ships).
 
+pub mod process;
+
 use std::path::{Path, PathBuf};
 use std::sync::mpsc;
 use std::time::Duration;

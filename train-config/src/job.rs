@@ -174,7 +174,7 @@ pub struct ScriptInput<'a> {
     pub adp: &'a Path,
 }
 
-/// The sbatch script of `input`. Pure; the config must have passed [`SlurmSection::validate`].
+/// The sbatch script of `input`. Pure; the config must have passed [`crate::SlurmSection::validate`].
 pub fn script(input: &ScriptInput<'_>) -> String {
     let cfg = input.config;
     let mut o = String::new();

@@ -9,7 +9,7 @@ use super::onnx::{INPUT_NAME, OPSET, OUTPUT_NAME};
 use super::{CARD_FORMAT, CARD_FORMAT_VERSION, ONNX_FILE, SAFETENSORS_FILE};
 use crate::checkpoint::Manifest;
 
-/// The JSON card of an exported policy ([`JSON_FILE`]).
+/// The JSON card of an exported policy ([`super::JSON_FILE`]).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct PolicyCard {
@@ -305,7 +305,7 @@ impl PolicyCard {
     }
 
     /// The card for an actor trained in `space` with the environment settings `environment`
-    /// (see [`checkpoint::RunState::environment`]), from the checkpoint whose manifest is `manifest`. Fails
+    /// (see [`crate::checkpoint::RunState::environment`]), from the checkpoint whose manifest is `manifest`. Fails
     /// when the checkpoint's observation or action size does not fit `space` and the recorded
     /// laser layout (`observation`, `scan` when absent), or the settings are not a table with a
     /// positive `laser_clip_m`.

@@ -14,8 +14,8 @@
 //!   ranges and how an action becomes a rollout schedule, the software version and the checkpoint
 //!   (run id, step counters) the weights come from.
 //!
-//! Files: [`onnx`] (the ONNX graph), [`weights`] (the safetensors writer and its reader),
-//! [`card`] (the JSON card and its reader); the observation layout the card documents is
+//! Files: `onnx` (the ONNX graph), `weights` (the safetensors writer and its reader),
+//! `card` (the JSON card and its reader); the observation layout the card documents is
 //! the shared one of the [`layout`] crate.
 
 mod card;

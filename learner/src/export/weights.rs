@@ -147,7 +147,7 @@ pub enum WeightsError {
     },
 }
 
-/// Reads the float32 tensors [`weight_name`] (`[out, in]`) and [`bias_name`] (`[out]`) of the
+/// Reads the float32 tensors `weight_name` (`[out, in]`) and `bias_name` (`[out]`) of the
 /// safetensors file `bytes` (as [`actor_safetensors`] writes them) for the layer sizes `dims`
 /// and returns them in the flat layout of `actor::policy::MlpPolicy` (the learner's
 /// `Actor::flat_weights`): per layer the weight `[in][out]` row-major, then the bias. Refuses

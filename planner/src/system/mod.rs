@@ -32,13 +32,13 @@
 //!   authors' negative brake commands would drive backwards blind;
 //! - among moving obstacles the fallbacks (brake, rotate, back up) are also checked against
 //!   the forecast: each command, held from the measured velocity for `moving_hold_time`, must
-//!   keep the footprint clear of every obstacle's swept forecast ([`NavSystem::fallback_clear`]).
+//!   keep the footprint clear of every obstacle's swept forecast (`NavSystem::fallback_clear`).
 //!   A rotation or back-up that fails counts as blocked (the mode machine moves on to the
 //!   next behaviour); a stop that fails is replaced by a clear back-up, else a clear
 //!   rotation, else the behaviours of the recovery cycle, and when nothing is clear the
 //!   robot stops.
 //!
-//! Files: [`config`] (the parameters), [`mode`] (the mode machine), [`sampling`] (sample
+//! Files: `config` (the parameters), `mode` (the mode machine), `sampling` (sample
 //! weights, rollout and costs of one sample); this file holds the planner that drives them.
 
 mod config;

@@ -1,5 +1,5 @@
 //! Simulator benchmarks: one lidar scan, and one control period (physics + scan + map +
-//! global path) of an episode. Run with `cargo bench -p adp-sim`.
+//! global path) of an episode. Run with `cargo bench -p adp-bench --bench sim`.
 
 use criterion::{black_box, criterion_group, criterion_main, Criterion};
 use sim::geometry::Pose;

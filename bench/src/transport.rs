@@ -2,7 +2,7 @@
 //! crate's public sinks and sources, as actors and the learner use them.
 //!
 //! Both benchmarks send the same records (730 observation floats and 4 action floats each) from
-//! `publishers` threads ([`publish`]) and copy every received observation into a ring of 1024
+//! `publishers` threads (`publish`) and copy every received observation into a ring of 1024
 //! rows, as the learner copies into its buffer.
 
 use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
@@ -18,6 +18,8 @@ use proto::shm::{ShmConfig, ShmStepSink, ShmStepSource};
 use proto::StepView;
 use tonic::service::interceptor::InterceptedService;
 use tonic::{Request, Response, Status, Streaming};
+
+use crate::{figure, Figure};
 
 /// Observation floats per record.
 const OBS: usize = 730;
@@ -251,6 +253,23 @@ pub fn grpc_throughput(records: usize, publishers: usize) -> anyhow::Result<f64>
         bail!("gRPC bench: received {got} of {records} records");
     }
     Ok(records as f64 / secs)
+}
+
+/// The `transport` part's figures: `records` step records (at least 1000) through shared
+/// memory and a quarter of them through gRPC, from 4 publishers each.
+pub fn run(records: usize) -> anyhow::Result<Vec<Figure>> {
+    let records = records.max(1000);
+    let shm = shm_throughput(records, 4)?;
+    let grpc = grpc_throughput(records / 4, 4)?;
+    Ok(vec![
+        figure(
+            "shared-memory step records/s (4 publishers, 730 floats)",
+            shm,
+            "1/s",
+        )
+        .at_least(100_000.0),
+        figure("gRPC loopback step records/s (4 connections, token)", grpc, "1/s").at_least(20_000.0),
+    ])
 }
 
 #[cfg(test)]

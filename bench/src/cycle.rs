@@ -2,7 +2,7 @@
 //!
 //! Every planner runs the vanilla and DDP schedules at 1.5 m/s on the first training worlds
 //! (one thread, free compute model), and every planning call's counted [`Work`] and CPU time
-//! are recorded ([`super::compute::measure_calls`]). The roofline prices each unit of work at
+//! are recorded (`compute::measure_calls`). The roofline prices each unit of work at
 //! what this CPU's arithmetic and memory could do with it ([`ROOFLINE_CYCLES`], derived below
 //! from the operations each unit needs), at the clock `/proc/cpuinfo` reports. The table shows,
 //! per planner and fidelity, the median work, the median estimate, the median measured time
@@ -14,8 +14,8 @@ use planner::{Schedule, Work};
 
 use planner::PlannerKind;
 
-use super::compute::{measure_calls, percentile, Call};
-use super::{figure, Figure};
+use crate::compute::{measure_calls, percentile, Call};
+use crate::{figure, Figure};
 
 /// CPU cycles per unit of work on a scalar out-of-order core (about 4 simple operations per
 /// cycle, one division or square root every 4-5 cycles, loads from a field that fits in L2

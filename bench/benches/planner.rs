@@ -1,7 +1,7 @@
 //! Planner benchmarks: one planning cycle of every planner under vanilla and DDP schedules
 //! (DESIGN §8: DWA-DDP <= 0.5 ms, MPPI-550 <= 2 ms), and one full
 //! simulated second (20 cycles of scan + map + plan + physics). Run with
-//! `cargo bench -p adp-planner`.
+//! `cargo bench -p adp-bench --bench planner`.
 
 use criterion::{black_box, criterion_group, criterion_main, Criterion};
 use planner::{

@@ -3,7 +3,7 @@
 //!
 //! Every planner (DWA, MPPI, Log-MPPI, the system) runs the vanilla, DDP and three constant
 //! decremental schedules at 1.5 m/s on the first training worlds, one thread, free compute
-//! model, each at three sample counts ([`AXIS_SCALES`]); every planning call's counted
+//! model, each at three sample counts (`AXIS_SCALES`); every planning call's counted
 //! [`Work`] and its CPU time (the thread's CPU clock, so the load of other processes does not
 //! count) are recorded. For each planner, a non-negative least-squares fit of time on
 //! (1, cells, samples, draws, steps, points) gives its unit costs here: the planners do
@@ -20,10 +20,10 @@ use planner::compute::{PlannerBudgets, PlannerCosts, Platform, UnitCosts};
 use planner::{PlanInput, Planner, Schedule, Trace, Work};
 use sim::robot::Twist;
 
-use crate::config::EvalConfig;
+use eval::EvalConfig;
 use planner::PlannerKind;
 
-use super::{figure, Figure};
+use crate::{figure, Figure};
 
 /// The anchor: the system's DDP cycle at its 95th percentile on the reference platform (ms).
 const SYSTEM_DDP_P95_MS: f64 = 40.0;
@@ -31,20 +31,20 @@ const SYSTEM_DDP_P95_MS: f64 = 40.0;
 /// Multipliers of each sampling axis in the fit's design (DWA's and the system's v and w
 /// grid axes; MPPI's and Log-MPPI's sample count by their square): the configured count
 /// (1) and about a quarter and 2.25 times as many samples.
-pub(super) const AXIS_SCALES: [f64; 3] = [0.5, 1.0, 1.5];
+pub(crate) const AXIS_SCALES: [f64; 3] = [0.5, 1.0, 1.5];
 
 /// One planning call: the planner, whether the schedule was DDP, its work and CPU time (ns).
-pub(super) struct Call {
+pub(crate) struct Call {
     /// The planner.
-    pub(super) planner: PlannerKind,
+    pub(crate) planner: PlannerKind,
     /// Whether the schedule was DDP.
-    pub(super) ddp: bool,
+    pub(crate) ddp: bool,
     /// The sampling axes' multiplier (1: the configured sample count).
-    pub(super) axis_scale: f64,
+    pub(crate) axis_scale: f64,
     /// The work the call counted.
-    pub(super) work: Work,
+    pub(crate) work: Work,
     /// The calling thread's CPU time over the call (ns).
-    pub(super) ns: f64,
+    pub(crate) ns: f64,
 }
 
 /// A planner that records each call's work and time.
@@ -195,7 +195,7 @@ fn costs_mut(costs: &mut PlannerCosts, kind: PlannerKind) -> &mut UnitCosts {
     }
 }
 
-pub(super) fn percentile(mut v: Vec<f64>, q: f64) -> f64 {
+pub(crate) fn percentile(mut v: Vec<f64>, q: f64) -> f64 {
     if v.is_empty() {
         return 0.0;
     }
@@ -224,7 +224,7 @@ fn resized(cfg: &EvalConfig, k: f64) -> EvalConfig {
 /// at 1.5 m/s, one thread, free compute model, at every sampling-axis multiplier of
 /// `axis_scales` ([`AXIS_SCALES`]; `[1.0]` for the configured planners only), and returns
 /// every planning call's work and CPU time. The schedules are `(schedule, is DDP)`.
-pub(super) fn measure_calls(
+pub(crate) fn measure_calls(
     worlds: usize,
     kinds: &[PlannerKind],
     schedules: &[(Schedule, bool)],

@@ -1,0 +1,58 @@
+//! `adp bench`: the command line of `bench::run` (the parts are described in the `adp-bench`
+//! crate).
+
+use std::path::PathBuf;
+
+use anyhow::Context;
+use bench::{Options, Part};
+
+/// What `adp bench` runs and how long.
+#[derive(clap::Args, Debug)]
+pub struct BenchArgs {
+    /// Parts to run (default: all, in this order).
+    #[arg(value_enum)]
+    pub parts: Vec<Part>,
+    /// Timed TD3 updates (learner).
+    #[arg(long, default_value_t = 200)]
+    pub updates: usize,
+    /// A Python with torch and numpy: also time the same update in PyTorch and print the
+    /// ratio (learner).
+    #[arg(long)]
+    pub python: Option<PathBuf>,
+    /// Step records through shared memory; a quarter of them through gRPC (transport).
+    #[arg(long, default_value_t = 400_000)]
+    pub records: usize,
+    /// Agent steps per collecting thread (collect).
+    #[arg(long, default_value_t = 2000)]
+    pub collect_steps: u64,
+    /// Agent-step budget of the end-to-end `adp train` run (train).
+    #[arg(long, default_value_t = 4000)]
+    pub train_steps: u64,
+    /// Actor processes of the end-to-end run (default: one per core).
+    #[arg(long, default_value_t = 0)]
+    pub train_actors: u32,
+    /// Training worlds each planner and schedule runs on (compute, cycle).
+    #[arg(long, default_value_t = 8)]
+    pub compute_worlds: usize,
+    /// Also write the figures as JSON to this file.
+    #[arg(long)]
+    pub json: Option<PathBuf>,
+}
+
+/// `adp bench`: runs the parts with this executable as the `adp` of the `train` part.
+pub fn run(args: BenchArgs) -> anyhow::Result<()> {
+    let options = Options {
+        parts: args.parts,
+        updates: args.updates,
+        python: args.python,
+        records: args.records,
+        collect_steps: args.collect_steps,
+        train_steps: args.train_steps,
+        train_actors: args.train_actors,
+        compute_worlds: args.compute_worlds,
+        json: args.json,
+    };
+    let adp = std::env::current_exe().context("cannot find this executable")?;
+    bench::run(&options, &adp)?;
+    Ok(())
+}
