@@ -27,9 +27,8 @@
 //! simulator; drawing an episode's randomized lidar ([`RandomizeLidar`]) and the episode
 //! itself are here.
 
-use planner::action::{ActionError, VelocityCommand};
+use planner::action::ActionError;
 use planner::run::CycleDriver;
-use planner::schedule::DEFAULT_BOUNDARY_POINTS;
 use planner::{ActionSpace, ComputeTally, GainsError, Planner, Prediction, TrackingConfig};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
@@ -42,6 +41,7 @@ pub use settings::env::{
     BeamChoices, EnvConfig, EnvConfigError, Randomize, RandomizeError, MAX_BEAM_CHOICES,
 };
 
+use crate::agent_action::{AgentAction, Applied};
 use crate::observation::{self, LaserResampler};
 use crate::reward::{footprint_clearance, obstacle_penalty};
 use crate::stuck::{stuck_term, StuckWindow};
@@ -169,12 +169,8 @@ pub struct AdpEnv<'w> {
     cfg: EnvConfig,
     /// Builds the laser segment in `cfg.observation`'s layout from the lidar's scans.
     laser: LaserResampler,
-    previous_action: Vec<f32>,
-    /// The space's DDP action in box units (for the action map).
-    ddp_box: Vec<f64>,
-    /// The policy's output as f64, then its box action.
-    policy_f64: Vec<f64>,
-    action_f64: Vec<f64>,
+    /// The action map and the previous action.
+    action: AgentAction,
     goal_distance: f64,
     /// The goal distances of the stuck term's window (`None` when `stuck_window` is 0).
     stuck: Option<StuckWindow>,
@@ -244,15 +240,7 @@ impl<'w> AdpEnv<'w> {
             driver,
             cfg,
             laser,
-            previous_action: cfg
-                .action_map
-                .ddp_policy_action(space)
-                .into_iter()
-                .map(|a| a as f32)
-                .collect(),
-            ddp_box: space.ddp_action(),
-            policy_f64: Vec::with_capacity(space.dim()),
-            action_f64: vec![0.0; space.dim()],
+            action: AgentAction::new(space, cfg.action_map),
             goal_distance,
             stuck: (cfg.stuck_window > 0).then(|| StuckWindow::new(cfg.stuck_window as usize, goal_distance)),
             agent_steps: 0,
@@ -307,7 +295,7 @@ impl<'w> AdpEnv<'w> {
         observation::write(
             &self.episode.perception(),
             &self.laser,
-            &self.previous_action,
+            self.action.previous(),
             self.cfg.laser_clip_m,
             tracks,
             out,
@@ -325,52 +313,31 @@ impl<'w> AdpEnv<'w> {
                 agent_steps: self.agent_steps,
             });
         }
-        if action.len() != self.space.dim() {
-            return Err(ActionError::Dim {
-                space: self.space,
-                expected: self.space.dim(),
-                got: action.len(),
-            }
-            .into());
-        }
-        self.policy_f64.clear();
-        self.policy_f64.extend(action.iter().map(|&a| f64::from(a)));
-        self.cfg
-            .action_map
-            .map_into(&self.policy_f64, &self.ddp_box, &mut self.action_f64);
-        if self.space == ActionSpace::Velocity {
-            let cmd = self.space.velocity_command(&self.action_f64, self.max_speed)?;
-            for _ in 0..self.cfg.agent_period_cycles {
-                if self.driver.command(&mut self.episode, cmd) != Status::Running {
-                    break;
+        match self.action.apply(action, self.planner.as_mut(), self.max_speed)? {
+            Applied::Velocity(cmd) => {
+                for _ in 0..self.cfg.agent_period_cycles {
+                    if self.driver.command(&mut self.episode, cmd) != Status::Running {
+                        break;
+                    }
                 }
             }
-        } else {
-            let schedule = self.space.schedule(&self.action_f64, DEFAULT_BOUNDARY_POINTS)?;
-            if self.space.gains().is_some() {
-                let params = self.space.to_params(&self.action_f64)?;
-                if let Some(factors) = self.space.gain_factors(&params) {
-                    self.planner.set_gain_factors(factors)?;
-                }
-            }
-            for _ in 0..self.cfg.agent_period_cycles {
-                let status = self.driver.period(
-                    &mut self.episode,
-                    self.planner.as_mut(),
-                    &schedule,
-                    self.max_speed,
-                    self.prediction,
-                    &mut |_, _, _| {},
-                );
-                if status != Status::Running {
-                    break;
+            Applied::Schedule(schedule) => {
+                for _ in 0..self.cfg.agent_period_cycles {
+                    let status = self.driver.period(
+                        &mut self.episode,
+                        self.planner.as_mut(),
+                        &schedule,
+                        self.max_speed,
+                        self.prediction,
+                        &mut |_, _, _| {},
+                    );
+                    if status != Status::Running {
+                        break;
+                    }
                 }
             }
         }
         self.agent_steps += 1;
-        for (p, &a) in self.previous_action.iter_mut().zip(action) {
-            *p = a.clamp(-1.0, 1.0);
-        }
         let distance = self
             .episode
             .state()
@@ -424,7 +391,7 @@ impl<'w> AdpEnv<'w> {
             return None;
         }
         // The step refused any action its space cannot map, so this cannot fail here.
-        self.space.to_params(&self.action_f64).ok()
+        self.action.params()
     }
 
     /// The outcome so far (final once a step returned [`End::Terminal`] or [`End::Truncated`]).

@@ -8,6 +8,9 @@
 //! * [`observation`] defines the observation vector (the encoded lidar ranges, 720 or one per
 //!   sector, resampled from any lidar; the previous action, velocity, local and global goal):
 //!   the layout the exported policy card documents.
+//! * [`agent_action`] turns the policy's output into the planner's schedule (or gains, or
+//!   the velocity command) and keeps the previous action the observation shows: shared with
+//!   a robot's runtime.
 //! * [`reward`] holds the scan-dependent reward term as pure functions.
 //! * [`policy::MlpPolicy`] evaluates the actor network (ReLU hidden layers, tanh output) from
 //!   the flat weight vector the learner publishes, without allocating per call;
@@ -32,6 +35,7 @@
 
 #![warn(missing_docs)]
 
+pub mod agent_action;
 pub mod closed_loop;
 pub mod env;
 pub mod exploration;

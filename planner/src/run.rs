@@ -1,11 +1,11 @@
 //! Drives episodes with a planner, one control period at a time, under a compute model.
 
-use sim::episode::{Episode, EpisodeConfig, EpisodeResult, Status};
+use sim::episode::{Episode, EpisodeConfig, EpisodeResult, Perception, Status};
 use sim::robot::Twist;
 use sim::World;
 
 use crate::compute::{periods, Budget, Compute, ComputeTally, CycleWork};
-use crate::moving::{ForecastErrors, Tracking, TrackingConfig};
+use crate::moving::{ForecastErrors, Predicted, Tracking, TrackingConfig};
 use crate::padp::{Padp, PadpConfig, PadpParts};
 use crate::residual::Corrector;
 use crate::residual_fit::{record_samples, Sample};
@@ -117,6 +117,11 @@ impl CycleDriver {
         self.tracking.as_ref()
     }
 
+    /// The compute model (`None`: free).
+    pub fn compute(&self) -> Option<&Compute> {
+        self.compute.as_ref()
+    }
+
     /// What the cycles so far did and cost.
     pub fn tally(&self) -> &ComputeTally {
         &self.tally
@@ -135,8 +140,7 @@ impl CycleDriver {
         prediction: Prediction,
         on_cycle: &mut impl FnMut(&Episode<'_>, &mut dyn Planner, Twist),
     ) -> Status {
-        if self.holding > 0 {
-            self.holding -= 1;
+        if self.holds() {
             return ep.hold();
         }
         if let Some(t) = &mut self.tracking {
@@ -158,28 +162,104 @@ impl CycleDriver {
             Some(t) => t.moving(),
             None => &[],
         };
-        let cmd = planner.plan(&PlanInput {
-            perception: ep.perception(),
+        let cmd = Self::plan(
+            self.compute.as_ref(),
+            planner,
+            ep.perception(),
             schedule,
             max_speed,
             prediction,
-            budget: Budget::of(self.compute.as_ref()),
             moving,
-        });
+        );
         on_cycle(ep, &mut *planner, cmd);
+        match self.charge(planner) {
+            None => ep.step(cmd),
+            Some(compute_s) => ep.step_after(cmd, compute_s),
+        }
+    }
+
+    /// Whether this control period holds the last command because the last cycle's modelled
+    /// compute still runs; counts the hold down. The first half of [`CycleDriver::period`]
+    /// for a caller that owns the perception (a robot's runtime): when it is `false`, plan
+    /// with [`CycleDriver::plan_cycle`].
+    pub fn holds(&mut self) -> bool {
+        if self.holding > 0 {
+            self.holding -= 1;
+            return true;
+        }
+        false
+    }
+
+    /// Plans one cycle on `perception` with `planner` (no moving obstacles: a caller without
+    /// tracking) and charges it ([`CycleDriver::charge`]): returns the command and its
+    /// modelled compute time (`None` under the free model, where it acts after the fixed
+    /// latency). Call it only when [`CycleDriver::holds`] said `false`.
+    pub fn plan_cycle(
+        &mut self,
+        planner: &mut dyn Planner,
+        perception: Perception<'_>,
+        schedule: &Schedule,
+        max_speed: f64,
+        prediction: Prediction,
+    ) -> (Twist, Option<f64>) {
+        let cmd = Self::plan(
+            self.compute.as_ref(),
+            planner,
+            perception,
+            schedule,
+            max_speed,
+            prediction,
+            &[],
+        );
+        (cmd, self.charge(planner))
+    }
+
+    /// One planning call under the budget of `compute`.
+    fn plan(
+        compute: Option<&Compute>,
+        planner: &mut dyn Planner,
+        perception: Perception<'_>,
+        schedule: &Schedule,
+        max_speed: f64,
+        prediction: Prediction,
+        moving: &[Predicted],
+    ) -> Twist {
+        planner.plan(&PlanInput {
+            perception,
+            schedule,
+            max_speed,
+            prediction,
+            budget: Budget::of(compute),
+            moving,
+        })
+    }
+
+    /// Records the work of `planner`'s last cycle in the tally and, under a compute model,
+    /// how many periods the next cycles hold for it; returns its modelled compute time
+    /// (`None` under the free model).
+    fn charge(&mut self, planner: &dyn Planner) -> Option<f64> {
         let cycle = planner.trace().cycle;
         match &self.compute {
             None => {
                 self.tally.record(&cycle, 0.0, self.control_dt);
-                ep.step(cmd)
+                None
             }
             Some(c) => {
                 let compute_s = c.costs.cycle_ns(&cycle.work) * 1e-9;
                 self.tally.record(&cycle, compute_s, self.control_dt);
                 self.holding = periods(compute_s, self.control_dt) - 1;
-                ep.step_after(cmd, compute_s)
+                Some(compute_s)
             }
         }
+    }
+
+    /// Charges a cycle that issued a command without planning (the velocity action space):
+    /// no work and no modelled compute. Returns `Some(0.0)` under a compute model (the
+    /// command acts after the profile's latency less its planning share), `None` under the
+    /// free model.
+    pub fn charge_command(&mut self) -> Option<f64> {
+        self.tally.record(&CycleWork::default(), 0.0, self.control_dt);
+        self.compute.as_ref().map(|_| 0.0)
     }
 
     /// Simulates one control period of `ep` issuing `cmd` without planning (the velocity
@@ -187,10 +267,9 @@ impl CycleDriver {
     /// compute model the command acts after the profile's latency less its planning share.
     /// Returns the episode's status.
     pub fn command(&mut self, ep: &mut Episode<'_>, cmd: Twist) -> Status {
-        self.tally.record(&CycleWork::default(), 0.0, self.control_dt);
-        match self.compute {
+        match self.charge_command() {
             None => ep.step(cmd),
-            Some(_) => ep.step_after(cmd, 0.0),
+            Some(compute_s) => ep.step_after(cmd, compute_s),
         }
     }
 }

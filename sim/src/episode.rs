@@ -13,7 +13,8 @@ use crate::dynamics::{Drive, Dynamics, Localization, Profile};
 use crate::error::ConfigError;
 use crate::geometry::{Pose, Vec2};
 use crate::lidar::{Lidar, LidarConfig, LidarRng};
-use crate::navigation::{point_at_arc_length, smooth, GlobalPlanner, PathRisk};
+use crate::nav_stack::{NavStack, Scan};
+use crate::navigation::PathRisk;
 use crate::predictive_cost::MovingObstacle;
 use crate::robot::{RobotLimits, RobotState, Twist};
 use crate::score::barn_score;
@@ -249,30 +250,9 @@ pub struct Episode<'w> {
     distance: f64,
     status: Status,
     end_time: f64,
-    cycles: u64,
     ranges: Vec<f64>,
-    points: Vec<Vec2>,
-    /// Every beam's end point (robot frame), for clearing; empty while clearing is off.
-    ends: Vec<Vec2>,
-    costmap: Costmap,
-    global: GlobalPlanner,
-    raw_path: Vec<Vec2>,
-    path: Vec<Vec2>,
-    path_robot: Vec<Vec2>,
-    local_goal_world: Vec2,
-    /// Replan the global path every this many control periods ([`Episode::set_replan_every`];
-    /// `[episode] replan_every` at the start).
-    replan_every: u32,
-    /// The control period of the last replan.
-    last_replan: u64,
-    /// The predictive cost the global path search weighs, when set
-    /// ([`Episode::forecast_moving`]).
-    path_risk: Option<PathRisk>,
-    /// Moving obstacles as predicted at `forecast_time` (believed frame).
-    forecast: Vec<MovingObstacle>,
-    forecast_time: f64,
-    /// `forecast` moved on to the time of a replan.
-    forecast_now: Vec<MovingObstacle>,
+    /// The robot's costmap, global path and local goal.
+    nav: NavStack,
 }
 
 impl<'w> Episode<'w> {
@@ -288,8 +268,7 @@ impl<'w> Episode<'w> {
             .unwrap_or_else(|e| panic!("invalid episode configuration: {e}"));
         let lidar = Lidar::new(cfg.lidar);
         let start = jittered_start(world.start, &cfg, seed);
-        let costmap = Costmap::around(cfg.costmap, start.position(), world.goal)
-            .with_clearing(cfg.costmap.clearing.enabled(!world.moving.is_empty()));
+        let clearing = cfg.costmap.clearing.enabled(!world.moving.is_empty());
         let phase = obstacle_phase(world, seed);
         let mut ep = Self {
             world,
@@ -312,22 +291,8 @@ impl<'w> Episode<'w> {
             distance: 0.0,
             status: Status::Running,
             end_time: 0.0,
-            cycles: 0,
             ranges: Vec::new(),
-            points: Vec::new(),
-            ends: Vec::new(),
-            costmap,
-            global: GlobalPlanner::default(),
-            raw_path: Vec::new(),
-            path: Vec::new(),
-            path_robot: Vec::new(),
-            local_goal_world: world.goal,
-            replan_every: cfg.replan_every,
-            last_replan: 0,
-            path_risk: None,
-            forecast: Vec::new(),
-            forecast_time: 0.0,
-            forecast_now: Vec::new(),
+            nav: NavStack::new(&cfg, clearing, start.position(), world.goal),
         };
         ep.sense();
         ep
@@ -382,17 +347,22 @@ impl<'w> Episode<'w> {
 
     /// The smoothed global path (world frame).
     pub fn global_path(&self) -> &[Vec2] {
-        &self.path
+        self.nav.global_path()
     }
 
     /// The local goal (world frame).
     pub fn local_goal_world(&self) -> Vec2 {
-        self.local_goal_world
+        self.nav.local_goal_world()
     }
 
     /// The robot's costmap.
     pub fn costmap(&self) -> &Costmap {
-        &self.costmap
+        self.nav.costmap()
+    }
+
+    /// The robot's navigation state: costmap, global path and local goal.
+    pub fn nav(&self) -> &NavStack {
+        &self.nav
     }
 
     /// Replans the global path every `periods` control periods from now on (instead of
@@ -401,33 +371,25 @@ impl<'w> Episode<'w> {
     /// # Panics
     /// If `periods` is 0.
     pub fn set_replan_every(&mut self, periods: u32) {
-        assert!(
-            periods > 0,
-            "the global path must be replanned every 1 or more periods"
-        );
-        self.replan_every = periods;
+        self.nav.set_replan_every(periods);
     }
 
     /// The current replanning interval (control periods).
     pub fn replan_every(&self) -> u32 {
-        self.replan_every
+        self.nav.replan_every()
     }
 
     /// Makes the global path search weigh PADP's predictive cost `risk` of the `moving`
     /// obstacles (their positions at simulated time `time` and their velocities, in the
-    /// believed frame of the costmap) from the next replan on, each moved on at its velocity
-    /// to the time of that replan ([`GlobalPlanner::plan_among`]). No obstacle (the default)
-    /// plans on the costmap alone.
+    /// believed frame of the costmap) from the next replan on ([`NavStack::forecast_moving`]).
+    /// No obstacle (the default) plans on the costmap alone.
     pub fn forecast_moving(
         &mut self,
         risk: PathRisk,
         time: f64,
         moving: impl IntoIterator<Item = MovingObstacle>,
     ) {
-        self.path_risk = Some(risk);
-        self.forecast_time = time;
-        self.forecast.clear();
-        self.forecast.extend(moving);
+        self.nav.forecast_moving(risk, time, moving);
     }
 
     /// The pose the robot believes it has (world frame): the truth plus localization drift.
@@ -442,15 +404,8 @@ impl<'w> Episode<'w> {
 
     /// What the planner sees now.
     pub fn perception(&self) -> Perception<'_> {
-        let pose = &self.believed_pose();
-        Perception {
-            ranges: &self.ranges,
-            points: &self.points,
-            vel: self.state.vel,
-            local_goal: pose.to_local(self.local_goal_world),
-            local_path: &self.path_robot,
-            goal: pose.to_local(self.world.goal),
-        }
+        self.nav
+            .perception(&self.ranges, self.state.vel, &self.believed_pose())
     }
 
     /// Issues `cmd` (it takes effect after the profile's latency) and simulates one control
@@ -513,7 +468,6 @@ impl<'w> Episode<'w> {
                 return self.finish(Status::TimedOut);
             }
         }
-        self.cycles += 1;
         self.sense();
         self.status
     }
@@ -571,74 +525,13 @@ impl<'w> Episode<'w> {
         self.localization
             .drift(&dynamics, self.undrifted, &mut self.drift_rng);
         self.undrifted = 0.0;
-        let pose = self.believed_pose();
-        self.lidar.points(&self.ranges, &mut self.points);
-        // `pose.to_world` per point, with the rotation's sine and cosine computed once.
-        let (s, c) = pose.yaw.sin_cos();
-        let origin = pose.position();
-        let to_world = |p: &Vec2| Vec2::new(c * p.x - s * p.y, s * p.x + c * p.y) + origin;
-        if self.costmap.clears() {
-            self.lidar.ends(&self.ranges, &mut self.ends);
-            self.costmap.clear(origin, self.ends.iter().map(to_world));
-        }
-        let pts = &self.points;
-        self.costmap.mark(origin, pts.iter().map(to_world));
-        // Due `replan_every` periods after the last replan: with the configured interval, every
-        // multiple of it (the first sense is period 0).
-        let due = self.cycles - self.last_replan >= self.replan_every as u64;
-        if self.path.is_empty() || due {
-            self.last_replan = self.cycles;
-            let found = match self.path_risk.filter(|_| !self.forecast.is_empty()) {
-                Some(risk) => {
-                    let ahead = self.sim_time - self.forecast_time;
-                    self.forecast_now.clear();
-                    self.forecast_now
-                        .extend(self.forecast.iter().map(|o| MovingObstacle {
-                            position: o.position + o.velocity * ahead,
-                            velocity: o.velocity,
-                        }));
-                    self.global.plan_among(
-                        &self.costmap,
-                        pose.position(),
-                        self.world.goal,
-                        &self.forecast_now,
-                        &risk,
-                        &mut self.raw_path,
-                    )
-                }
-                None => self.global.plan(
-                    &self.costmap,
-                    pose.position(),
-                    self.world.goal,
-                    &mut self.raw_path,
-                ),
-            };
-            if found {
-                smooth(&self.raw_path, self.cfg.smoothing_window, &mut self.path);
-            } else {
-                self.path.clear();
-                self.path.push(pose.position());
-                self.path.push(self.world.goal);
-            }
-        }
-        // Local goal: arc length 2v + 1 ahead along the path from its point nearest the robot.
-        let here = pose.position();
-        let nearest = self
-            .path
-            .iter()
-            .enumerate()
-            .take(40)
-            .min_by(|a, b| a.1.dist(here).total_cmp(&b.1.dist(here)))
-            .map(|(i, _)| i)
-            .unwrap_or(0);
-        let lookahead = 2.0 * self.state.vel.v.max(0.0) + 1.0;
-        let tail = &self.path[nearest..];
-        let (goal, end) = point_at_arc_length(tail, lookahead);
-        self.local_goal_world = goal;
-        self.path_robot.clear();
-        let keep = (end + 5).min(tail.len());
-        self.path_robot
-            .extend(tail[..keep].iter().map(|p| pose.to_local(*p)));
+        let scan = Scan {
+            ranges: &self.ranges,
+            pose: self.believed_pose(),
+            speed: self.state.vel.v,
+            time: self.sim_time,
+        };
+        self.nav.update(&self.lidar, &scan, None);
     }
 }
 

@@ -19,6 +19,7 @@ pub mod grid;
 pub mod lidar;
 pub mod metrics;
 pub mod motion;
+pub mod nav_stack;
 pub mod navigation;
 pub mod predictive_cost;
 pub mod robot;

@@ -1,0 +1,41 @@
+//! ADP on a robot: a local planner (DWA, MPPI, Log-MPPI or the standalone system) and its
+//! trained schedule policy, driven by the robot's own scans, odometry and goal, one control
+//! cycle per call.
+//!
+//! ```no_run
+//! use adp_runtime::{CycleInput, Navigator, Odometry};
+//! use sim::geometry::{Pose, Vec2};
+//! use sim::robot::Twist;
+//!
+//! let mut nav = Navigator::from_file("runtime.toml".as_ref())?;
+//! let ranges = vec![10.0; nav.lidar().angles().len()];
+//! let out = nav.cycle(&CycleInput {
+//!     stamp_s: 0.0,
+//!     ranges: &ranges,
+//!     odom: Odometry { pose: Pose::new(0.0, 0.0, 0.0), vel: Twist::default(), stamp_s: 0.0 },
+//!     goal: Vec2::new(0.0, 10.0),
+//!     global_path: None,
+//! })?;
+//! println!("v = {} m/s, w = {} rad/s", out.command.v, out.command.w);
+//! # Ok::<(), adp_runtime::RuntimeError>(())
+//! ```
+//!
+//! * [`Navigator`] holds one robot's planner, costmap, global path and policy; each
+//!   [`Navigator::cycle`] runs the simulator's closed loop on real inputs (the same code:
+//!   `sim::nav_stack`, `planner::run::CycleDriver`, `actor::agent_action`), so a world
+//!   driven through it repeats `adp eval`'s episode bit for bit.
+//! * [`input`] states the inputs' units and frames and checks them.
+//! * [`config`] reads the runtime's configuration file.
+//! * [`RuntimeError`] names what was refused; [`STOP`] is the command to issue then.
+
+#![warn(missing_docs)]
+
+pub mod config;
+pub mod error;
+pub mod input;
+pub mod navigator;
+
+pub use config::{load_policy, FixedSchedule, RuntimeOptions};
+pub use error::{RuntimeError, STOP};
+pub use input::{CycleInput, Odometry};
+pub use navigator::{CycleOutput, Navigator, ScheduleSummary};

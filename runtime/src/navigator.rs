@@ -1,0 +1,323 @@
+//! [`Navigator`]: one robot's planner, navigation state and (optionally) trained policy,
+//! stepped one control cycle per call.
+
+use actor::agent_action::{AgentAction, Applied};
+use actor::observation::{self, LaserResampler};
+use actor::policy::{MlpPolicy, Scratch};
+use eval::policy::LearnedPolicy;
+use eval::EvalConfig;
+use planner::run::CycleDriver;
+use planner::{ActionSpace, CycleWork, Planner, PlannerKind, Prediction, Schedule};
+use sim::episode::EpisodeConfig;
+use sim::lidar::Lidar;
+use sim::nav_stack::{NavStack, Scan};
+use sim::robot::Twist;
+
+use crate::config::{FixedSchedule, RuntimeOptions};
+use crate::error::RuntimeError;
+use crate::input::{check, CycleInput};
+
+/// What one control cycle decided.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CycleOutput {
+    /// The velocity command to issue now (robot frame).
+    pub command: Twist,
+    /// Whether the planner ran this cycle. `false`: under a compute model the last cycle's
+    /// modelled compute still runs, and `command` repeats the last command.
+    pub planned: bool,
+    /// The planning cycle's modelled compute time (s) under a compute model (`None` under
+    /// the free model, and for a cycle that did not plan).
+    pub compute_s: Option<f64>,
+    /// Whether the policy chose a new action this cycle (every agent period; never without a
+    /// policy).
+    pub agent_step: bool,
+    /// The schedule the planner ran (or holds): its steps, horizon (s) and first step (s);
+    /// `None` in the velocity action space, where no planner runs.
+    pub schedule: Option<ScheduleSummary>,
+    /// The work this cycle's planning counted (zero for a cycle that did not plan).
+    pub work: CycleWork,
+}
+
+/// The shape of a rollout schedule.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ScheduleSummary {
+    /// Rollout steps.
+    pub steps: usize,
+    /// Total horizon (s).
+    pub horizon_s: f64,
+    /// The first (finest) step (s).
+    pub first_dt_s: f64,
+}
+
+impl ScheduleSummary {
+    fn of(s: &Schedule) -> Self {
+        Self {
+            steps: s.len(),
+            horizon_s: s.horizon(),
+            first_dt_s: s.dts().first().copied().unwrap_or(0.0),
+        }
+    }
+}
+
+/// A trained policy and what it needs each agent step.
+struct Agent {
+    net: MlpPolicy,
+    scratch: Scratch,
+    action: AgentAction,
+    laser: LaserResampler,
+    laser_clip_m: f64,
+    agent_period: u64,
+    obs: Vec<f32>,
+    out: Vec<f32>,
+}
+
+/// One robot's local planner, costmap, global path and policy.
+///
+/// Each [`Navigator::cycle`] takes one scan and odometry and returns the command: the cycle
+/// the simulator's closed loop runs ([`sim::Episode`]'s sensing, [`CycleDriver`]'s planning,
+/// [`AgentAction`]'s policy step), so a world driven through a navigator repeats `adp eval`'s
+/// episode exactly. A new goal starts a new run (a fresh costmap around the robot and the
+/// goal, a fresh planner and policy state).
+///
+/// Contract: call it once per control period (`[episode] control_dt`, 0.05 s by default),
+/// in order. It does not allocate once warm, except when a goal changes and when a policy
+/// step builds its schedule. `Send`: a robot may move it to its control thread; share it
+/// behind a mutex, never call it from two threads at once (it takes `&mut self`).
+pub struct Navigator {
+    kind: PlannerKind,
+    settings: EvalConfig,
+    options: RuntimeOptions,
+    episode: EpisodeConfig,
+    prediction: Prediction,
+    lidar: Lidar,
+    planner: Box<dyn Planner>,
+    driver: CycleDriver,
+    nav: Option<NavStack>,
+    agent: Option<Agent>,
+    /// The policy's space (or the fixed schedule's), and what the current agent step runs.
+    space: Option<ActionSpace>,
+    applied: Applied,
+    /// Control periods of this run so far.
+    periods: u64,
+    /// The last command issued.
+    last: Twist,
+    /// The checked scan of the current cycle.
+    ranges: Vec<f64>,
+}
+
+impl Navigator {
+    /// A navigator for the planner and speed of `options`, with the episode, planner and
+    /// compute settings of `settings` (an evaluation configuration: `configs/eval.toml`'s
+    /// tables), and `policy` choosing the schedule (the fixed schedule of `options` without
+    /// one). With a policy the robot's profile is the policy's (its planner predicts with
+    /// the model it was trained with), as in `adp eval --policy`.
+    pub fn new(
+        settings: &EvalConfig,
+        options: RuntimeOptions,
+        policy: Option<LearnedPolicy>,
+    ) -> Result<Self, RuntimeError> {
+        let config = |message: String| RuntimeError::Config {
+            origin: "runtime configuration".into(),
+            message,
+        };
+        options.validate().map_err(config)?;
+        let mut episode = settings.episode;
+        let mut agent = None;
+        let mut space = None;
+        if let Some(p) = &policy {
+            if p.env.observe_tracks > 0 {
+                return Err(RuntimeError::Policy(format!(
+                    "policy {}: it observes {} tracked obstacles; the runtime does not run \
+                     the obstacle tracker",
+                    p.card_path.display(),
+                    p.env.observe_tracks
+                )));
+            }
+            episode = episode.with_profile(p.env.profile, p.env.dynamics);
+        }
+        episode.validate().map_err(|e| config(format!("[episode] {e}")))?;
+        let lidar = Lidar::new(episode.lidar);
+        let compute = settings
+            .compute
+            .resolve(options.planner.name())
+            .map_err(|e| config(e.to_string()))?;
+        let planner = options.planner.build(&settings.planners(), options.seed);
+        if let Some(p) = policy {
+            if let Some(g) = p.space.gains() {
+                if planner.gains() != Some(g) {
+                    return Err(RuntimeError::Policy(format!(
+                        "policy {}: the {} action space sets the gains of {}; the planner is {}",
+                        p.card_path.display(),
+                        p.space,
+                        g.planner(),
+                        planner.name()
+                    )));
+                }
+            }
+            let obs_dim = observation::obs_dim(p.env.observation, p.space, 0);
+            space = Some(p.space);
+            agent = Some(Agent {
+                scratch: Scratch::default(),
+                action: AgentAction::new(p.space, p.env.action_map),
+                laser: LaserResampler::new(p.env.observation, lidar.angles()),
+                laser_clip_m: p.env.laser_clip_m,
+                agent_period: u64::from(p.env.agent_period_cycles),
+                obs: vec![0.0; obs_dim],
+                out: vec![0.0; p.space.dim()],
+                net: p.net,
+            });
+        }
+        let applied = Applied::Schedule(match options.fixed {
+            FixedSchedule::Ddp => Schedule::ddp_default(),
+            FixedSchedule::Vanilla => Schedule::vanilla(),
+        });
+        Ok(Self {
+            kind: options.planner,
+            settings: settings.clone(),
+            driver: CycleDriver::new(compute, episode.control_dt),
+            prediction: Prediction::for_profile(episode.profile),
+            options,
+            episode,
+            lidar,
+            planner,
+            nav: None,
+            agent,
+            space,
+            applied,
+            periods: 0,
+            last: Twist::default(),
+            ranges: Vec::new(),
+        })
+    }
+
+    /// The planner.
+    pub fn planner(&self) -> PlannerKind {
+        self.kind
+    }
+
+    /// The action space of the policy, when one chooses the schedule.
+    pub fn space(&self) -> Option<ActionSpace> {
+        self.space
+    }
+
+    /// The lidar the scans must come from (beam count, angles, range limits).
+    pub fn lidar(&self) -> &Lidar {
+        &self.lidar
+    }
+
+    /// The episode settings in force (control period, costmap, robot, the profile the
+    /// planner predicts with).
+    pub fn episode(&self) -> &EpisodeConfig {
+        &self.episode
+    }
+
+    /// The navigation state of the current run (costmap, global path, local goal); `None`
+    /// before the first cycle.
+    pub fn nav(&self) -> Option<&NavStack> {
+        self.nav.as_ref()
+    }
+
+    /// Runs one control cycle on `input`: checks it (a refused input changes nothing and
+    /// the robot must issue [`crate::STOP`]), updates the costmap and path, lets the policy
+    /// choose the schedule when an agent period begins, and plans.
+    pub fn cycle(&mut self, input: &CycleInput<'_>) -> Result<CycleOutput, RuntimeError> {
+        let cfg = &self.episode.lidar;
+        check(
+            input,
+            self.lidar.angles().len(),
+            (cfg.min_range, cfg.max_range),
+            self.options.max_odometry_age_s,
+            &mut self.ranges,
+        )?;
+        if self.nav.as_ref().is_none_or(|n| n.goal() != input.goal) {
+            self.start_run(input);
+        }
+        let odom = input.odom;
+        let nav = self.nav.as_mut().expect("a run has started");
+        nav.update(
+            &self.lidar,
+            &Scan {
+                ranges: &self.ranges,
+                pose: odom.pose,
+                speed: odom.vel.v,
+                time: input.stamp_s,
+            },
+            input.global_path,
+        );
+        let perception = nav.perception(&self.ranges, odom.vel, &odom.pose);
+        let mut agent_step = false;
+        if let Some(a) = &mut self.agent {
+            if self.periods % a.agent_period == 0 {
+                observation::write(
+                    &perception,
+                    &a.laser,
+                    a.action.previous(),
+                    a.laser_clip_m,
+                    &[],
+                    &mut a.obs,
+                );
+                a.net.act(&a.obs, &mut a.out, &mut a.scratch);
+                self.applied = a
+                    .action
+                    .apply(&a.out, self.planner.as_mut(), self.options.max_speed)
+                    .map_err(|e| RuntimeError::Policy(format!("the policy's action: {e}")))?;
+                agent_step = true;
+            }
+        }
+        let (command, planned, compute_s, schedule) = match &self.applied {
+            Applied::Velocity(cmd) => (*cmd, true, self.driver.charge_command(), None),
+            Applied::Schedule(s) => {
+                let summary = Some(ScheduleSummary::of(s));
+                if self.driver.holds() {
+                    (self.last, false, None, summary)
+                } else {
+                    let (cmd, compute_s) = self.driver.plan_cycle(
+                        self.planner.as_mut(),
+                        perception,
+                        s,
+                        self.options.max_speed,
+                        self.prediction,
+                    );
+                    (cmd, true, compute_s, summary)
+                }
+            }
+        };
+        let work = match (&self.applied, planned) {
+            (Applied::Schedule(_), true) => self.planner.trace().cycle,
+            _ => CycleWork::default(),
+        };
+        self.periods += 1;
+        self.last = command;
+        Ok(CycleOutput {
+            command,
+            planned,
+            compute_s,
+            agent_step,
+            schedule,
+            work,
+        })
+    }
+
+    /// Starts a run towards `input.goal` from the robot's pose: a fresh costmap, planner,
+    /// cycle driver and policy state.
+    fn start_run(&mut self, input: &CycleInput<'_>) {
+        let world_moves = false;
+        let clearing = self.episode.costmap.clearing.enabled(world_moves);
+        self.nav = Some(NavStack::new(
+            &self.episode,
+            clearing,
+            input.odom.pose.position(),
+            input.goal,
+        ));
+        if self.periods > 0 {
+            self.planner = self.kind.build(&self.settings.planners(), self.options.seed);
+            let compute = self.driver.compute().cloned();
+            self.driver = CycleDriver::new(compute, self.episode.control_dt);
+            if let Some(a) = &mut self.agent {
+                a.action = AgentAction::new(a.action.space(), a.action.map());
+            }
+        }
+        self.periods = 0;
+        self.last = Twist::default();
+    }
+}

@@ -1,0 +1,209 @@
+//! Bad input gets an error that names the fault and the stop command, and loses nothing: a
+//! refused cycle leaves the navigator as it was, so the next good cycle is the one a
+//! navigator that never saw the bad input would run.
+
+use std::path::{Path, PathBuf};
+
+use adp_runtime::{load_policy, CycleInput, Navigator, Odometry, RuntimeError, RuntimeOptions, STOP};
+use eval::EvalConfig;
+use planner::PlannerKind;
+use sim::episode::Episode;
+use sim::geometry::Vec2;
+use sim::robot::Twist;
+use testkit::fresh_dir;
+
+fn policy_dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/policy")
+}
+
+fn navigator() -> Navigator {
+    let cfg = EvalConfig::load(None).unwrap();
+    let policy = load_policy(&policy_dir()).unwrap();
+    Navigator::new(&cfg, RuntimeOptions::new(PlannerKind::Dwa, 1.5), Some(policy)).unwrap()
+}
+
+/// The inputs of the first `n` control periods of a BARN world, driven by a navigator.
+fn scans(n: usize) -> Vec<(Vec<f64>, Odometry, Vec2)> {
+    let world = &sim::catalog::barn_worlds()[10];
+    let mut nav = navigator();
+    let mut ep = Episode::new(world, *nav.episode(), 3);
+    let mut out = Vec::new();
+    for _ in 0..n {
+        let odom = Odometry {
+            pose: ep.believed_pose(),
+            vel: ep.state().vel,
+            stamp_s: ep.sim_time(),
+        };
+        let ranges = ep.perception().ranges.to_vec();
+        let cmd = nav.cycle(&input(&ranges, odom, world.goal)).unwrap().command;
+        out.push((ranges, odom, world.goal));
+        ep.step(cmd);
+    }
+    out
+}
+
+fn input(ranges: &[f64], odom: Odometry, goal: Vec2) -> CycleInput<'_> {
+    CycleInput {
+        stamp_s: odom.stamp_s,
+        ranges,
+        odom,
+        goal,
+        global_path: None,
+    }
+}
+
+#[test]
+fn each_bad_input_is_refused_with_a_stop_and_loses_nothing() {
+    let recorded = scans(12);
+    let mut clean = navigator();
+    let mut faulty = navigator();
+    for (k, (ranges, odom, goal)) in recorded.iter().enumerate() {
+        // Every period, each kind of fault first (each refused), then the good input: the
+        // faulty navigator must answer it as the clean one does.
+        let mut nan_scan = ranges.clone();
+        nan_scan[k * 7] = f64::NAN;
+        let short_scan = &ranges[1..];
+        let stale = Odometry {
+            stamp_s: odom.stamp_s - 0.5,
+            ..*odom
+        };
+        let nan_goal = Vec2::new(f64::NAN, goal.y);
+        let empty: &[Vec2] = &[];
+        let faults: [(CycleInput<'_>, String); 5] = [
+            (
+                input(&nan_scan, *odom, *goal),
+                format!("scan: range {} is NaN", k * 7),
+            ),
+            (
+                input(short_scan, *odom, *goal),
+                format!(
+                    "scan: {} ranges, but the configured lidar has {} beams ([episode.lidar] beams)",
+                    ranges.len() - 1,
+                    ranges.len()
+                ),
+            ),
+            (
+                CycleInput {
+                    odom: stale,
+                    ..input(ranges, *odom, *goal)
+                },
+                "odometry: 0.500 s older than the scan; at most 0.1 s (max_odometry_age_s)".into(),
+            ),
+            (
+                input(ranges, *odom, nan_goal),
+                format!("goal: (NaN, {}) is not finite", goal.y),
+            ),
+            (
+                CycleInput {
+                    global_path: Some(empty),
+                    ..input(ranges, *odom, *goal)
+                },
+                "global path: empty (pass None to plan it)".into(),
+            ),
+        ];
+        for (bad, want) in &faults {
+            let err = faulty.cycle(bad).unwrap_err();
+            assert_eq!(err.to_string(), *want, "period {k}");
+            assert_eq!(err.command(), STOP);
+        }
+        let good = input(ranges, *odom, *goal);
+        assert_eq!(
+            faulty.cycle(&good).unwrap(),
+            clean.cycle(&good).unwrap(),
+            "period {k}"
+        );
+    }
+    assert_eq!(STOP, Twist::new(0.0, 0.0));
+}
+
+#[test]
+fn exports_that_do_not_fit_are_refused_naming_the_file() {
+    let dir = fresh_dir("runtime-bad-export");
+    let card: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(policy_dir().join("policy.json")).unwrap()).unwrap();
+    // A card whose network reads 700 values where the observation has 730.
+    let mut narrow = card.clone();
+    narrow["network"]["layer_sizes"][0] = 700.into();
+    std::fs::write(dir.join("policy.json"), serde_json::to_vec(&narrow).unwrap()).unwrap();
+    std::fs::copy(
+        policy_dir().join("policy.safetensors"),
+        dir.join("policy.safetensors"),
+    )
+    .unwrap();
+    let err = load_policy(&dir).unwrap_err().to_string();
+    assert!(
+        err.contains("policy.json") && err.contains("layer_sizes [700, 512, 512, 4]"),
+        "{err}"
+    );
+    // The weights missing.
+    std::fs::write(dir.join("policy.json"), serde_json::to_vec(&card).unwrap()).unwrap();
+    std::fs::remove_file(dir.join("policy.safetensors")).unwrap();
+    let err = load_policy(&dir).unwrap_err().to_string();
+    assert!(err.contains("policy.safetensors"), "{err}");
+    // A policy that observes tracked obstacles needs the tracker, which the runtime lacks.
+    let mut tracking = load_policy(&policy_dir()).unwrap();
+    tracking.env.observe_tracks = 2;
+    let cfg = EvalConfig::load(None).unwrap();
+    let err = Navigator::new(&cfg, RuntimeOptions::new(PlannerKind::Dwa, 1.5), Some(tracking))
+        .err()
+        .expect("refused");
+    assert!(matches!(err, RuntimeError::Policy(_)), "{err}");
+    assert!(
+        err.to_string().contains("does not run the obstacle tracker"),
+        "{err}"
+    );
+    // A speed cap that is not positive.
+    let err = Navigator::new(&cfg, RuntimeOptions::new(PlannerKind::Dwa, 0.0), None)
+        .err()
+        .expect("refused");
+    assert_eq!(
+        err.to_string(),
+        "runtime configuration: max_speed = 0 must be finite and > 0"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn a_configuration_file_builds_a_navigator_and_bad_keys_are_named() {
+    let dir = fresh_dir("runtime-config");
+    let policy = policy_dir();
+    let good = format!(
+        "planner = \"mppi\"\nmax_speed = 2.0\npolicy = \"{}\"\nseed = 4\n",
+        policy.display()
+    );
+    std::fs::write(dir.join("runtime.toml"), good).unwrap();
+    let nav = Navigator::from_file(&dir.join("runtime.toml")).unwrap();
+    assert_eq!(nav.planner(), PlannerKind::Mppi);
+    assert_eq!(nav.space(), Some(planner::ActionSpace::Decremental));
+    std::fs::write(
+        dir.join("bad.toml"),
+        "planner = \"dwa\"\nmax_speed = 1.5\nspeed = 3\n",
+    )
+    .unwrap();
+    let err = Navigator::from_file(&dir.join("bad.toml"))
+        .err()
+        .expect("refused")
+        .to_string();
+    assert!(
+        err.starts_with(&dir.join("bad.toml").display().to_string()),
+        "{err}"
+    );
+    assert!(err.contains("unknown field `speed`"), "{err}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn a_new_goal_starts_a_new_run() {
+    let recorded = scans(3);
+    let mut nav = navigator();
+    let (ranges, odom, goal) = &recorded[0];
+    let first = nav.cycle(&input(ranges, *odom, *goal)).unwrap();
+    nav.cycle(&input(&recorded[1].0, recorded[1].1, *goal)).unwrap();
+    // Back to the first inputs with the goal moved and back: a fresh run each time, so the
+    // same inputs give the first answer again.
+    let moved = Vec2::new(goal.x + 1.0, goal.y);
+    let other = nav.cycle(&input(ranges, *odom, moved)).unwrap();
+    assert!(other.agent_step);
+    assert_eq!(nav.nav().unwrap().goal(), moved);
+    assert_eq!(nav.cycle(&input(ranges, *odom, *goal)).unwrap(), first);
+}
