@@ -6,8 +6,10 @@
 
 use serde::{Deserialize, Serialize};
 
-/// A point or vector in the plane (metres).
+/// A point or vector in the plane (metres). `repr(C)`: two `f64`, x then y (the C runtime
+/// library passes paths of them as they are).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[repr(C)]
 pub struct Vec2 {
     /// x coordinate.
     pub x: f64,

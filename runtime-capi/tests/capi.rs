@@ -1,0 +1,155 @@
+//! The C functions called from Rust: errors come back as a status, a message and a stop;
+//! null pointers are refused, never dereferenced; a refused cycle changes nothing.
+
+use std::ffi::{c_char, CStr, CString};
+use std::path::Path;
+
+use adp_runtime_c::*;
+
+fn config() -> CString {
+    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../runtime/examples/runtime.toml");
+    CString::new(p.to_str().unwrap()).unwrap()
+}
+
+fn message(buf: &[c_char]) -> String {
+    unsafe { CStr::from_ptr(buf.as_ptr()) }
+        .to_string_lossy()
+        .into_owned()
+}
+
+#[test]
+fn errors_give_a_status_a_message_and_a_stop() {
+    let mut err = [0 as c_char; 256];
+    unsafe {
+        let nav = adp_navigator_from_file(config().as_ptr(), err.as_mut_ptr(), err.len());
+        assert!(!nav.is_null(), "{}", message(&err));
+        assert_eq!(adp_navigator_beams(nav), 720);
+        let sim = adp_sim_new(nav, 7, 1, err.as_mut_ptr(), err.len());
+        assert!(!sim.is_null());
+        let mut input = std::mem::zeroed::<AdpCycleInput>();
+        assert!(adp_sim_observe(sim, &mut input));
+        let mut out = AdpCycleOutput::default();
+        // A first good cycle moves the robot.
+        assert_eq!(
+            adp_navigator_cycle(nav, &input, &mut out, err.as_mut_ptr(), err.len()),
+            AdpStatus::Ok
+        );
+        assert!(out.command.v > 0.0 && out.planned && out.agent_step && out.has_schedule);
+        let good = input;
+        // A short scan: refused with a stop, and the message in a buffer too small for it
+        // is cut and terminated.
+        input.n_ranges = 10;
+        let mut small = [1 as c_char; 16];
+        assert_eq!(
+            adp_navigator_cycle(nav, &input, &mut out, small.as_mut_ptr(), small.len()),
+            AdpStatus::Scan
+        );
+        assert_eq!(out.command, AdpTwist { v: 0.0, w: 0.0 });
+        assert_eq!(message(&small), "scan: 10 ranges");
+        // A NaN goal, then stale odometry.
+        input = good;
+        input.goal.x = f64::NAN;
+        assert_eq!(
+            adp_navigator_cycle(nav, &input, &mut out, err.as_mut_ptr(), err.len()),
+            AdpStatus::Goal
+        );
+        input = good;
+        input.odom_stamp_s = good.stamp_s - 1.0;
+        assert_eq!(
+            adp_navigator_cycle(nav, &input, &mut out, err.as_mut_ptr(), err.len()),
+            AdpStatus::Odometry
+        );
+        assert!(message(&err).starts_with("odometry: 1.000 s older than the scan"));
+        // Null pointers.
+        input = good;
+        input.ranges = std::ptr::null();
+        assert_eq!(
+            adp_navigator_cycle(nav, &input, &mut out, err.as_mut_ptr(), err.len()),
+            AdpStatus::Argument
+        );
+        assert_eq!(message(&err), "ranges is null");
+        assert_eq!(
+            adp_navigator_cycle(std::ptr::null_mut(), &good, &mut out, std::ptr::null_mut(), 0),
+            AdpStatus::Argument
+        );
+        assert_eq!(adp_navigator_beams(std::ptr::null()), 0);
+        assert!(adp_sim_new(nav, 300, 0, err.as_mut_ptr(), err.len()).is_null());
+        assert_eq!(message(&err), "world 300 does not exist (BARN worlds are 0-299)");
+        assert!(adp_navigator_from_file(std::ptr::null(), err.as_mut_ptr(), err.len()).is_null());
+        assert_eq!(message(&err), "path is null");
+        adp_sim_free(sim);
+        adp_navigator_free(nav);
+        adp_navigator_free(std::ptr::null_mut());
+    }
+}
+
+#[test]
+fn a_refused_cycle_changes_nothing() {
+    let mut err = [0 as c_char; 256];
+    unsafe {
+        let (a, b) = (
+            adp_navigator_from_file(config().as_ptr(), err.as_mut_ptr(), err.len()),
+            adp_navigator_from_file(config().as_ptr(), err.as_mut_ptr(), err.len()),
+        );
+        let (sa, sb) = (
+            adp_sim_new(a, 20, 2, err.as_mut_ptr(), err.len()),
+            adp_sim_new(b, 20, 2, err.as_mut_ptr(), err.len()),
+        );
+        for k in 0..40 {
+            let (mut ia, mut ib) = (std::mem::zeroed(), std::mem::zeroed());
+            adp_sim_observe(sa, &mut ia);
+            adp_sim_observe(sb, &mut ib);
+            let (mut oa, mut ob) = (AdpCycleOutput::default(), AdpCycleOutput::default());
+            // Navigator `a` is offered a NaN heading first every period.
+            let mut bad = ia;
+            bad.pose.yaw = f64::NAN;
+            assert_eq!(
+                adp_navigator_cycle(a, &bad, &mut oa, err.as_mut_ptr(), err.len()),
+                AdpStatus::Odometry
+            );
+            adp_navigator_cycle(a, &ia, &mut oa, err.as_mut_ptr(), err.len());
+            adp_navigator_cycle(b, &ib, &mut ob, err.as_mut_ptr(), err.len());
+            assert_eq!(oa, ob, "period {k}");
+            adp_sim_step(sa, &oa);
+            adp_sim_step(sb, &ob);
+        }
+        for p in [sa, sb] {
+            adp_sim_free(p);
+        }
+        for n in [a, b] {
+            adp_navigator_free(n);
+        }
+    }
+}
+
+#[test]
+fn a_handle_is_shared_between_threads() {
+    let mut err = [0 as c_char; 256];
+    let nav = unsafe { adp_navigator_from_file(config().as_ptr(), err.as_mut_ptr(), err.len()) };
+    struct Shared(*mut AdpNavigator);
+    // The handle locks itself per call: C may hand it to any thread.
+    unsafe impl Send for Shared {}
+    unsafe impl Sync for Shared {}
+    let shared = &Shared(nav);
+    std::thread::scope(|s| {
+        for world in 0..4 {
+            s.spawn(move || unsafe {
+                let nav = shared.0;
+                let mut err = [0 as c_char; 256];
+                let sim = adp_sim_new(nav, world, 0, err.as_mut_ptr(), err.len());
+                for _ in 0..20 {
+                    let mut input = std::mem::zeroed();
+                    adp_sim_observe(sim, &mut input);
+                    let mut out = AdpCycleOutput::default();
+                    // Threads take turns on the one navigator (each new goal restarts its
+                    // run): every call completes and answers.
+                    let status = adp_navigator_cycle(nav, &input, &mut out, err.as_mut_ptr(), err.len());
+                    assert_eq!(status, AdpStatus::Ok, "{}", message(&err));
+                    adp_sim_step(sim, &out);
+                }
+                adp_sim_free(sim);
+            });
+        }
+    });
+    unsafe { adp_navigator_free(nav) };
+}
