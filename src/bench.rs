@@ -31,9 +31,12 @@ pub struct BenchArgs {
     /// Actor processes of the end-to-end run (default: one per core).
     #[arg(long, default_value_t = 0)]
     pub train_actors: u32,
-    /// Training worlds each planner and schedule runs on (compute, cycle).
+    /// Training worlds each planner and schedule runs on (compute, cycle, runtime).
     #[arg(long, default_value_t = 8)]
     pub compute_worlds: usize,
+    /// The policy export the runtime part runs (default: the runtime's example export).
+    #[arg(long)]
+    pub runtime_policy: Option<PathBuf>,
     /// Also write the figures as JSON to this file.
     #[arg(long)]
     pub json: Option<PathBuf>,
@@ -50,6 +53,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         train_steps: args.train_steps,
         train_actors: args.train_actors,
         compute_worlds: args.compute_worlds,
+        runtime_policy: args.runtime_policy,
         json: args.json,
     };
     let adp = std::env::current_exe().context("cannot find this executable")?;

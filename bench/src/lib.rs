@@ -17,6 +17,9 @@
 //!   step), agent steps per second once training has started.
 //! - `cycle` ([`cycle`], not in the default set): each planner's cycle, measured, next to the
 //!   roofline of its counted work on this CPU.
+//! - `runtime` ([`runtime`], not in the default set): the robot runtime's control cycle,
+//!   p50 / p99 / max wall time per planner with DDP and with a policy, against the compute
+//!   model's budget; the policy's inference share.
 //! - `compute` ([`compute`], not in the default set): the unit costs of planner work on this
 //!   machine and the `jackal-onboard-v2` compute platform derived from them.
 //!
@@ -26,6 +29,7 @@ pub mod collect;
 pub mod compute;
 pub mod cycle;
 pub mod pytorch;
+pub mod runtime;
 pub mod td3;
 pub mod train;
 pub mod transport;
@@ -51,6 +55,8 @@ pub enum Part {
     Compute,
     /// Planner cycles against their roofline (not run by default).
     Cycle,
+    /// The robot runtime's control cycle against the compute budget (not run by default).
+    Runtime,
 }
 
 impl Part {
@@ -76,8 +82,10 @@ pub struct Options {
     pub train_steps: u64,
     /// Actor processes of the end-to-end run (0: one per core).
     pub train_actors: u32,
-    /// Training worlds each planner and schedule runs on (compute, cycle).
+    /// Training worlds each planner and schedule runs on (compute, cycle, runtime).
     pub compute_worlds: usize,
+    /// The policy export the runtime part runs (its example export when `None`).
+    pub runtime_policy: Option<PathBuf>,
     /// Also write the figures as JSON to this file.
     pub json: Option<PathBuf>,
 }
@@ -141,6 +149,13 @@ pub fn run(options: &Options, adp: &Path) -> anyhow::Result<Vec<Figure>> {
             Part::Train => train::run(adp, options.train_steps, options.train_actors),
             Part::Compute => compute::run(options.compute_worlds),
             Part::Cycle => cycle::run(options.compute_worlds),
+            Part::Runtime => runtime::run(
+                options.compute_worlds,
+                options
+                    .runtime_policy
+                    .as_deref()
+                    .unwrap_or(Path::new(runtime::EXAMPLE_POLICY)),
+            ),
         }
         .with_context(|| format!("bench {part:?}"))?;
         for f in &got {
