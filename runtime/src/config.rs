@@ -65,7 +65,7 @@ impl RuntimeOptions {
         if !(self.max_speed.is_finite() && self.max_speed > 0.0) {
             return Err(format!("max_speed = {} must be finite and > 0", self.max_speed));
         }
-        if !(self.max_odometry_age_s >= 0.0) {
+        if self.max_odometry_age_s.is_nan() || self.max_odometry_age_s < 0.0 {
             return Err(format!(
                 "max_odometry_age_s = {} must be >= 0",
                 self.max_odometry_age_s

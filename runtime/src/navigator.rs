@@ -80,8 +80,10 @@ struct Agent {
 /// goal, a fresh planner and policy state).
 ///
 /// Contract: call it once per control period (`[episode] control_dt`, 0.05 s by default),
-/// in order. It does not allocate once warm, except when a goal changes and when a policy
-/// step builds its schedule. `Send`: a robot may move it to its control thread; share it
+/// in order. Once warm a cycle allocates nothing on a fixed schedule; a policy step builds
+/// its schedule (four small vectors) and a new goal reallocates. Inside a rayon pool, the
+/// planners' parallel rollouts allocate nothing either (outside one, rayon's global queue
+/// may). `Send`: a robot may move it to its control thread; share it
 /// behind a mutex, never call it from two threads at once (it takes `&mut self`).
 pub struct Navigator {
     kind: PlannerKind,
@@ -247,7 +249,7 @@ impl Navigator {
         let perception = nav.perception(&self.ranges, odom.vel, &odom.pose);
         let mut agent_step = false;
         if let Some(a) = &mut self.agent {
-            if self.periods % a.agent_period == 0 {
+            if self.periods.is_multiple_of(a.agent_period) {
                 observation::write(
                     &perception,
                     &a.laser,

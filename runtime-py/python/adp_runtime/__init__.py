@@ -1,0 +1,28 @@
+"""ADP on a robot: a local planner (DWA, MPPI, Log-MPPI or the standalone system) and its
+trained schedule policy, driven by the robot's scans, odometry and goal, one control cycle
+per call.
+
+    nav = adp_runtime.Navigator("runtime.toml")
+    try:
+        out = nav.cycle(stamp_s, ranges, (x, y, yaw), (v, w), odom_stamp_s, (gx, gy))
+        v, w = out.command
+    except adp_runtime.RefusedInput as e:
+        message, kind = e.args
+        v, w = adp_runtime.STOP
+
+Units are SI; poses, goals and paths are in one fixed frame (the one the robot's
+localization reports), yaw counter-clockwise from its x axis; velocities are in the robot's
+frame; ranges are in the configured lidar's beam order (increasing angle, centred on the
+heading). `Sim` runs a BARN world in place of a robot.
+"""
+
+from adp_runtime._native import (
+    STOP,
+    ConfigError,
+    CycleOutput,
+    Navigator,
+    RefusedInput,
+    Sim,
+)
+
+__all__ = ["STOP", "ConfigError", "CycleOutput", "Navigator", "RefusedInput", "Sim"]
