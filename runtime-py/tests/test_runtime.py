@@ -117,3 +117,16 @@ def test_a_navigator_is_shared_between_threads():
         t.join()
     assert errors == []
     assert nav.beams == 720 and nav.planner == "dwa"
+
+
+def test_the_example_drives_a_world():
+    import subprocess
+    import sys
+
+    run = subprocess.run(
+        [sys.executable, str(ROOT / "runtime-py" / "examples" / "drive_world.py"), str(CONFIG), "3", "5"],
+        capture_output=True,
+        text=True,
+    )
+    assert run.returncode == 0, run.stderr
+    assert run.stdout.startswith("world 3: succeeded in 6.27 s, score 0.500; 133 cycles, 0 refused")
