@@ -97,6 +97,7 @@ impl Trainer for LocalTrainer {
                 out: Some(run_dir.to_owned()),
                 listen: None,
                 allow_insecure_listen: false,
+                device: None,
             },
             resume,
         )

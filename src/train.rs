@@ -10,6 +10,7 @@ use std::time::{Duration, Instant};
 use anyhow::{bail, Context};
 
 use learner::export::space_name;
+use learner::LearnerDevice;
 use learner_service::{Learner, TrainSummary};
 use proto::auth::{read_or_create_token_file, read_token_file};
 use scheduler::{BackoffPolicy, Sandbox, Supervisor, SupervisorConfig, SupervisorEvent};
@@ -48,6 +49,8 @@ pub struct Overrides {
     pub listen: Option<String>,
     /// `--allow-insecure-listen` (learner only).
     pub allow_insecure_listen: bool,
+    /// `--device`.
+    pub device: Option<LearnerDevice>,
 }
 
 fn prepare(config: Option<&Path>, o: &Overrides, resume: bool) -> anyhow::Result<(TrainConfig, PathBuf)> {
@@ -57,6 +60,9 @@ fn prepare(config: Option<&Path>, o: &Overrides, resume: bool) -> anyhow::Result
     }
     if let Some(a) = o.actors {
         cfg.run.actors = a;
+    }
+    if let Some(d) = o.device {
+        cfg.learner.device = d;
     }
     if let Some(l) = &o.listen {
         cfg.service.listen = l.clone();
@@ -268,6 +274,9 @@ pub struct TrainArgs {
     /// Continue the run in --out from its newest valid checkpoint up to --steps.
     #[arg(long)]
     pub resume: bool,
+    /// Where the learner computes: cpu or wgpu (overrides `[learner]` device).
+    #[arg(long)]
+    pub device: Option<LearnerDevice>,
 }
 
 /// `adp learner`.
@@ -295,6 +304,9 @@ pub struct LearnerArgs {
     /// Continue the run in --out from its newest valid checkpoint.
     #[arg(long)]
     pub resume: bool,
+    /// Where the learner computes: cpu or wgpu (overrides `[learner]` device).
+    #[arg(long)]
+    pub device: Option<LearnerDevice>,
 }
 
 /// `adp train` with the options of `a`.
@@ -305,6 +317,7 @@ pub fn train_command(a: TrainArgs) -> anyhow::Result<()> {
         out: a.out,
         listen: None,
         allow_insecure_listen: false,
+        device: a.device,
     };
     train(a.config.as_deref(), &o, a.resume)
 }
@@ -317,6 +330,7 @@ pub fn learner_command(a: LearnerArgs) -> anyhow::Result<()> {
         out: a.out,
         listen: a.listen,
         allow_insecure_listen: a.allow_insecure_listen,
+        device: a.device,
     };
     learner(a.config.as_deref(), &o, a.resume, a.token_file.as_deref())
 }

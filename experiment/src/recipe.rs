@@ -21,6 +21,7 @@ use serde_json::{json, Value};
 use sha2::{Digest, Sha256};
 
 use eval::EvalConfig;
+use learner::LearnerDevice;
 use train_config::TrainConfig;
 
 use super::config::{planner_name, space_label, Arm, Experiment};
@@ -267,15 +268,16 @@ impl Inputs<'_> {
 
 /// The parts of a training configuration that decide what it learns: `[run]` without its
 /// name (and with `actors = 0` resolved to `cores`), `[env]`, `[td3]`, `[greedy]` (the
-/// learning curves kept with the run) and the two `[service]` keys that change the data
-/// (`ddp_init`, `episodes_per_assignment`).
+/// learning curves kept with the run), the two `[service]` keys that change the data
+/// (`ddp_init`, `episodes_per_assignment`) and, when it is not the CPU, `[learner] device`
+/// (another backend sums in another order: the same run learns slightly different weights).
 pub fn train_inputs(cfg: &TrainConfig, cores: u32) -> Value {
     let mut run = serde_json::to_value(&cfg.run).expect("configs serialize");
     run["name"] = Value::Null;
     if cfg.run.actors == 0 {
         run["actors"] = json!(cores);
     }
-    json!({
+    let mut inputs = json!({
         "run": run,
         "env": cfg.env,
         "td3": cfg.td3,
@@ -284,7 +286,11 @@ pub fn train_inputs(cfg: &TrainConfig, cores: u32) -> Value {
             "ddp_init": cfg.service.ddp_init,
             "episodes_per_assignment": cfg.service.episodes_per_assignment,
         },
-    })
+    });
+    if cfg.learner.device != LearnerDevice::Cpu {
+        inputs["learner"] = json!({ "device": cfg.learner.device });
+    }
+    inputs
 }
 
 #[cfg(test)]

@@ -8,6 +8,7 @@ use settings::{ActionSpace, EnvConfig, PlannerKind};
 
 use crate::error::SettingsError;
 use learner::config::Td3Config;
+use learner::LearnerDevice;
 
 /// How the learner process serves actors. Every field has a default; unknown keys are refused.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -169,6 +170,8 @@ pub struct LearnerOptions {
     pub run_id: String,
     /// TD3 hyper-parameters (their `obs_dim`/`act_dim` must fit `space`).
     pub td3: Td3Config,
+    /// Where the learner computes (a checkpoint resumes on either device).
+    pub device: LearnerDevice,
     /// Service settings.
     pub service: ServiceConfig,
     /// The planner actors run (`dwa`, `mppi`, `log-mppi`, `system`).

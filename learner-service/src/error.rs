@@ -129,6 +129,9 @@ pub enum StartError {
     /// The `[service]` settings cannot work.
     #[error(transparent)]
     Settings(#[from] SettingsError),
+    /// The `[learner]` device cannot be opened.
+    #[error("[learner] {0}")]
+    Device(#[from] learner::DeviceError),
     /// The run cannot be resumed or started fresh in its directory.
     #[error(transparent)]
     Resume(#[from] ResumeError),

@@ -39,8 +39,9 @@ pub(crate) struct TrainingState {
 pub(crate) fn load_resume_state(
     ckpt: &Path,
     registry_cfg: &RegistryConfig,
+    device: &Device,
 ) -> Result<TrainingState, ResumeError> {
-    let (td3, state) = checkpoint::load(ckpt, &Device::flex())?;
+    let (td3, state) = checkpoint::load(ckpt, device)?;
     let replay = checkpoint::load_replay(ckpt)?.unwrap_or_else(|| ReplayBuffer::new(td3.config()));
     let snapshot: RegistrySnapshot =
         serde_json::from_value(state.extra["registry"].clone()).map_err(|source| {
@@ -72,16 +73,18 @@ pub(crate) fn load_resume_state(
     })
 }
 
-/// Loads the newest of `candidates` (complete checkpoints, oldest first) that loads fully;
-/// each one skipped is logged as a warning and returned with the reason.
+/// Loads the newest of `candidates` (complete checkpoints, oldest first) that loads fully,
+/// onto `device` (whichever device wrote it); each one skipped is logged as a warning and
+/// returned with the reason.
 pub(crate) fn newest_usable(
     dir: &Path,
     candidates: &[(u64, PathBuf)],
     registry_cfg: &RegistryConfig,
+    device: &Device,
 ) -> Result<(PathBuf, TrainingState, Vec<String>), ResumeError> {
     let mut warnings = Vec::new();
     for (_, ckpt) in candidates.iter().rev() {
-        match load_resume_state(ckpt, registry_cfg) {
+        match load_resume_state(ckpt, registry_cfg, device) {
             Ok(state) => return Ok((ckpt.clone(), state, warnings)),
             Err(e) => {
                 let warning = format!(
@@ -157,7 +160,8 @@ mod tests {
         flip(&root.join("ckpt-2").join("actor.bpk"));
         let candidates = retention::complete_checkpoints(&root).unwrap();
         assert_eq!(candidates.len(), 2, "the damage is only found by a full load");
-        let (ckpt, state, warnings) = newest_usable(&root, &candidates, &registry_cfg).unwrap();
+        let (ckpt, state, warnings) =
+            newest_usable(&root, &candidates, &registry_cfg, &Device::flex()).unwrap();
         assert_eq!(ckpt, root.join("ckpt-1"));
         assert_eq!(state.td3.updates(), 1);
         assert_eq!(warnings.len(), 1);
@@ -168,6 +172,7 @@ mod tests {
             &root,
             &retention::complete_checkpoints(&root).unwrap(),
             &registry_cfg,
+            &Device::flex(),
         )
         .err()
         .unwrap()

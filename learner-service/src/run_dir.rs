@@ -9,7 +9,6 @@ use learner::rate::RateLimiter;
 use learner::replay::ReplayBuffer;
 use learner::retention;
 use learner::td3::{seeded_rng, Td3};
-use learner::Device;
 use scheduler::{Registry, RegistryConfig};
 
 use crate::config::LearnerOptions;
@@ -153,6 +152,8 @@ impl RunDir {
         opts: &LearnerOptions,
         registry_cfg: &RegistryConfig,
     ) -> Result<(TrainingState, Vec<String>, Option<ResumeStatus>), StartError> {
+        let device = opts.device.open()?;
+        tracing::info!(device = %opts.device, "learner device");
         match (opts.resume, self.candidates.last()) {
             (true, None) => Err(ResumeError::NothingToResume {
                 dir: self.checkpoints.clone(),
@@ -165,7 +166,7 @@ impl RunDir {
             .into()),
             (true, Some(_)) => {
                 let (ckpt, state, warnings) =
-                    newest_usable(&self.checkpoints, &self.candidates, registry_cfg)?;
+                    newest_usable(&self.checkpoints, &self.candidates, registry_cfg, &device)?;
                 let resumed = ResumeStatus {
                     checkpoint: ckpt.display().to_string(),
                     inserts: state.rate.inserts(),
@@ -181,7 +182,7 @@ impl RunDir {
                 Ok((state, warnings, Some(resumed)))
             }
             (false, None) => {
-                let mut td3 = Td3::new(opts.td3.clone(), &Device::flex()).map_err(StartError::Td3)?;
+                let mut td3 = Td3::new(opts.td3.clone(), &device).map_err(StartError::Td3)?;
                 if opts.service.ddp_init && opts.space == settings::ActionSpace::Velocity {
                     // The velocity space drives the robot itself: there is no DDP to start
                     // from, and a constant fitted action would only be a fixed command.

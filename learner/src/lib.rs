@@ -3,7 +3,8 @@
 //! rate limiter, the exploration schedule and the DDP initialization of the actor.
 //!
 //! The backend is chosen at runtime through the burn [`burn::tensor::Device`] handed to
-//! [`Td3::new`] (`Device::flex()`, the pure-Rust CPU backend, by default).
+//! [`Td3::new`] (`Device::flex()`, the pure-Rust CPU backend, by default);
+//! [`device::LearnerDevice`] names the choices (`cpu`, `wgpu`) and opens them.
 //!
 //! Around the core: checkpoints ([`checkpoint`]), export of the policy as ONNX, safetensors and
 //! a JSON card ([`export`]), and TensorBoard event files ([`tensorboard`]).
@@ -13,6 +14,7 @@ pub mod batch;
 pub mod checkpoint;
 pub mod config;
 pub mod ddp_init;
+pub mod device;
 pub mod exploration;
 pub mod export;
 pub mod mem;
@@ -32,6 +34,7 @@ pub use burn::tensor::Device;
 pub use checkpoint::{CheckpointError, Manifest, RunState};
 pub use config::{ConfigError, Td3Config};
 pub use ddp_init::{fit_actor_to_action, FitError, FitOptions, FitReport};
+pub use device::{DeviceError, LearnerDevice};
 pub use exploration::ExplorationSchedule;
 pub use export::{export_checkpoint, ExportError, ExportSummary, PolicyCard};
 pub use nets::{Actor, Critic, TwinCritic};

@@ -12,4 +12,4 @@ mod slurm;
 mod train;
 
 pub use slurm::{check_time, SlurmSection};
-pub use train::{RunSection, SandboxSection, TrainConfig};
+pub use train::{LearnerSection, RunSection, SandboxSection, TrainConfig};

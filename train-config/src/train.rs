@@ -9,7 +9,7 @@ use anyhow::{bail, Context};
 use serde::{Deserialize, Serialize};
 
 use actor::EnvConfig;
-use learner::Td3Config;
+use learner::{LearnerDevice, Td3Config};
 use learner_service::{LearnerOptions, ServiceConfig};
 use planner::{ActionSpace, PlannerKind};
 use scheduler::{BwrapMode, SandboxConfig};
@@ -98,6 +98,15 @@ impl Default for SandboxSection {
     }
 }
 
+/// `[learner]`: where the learner computes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct LearnerSection {
+    /// `cpu` (burn's CPU backend, the default) or `wgpu` (the first GPU wgpu finds; a
+    /// software Vulkan driver such as lavapipe counts). `--device` overrides it.
+    pub device: LearnerDevice,
+}
+
 /// A training run's configuration (`configs/local.toml`).
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -108,6 +117,8 @@ pub struct TrainConfig {
     pub env: EnvConfig,
     /// TD3.
     pub td3: Td3Config,
+    /// Where the learner computes.
+    pub learner: LearnerSection,
     /// The learner process.
     pub service: ServiceConfig,
     /// The actor sandbox.
@@ -214,6 +225,7 @@ impl TrainConfig {
             run_dir: run_dir.to_owned(),
             run_id: run_id(&self.run.name),
             td3: self.td3.clone(),
+            device: self.learner.device,
             service: self.service.clone(),
             planner: self.run.planner,
             max_speed: self.run.max_speed,
