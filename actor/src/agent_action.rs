@@ -8,10 +8,19 @@
 
 use planner::action::{ActionError, VelocityCommand};
 use planner::schedule::DEFAULT_BOUNDARY_POINTS;
-use planner::{ActionMap, ActionSpace, Planner, Schedule};
+use planner::{ActionMap, ActionSpace, GainsError, Planner, Schedule};
 use sim::robot::Twist;
 
-use crate::env::EnvError;
+/// Why an action was refused; nothing was applied.
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum ApplyError {
+    /// The action has the wrong length or a non-finite value.
+    #[error(transparent)]
+    Action(#[from] ActionError),
+    /// The planner refused the action's gain factors.
+    #[error(transparent)]
+    Gains(#[from] GainsError),
+}
 
 /// What one agent step runs.
 #[derive(Clone, Debug, PartialEq)]
@@ -82,7 +91,7 @@ impl AgentAction {
         action: &[f32],
         planner: &mut dyn Planner,
         max_speed: f64,
-    ) -> Result<Applied, EnvError> {
+    ) -> Result<Applied, ApplyError> {
         if action.len() != self.space.dim() {
             return Err(ActionError::Dim {
                 space: self.space,

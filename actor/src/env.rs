@@ -41,7 +41,7 @@ pub use settings::env::{
     BeamChoices, EnvConfig, EnvConfigError, Randomize, RandomizeError, MAX_BEAM_CHOICES,
 };
 
-use crate::agent_action::{AgentAction, Applied};
+use crate::agent_action::{AgentAction, Applied, ApplyError};
 use crate::observation::{self, LaserResampler};
 use crate::reward::{footprint_clearance, obstacle_penalty};
 use crate::stuck::{stuck_term, StuckWindow};
@@ -106,6 +106,16 @@ pub enum EnvError {
         /// Agent steps taken.
         agent_steps: u32,
     },
+}
+
+impl From<ApplyError> for EnvError {
+    /// The same message: a refused action or gain factors.
+    fn from(e: ApplyError) -> Self {
+        match e {
+            ApplyError::Action(a) => EnvError::Action(a),
+            ApplyError::Gains(g) => EnvError::Gains(g),
+        }
+    }
 }
 
 impl From<EnvConfigError> for EnvError {

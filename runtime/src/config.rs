@@ -14,13 +14,12 @@
 
 use std::path::{Path, PathBuf};
 
-use eval::policy::{self, EvalPolicy};
+use eval::policy::{self, EvalPolicy, LearnedPolicy};
 use eval::EvalConfig;
 use planner::PlannerKind;
 use serde::Deserialize;
 
 use crate::error::RuntimeError;
-use crate::navigator::Navigator;
 
 /// The schedule the planner runs without a policy.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize)]
@@ -98,41 +97,39 @@ struct RuntimeFile {
     settings: Option<PathBuf>,
 }
 
-impl Navigator {
-    /// A navigator from the configuration file `path` (see [`crate::config`]); paths in it
-    /// are relative to its directory. Every error names the file and the key or the policy
-    /// file at fault.
-    pub fn from_file(path: &Path) -> Result<Self, RuntimeError> {
-        let origin = path.display().to_string();
-        let config = |message: String| RuntimeError::Config {
-            origin: origin.clone(),
-            message,
-        };
-        let text = std::fs::read_to_string(path).map_err(|e| config(format!("cannot read: {e}")))?;
-        let file: RuntimeFile =
-            toml::from_str(&text).map_err(|e| config(eval::config::one_line(&e.to_string())))?;
-        let options = RuntimeOptions {
-            planner: file.planner,
-            max_speed: file.max_speed,
-            fixed: file.fixed,
-            seed: file.seed,
-            max_odometry_age_s: file.max_odometry_age_s,
-        };
-        options.validate().map_err(config)?;
-        let dir = path.parent().unwrap_or(Path::new("."));
-        let settings_path = file.settings.map(|s| dir.join(s));
-        let settings = EvalConfig::load(settings_path.as_deref()).map_err(|e| RuntimeError::Config {
-            origin: origin.clone(),
-            message: format!("settings: {e}"),
-        })?;
-        let policy = file.policy.map(|p| load_policy(&dir.join(p))).transpose()?;
-        Navigator::new(&settings, options, policy)
-    }
+/// What a configuration file (see the module docs) sets: the evaluation settings, the
+/// runtime's options and the policy, loaded and checked. Paths in it are relative to its
+/// directory; every error names the file and the key, or the policy file at fault.
+pub fn read(path: &Path) -> Result<(EvalConfig, RuntimeOptions, Option<LearnedPolicy>), RuntimeError> {
+    let origin = path.display().to_string();
+    let config = |message: String| RuntimeError::Config {
+        origin: origin.clone(),
+        message,
+    };
+    let text = std::fs::read_to_string(path).map_err(|e| config(format!("cannot read: {e}")))?;
+    let file: RuntimeFile =
+        toml::from_str(&text).map_err(|e| config(eval::config::one_line(&e.to_string())))?;
+    let options = RuntimeOptions {
+        planner: file.planner,
+        max_speed: file.max_speed,
+        fixed: file.fixed,
+        seed: file.seed,
+        max_odometry_age_s: file.max_odometry_age_s,
+    };
+    options.validate().map_err(config)?;
+    let dir = path.parent().unwrap_or(Path::new("."));
+    let settings_path = file.settings.map(|s| dir.join(s));
+    let settings = EvalConfig::load(settings_path.as_deref()).map_err(|e| RuntimeError::Config {
+        origin: origin.clone(),
+        message: format!("settings: {e}"),
+    })?;
+    let policy = file.policy.map(|p| load_policy(&dir.join(p))).transpose()?;
+    Ok((settings, options, policy))
 }
 
 /// Loads the trained policy of the export directory (or `policy.json`) at `path`, checked as
 /// `adp eval --policy` checks it.
-pub fn load_policy(path: &Path) -> Result<policy::LearnedPolicy, RuntimeError> {
+pub fn load_policy(path: &Path) -> Result<LearnedPolicy, RuntimeError> {
     match policy::load(path, None).map_err(|e| RuntimeError::Policy(e.to_string()))? {
         EvalPolicy::Learned(p) => Ok(*p),
         EvalPolicy::Constant { .. } => Err(RuntimeError::Policy(format!(

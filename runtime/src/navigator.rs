@@ -192,6 +192,14 @@ impl Navigator {
         })
     }
 
+    /// A navigator from the configuration file `path` ([`crate::config`]): its paths are
+    /// relative to its directory. Every error names the file and the key, or the policy file
+    /// at fault.
+    pub fn from_file(path: &std::path::Path) -> Result<Self, RuntimeError> {
+        let (settings, options, policy) = crate::config::read(path)?;
+        Self::new(&settings, options, policy)
+    }
+
     /// The planner.
     pub fn planner(&self) -> PlannerKind {
         self.kind
@@ -305,8 +313,11 @@ impl Navigator {
     fn start_run(&mut self, input: &CycleInput<'_>) {
         let world_moves = false;
         let clearing = self.episode.costmap.clearing.enabled(world_moves);
+        let e = &self.episode;
         self.nav = Some(NavStack::new(
-            &self.episode,
+            e.costmap,
+            e.replan_every,
+            e.smoothing_window,
             clearing,
             input.odom.pose.position(),
             input.goal,

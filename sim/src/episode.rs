@@ -13,6 +13,7 @@ use crate::dynamics::{Drive, Dynamics, Localization, Profile};
 use crate::error::ConfigError;
 use crate::geometry::{Pose, Vec2};
 use crate::lidar::{Lidar, LidarConfig, LidarRng};
+pub use crate::nav_stack::Perception;
 use crate::nav_stack::{NavStack, Scan};
 use crate::navigation::PathRisk;
 use crate::predictive_cost::MovingObstacle;
@@ -209,24 +210,6 @@ pub struct EpisodeResult {
     pub distance_m: f64,
 }
 
-/// What the planners may see: the robot's own perception, all in the robot frame. Goals and
-/// the path come from the robot's own (possibly drifted) localization.
-#[derive(Clone, Copy, Debug)]
-pub struct Perception<'a> {
-    /// Lidar ranges, one per beam (m).
-    pub ranges: &'a [f64],
-    /// Lidar returns as points (robot frame); beams without a return are absent.
-    pub points: &'a [Vec2],
-    /// Measured velocity.
-    pub vel: Twist,
-    /// The local goal (robot frame).
-    pub local_goal: Vec2,
-    /// The smoothed global path up to a little past the local goal (robot frame).
-    pub local_path: &'a [Vec2],
-    /// The global goal (robot frame).
-    pub goal: Vec2,
-}
-
 /// A running BARN episode. Owns all its buffers; stepping does not allocate once warm.
 pub struct Episode<'w> {
     world: &'w World,
@@ -292,7 +275,14 @@ impl<'w> Episode<'w> {
             status: Status::Running,
             end_time: 0.0,
             ranges: Vec::new(),
-            nav: NavStack::new(&cfg, clearing, start.position(), world.goal),
+            nav: NavStack::new(
+                cfg.costmap,
+                cfg.replan_every,
+                cfg.smoothing_window,
+                clearing,
+                start.position(),
+                world.goal,
+            ),
         };
         ep.sense();
         ep

@@ -6,8 +6,7 @@
 //! scan (the `adp-runtime` crate). Both call [`NavStack::update`], so a planner sees the same
 //! [`Perception`] from the same scans and poses wherever it runs.
 
-use crate::costmap::Costmap;
-use crate::episode::{EpisodeConfig, Perception};
+use crate::costmap::{Costmap, CostmapConfig};
 use crate::geometry::{Pose, Vec2};
 use crate::lidar::Lidar;
 use crate::navigation::{point_at_arc_length, smooth, GlobalPlanner, PathRisk};
@@ -18,6 +17,24 @@ use crate::robot::Twist;
 const NEAREST_SEARCH_POINTS: usize = 40;
 /// How many path points past the local goal the planner is given.
 const PATH_POINTS_PAST_GOAL: usize = 5;
+
+/// What the planners may see: the robot's own perception, all in the robot frame. Goals and
+/// the path come from the robot's own (possibly drifted) localization.
+#[derive(Clone, Copy, Debug)]
+pub struct Perception<'a> {
+    /// Lidar ranges, one per beam (m).
+    pub ranges: &'a [f64],
+    /// Lidar returns as points (robot frame); beams without a return are absent.
+    pub points: &'a [Vec2],
+    /// Measured velocity.
+    pub vel: Twist,
+    /// The local goal (robot frame).
+    pub local_goal: Vec2,
+    /// The smoothed global path up to a little past the local goal (robot frame).
+    pub local_path: &'a [Vec2],
+    /// The global goal (robot frame).
+    pub goal: Vec2,
+}
 
 /// A scan, the pose it was taken from and the robot's speed: what one [`NavStack::update`]
 /// reads.
@@ -69,15 +86,24 @@ pub struct NavStack {
 }
 
 impl NavStack {
-    /// A stack for a run from `start` to `goal` (map frame) with the costmap, replanning
-    /// interval and path smoothing of `cfg`; `clearing` turns on the costmap's clearing of
-    /// free space (see [`crate::costmap::Clearing::enabled`]). Nothing is planned until
-    /// the first [`NavStack::update`].
-    pub fn new(cfg: &EpisodeConfig, clearing: bool, start: Vec2, goal: Vec2) -> Self {
+    /// A stack for a run from `start` to `goal` (map frame) on a costmap of `costmap`,
+    /// replanning every `replan_every` updates and smoothing the path over
+    /// `smoothing_window` points (the `[episode]` settings of the same names); `clearing`
+    /// turns on the costmap's clearing of free space (see
+    /// [`crate::costmap::Clearing::enabled`]). Nothing is planned until the first
+    /// [`NavStack::update`].
+    pub fn new(
+        costmap: CostmapConfig,
+        replan_every: u32,
+        smoothing_window: usize,
+        clearing: bool,
+        start: Vec2,
+        goal: Vec2,
+    ) -> Self {
         Self {
             goal,
-            smoothing_window: cfg.smoothing_window,
-            costmap: Costmap::around(cfg.costmap, start, goal).with_clearing(clearing),
+            smoothing_window,
+            costmap: Costmap::around(costmap, start, goal).with_clearing(clearing),
             global: GlobalPlanner::default(),
             points: Vec::new(),
             ends: Vec::new(),
@@ -85,7 +111,7 @@ impl NavStack {
             path: Vec::new(),
             path_robot: Vec::new(),
             local_goal_world: goal,
-            replan_every: cfg.replan_every,
+            replan_every,
             updates: 0,
             last_replan: 0,
             path_risk: None,
@@ -253,7 +279,19 @@ impl NavStack {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::episode::EpisodeConfig;
     use crate::lidar::LidarConfig;
+
+    fn stack(cfg: &EpisodeConfig, start: Vec2, goal: Vec2) -> NavStack {
+        NavStack::new(
+            cfg.costmap,
+            cfg.replan_every,
+            cfg.smoothing_window,
+            false,
+            start,
+            goal,
+        )
+    }
 
     /// A lidar whose every beam sees nothing (all at max range).
     fn empty_scan(lidar: &Lidar) -> Vec<f64> {
@@ -266,7 +304,7 @@ mod tests {
         let lidar = Lidar::new(LidarConfig::default());
         let ranges = empty_scan(&lidar);
         let (start, goal) = (Vec2::new(0.0, 0.0), Vec2::new(0.0, 10.0));
-        let mut nav = NavStack::new(&cfg, false, start, goal);
+        let mut nav = stack(&cfg, start, goal);
         // An L-shaped path: 3 m along +x, then up to the goal.
         let given: Vec<Vec2> = (0..=30)
             .map(|i| Vec2::new(0.1 * i as f64, 0.0))
@@ -285,7 +323,7 @@ mod tests {
         let p = nav.perception(&ranges, Twist::default(), &scan.pose);
         assert!(p.local_path.iter().all(|q| q.y.abs() < 0.05));
         // Without it, the search on an empty map heads straight for the goal.
-        let mut searched = NavStack::new(&cfg, false, start, goal);
+        let mut searched = stack(&cfg, start, goal);
         searched.update(&lidar, &scan, None);
         let g = searched.local_goal_world();
         assert!(g.x.abs() < 0.15 && (g.y - 1.0).abs() < 0.15, "local goal {g:?}");
@@ -299,7 +337,7 @@ mod tests {
         };
         let lidar = Lidar::new(LidarConfig::default());
         let ranges = empty_scan(&lidar);
-        let mut nav = NavStack::new(&cfg, false, Vec2::new(0.0, 0.0), Vec2::new(0.0, 10.0));
+        let mut nav = stack(&cfg, Vec2::new(0.0, 0.0), Vec2::new(0.0, 10.0));
         let mut replans = Vec::new();
         for i in 0..7 {
             let before = nav.last_replan;
