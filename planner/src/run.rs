@@ -191,7 +191,7 @@ impl CycleDriver {
     }
 
     /// Plans one cycle on `perception` with `planner` (no moving obstacles: a caller without
-    /// tracking) and charges it ([`CycleDriver::charge`]): returns the command and its
+    /// tracking) and charges it (records its work in the tally): returns the command and its
     /// modelled compute time (`None` under the free model, where it acts after the fixed
     /// latency). Call it only when [`CycleDriver::holds`] said `false`.
     pub fn plan_cycle(
