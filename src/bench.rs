@@ -15,6 +15,12 @@ pub struct BenchArgs {
     /// Timed TD3 updates (learner).
     #[arg(long, default_value_t = 200)]
     pub updates: usize,
+    /// The learner's device: cpu or wgpu (learner).
+    #[arg(long, default_value_t = learner::LearnerDevice::Cpu)]
+    pub device: learner::LearnerDevice,
+    /// Batch sizes to time besides the configured one, e.g. 256,1024 (learner).
+    #[arg(long, value_delimiter = ',')]
+    pub batch: Vec<usize>,
     /// A Python with torch and numpy: also time the same update in PyTorch and print the
     /// ratio (learner).
     #[arg(long)]
@@ -47,6 +53,8 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     let options = Options {
         parts: args.parts,
         updates: args.updates,
+        learner_device: args.device,
+        batches: args.batch,
         python: args.python,
         records: args.records,
         collect_steps: args.collect_steps,

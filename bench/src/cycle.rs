@@ -40,7 +40,7 @@ use crate::{figure, Figure};
 pub const ROOFLINE_CYCLES: [f64; 5] = [12.0, 100.0, 10.0, 50.0, 5.0];
 
 /// The clock of the first CPU in `/proc/cpuinfo` (GHz), or `None` when it is not there.
-fn clock_ghz() -> Option<f64> {
+pub(crate) fn clock_ghz() -> Option<f64> {
     let text = std::fs::read_to_string("/proc/cpuinfo").ok()?;
     let line = text.lines().find(|l| l.starts_with("cpu MHz"))?;
     let mhz: f64 = line.split(':').nth(1)?.trim().parse().ok()?;

@@ -7,8 +7,10 @@
 //! The parts of [`run`] ([`Part`]):
 //!
 //! - `learner` ([`td3`]): one TD3 update at the configured batch (critic-only and with the
-//!   actor step), a full replay buffer's memory and sampling time; with a Python, the same
-//!   update in PyTorch ([`pytorch`]) right after, and the ratio of the two.
+//!   actor step) and at other batches, on the CPU or wgpu: updates per second, achieved
+//!   GFLOP/s and, on the CPU, the share of the machine's peak; a full replay buffer's memory
+//!   and sampling time; with a Python, the same update in PyTorch ([`pytorch`]) right after,
+//!   and the ratio of the two.
 //! - `transport` ([`transport`]): step records per second through the shared-memory and the
 //!   gRPC data planes.
 //! - `collect` ([`collect`]): agent steps per second of the actor's episode loop (simulator,
@@ -71,6 +73,10 @@ pub struct Options {
     pub parts: Vec<Part>,
     /// Timed TD3 updates (learner).
     pub updates: usize,
+    /// The learner's device (learner).
+    pub learner_device: learner::LearnerDevice,
+    /// Batch sizes timed besides the configured one (learner).
+    pub batches: Vec<usize>,
     /// A Python with torch and numpy: also time the same update in PyTorch and the ratio
     /// (learner).
     pub python: Option<PathBuf>,
@@ -143,7 +149,12 @@ pub fn run(options: &Options, adp: &Path) -> anyhow::Result<Vec<Figure>> {
     let mut figures = Vec::new();
     for part in parts {
         let got = match part {
-            Part::Learner => td3::run(options.updates, options.python.as_deref()),
+            Part::Learner => td3::run(
+                options.updates,
+                options.python.as_deref(),
+                options.learner_device,
+                &options.batches,
+            ),
             Part::Transport => transport::run(options.records),
             Part::Collect => collect::run(options.collect_steps),
             Part::Train => train::run(adp, options.train_steps, options.train_actors),

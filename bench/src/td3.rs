@@ -1,38 +1,94 @@
-//! `adp bench learner`: the time of one TD3 update at the configured batch and the memory and
-//! sampling time of a full replay buffer (DESIGN §8), measured through the learner's public
-//! API; with a Python that has torch, the same update in PyTorch ([`crate::pytorch`]) and the
-//! ratio of the two.
+//! `adp bench learner`: the time of one TD3 update at the configured batch (and at any other
+//! batches asked for) on the learner's device, its achieved GFLOP/s and, on the CPU, its
+//! share of the machine's peak; the memory and sampling time of a full replay buffer (DESIGN
+//! §8), measured through the learner's public API; with a Python that has torch, the same
+//! update in PyTorch ([`crate::pytorch`]) and the ratio of the two.
 
 use std::path::Path;
 use std::time::Instant;
 
 use learner::batch::random_batch;
-use learner::{Batch, Device, ReplayBuffer, Step, StepEnd, Td3, Td3Config, Td3Error};
+use learner::{Batch, Device, LearnerDevice, ReplayBuffer, Step, StepEnd, Td3, Td3Config, Td3Error};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 
 use crate::pytorch::pytorch_update;
 use crate::{figure, Figure};
 
-/// The `learner` part's figures: [`td3_updates`] of `updates` at the embedded training
-/// configuration, with `python` the same in PyTorch and their ratio, and [`replay_full`].
-pub fn run(updates: usize, python: Option<&Path>) -> anyhow::Result<Vec<Figure>> {
-    let cfg = train_config::TrainConfig::load(None)?.td3;
-    let t = td3_updates(&cfg, updates.max(2))?;
-    let mut out = vec![
-        figure(
+/// The `learner` part's figures: [`td3_updates`] of `updates` on `device` at the embedded
+/// training configuration's batch, then at each of `batches` (updates per second, achieved
+/// GFLOP/s from [`update_macs`], and on the CPU the share of [`cpu_peak_gflops`]); with
+/// `python` the same update in PyTorch and their ratio, and [`replay_full`].
+pub fn run(
+    updates: usize,
+    python: Option<&Path>,
+    device: LearnerDevice,
+    batches: &[usize],
+) -> anyhow::Result<Vec<Figure>> {
+    // Timed at the steady state of training: the actor steps every `policy_delay` updates
+    // (the critic-only warm-up of the first `actor_warmup_updates` is past).
+    let cfg = Td3Config {
+        actor_warmup_updates: 0,
+        ..train_config::TrainConfig::load(None)?.td3
+    };
+    let opened = device.open()?;
+    let peak = cpu_peak_gflops();
+    if let (LearnerDevice::Cpu, Some(p)) = (device, &peak) {
+        eprintln!("CPU peak: {:.1} GFLOP/s ({})", p.gflops, p.how);
+    }
+    let mut out = Vec::new();
+    let mut configured = None;
+    let mut sizes = vec![cfg.batch_size];
+    sizes.extend(batches.iter().copied().filter(|&b| b != cfg.batch_size && b > 0));
+    for batch_size in sizes {
+        let c = Td3Config {
+            batch_size,
+            ..cfg.clone()
+        };
+        let t = td3_updates(&c, updates.max(2), &opened)?;
+        let gflops = 2.0 * update_macs(&c) / (t.mean_ms * 1e-3) / 1e9;
+        out.push(figure(
             format!(
-                "TD3 update, batch {}, mean over {} updates",
-                cfg.batch_size, t.updates
+                "TD3 update, batch {batch_size}, {device}, mean over {} updates",
+                t.updates
             ),
             t.mean_ms,
             "ms",
-        ),
-        figure("TD3 update, critic-only, median", t.critic_only_median_ms, "ms"),
-    ];
-    if let Some(ms) = t.with_actor_median_ms {
-        out.push(figure("TD3 update, critic + actor + targets, median", ms, "ms"));
+        ));
+        out.push(figure(
+            format!("TD3 updates per second, batch {batch_size}, {device}"),
+            1e3 / t.mean_ms,
+            "1/s",
+        ));
+        out.push(figure(
+            format!("TD3 update, batch {batch_size}, {device}, achieved"),
+            gflops,
+            "GFLOP/s",
+        ));
+        if let (LearnerDevice::Cpu, Some(p)) = (device, &peak) {
+            out.push(figure(
+                format!("TD3 update, batch {batch_size}, share of the CPU's peak"),
+                100.0 * gflops / p.gflops,
+                "%",
+            ));
+        }
+        if batch_size == cfg.batch_size {
+            out.push(figure(
+                format!("TD3 update, batch {batch_size}, {device}, critic-only, median"),
+                t.critic_only_median_ms,
+                "ms",
+            ));
+            if let Some(ms) = t.with_actor_median_ms {
+                out.push(figure(
+                    format!("TD3 update, batch {batch_size}, {device}, critic + actor + targets, median"),
+                    ms,
+                    "ms",
+                ));
+            }
+            configured = Some(t);
+        }
     }
+    let t = configured.expect("the configured batch is timed first");
     if let Some(python) = python {
         let torch = pytorch_update(python, updates.max(2))?;
         out.push(figure(
@@ -96,11 +152,68 @@ pub struct UpdateTiming {
     pub with_actor_median_ms: Option<f64>,
 }
 
-/// Times `updates` TD3 updates of networks built from `config` on the CPU device, after 20
-/// warm-up updates, cycling over 8 pre-drawn batches (the same protocol as
-/// `bench/td3_update.py`, so the two figures compare).
-pub fn td3_updates(config: &Td3Config, updates: usize) -> Result<UpdateTiming, Td3Error> {
-    let mut td3 = Td3::new(config.clone(), &Device::flex())?;
+/// Multiply-adds of one TD3 update of `config`'s networks at its batch size, averaged over
+/// the policy delay. Per sample, with `A` and `C` the multiply-adds of one actor and one
+/// critic forward pass (each dense layer `in x out`; a backward pass costs two forwards):
+///
+/// - every update: the target actor on the next observations (`A`), both target critics
+///   (`2C`), both critics forward and backward (`3 x 2C`): `A + 8C`;
+/// - every `policy_delay`-th update: the actor forward and backward (`3A`) and the first
+///   critic forward and backward through its input (`2C`).
+///
+/// The default networks at batch 128: about 0.79 G multiply-adds.
+pub fn update_macs(config: &Td3Config) -> f64 {
+    let dense = |sizes: &[usize]| -> f64 { sizes.windows(2).map(|w| (w[0] * w[1]) as f64).sum() };
+    let actor: Vec<usize> = std::iter::once(config.obs_dim)
+        .chain(config.actor_hidden.iter().copied())
+        .chain(std::iter::once(config.act_dim))
+        .collect();
+    let critic: Vec<usize> = std::iter::once(config.obs_dim + config.act_dim)
+        .chain(config.critic_hidden.iter().copied())
+        .chain(std::iter::once(1))
+        .collect();
+    let (a, c) = (dense(&actor), dense(&critic));
+    let per_sample = a + 8.0 * c + (3.0 * a + 2.0 * c) / config.policy_delay.max(1) as f64;
+    per_sample * config.batch_size as f64
+}
+
+/// The CPU's peak single-precision rate and how it was derived.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Peak {
+    /// GFLOP/s.
+    pub gflops: f64,
+    /// The derivation: cores x clock x vector lanes x 2 (fused multiply-add) x FMA units.
+    pub how: String,
+}
+
+/// This machine's peak f32 rate: the cores this process may use x the clock `/proc/cpuinfo`
+/// reports x the f32 lanes of its widest vector unit (16 with AVX-512, 8 with AVX2, 4
+/// otherwise) x 2 (a fused multiply-add is two operations) x 2 FMA units per core (what
+/// current x86 server cores have; a core with one halves the peak). `None` without a clock.
+pub fn cpu_peak_gflops() -> Option<Peak> {
+    let info = std::fs::read_to_string("/proc/cpuinfo").ok()?;
+    let ghz = crate::cycle::clock_ghz()?;
+    let flags = info.lines().find(|l| l.starts_with("flags"))?;
+    let has = |f: &str| flags.split_whitespace().any(|x| x == f);
+    let (lanes, unit) = if has("avx512f") {
+        (16.0, "AVX-512")
+    } else if has("avx2") && has("fma") {
+        (8.0, "AVX2")
+    } else {
+        (4.0, "SSE")
+    };
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get()) as f64;
+    Some(Peak {
+        gflops: cores * ghz * lanes * 2.0 * 2.0,
+        how: format!("{cores} cores x {ghz:.2} GHz x {lanes} f32 lanes ({unit}) x 2 (FMA) x 2 FMA units"),
+    })
+}
+
+/// Times `updates` TD3 updates of networks built from `config` on `device`, after 20 warm-up
+/// updates, cycling over 8 pre-drawn batches (the same protocol as `bench/td3_update.py`, so
+/// the two figures compare).
+pub fn td3_updates(config: &Td3Config, updates: usize, device: &Device) -> Result<UpdateTiming, Td3Error> {
+    let mut td3 = Td3::new(config.clone(), device)?;
     let mut rng = Pcg64Mcg::seed_from_u64(config.seed);
     let batches: Vec<Batch> = (0..8)
         .map(|_| random_batch(config, config.batch_size, &mut rng))
@@ -260,7 +373,7 @@ mod tests {
     #[test]
     fn update_timing_separates_critic_and_actor_updates() {
         let config = tiny_config();
-        let t = td3_updates(&config, 10).unwrap();
+        let t = td3_updates(&config, 10, &Device::flex()).unwrap();
         assert_eq!(t.updates, 10);
         assert!(t.mean_ms > 0.0 && t.critic_only_median_ms > 0.0, "{t:?}");
         assert!(
@@ -273,9 +386,37 @@ mod tests {
                 ..config
             },
             3,
+            &Device::flex(),
         )
         .unwrap();
         assert_eq!(none.with_actor_median_ms, None);
+    }
+
+    #[test]
+    fn an_update_of_the_default_networks_is_0_79_g_multiply_adds() {
+        let config = Td3Config {
+            obs_dim: 730,
+            act_dim: 4,
+            actor_hidden: vec![512, 512],
+            critic_hidden: vec![512, 256],
+            batch_size: 128,
+            policy_delay: 2,
+            ..Td3Config::default()
+        };
+        // Actor 730-512-512-4: 637,952 per sample; critic 734-512-256-1: 507,136.
+        // (A + 8C + (3A + 2C) / 2) x 128.
+        assert_eq!(update_macs(&config), 788_365_312.0);
+        let every = Td3Config {
+            policy_delay: 1,
+            ..config
+        };
+        assert!(
+            update_macs(&every)
+                > update_macs(&Td3Config {
+                    policy_delay: 2,
+                    ..every.clone()
+                })
+        );
     }
 
     #[test]
