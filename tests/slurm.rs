@@ -1,5 +1,8 @@
 //! Cluster jobs on a real SLURM: a job written by `adp slurm` trains with every actor task,
-//! checkpoints and exports; a job requeued mid-run resumes the same run from its checkpoint.
+//! checkpoints and exports; a job requeued mid-run resumes the same run from its checkpoint; a
+//! job whose learner asks for a GPU (the test cluster declares one, `gres gpu:1`) gets it and
+//! trains on wgpu while its actors ask for none; sbatch accepts the heterogeneous job of a GPU
+//! learner with CPU actor nodes.
 //!
 //! They need a running cluster named by `SLURM_CONF` (`scripts/slurm-cluster.sh start DIR`
 //! starts a single-host one). Without one they print why and skip, unless
@@ -19,10 +22,14 @@ use common::{cluster, fresh_dir};
 /// The jobs share the test cluster's CPUs: one at a time.
 static SERIAL: Mutex<()> = Mutex::new(());
 
-/// A small job: one node, three actors beside a two-CPU learner, fast leases, short warm-up.
-fn job_config(dir: &Path) -> PathBuf {
+/// A small job: one node, three actors beside a two-CPU learner, fast leases, short warm-up;
+/// `td3` adds lines to `[td3]`.
+fn job_config(dir: &Path, td3: &str) -> PathBuf {
     let text = "[run]\nname = \"slurm-test\"\n\n\
-                [td3]\nwarmup_steps = 128\nrate_tolerance = 64.0\n\n\
+                [td3]\nwarmup_steps = 128\nrate_tolerance = 64.0\n"
+        .to_owned()
+        + td3
+        + "\n\
                 [service]\nheartbeat_ms = 200\nlease_ttl_ms = 3000\nstatus_every_s = 0.2\n\n\
                 [slurm]\nnodes = 1\nactors_per_node = 3\nlearner_node_actors = 3\nlearner_cpus = 2\n\
                 learner_mem_mb = 2048\nactor_mem_mb = 512\ntime = \"00:30:00\"\nactor_give_up_s = 60\n\
@@ -32,19 +39,32 @@ fn job_config(dir: &Path) -> PathBuf {
     p
 }
 
-/// Writes the job script with `adp slurm` and submits it; returns the job id.
-fn submit(dir: &Path, run: &Path, steps: u64) -> String {
-    let cfg = job_config(dir);
+/// Writes the job script with `adp slurm` (the job config of `td3` lines, plus `args`) into
+/// `dir/job.sbatch`.
+fn write_script(dir: &Path, run: &Path, steps: u64, td3: &str, args: &[&str]) -> PathBuf {
+    let cfg = job_config(dir, td3);
     let out = Command::new(env!("CARGO_BIN_EXE_adp"))
         .args(["slurm", "--config"])
         .arg(&cfg)
         .args(["--steps", &steps.to_string(), "--run-dir"])
         .arg(run)
+        .args(args)
         .output()
         .unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let script = dir.join("job.sbatch");
     std::fs::write(&script, &out.stdout).unwrap();
+    script
+}
+
+/// Writes the job script with `adp slurm` and submits it; returns the job id.
+fn submit(dir: &Path, run: &Path, steps: u64) -> String {
+    submit_with(dir, run, steps, "", &[])
+}
+
+/// [`submit`] with `td3` lines and `adp slurm` options.
+fn submit_with(dir: &Path, run: &Path, steps: u64, td3: &str, args: &[&str]) -> String {
+    let script = write_script(dir, run, steps, td3, args);
     let out = Command::new("sbatch")
         .arg("--parsable")
         .arg(&script)
@@ -92,12 +112,20 @@ fn logs(run: &Path) -> String {
 /// Polls every 200 ms until the job is COMPLETED with at least `restarts` restarts; panics
 /// with the logs if it ends otherwise or the watchdog runs out.
 fn wait_completed(id: &str, run: &Path, restarts: u32) {
+    if let Err(state) = wait_ended(id, run, restarts) {
+        panic!("job {id} ended {state}{}", logs(run))
+    }
+}
+
+/// Polls every 200 ms until the job is COMPLETED with at least `restarts` restarts (`Ok`) or
+/// has ended otherwise (`Err` with its state); panics if the watchdog runs out.
+fn wait_ended(id: &str, run: &Path, restarts: u32) -> Result<(), String> {
     for _ in 0..9000 {
         let (state, r) = job_state(id);
         match state.as_str() {
-            "COMPLETED" if r >= restarts => return,
+            "COMPLETED" if r >= restarts => return Ok(()),
             "FAILED" | "CANCELLED" | "TIMEOUT" | "NODE_FAIL" | "OUT_OF_MEMORY" | "BOOT_FAIL" | "DEADLINE" => {
-                panic!("job {id} ended {state} (restarts {r}){}", logs(run))
+                return Err(format!("{state} (restarts {r})"))
             }
             _ => std::thread::sleep(Duration::from_millis(200)),
         }
@@ -202,5 +230,92 @@ fn requeued_slurm_job_resumes_the_same_run() {
         resumed.inserts >= before.inserts,
         "resumed from {resumed:?}, but {} steps were stored before the requeue",
         before.inserts
+    );
+}
+
+/// The job's learner asks for the cluster's GPU (`adp slurm --learner-gpus 1`, which also
+/// makes it compute on wgpu) while its three actors ask for none: the learner's step gets the
+/// GPU, the actors run beside it (were they to wait for the GPU, no step would arrive and the
+/// watchdog would fire), and the run trains, checkpoints and exports. Without a Vulkan device
+/// the learner cannot start; that skips the test unless ADP_REQUIRE_WGPU=1.
+#[test]
+fn slurm_job_with_a_gpu_learner_trains_on_wgpu_beside_cpu_actors() {
+    if !cluster() {
+        return;
+    }
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let dir = fresh_dir("slurm-gpu");
+    let run = dir.join("run");
+    let id = submit_with(
+        &dir,
+        &run,
+        300,
+        "batch_size = 32\nactor_warmup_updates = 0\n",
+        &["--learner-gpus", "1"],
+    );
+    let ended = wait_ended(&id, &run, 0);
+    let learner_log = std::fs::read_to_string(run.join("logs/learner.log")).unwrap_or_default();
+    if ended.is_err() && learner_log.contains("device `wgpu`") {
+        assert!(
+            std::env::var_os("ADP_REQUIRE_WGPU").is_none_or(|v| v != "1"),
+            "ADP_REQUIRE_WGPU=1, but the learner found no wgpu device:{}",
+            logs(&run)
+        );
+        eprintln!("skipped: the learner found no wgpu device");
+        return;
+    }
+    if let Err(state) = ended {
+        panic!("job {id} ended {state}{}", logs(&run));
+    }
+    let out = Command::new("scontrol")
+        .args(["show", "job", "-o", &id])
+        .output()
+        .unwrap();
+    let job = String::from_utf8_lossy(&out.stdout);
+    assert!(job.contains("gpu:1"), "the job asked for no GPU: {job}");
+    assert!(
+        learner_log.contains("device=wgpu"),
+        "the learner does not say it computes on wgpu:{}",
+        logs(&run)
+    );
+    let s = read_status(&run).unwrap();
+    assert!(s.finished && s.inserts >= 300 && s.updates > 0, "{s:?}");
+    assert_every_rank_sent_steps(&s, 3, &run);
+    assert!(
+        run.join("export/policy.onnx").is_file(),
+        "no export{}",
+        logs(&run)
+    );
+}
+
+/// A GPU learner with more nodes is a heterogeneous job (a GPU node for the learner, CPU nodes
+/// for the other actors). The single-host cluster cannot run one (its components need nodes
+/// of their own), but sbatch parses and checks every component's request: `--test-only`.
+#[test]
+fn sbatch_accepts_the_heterogeneous_job_of_a_gpu_learner() {
+    if !cluster() {
+        return;
+    }
+    let dir = fresh_dir("slurm-het");
+    let run = dir.join("run");
+    let script = write_script(
+        &dir,
+        &run,
+        1000,
+        "",
+        &["--learner-gpus", "1", "--nodes", "2", "--actors-per-node", "2"],
+    );
+    let text = std::fs::read_to_string(&script).unwrap();
+    assert!(text.contains("#SBATCH hetjob"), "{text}");
+    let out = Command::new("sbatch")
+        .arg("--test-only")
+        .arg(&script)
+        .current_dir(&dir)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        out.status.success() && err.contains("to start at"),
+        "sbatch --test-only refused the heterogeneous job: {err}\n{text}"
     );
 }

@@ -14,7 +14,9 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context};
 
-use crate::{check_time, TrainConfig};
+use learner::LearnerDevice;
+
+use crate::{check_time, SlurmSection, TrainConfig};
 
 /// The embedded default of `configs/slurm.toml`.
 pub const SLURM_TOML: &str = include_str!("../../configs/slurm.toml");
@@ -90,6 +92,24 @@ fn actor_tls_args(cfg: &TrainConfig) -> String {
     args
 }
 
+/// Checks that the learner's device and its GPU request agree: a wgpu learner asks SLURM for
+/// its GPUs, and a CPU learner asks for none (a GPU it would never use).
+fn check_learner_device(cfg: &TrainConfig) -> anyhow::Result<()> {
+    let s = &cfg.slurm;
+    match (cfg.learner.device, s.learner_gpus) {
+        (LearnerDevice::Wgpu, 0) => bail!(
+            "[learner] device = \"wgpu\" but [slurm] learner_gpus = 0: the learner's step would \
+             get no GPU; set learner_gpus (or `adp slurm --learner-gpus 1`)"
+        ),
+        (LearnerDevice::Cpu, n) if n > 0 => bail!(
+            "[slurm] learner_gpus = {n} but [learner] device = \"cpu\": the GPUs would sit idle; \
+             set device = \"wgpu\" (or `adp slurm --learner-gpus {n}`, which sets both)"
+        ),
+        _ => {}
+    }
+    Ok(())
+}
+
 /// Overrides of a job's `[slurm]` and `[run]` values (the options of `adp slurm`).
 #[derive(Debug, Default, Clone)]
 #[cfg_attr(feature = "clap", derive(clap::Args))]
@@ -112,6 +132,10 @@ pub struct SlurmOverrides {
     /// Total agent steps (overrides `[run]` steps).
     #[cfg_attr(feature = "clap", arg(long))]
     pub steps: Option<u64>,
+    /// GPUs of the learner's step (overrides `[slurm]` learner_gpus; N > 0 also sets
+    /// `[learner]` device = "wgpu", 0 sets "cpu").
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub learner_gpus: Option<u32>,
 }
 
 impl SlurmOverrides {
@@ -154,6 +178,14 @@ impl SlurmOverrides {
         if let Some(n) = self.steps {
             cfg.run.steps = n;
         }
+        if let Some(n) = self.learner_gpus {
+            cfg.slurm.learner_gpus = n;
+            cfg.learner.device = if n > 0 {
+                LearnerDevice::Wgpu
+            } else {
+                LearnerDevice::Cpu
+            };
+        }
     }
 }
 
@@ -191,15 +223,12 @@ pub fn script(input: &ScriptInput<'_>) -> String {
 }
 
 /// The script's header: the comments on its origin, layout and progress, and the `#SBATCH`
-/// directives.
+/// directives (two components, learner node and actor nodes, for a heterogeneous job).
 fn sbatch_header(w: &mut String, input: &ScriptInput<'_>) {
     let cfg = input.config;
     let s = &cfg.slurm;
     let run_dir = input.run_dir.display().to_string();
     let k0 = s.learner_node_actors();
-    let node_cpus = (k0 * s.cpus_per_actor + s.learner_cpus).max(s.actors_per_node * s.cpus_per_actor);
-    let node_mem = (u64::from(k0) * s.actor_mem_mb + s.learner_mem_mb)
-        .max(u64::from(s.actors_per_node) * s.actor_mem_mb);
     let _ = writeln!(w, "#!/bin/bash");
     let _ = writeln!(
         w,
@@ -218,31 +247,23 @@ fn sbatch_header(w: &mut String, input: &ScriptInput<'_>) {
         s.cpus_per_actor,
         cfg.run.steps
     );
+    if let Some(gres) = s.learner_gres() {
+        let _ = writeln!(
+            w,
+            "# The learner computes on wgpu with its own GPUs ({gres}); the actors' steps ask for none.{}",
+            if s.heterogeneous() {
+                "\n# Heterogeneous job: component 0 is the learner's GPU node, component 1 the CPU nodes."
+            } else {
+                ""
+            }
+        );
+    }
     let _ = writeln!(
         w,
         "# Submit: sbatch <this file>. Progress: {run_dir}/status.json, logs in {run_dir}/logs,\n\
          # TensorBoard: tensorboard --logdir {run_dir}/tensorboard"
     );
     let _ = writeln!(w, "#SBATCH --job-name={}", job_name(&cfg.run.name));
-    let _ = writeln!(w, "#SBATCH --nodes={}", s.nodes);
-    if s.exclusive {
-        let _ = writeln!(w, "#SBATCH --exclusive");
-        let _ = writeln!(w, "#SBATCH --mem=0");
-    } else {
-        let _ = writeln!(w, "#SBATCH --ntasks-per-node=1");
-        let _ = writeln!(w, "#SBATCH --cpus-per-task={node_cpus}");
-        let _ = writeln!(w, "#SBATCH --mem={node_mem}M");
-    }
-    let _ = writeln!(w, "#SBATCH --time={}", s.time);
-    for (flag, value) in [
-        ("partition", &s.partition),
-        ("account", &s.account),
-        ("qos", &s.qos),
-    ] {
-        if !value.is_empty() {
-            let _ = writeln!(w, "#SBATCH --{flag}={value}");
-        }
-    }
     if s.requeue {
         let _ = writeln!(w, "#SBATCH --requeue");
     } else {
@@ -253,6 +274,56 @@ fn sbatch_header(w: &mut String, input: &ScriptInput<'_>) {
         "#SBATCH --signal=B:USR1@{}\n#SBATCH --open-mode=append\n#SBATCH --output={run_dir}/logs/job-%j.out",
         s.warning_s
     );
+    let learner_node_cpus = k0 * s.cpus_per_actor + s.learner_cpus;
+    let learner_node_mem = u64::from(k0) * s.actor_mem_mb + s.learner_mem_mb;
+    let actor_node_cpus = s.actors_per_node * s.cpus_per_actor;
+    let actor_node_mem = u64::from(s.actors_per_node) * s.actor_mem_mb;
+    let gpu_partition = if s.gpu_partition.is_empty() {
+        &s.partition
+    } else {
+        &s.gpu_partition
+    };
+    if s.heterogeneous() {
+        let _ = writeln!(w, "# Component 0: the learner's node, with its GPUs.");
+        component(w, s, 1, (learner_node_cpus, learner_node_mem), gpu_partition);
+        let _ = writeln!(w, "#SBATCH --gres={}", s.learner_gres().expect("GPUs"));
+        let _ = writeln!(w, "#SBATCH hetjob");
+        let _ = writeln!(w, "# Component 1: the other nodes, actors only, no GPU.");
+        component(w, s, s.nodes - 1, (actor_node_cpus, actor_node_mem), &s.partition);
+    } else {
+        let resources = (
+            learner_node_cpus.max(actor_node_cpus),
+            learner_node_mem.max(actor_node_mem),
+        );
+        component(w, s, s.nodes, resources, gpu_partition);
+        if let Some(gres) = s.learner_gres() {
+            let _ = writeln!(w, "#SBATCH --gres={gres}");
+        }
+    }
+}
+
+/// The `#SBATCH` lines of `nodes` nodes of `(cpus, memory MB)` each (whole nodes when
+/// `[slurm] exclusive`), with the time limit, the partition and the account and QoS.
+fn component(w: &mut String, s: &SlurmSection, nodes: u32, (cpus, mem_mb): (u32, u64), partition: &str) {
+    let _ = writeln!(w, "#SBATCH --nodes={nodes}");
+    if s.exclusive {
+        let _ = writeln!(w, "#SBATCH --exclusive");
+        let _ = writeln!(w, "#SBATCH --mem=0");
+    } else {
+        let _ = writeln!(w, "#SBATCH --ntasks-per-node=1");
+        let _ = writeln!(w, "#SBATCH --cpus-per-task={cpus}");
+        let _ = writeln!(w, "#SBATCH --mem={mem_mb}M");
+    }
+    let _ = writeln!(w, "#SBATCH --time={}", s.time);
+    for (flag, value) in [
+        ("partition", partition),
+        ("account", s.account.as_str()),
+        ("qos", s.qos.as_str()),
+    ] {
+        if !value.is_empty() {
+            let _ = writeln!(w, "#SBATCH --{flag}={value}");
+        }
+    }
 }
 
 /// The shell set-up: strict mode, `[slurm] setup`, the job's variables and its log
@@ -311,16 +382,21 @@ fn learner_address_and_resume(w: &mut String, cfg: &TrainConfig) {
         "# 3. The learner runs on the first node of the allocation and listens on a port derived\n\
          #    from the job id (or [slurm] port)."
     );
+    let group0 = if s.heterogeneous() { "_HET_GROUP_0" } else { "" };
     let _ = writeln!(
         w,
-        "LEARNER_HOST=$(scontrol show hostnames \"$SLURM_JOB_NODELIST\" | head -n 1)"
+        "LEARNER_HOST=$(scontrol show hostnames \"$SLURM_JOB_NODELIST{group0}\" | head -n 1)"
     );
     if s.port == 0 {
         let _ = writeln!(w, "PORT=$((20000 + SLURM_JOB_ID % 20000))");
     } else {
         let _ = writeln!(w, "PORT={}", s.port);
     }
-    let _ = writeln!(w, "OTHER_NODES=$((SLURM_JOB_NUM_NODES - 1))\n");
+    if s.heterogeneous() {
+        let _ = writeln!(w, "OTHER_NODES=$SLURM_JOB_NUM_NODES_HET_GROUP_1\n");
+    } else {
+        let _ = writeln!(w, "OTHER_NODES=$((SLURM_JOB_NUM_NODES - 1))\n");
+    }
     let _ = writeln!(
         w,
         "# 4. A run directory with a complete checkpoint is continued from its newest valid one (a\n\
@@ -376,9 +452,22 @@ fn learner_task(w: &mut String, cfg: &TrainConfig) {
         let _ = writeln!(w, "# 6. The learner: one task on the first node.");
         ""
     };
+    if let Some(gres) = s.learner_gres() {
+        let _ = writeln!(
+            w,
+            "#    It computes on wgpu ([learner] device) with the step's GPUs (--gres={gres})."
+        );
+    }
+    let mut placement = String::new();
+    if s.heterogeneous() {
+        placement.push_str(" --het-group=0");
+    }
+    if let Some(gres) = s.learner_gres() {
+        let _ = write!(placement, " --gres={gres}");
+    }
     let _ = writeln!(
         w,
-        "RAYON_NUM_THREADS=$LEARNER_CPUS srun --nodes=1 --ntasks=1 --nodelist=\"$LEARNER_HOST\" \\\n    \
+        "RAYON_NUM_THREADS=$LEARNER_CPUS srun{placement} --nodes=1 --ntasks=1 --nodelist=\"$LEARNER_HOST\" \\\n    \
          --cpus-per-task=\"$LEARNER_CPUS\" --mem={}M --output=\"$RUN_DIR/logs/learner.log\" \\\n    \
          \"$ADP\" learner --config \"$RUN_DIR/job-config.toml\" --out \"$RUN_DIR\" \\\n    \
          --listen \"0.0.0.0:$PORT\"{insecure} --token-file \"$RUN_DIR/token\" \"${{RESUME[@]}}\" &\nLEARNER_PID=$!\n",
@@ -410,10 +499,24 @@ fn actor_tasks(w: &mut String, cfg: &TrainConfig) {
         actor_tls_args(cfg)
     );
     let _ = writeln!(w, "ACTOR_PIDS=()");
+    // Without --gres=none a step gets every GRES of the job, and would wait for the learner's
+    // GPUs.
+    let no_gpu = if s.learner_gpus > 0 { " --gres=none" } else { "" };
+    let (group0, group1) = if s.heterogeneous() {
+        (" --het-group=0", " --het-group=1")
+    } else {
+        ("", "")
+    };
+    if s.learner_gpus > 0 {
+        let _ = writeln!(
+            w,
+            "# The actors ask for no GPU (--gres=none): the learner's stay its own."
+        );
+    }
     let _ = writeln!(
         w,
         "if [ \"$LEARNER_NODE_ACTORS\" -gt 0 ]; then\n    \
-         RAYON_NUM_THREADS=$CPUS_PER_ACTOR srun --nodes=1 --ntasks=\"$LEARNER_NODE_ACTORS\" --nodelist=\"$LEARNER_HOST\" \\\n        \
+         RAYON_NUM_THREADS=$CPUS_PER_ACTOR srun{group0}{no_gpu} --nodes=1 --ntasks=\"$LEARNER_NODE_ACTORS\" --nodelist=\"$LEARNER_HOST\" \\\n        \
          --cpus-per-task=\"$CPUS_PER_ACTOR\" --mem-per-cpu={}M --kill-on-bad-exit=0 \\\n        \
          --output=\"$RUN_DIR/logs/actors-learner-node-%t.log\" \\\n        \
          \"$ADP\" \"${{ACTOR_ARGS[@]}}\" --rank-offset 0 &\n    ACTOR_PIDS+=($!)\nfi",
@@ -423,12 +526,18 @@ fn actor_tasks(w: &mut String, cfg: &TrainConfig) {
         w,
         "if [ \"$OTHER_NODES\" -gt 0 ]; then\n    \
          # Task t of this step is rank LEARNER_NODE_ACTORS + t (its log is named by t).\n    \
-         RAYON_NUM_THREADS=$CPUS_PER_ACTOR srun --nodes=\"$OTHER_NODES\" --ntasks-per-node=\"$ACTORS_PER_NODE\" \\\n        \
-         --ntasks=$((OTHER_NODES * ACTORS_PER_NODE)) --exclude=\"$LEARNER_HOST\" \\\n        \
+         RAYON_NUM_THREADS=$CPUS_PER_ACTOR srun{group1}{no_gpu} --nodes=\"$OTHER_NODES\" --ntasks-per-node=\"$ACTORS_PER_NODE\" \\\n        \
+         --ntasks=$((OTHER_NODES * ACTORS_PER_NODE)){exclude} \\\n        \
          --cpus-per-task=\"$CPUS_PER_ACTOR\" --mem-per-cpu={}M --kill-on-bad-exit=0 \\\n        \
          --output=\"$RUN_DIR/logs/actors-other-nodes-%t.log\" \\\n        \
          \"$ADP\" \"${{ACTOR_ARGS[@]}}\" --rank-offset \"$LEARNER_NODE_ACTORS\" &\n    ACTOR_PIDS+=($!)\nfi\n",
-        s.actor_mem_mb.div_ceil(u64::from(s.cpus_per_actor))
+        s.actor_mem_mb.div_ceil(u64::from(s.cpus_per_actor)),
+        // The heterogeneous job's component 1 holds only the other nodes.
+        exclude = if s.heterogeneous() {
+            ""
+        } else {
+            " --exclude=\"$LEARNER_HOST\""
+        }
     );
 }
 
@@ -497,6 +606,7 @@ pub fn generate(
         bail!("{name}: [run] steps = 0: the job would have nothing to do");
     }
     check_actor_tls(&cfg).map_err(|e| anyhow::anyhow!("{name}: {e}"))?;
+    check_learner_device(&cfg).map_err(|e| anyhow::anyhow!("{name}: {e}"))?;
     let cwd = std::env::current_dir().context("cannot read the current directory")?;
     let run_dir = cwd.join(
         run_dir
@@ -772,6 +882,164 @@ mod tests {
         assert_eq!(TrainConfig::parse("embedded", &text[start..end]).unwrap(), c);
     }
 
+    /// The `#SBATCH` lines of a script, split at `#SBATCH hetjob` into its components.
+    fn components(text: &str) -> Vec<Vec<&str>> {
+        let mut out = vec![Vec::new()];
+        for line in text.lines().filter_map(|l| l.strip_prefix("#SBATCH ")) {
+            if line == "hetjob" {
+                out.push(Vec::new());
+            } else {
+                out.last_mut().unwrap().push(line);
+            }
+        }
+        out
+    }
+
+    /// The `srun` command lines of a script (continuation lines joined).
+    fn sruns(text: &str) -> Vec<String> {
+        let joined = text.replace("\\\n", " ");
+        joined
+            .lines()
+            .filter(|l| l.contains(" srun "))
+            .map(str::to_owned)
+            .collect()
+    }
+
+    #[test]
+    fn a_gpu_learner_on_one_node_gets_the_gpu_and_the_actors_none() {
+        let mut c = cfg();
+        let cpu = gen(&c);
+        assert!(!cpu.contains("--gres"), "a CPU job asks for no GRES:\n{cpu}");
+        SlurmOverrides {
+            learner_gpus: Some(1),
+            ..SlurmOverrides::default()
+        }
+        .apply(&mut c);
+        assert_eq!(
+            c.learner.device,
+            LearnerDevice::Wgpu,
+            "--learner-gpus sets the device"
+        );
+        check_learner_device(&c).unwrap();
+        let text = gen(&c);
+        let parts = components(&text);
+        assert_eq!(parts.len(), 1, "one node: not heterogeneous\n{text}");
+        assert!(
+            parts[0].contains(&"--gres=gpu:1") && parts[0].contains(&"--nodes=1"),
+            "{text}"
+        );
+        let steps = sruns(&text);
+        assert_eq!(steps.len(), 3, "{steps:#?}");
+        assert!(
+            steps[0].contains("--gres=gpu:1") && steps[0].contains(" learner "),
+            "{}",
+            steps[0]
+        );
+        for actor in &steps[1..] {
+            assert!(
+                actor.contains("--gres=none") && !actor.contains("het-group"),
+                "{actor}"
+            );
+        }
+        // The embedded config makes the learner compute on wgpu.
+        let start = text.find("<<'ADP_CONFIG'\n").unwrap() + "<<'ADP_CONFIG'\n".len();
+        let end = text[start..].find("ADP_CONFIG\n").unwrap() + start;
+        let embedded = TrainConfig::parse("embedded", &text[start..end]).unwrap();
+        assert_eq!(embedded.learner.device, LearnerDevice::Wgpu);
+        assert_eq!(embedded, c);
+    }
+
+    #[test]
+    fn a_gpu_learner_with_more_nodes_is_a_heterogeneous_job_with_cpu_actor_nodes() {
+        let mut c = cfg();
+        c.slurm.nodes = 4;
+        c.slurm.actors_per_node = 16;
+        c.slurm.learner_gpus = 2;
+        c.slurm.gpu_type = "a100".into();
+        c.slurm.gpu_partition = "gpu".into();
+        c.slurm.partition = "cpu".into();
+        c.slurm.exclusive = false;
+        c.learner.device = LearnerDevice::Wgpu;
+        c.slurm.validate().unwrap();
+        check_learner_device(&c).unwrap();
+        let text = gen(&c);
+        let parts = components(&text);
+        assert_eq!(parts.len(), 2, "{text}");
+        for want in [
+            "--nodes=1",
+            "--gres=gpu:a100:2",
+            "--partition=gpu",
+            "--cpus-per-task=16",
+        ] {
+            assert!(
+                parts[0].contains(&want),
+                "component 0 lacks {want}: {:?}",
+                parts[0]
+            );
+        }
+        for want in [
+            "--nodes=3",
+            "--partition=cpu",
+            "--cpus-per-task=16",
+            "--time=24:00:00",
+        ] {
+            assert!(
+                parts[1].contains(&want),
+                "component 1 lacks {want}: {:?}",
+                parts[1]
+            );
+        }
+        assert!(!parts[1].iter().any(|l| l.contains("--gres")), "{:?}", parts[1]);
+        assert!(
+            text.contains("$SLURM_JOB_NODELIST_HET_GROUP_0")
+                && text.contains("OTHER_NODES=$SLURM_JOB_NUM_NODES_HET_GROUP_1")
+        );
+        let steps = sruns(&text);
+        assert!(
+            steps[0].contains("--het-group=0 --gres=gpu:a100:2"),
+            "{}",
+            steps[0]
+        );
+        assert!(steps[1].contains("--het-group=0 --gres=none"), "{}", steps[1]);
+        assert!(
+            steps[2].contains("--het-group=1 --gres=none") && !steps[2].contains("--exclude"),
+            "{}",
+            steps[2]
+        );
+    }
+
+    #[test]
+    fn a_gpu_request_and_the_device_must_agree() {
+        let mut c = cfg();
+        c.learner.device = LearnerDevice::Wgpu;
+        let e = check_learner_device(&c).unwrap_err().to_string();
+        assert!(e.contains("learner_gpus = 0"), "{e}");
+        c.learner.device = LearnerDevice::Cpu;
+        c.slurm.learner_gpus = 1;
+        let e = check_learner_device(&c).unwrap_err().to_string();
+        assert!(e.contains("sit idle"), "{e}");
+        c.learner.device = LearnerDevice::Wgpu;
+        c.slurm.nodes = 2;
+        c.slurm.gpu_partition = "gpu".into();
+        check_learner_device(&c).unwrap();
+        // --learner-gpus 0 makes a GPU config a CPU job again.
+        SlurmOverrides {
+            learner_gpus: Some(0),
+            ..SlurmOverrides::default()
+        }
+        .apply(&mut c);
+        assert_eq!(c.learner.device, LearnerDevice::Cpu);
+        let e = c.slurm.validate().unwrap_err().to_string();
+        assert!(e.contains("learner_gpus = 0"), "gpu_partition without GPUs: {e}");
+        c.slurm.gpu_partition.clear();
+        c.slurm.validate().unwrap();
+        check_learner_device(&c).unwrap();
+        c.slurm.learner_gpus = 1;
+        c.slurm.gpu_type = "a100; reboot".into();
+        let e = c.slurm.validate().unwrap_err().to_string();
+        assert!(e.starts_with("gpu_type"), "{e}");
+    }
+
     #[test]
     fn script_passes_bash_syntax_check() {
         let Ok(out) = std::process::Command::new("bash").arg("--version").output() else {
@@ -780,10 +1048,11 @@ mod tests {
         assert!(out.status.success());
         let dir = std::env::temp_dir().join(format!("adp-slurm-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
-        for requeue in [true, false] {
+        for (requeue, gpus) in [(true, 0), (false, 0), (true, 1), (false, 2)] {
             let mut c = cfg();
             c.slurm.requeue = requeue;
             c.slurm.nodes = 3;
+            c.slurm.learner_gpus = gpus;
             let p = dir.join("job.sbatch");
             std::fs::write(&p, gen(&c)).unwrap();
             let out = std::process::Command::new("bash")

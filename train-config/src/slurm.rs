@@ -35,6 +35,16 @@ pub struct SlurmSection {
     /// Ask for whole nodes (`--exclusive`), the usual way to run many single-CPU actors beside
     /// a learner; `false` asks for exactly the CPUs the tasks need.
     pub exclusive: bool,
+    /// GPUs of the learner task, requested as `--gres=gpu:N` for its step (0 = a CPU learner).
+    /// Needs `[learner] device = "wgpu"`. The actors' steps ask for none (`--gres=none`), so
+    /// they never wait for a GPU; with more than one node the job is heterogeneous: the
+    /// learner's node is asked for with its GPUs (from `gpu_partition` when set), the other
+    /// nodes without, so actors run on CPU nodes.
+    pub learner_gpus: u32,
+    /// GRES type of the learner's GPUs (`--gres=gpu:<type>:N`, e.g. `a100`); empty = any.
+    pub gpu_type: String,
+    /// Partition of the learner's node when it has GPUs; empty = `partition`.
+    pub gpu_partition: String,
     /// The learner's gRPC port; 0 = `20000 + job id % 20000`, so jobs sharing a node differ.
     pub port: u16,
     /// Seconds before the time limit at which SLURM warns the job (it then requeues itself).
@@ -72,6 +82,9 @@ impl Default for SlurmSection {
             account: String::new(),
             qos: String::new(),
             exclusive: true,
+            learner_gpus: 0,
+            gpu_type: String::new(),
+            gpu_partition: String::new(),
             port: 0,
             warning_s: 300,
             requeue: true,
@@ -89,6 +102,21 @@ impl SlurmSection {
     pub fn learner_node_actors(&self) -> u32 {
         self.learner_node_actors
             .unwrap_or_else(|| self.actors_per_node.saturating_sub(self.learner_cpus).max(1))
+    }
+
+    /// The learner's GRES request, `gpu:N` or `gpu:<type>:N`; `None` for a CPU learner.
+    pub fn learner_gres(&self) -> Option<String> {
+        match (self.learner_gpus, self.gpu_type.as_str()) {
+            (0, _) => None,
+            (n, "") => Some(format!("gpu:{n}")),
+            (n, t) => Some(format!("gpu:{t}:{n}")),
+        }
+    }
+
+    /// Whether the job is heterogeneous: a learner node with GPUs and CPU nodes for the other
+    /// actors.
+    pub fn heterogeneous(&self) -> bool {
+        self.learner_gpus > 0 && self.nodes > 1
     }
 
     /// Actor tasks of the whole job.
@@ -118,6 +146,8 @@ impl SlurmSection {
             ("partition", &self.partition),
             ("account", &self.account),
             ("qos", &self.qos),
+            ("gpu_type", &self.gpu_type),
+            ("gpu_partition", &self.gpu_partition),
         ] {
             if !value
                 .chars()
@@ -125,6 +155,9 @@ impl SlurmSection {
             {
                 bail!("{name} = {value:?}: only letters, digits and _ - . , are allowed");
             }
+        }
+        if self.learner_gpus == 0 && !(self.gpu_type.is_empty() && self.gpu_partition.is_empty()) {
+            bail!("gpu_type and gpu_partition describe the learner's GPUs, but learner_gpus = 0");
         }
         if self.warning_s == 0 {
             bail!("warning_s must be positive: the learner needs warning to checkpoint");

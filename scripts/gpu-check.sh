@@ -1,0 +1,69 @@
+#!/usr/bin/env bash
+# The GPU learner's figures on a machine with a GPU, from a release `adp` built elsewhere
+# (docs/guide/training/gpu.md):
+#
+#   scripts/gpu-check.sh path/to/adp OUT_DIR
+#
+# 1. the machine: CPU count, the GPU and its driver (nvidia-smi when there is one);
+# 2. `adp bench learner` at batch 128, 256 and 1024 on the CPU and on wgpu: updates/s,
+#    achieved GFLOP/s, the CPU's share of its peak (text and JSON);
+# 3. a 20,000-step `adp train --device wgpu` with one actor per core: the learner's log
+#    (which adapter wgpu chose), status.json and the wall time.
+#
+# About five minutes on a 16-core machine. Needs a Vulkan loader (Debian: libvulkan1) and the
+# GPU's Vulkan driver (NVIDIA's ships with its driver). Everything lands in OUT_DIR; the run
+# itself (checkpoints, replay) goes to a temporary directory that is removed at the end.
+set -euo pipefail
+
+if (($# != 2)); then
+    echo "usage: $0 path/to/adp OUT_DIR" >&2
+    exit 2
+fi
+adp=$(realpath "$1")
+out=$(realpath -m "$2")
+mkdir -p "$out"
+run=$(mktemp -d /tmp/adp-gpu-check.XXXXXX)
+trap 'rm -rf "$run"' EXIT
+cores=$(nproc)
+
+echo "== machine" | tee "$out/machine.txt"
+{
+    date -u +%Y-%m-%dT%H:%MZ
+    uname -srm
+    echo "cores: $cores"
+    grep -m1 'model name' /proc/cpuinfo || true
+    nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv,noheader 2>/dev/null ||
+        echo "no nvidia-smi"
+    "$adp" --version
+} | tee -a "$out/machine.txt"
+
+for device in cpu wgpu; do
+    echo "== adp bench learner --device $device --batch 128,256,1024"
+    "$adp" bench learner --device "$device" --batch 128,256,1024 \
+        --json "$out/bench-learner-$device.json" 2>&1 | tee "$out/bench-learner-$device.txt"
+done
+
+echo "== adp train --device wgpu --steps 20000 --actors $cores"
+# No greedy evaluation during the run: the figure is the training throughput.
+printf '[greedy]\nevery_steps = 0\n' > "$run/config.toml"
+start=$(date +%s.%N)
+status=0
+"$adp" train --device wgpu --steps 20000 --actors "$cores" --config "$run/config.toml" \
+    --out "$run/train" > "$out/train.log" 2>&1 || status=$?
+end=$(date +%s.%N)
+cp "$run/train/status.json" "$out/train-status.json" 2>/dev/null || true
+grep -m3 -E 'device|adapter' "$out/train.log" || true
+python3 - "$out/train-status.json" "$start" "$end" "$status" <<'PY' | tee "$out/train-summary.txt"
+import json, sys
+path, start, end, status = sys.argv[1], float(sys.argv[2]), float(sys.argv[3]), sys.argv[4]
+wall = end - start
+print(f"adp train exit status {status}; wall time {wall:.1f} s")
+try:
+    s = json.load(open(path))
+except OSError:
+    sys.exit("no status.json: see train.log")
+inserts, updates = s.get("inserts", 0), s.get("updates", 0)
+print(f"agent steps stored {inserts} ({inserts / wall:.1f}/s over the wall time)")
+print(f"TD3 updates {updates} ({updates / wall:.1f}/s)")
+PY
+exit "$status"
