@@ -15,7 +15,7 @@
 use std::path::Path;
 use std::time::Instant;
 
-use adp_runtime::{load_policy, CycleInput, Navigator, Odometry, RuntimeOptions};
+use adp_runtime::{load_policy, sim_robot, Navigator, RuntimeOptions};
 use anyhow::Context;
 use eval::EvalConfig;
 use planner::PlannerKind;
@@ -31,18 +31,7 @@ pub const EXAMPLE_POLICY: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../runtim
 fn timed_episode(nav: &mut Navigator, world: &sim::World, seed: u64, out: &mut Vec<f64>) {
     let mut ep = Episode::new(world, *nav.episode(), seed);
     loop {
-        let t = ep.sim_time();
-        let input = CycleInput {
-            stamp_s: t,
-            ranges: ep.perception().ranges,
-            odom: Odometry {
-                pose: ep.believed_pose(),
-                vel: ep.state().vel,
-                stamp_s: t,
-            },
-            goal: world.goal,
-            global_path: None,
-        };
+        let input = sim_robot::observe(&ep);
         let t0 = Instant::now();
         let decided = nav.cycle(&input);
         out.push(t0.elapsed().as_nanos() as f64);
@@ -50,12 +39,7 @@ fn timed_episode(nav: &mut Navigator, world: &sim::World, seed: u64, out: &mut V
             ep.abandon();
             return;
         };
-        let status = match (o.planned, o.compute_s) {
-            (false, _) => ep.hold(),
-            (true, None) => ep.step(o.command),
-            (true, Some(c)) => ep.step_after(o.command, c),
-        };
-        if status != Status::Running {
+        if sim_robot::apply(&mut ep, o.command, o.planned, o.compute_s) != Status::Running {
             return;
         }
     }

@@ -28,7 +28,7 @@ use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::path::Path;
 use std::sync::Mutex;
 
-use adp_runtime::{CycleInput, CycleOutput, Navigator, Odometry, RuntimeError};
+use adp_runtime::{sim_robot, CycleInput, CycleOutput, Navigator, Odometry, RuntimeError};
 use sim::episode::{Episode, Status};
 use sim::geometry::{Pose, Vec2};
 use sim::robot::Twist;
@@ -365,21 +365,19 @@ pub unsafe extern "C" fn adp_sim_observe(sim: *const AdpSim, input: *mut AdpCycl
         return false;
     };
     let ep = lock(&sim.0);
-    let ranges = ep.perception().ranges;
-    let pose = ep.believed_pose();
-    let vel = ep.state().vel;
-    let goal = ep.world().goal;
+    let seen = sim_robot::observe(&ep);
+    let (pose, vel, goal) = (seen.odom.pose, seen.odom.vel, seen.goal);
     *input = AdpCycleInput {
-        stamp_s: ep.sim_time(),
-        ranges: ranges.as_ptr(),
-        n_ranges: ranges.len(),
+        stamp_s: seen.stamp_s,
+        ranges: seen.ranges.as_ptr(),
+        n_ranges: seen.ranges.len(),
         pose: AdpPose {
             x: pose.x,
             y: pose.y,
             yaw: pose.yaw,
         },
         vel: AdpTwist { v: vel.v, w: vel.w },
-        odom_stamp_s: ep.sim_time(),
+        odom_stamp_s: seen.odom.stamp_s,
         goal: AdpPoint { x: goal.x, y: goal.y },
         path: std::ptr::null(),
         n_path: 0,
@@ -411,12 +409,8 @@ pub unsafe extern "C" fn adp_sim_step(sim: *mut AdpSim, out: *const AdpCycleOutp
     };
     let mut ep = lock(&sim.0);
     let cmd = Twist::new(out.command.v, out.command.w);
-    let status = match (out.planned, out.has_compute) {
-        (false, _) => ep.hold(),
-        (true, false) => ep.step(cmd),
-        (true, true) => ep.step_after(cmd, out.compute_s),
-    };
-    match status {
+    let compute_s = out.has_compute.then_some(out.compute_s);
+    match sim_robot::apply(&mut ep, cmd, out.planned, compute_s) {
         Status::Running => AdpRunStatus::Running,
         Status::Succeeded => AdpRunStatus::Succeeded,
         Status::Collided => AdpRunStatus::Collided,

@@ -5,7 +5,7 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use adp_runtime::{CycleInput, Navigator, Odometry};
+use adp_runtime::{sim_robot, Navigator};
 use sim::episode::{Episode, Status};
 
 fn config() -> PathBuf {
@@ -24,29 +24,11 @@ fn rust_line(world: usize, seed: u64) -> String {
     let mut ep = Episode::new(w, *nav.episode(), seed);
     let (mut cycles, mut planned, mut agent_steps) = (0u64, 0u64, 0u64);
     loop {
-        let t = ep.sim_time();
-        let out = nav
-            .cycle(&CycleInput {
-                stamp_s: t,
-                ranges: ep.perception().ranges,
-                odom: Odometry {
-                    pose: ep.believed_pose(),
-                    vel: ep.state().vel,
-                    stamp_s: t,
-                },
-                goal: w.goal,
-                global_path: None,
-            })
-            .unwrap();
+        let out = nav.cycle(&sim_robot::observe(&ep)).unwrap();
         cycles += 1;
         planned += u64::from(out.planned);
         agent_steps += u64::from(out.agent_step);
-        let status = match (out.planned, out.compute_s) {
-            (false, _) => ep.hold(),
-            (true, None) => ep.step(out.command),
-            (true, Some(c)) => ep.step_after(out.command, c),
-        };
-        if status != Status::Running {
+        if sim_robot::apply(&mut ep, out.command, out.planned, out.compute_s) != Status::Running {
             break;
         }
     }

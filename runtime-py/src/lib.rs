@@ -12,7 +12,7 @@
 use std::path::PathBuf;
 use std::sync::{Mutex, MutexGuard};
 
-use adp_runtime::{CycleInput, CycleOutput as Output, Navigator as Inner, Odometry, RuntimeError};
+use adp_runtime::{sim_robot, CycleInput, CycleOutput as Output, Navigator as Inner, Odometry, RuntimeError};
 use pyo3::create_exception;
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
@@ -199,15 +199,14 @@ impl Sim {
     /// The robot's inputs now, as keyword arguments of `Navigator.cycle`.
     fn observe<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, pyo3::types::PyDict>> {
         let ep = lock(&self.0);
+        let seen = sim_robot::observe(&ep);
         let d = pyo3::types::PyDict::new(py);
-        let p = ep.believed_pose();
-        let v = ep.state().vel;
-        let g = ep.world().goal;
-        d.set_item("stamp_s", ep.sim_time())?;
-        d.set_item("ranges", ep.perception().ranges.to_vec())?;
+        let (p, v, g) = (seen.odom.pose, seen.odom.vel, seen.goal);
+        d.set_item("stamp_s", seen.stamp_s)?;
+        d.set_item("ranges", seen.ranges.to_vec())?;
         d.set_item("pose", (p.x, p.y, p.yaw))?;
         d.set_item("vel", (v.v, v.w))?;
-        d.set_item("odom_stamp_s", ep.sim_time())?;
+        d.set_item("odom_stamp_s", seen.odom.stamp_s)?;
         d.set_item("goal", (g.x, g.y))?;
         Ok(d)
     }
@@ -215,14 +214,13 @@ impl Sim {
     /// Simulates one control period with `out`'s decision; returns the run's status:
     /// "running", "succeeded", "collided" or "timed_out".
     fn step(&self, out: &CycleOutput) -> &'static str {
-        let mut ep = lock(&self.0);
         let cmd = Twist::new(out.command.0, out.command.1);
-        let status = match (out.planned, out.compute_s) {
-            (false, _) => ep.hold(),
-            (true, None) => ep.step(cmd),
-            (true, Some(c)) => ep.step_after(cmd, c),
-        };
-        status_name(status)
+        status_name(sim_robot::apply(
+            &mut lock(&self.0),
+            cmd,
+            out.planned,
+            out.compute_s,
+        ))
     }
 
     /// Issues the command (v, w) for one control period, as a robot base takes one (no

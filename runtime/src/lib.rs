@@ -27,6 +27,7 @@
 //! * [`input`] states the inputs' units and frames and checks them.
 //! * [`config`] reads the runtime's configuration file.
 //! * [`RuntimeError`] names what was refused; [`STOP`] is the command to issue then.
+//! * [`sim_robot`] is a simulated robot: a BARN episode observed and driven as a robot is.
 
 #![warn(missing_docs)]
 
@@ -34,6 +35,7 @@ pub mod config;
 pub mod error;
 pub mod input;
 pub mod navigator;
+pub mod sim_robot;
 
 pub use config::{load_policy, FixedSchedule, RuntimeOptions};
 pub use error::{RuntimeError, STOP};

@@ -7,7 +7,7 @@
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
 
-use adp_runtime::{load_policy, CycleInput, Navigator, Odometry, RuntimeOptions};
+use adp_runtime::{load_policy, sim_robot, Navigator, RuntimeOptions};
 use eval::EvalConfig;
 use planner::PlannerKind;
 use sim::episode::{Episode, Status};
@@ -60,28 +60,13 @@ fn allocations(kind: PlannerKind, with_policy: bool, w: usize, warm: usize, n: u
     let mut ep = Episode::new(world, *nav.episode(), 1);
     let mut counted = 0;
     for period in 0..warm + n {
-        let t = ep.sim_time();
-        let input = CycleInput {
-            stamp_s: t,
-            ranges: ep.perception().ranges,
-            odom: Odometry {
-                pose: ep.believed_pose(),
-                vel: ep.state().vel,
-                stamp_s: t,
-            },
-            goal: world.goal,
-            global_path: None,
-        };
+        let input = sim_robot::observe(&ep);
         ALLOCATIONS.with(|a| a.set(0));
         COUNTING.with(|c| c.set(period >= warm));
         let out = nav.cycle(&input).unwrap();
         COUNTING.with(|c| c.set(false));
         counted += ALLOCATIONS.with(Cell::get);
-        let status = match (out.planned, out.compute_s) {
-            (false, _) => ep.hold(),
-            (true, None) => ep.step(out.command),
-            (true, Some(c)) => ep.step_after(out.command, c),
-        };
+        let status = sim_robot::apply(&mut ep, out.command, out.planned, out.compute_s);
         assert_eq!(
             status,
             Status::Running,

@@ -4,7 +4,9 @@
 
 use std::path::{Path, PathBuf};
 
-use adp_runtime::{load_policy, CycleInput, Navigator, Odometry, RuntimeError, RuntimeOptions, STOP};
+use adp_runtime::{
+    load_policy, sim_robot, CycleInput, Navigator, Odometry, RuntimeError, RuntimeOptions, STOP,
+};
 use eval::EvalConfig;
 use planner::PlannerKind;
 use sim::episode::Episode;
@@ -29,15 +31,10 @@ fn scans(n: usize) -> Vec<(Vec<f64>, Odometry, Vec2)> {
     let mut ep = Episode::new(world, *nav.episode(), 3);
     let mut out = Vec::new();
     for _ in 0..n {
-        let odom = Odometry {
-            pose: ep.believed_pose(),
-            vel: ep.state().vel,
-            stamp_s: ep.sim_time(),
-        };
-        let ranges = ep.perception().ranges.to_vec();
-        let cmd = nav.cycle(&input(&ranges, odom, world.goal)).unwrap().command;
-        out.push((ranges, odom, world.goal));
-        ep.step(cmd);
+        let seen = sim_robot::observe(&ep);
+        let cycle = nav.cycle(&seen).unwrap();
+        out.push((seen.ranges.to_vec(), seen.odom, seen.goal));
+        sim_robot::apply(&mut ep, cycle.command, cycle.planned, cycle.compute_s);
     }
     out
 }

@@ -7,7 +7,7 @@ use std::path::Path;
 
 use actor::closed_loop::planner_seed;
 use actor::EnvConfig;
-use adp_runtime::{load_policy, CycleInput, Navigator, Odometry, RuntimeOptions};
+use adp_runtime::{load_policy, sim_robot, Navigator, RuntimeOptions};
 use eval::evaluate::{run, run_seed, AdpSetting, EvalPlan, Fidelity, LidarOverride, ObstaclePrediction};
 use eval::EvalConfig;
 use planner::{ActionSpace, PlannerKind};
@@ -29,26 +29,8 @@ fn policy_dir() -> &'static Path {
 fn drive(nav: &mut Navigator, world: &World, seed: u64) -> EpisodeResult {
     let mut ep = Episode::new(world, *nav.episode(), seed);
     loop {
-        let (pose, vel, t) = (ep.believed_pose(), ep.state().vel, ep.sim_time());
-        let out = nav
-            .cycle(&CycleInput {
-                stamp_s: t,
-                ranges: ep.perception().ranges,
-                odom: Odometry {
-                    pose,
-                    vel,
-                    stamp_s: t,
-                },
-                goal: world.goal,
-                global_path: None,
-            })
-            .unwrap();
-        let status = match (out.planned, out.compute_s) {
-            (false, _) => ep.hold(),
-            (true, None) => ep.step(out.command),
-            (true, Some(c)) => ep.step_after(out.command, c),
-        };
-        if status != Status::Running {
+        let out = nav.cycle(&sim_robot::observe(&ep)).unwrap();
+        if sim_robot::apply(&mut ep, out.command, out.planned, out.compute_s) != Status::Running {
             return ep.result();
         }
     }
