@@ -294,6 +294,41 @@ fn save_impl(
             .map_err(io("create directory", &tmp))?;
     }
 
+    // A save that fails (a full disk, say) leaves nothing behind: its partial files would
+    // take the space the next attempt needs, and the previous checkpoint stays the newest.
+    let (manifest, manifest_json) = match fill(&tmp, td3, run, replay) {
+        Ok(written) => written,
+        Err(e) => {
+            let _ = std::fs::remove_dir_all(&tmp);
+            return Err(e);
+        }
+    };
+    if let Err(e) = std::fs::rename(&tmp, dir).map_err(io("rename into place", dir)) {
+        let _ = std::fs::remove_dir_all(&tmp);
+        return Err(e);
+    }
+    let completed = (|| {
+        if let Some(parent) = dir.parent().filter(|p| !p.as_os_str().is_empty()) {
+            sync_dir(parent)?;
+        }
+        write_synced(&dir.join(COMPLETE), sha256_hex(&manifest_json).as_bytes())?;
+        sync_dir(dir)
+    })();
+    if let Err(e) = completed {
+        // Without COMPLETE it never counts as a checkpoint; it would only hold the space.
+        let _ = std::fs::remove_dir_all(dir);
+        return Err(e);
+    }
+    Ok(manifest)
+}
+
+/// Writes a checkpoint's files into `tmp` and fsyncs them; returns the manifest and its JSON.
+fn fill(
+    tmp: &Path,
+    td3: &Td3,
+    run: &RunState,
+    replay: Option<ReplayData<'_>>,
+) -> Result<(Manifest, Vec<u8>), CheckpointError> {
     let state = State {
         updates: td3.updates,
         noise_rng: td3.noise_rng.clone(),
@@ -351,15 +386,8 @@ fn save_impl(
     };
     let manifest_json = serde_json::to_vec_pretty(&manifest).expect("manifest serializes");
     write_synced(&tmp.join(MANIFEST), &manifest_json)?;
-    sync_dir(&tmp)?;
-
-    std::fs::rename(&tmp, dir).map_err(io("rename into place", dir))?;
-    if let Some(parent) = dir.parent().filter(|p| !p.as_os_str().is_empty()) {
-        sync_dir(parent)?;
-    }
-    write_synced(&dir.join(COMPLETE), sha256_hex(&manifest_json).as_bytes())?;
-    sync_dir(dir)?;
-    Ok(manifest)
+    sync_dir(tmp)?;
+    Ok((manifest, manifest_json))
 }
 
 /// Stream the replay snapshot into `path` (no in-memory copy), hashing as it goes.
