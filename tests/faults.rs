@@ -7,8 +7,10 @@
 //!   replay buffer (every stored step is counted once, no episode mismatches its actor's
 //!   checksum), the actor gets new work, and the run reaches its budget with every process
 //!   exiting 0;
-//! - **a killed learner** (shared-memory data plane): the learner is killed with SIGKILL after a
-//!   periodic checkpoint and started again with `--resume` on the same address; the same actor
+//! - **a killed learner** (shared-memory data plane): the learner is killed with SIGKILL at a
+//!   random moment of a checkpoint interval (2 s) and started again with `--resume` on the same
+//!   address. What the crash cost (agent steps and updates past the resumed checkpoint) is
+//!   printed and bounded by what one interval stores. The same actor
 //!   processes notice the dead learner, register with the new incarnation, and the run
 //!   continues from the newest complete checkpoint (same run id, the counters go on) to its
 //!   budget, with nothing of the old sessions refused by the new learner;
@@ -658,13 +660,27 @@ fn actors_outlive_a_killed_learner_and_the_resumed_run_reaches_its_budget() {
         .map(|r| procs.spawn(&format!("actor{r}"), actor_cmd(&[], &listen, &token, r, "auto")))
         .collect();
     let checkpoints = run.join("checkpoints");
-    procs.wait_for("a checkpoint with steps in it", PATIENCE, |_| {
+    // Two checkpoints with steps in them: the steps between them are what one interval stores.
+    procs.wait_for("two checkpoints with steps in them", PATIENCE, |_| {
         status(&run).is_some_and(|s| s.inserts >= 300 && s.rank_steps.len() == 2)
-            && learner::retention::latest(&checkpoints)
-                .ok()
-                .flatten()
-                .is_some_and(|c| !c.ends_with("ckpt-000000000000-000000000000"))
+            && learner::retention::complete_checkpoints(&checkpoints).is_ok_and(|c| {
+                c.iter()
+                    .filter(|(_, d)| !d.ends_with("ckpt-000000000000-000000000000"))
+                    .count()
+                    >= 2
+            })
     });
+    // A moment in the checkpoint interval, at random (ADP_TEST_CRASH_DELAY_MS repeats one):
+    // what a crash costs depends on how long ago the newest checkpoint was written.
+    let delay_ms: u64 = std::env::var("ADP_TEST_CRASH_DELAY_MS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or_else(|| {
+            let t = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH);
+            u64::from(t.map_or(0, |d| d.subsec_nanos())) % 2000
+        });
+    eprintln!("killing the learner {delay_ms} ms after its second checkpoint with steps");
+    std::thread::sleep(Duration::from_millis(delay_ms));
     let before = status(&run).unwrap();
     assert!(before.inserts < BUDGET, "{}", procs.report());
     // Both actors sent their steps over shared memory.
@@ -690,11 +706,45 @@ fn actors_outlive_a_killed_learner_and_the_resumed_run_reaches_its_budget() {
     // The same run, resumed on the same address from the newest complete checkpoint (named
     // `ckpt-<inserts>-<updates>`; a checkpoint cut short by the kill is not complete).
     let ckpt = learner::retention::latest(&checkpoints).unwrap().unwrap();
-    let resumed_inserts: u64 = ckpt
-        .file_name()
-        .and_then(|n| n.to_str()?.strip_prefix("ckpt-")?.split('-').next()?.parse().ok())
-        .unwrap_or_else(|| panic!("unexpected checkpoint name {}", ckpt.display()));
+    let counts = |dir: &Path| -> (u64, u64) {
+        dir.file_name()
+            .and_then(|n| {
+                let (i, u) = n.to_str()?.strip_prefix("ckpt-")?.split_once('-')?;
+                Some((i.parse().ok()?, u.parse().ok()?))
+            })
+            .unwrap_or_else(|| panic!("unexpected checkpoint name {}", dir.display()))
+    };
+    let (resumed_inserts, resumed_updates) = counts(&ckpt);
     assert!(resumed_inserts > 0, "{}", ckpt.display());
+    // What the crash cost: what the learner had stored and computed (its last status, at most
+    // one status period old) past the checkpoint the run resumes from. It is bounded by what
+    // one checkpoint interval stores, from the (kept) checkpoints written before the crash.
+    let kept: Vec<(u64, u64)> = learner::retention::complete_checkpoints(&checkpoints)
+        .unwrap()
+        .iter()
+        .map(|(_, d)| counts(d))
+        .filter(|&(inserts, _)| inserts > 0)
+        .collect();
+    let interval_steps = kept
+        .windows(2)
+        .map(|w| w[1].0 - w[0].0)
+        .max()
+        .expect("two checkpoints with steps");
+    let lost = (
+        before.inserts.saturating_sub(resumed_inserts),
+        before.updates.saturating_sub(resumed_updates),
+    );
+    eprintln!(
+        "crash {delay_ms} ms into the interval: lost {} agent steps and {} updates; one \
+         checkpoint interval (2 s) stored up to {interval_steps} steps (checkpoints {kept:?})",
+        lost.0, lost.1
+    );
+    assert!(
+        lost.0 <= 2 * interval_steps,
+        "the crash lost {} steps, more than about one checkpoint interval's {interval_steps}: {}",
+        lost.0,
+        procs.report()
+    );
     let second = procs.spawn("learner-2", learner_cmd(&[], &cfg, &run, BUDGET, &listen, true));
     procs.wait_for("the resumed learner", PATIENCE, |_| {
         status(&run).is_some_and(|s| s.incarnation != before.incarnation)
