@@ -33,17 +33,25 @@ impl Drop for Learner {
 }
 
 /// Starts `adp learner` in `dir/run` with the default network sizes and `service` appended to
-/// the `[service]` table; returns it with the run directory, address and token.
+/// the `[service]` table (its keys replace the test defaults of the same name); returns it with
+/// the run directory, address and token.
 fn learner(dir: &Path, service: &str) -> (Learner, PathBuf, String, String) {
     let cfg = dir.join("test.toml");
-    std::fs::write(
-        &cfg,
-        format!(
-            "[service]\nshared_memory = false\nddp_init = false\nheartbeat_ms = 200\nlease_ttl_ms = 1000\n\
-             status_every_s = 0.2\n{service}\n"
-        ),
-    )
-    .unwrap();
+    let defaults: String = [
+        "shared_memory = false",
+        "ddp_init = false",
+        "heartbeat_ms = 200",
+        "lease_ttl_ms = 1000",
+        "status_every_s = 0.2",
+    ]
+    .iter()
+    .filter(|line| {
+        let key = line.split(' ').next().unwrap();
+        !service.lines().any(|l| l.split(' ').next() == Some(key))
+    })
+    .map(|line| format!("{line}\n"))
+    .collect();
+    std::fs::write(&cfg, format!("[service]\n{defaults}{service}\n")).unwrap();
     let run = dir.join("run");
     let child = adp()
         .args(["learner", "--config"])
@@ -518,4 +526,622 @@ fn at_a_64_file_limit_an_honest_actor_is_served_and_the_sigterm_checkpoint_compl
         s.resumed_from.is_some(),
         "no checkpoint to resume from: {s:?}\n{log}"
     );
+}
+
+/// Frames of HTTP/2 written and read by hand, for peers no gRPC library would make: idle
+/// connections that never make a request, and requests carrying the `:authority` grpc-core
+/// sends on a Unix socket.
+mod raw {
+    use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
+
+    /// The client connection preface.
+    pub const PREFACE: &[u8] = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n";
+    /// Frame types.
+    pub const DATA: u8 = 0x0;
+    pub const HEADERS: u8 = 0x1;
+    pub const RST_STREAM: u8 = 0x3;
+    pub const SETTINGS: u8 = 0x4;
+    pub const PING: u8 = 0x6;
+    /// Flags.
+    pub const ACK: u8 = 0x1;
+    pub const END_STREAM: u8 = 0x1;
+    pub const END_HEADERS: u8 = 0x4;
+
+    /// A frame.
+    pub fn frame(kind: u8, flags: u8, stream: u32, payload: &[u8]) -> Vec<u8> {
+        let mut f = (payload.len() as u32).to_be_bytes()[1..].to_vec();
+        f.extend_from_slice(&[kind, flags]);
+        f.extend_from_slice(&stream.to_be_bytes());
+        f.extend_from_slice(payload);
+        f
+    }
+
+    /// The next frame: (type, flags, stream, payload).
+    pub async fn read_frame<S: AsyncRead + Unpin>(s: &mut S) -> std::io::Result<(u8, u8, u32, Vec<u8>)> {
+        let mut head = [0u8; 9];
+        s.read_exact(&mut head).await?;
+        let len = u32::from_be_bytes([0, head[0], head[1], head[2]]) as usize;
+        let stream = u32::from_be_bytes([head[5], head[6], head[7], head[8]]) & 0x7fff_ffff;
+        let mut payload = vec![0u8; len];
+        s.read_exact(&mut payload).await?;
+        Ok((head[3], head[4], stream, payload))
+    }
+
+    /// Answers the server's SETTINGS and PINGs as a live HTTP/2 peer must; other frames are
+    /// returned.
+    pub async fn next_frame<S: AsyncRead + AsyncWrite + Unpin>(
+        s: &mut S,
+    ) -> std::io::Result<(u8, u8, u32, Vec<u8>)> {
+        loop {
+            let (kind, flags, stream, payload) = read_frame(s).await?;
+            let reply = match (kind, flags & ACK) {
+                (SETTINGS, 0) => frame(SETTINGS, ACK, 0, &[]),
+                (PING, 0) => frame(PING, ACK, 0, &payload),
+                (SETTINGS | PING, _) => continue,
+                _ => return Ok((kind, flags, stream, payload)),
+            };
+            s.write_all(&reply).await?;
+        }
+    }
+
+    /// An HTTP/2 peer that never makes a request: sends the preface and its SETTINGS, then
+    /// acknowledges the server's SETTINGS and answers its PINGs until the server closes the
+    /// connection; then adds one to `closed`.
+    pub async fn idle_peer<S: AsyncRead + AsyncWrite + Unpin>(
+        mut s: S,
+        closed: std::sync::Arc<std::sync::atomic::AtomicUsize>,
+    ) {
+        let mut hello = PREFACE.to_vec();
+        hello.extend(frame(SETTINGS, 0, 0, &[]));
+        if s.write_all(&hello).await.is_ok() {
+            while next_frame(&mut s).await.is_ok() {}
+        }
+        closed.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
+    }
+
+    /// An HPACK string literal (not Huffman-coded, shorter than 127 bytes).
+    pub fn string(s: &[u8]) -> Vec<u8> {
+        assert!(s.len() < 127);
+        let mut v = vec![s.len() as u8];
+        v.extend_from_slice(s);
+        v
+    }
+
+    /// A header field without indexing, with a literal name.
+    pub fn literal(name: &str, value: &str) -> Vec<u8> {
+        let mut v = vec![0x00];
+        v.extend(string(name.as_bytes()));
+        v.extend(string(value.as_bytes()));
+        v
+    }
+
+    /// A gRPC message frame (uncompressed).
+    pub fn grpc_message(message: &[u8]) -> Vec<u8> {
+        let mut v = vec![0];
+        v.extend_from_slice(&(message.len() as u32).to_be_bytes());
+        v.extend_from_slice(message);
+        v
+    }
+}
+
+/// Raises this process's soft open-file limit to its hard one (the learner it starts inherits
+/// it); returns the limit.
+fn raise_open_file_limit() -> u64 {
+    let mut limit = libc::rlimit {
+        rlim_cur: 0,
+        rlim_max: 0,
+    };
+    // SAFETY: getrlimit/setrlimit read and write the one struct passed.
+    unsafe {
+        assert_eq!(libc::getrlimit(libc::RLIMIT_NOFILE, &mut limit), 0);
+        limit.rlim_cur = limit.rlim_max;
+        libc::setrlimit(libc::RLIMIT_NOFILE, &limit);
+        libc::getrlimit(libc::RLIMIT_NOFILE, &mut limit);
+    }
+    limit.rlim_cur
+}
+
+/// A TCP connection to `to` from source address `from` (any of 127.0.0.0/8 on loopback).
+async fn tcp_from(from: [u8; 4], to: std::net::SocketAddr) -> tokio::net::TcpStream {
+    let socket = tokio::net::TcpSocket::new_v4().unwrap();
+    socket.bind((std::net::Ipv4Addr::from(from), 0).into()).unwrap();
+    socket.connect(to).await.unwrap()
+}
+
+/// `count` idle HTTP/2 peers (see [`raw::idle_peer`]) made by `connect`, one task each; the
+/// number closed by the learner is counted in the returned counter.
+async fn idle_flood<S, F>(
+    count: usize,
+    mut connect: impl FnMut(usize) -> F,
+) -> (
+    Vec<tokio::task::JoinHandle<()>>,
+    std::sync::Arc<std::sync::atomic::AtomicUsize>,
+)
+where
+    S: tokio::io::AsyncRead + tokio::io::AsyncWrite + Unpin + Send + 'static,
+    F: std::future::Future<Output = S>,
+{
+    let closed = std::sync::Arc::new(std::sync::atomic::AtomicUsize::new(0));
+    let mut tasks = Vec::with_capacity(count);
+    for i in 0..count {
+        let stream = connect(i).await;
+        tasks.push(tokio::spawn(raw::idle_peer(stream, closed.clone())));
+    }
+    (tasks, closed)
+}
+
+/// An honest client registers (rank `rank`) and heartbeats over `control`.
+async fn honest(mut control: proto::grpc::ControlClient, rank: u32) {
+    let reply = control
+        .register(pb::RegisterRequest {
+            rank,
+            host: "honest".into(),
+            pid: 1,
+            ..Default::default()
+        })
+        .await
+        .unwrap()
+        .into_inner();
+    let beat = control
+        .heartbeat(pb::HeartbeatRequest {
+            run: reply.run.clone(),
+            actor_id: reply.actor_id,
+            lease_id: 0,
+            actor_secret: reply.actor_secret.clone(),
+        })
+        .await
+        .unwrap()
+        .into_inner();
+    assert!(!beat.shutdown);
+}
+
+/// Issue 30, part 6: 2,000 idle HTTP/2 peers (preface, SETTINGS, PING answers, never a request)
+/// from 127.0.0.1 lock no honest client out. The learner runs with `max_connections = 512` per
+/// listener and `max_connections_per_ip = 128` (scaled down proportionally when the hard
+/// open-file limit is too low; the test prints the sizes):
+/// - 2,000 peers from 127.0.0.1 over TCP: 128 are served, the rest closed at once; with 576
+///   more filling the Unix socket's budget, an honest client from 127.0.0.2 registers and
+///   heartbeats over TCP;
+/// - 384 more peers from 127.0.0.3-5 fill the TCP budget; the Unix-socket flood leaves; an
+///   honest client registers and heartbeats over the Unix socket;
+/// - every idle peer is closed once `auth_deadline_ms` (15 s) passes (a watchdog, never a
+///   timing assertion), and `status.json` counts both refusals, which the log names with their
+///   peers.
+#[test]
+fn idle_http2_peers_lock_no_honest_actor_out_and_are_closed_after_the_auth_deadline() {
+    let files = raise_open_file_limit();
+    // The test holds every peer's socket and the learner its served ones: scale down when the
+    // hard limit is too low for 2,000 peers.
+    let cap = 512.min(((files.saturating_sub(512)) / 6) as usize);
+    let per_ip = cap / 4;
+    let first_flood = if cap == 512 { 2000 } else { 4 * cap };
+    let unix_flood = cap + cap / 8;
+    eprintln!(
+        "open-file limit {files}: max_connections {cap}, max_connections_per_ip {per_ip}, \
+         {first_flood} peers from 127.0.0.1, {unix_flood} on the Unix socket, {} from 127.0.0.3-5",
+        3 * per_ip
+    );
+    assert!(
+        per_ip >= 8,
+        "the open-file limit {files} is too low for this test"
+    );
+    let dir = fresh_dir("hostile-idle-http2");
+    let (_learner, run, addr, token) = learner(
+        &dir,
+        &format!("max_connections = {cap}\nmax_connections_per_ip = {per_ip}\nauth_deadline_ms = 15000"),
+    );
+    let to: std::net::SocketAddr = addr.parse().unwrap();
+    let socket = run.join(learner_service::SOCKET_FILE);
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    let connections = || status(&run).unwrap().connections;
+
+    // Flood 1: from 127.0.0.1, far beyond its address's share.
+    let (first, first_closed) = rt.block_on(idle_flood(first_flood, |_| tcp_from([127, 0, 0, 1], to)));
+    poll("the per-address cap to refuse the rest of flood 1", || {
+        let c = connections();
+        c.refused_per_address >= (first_flood - per_ip) as u64 && c.tcp.open >= per_ip as u64
+    });
+    // Flood 2: the Unix socket's whole budget.
+    let (unix, _) = rt.block_on(idle_flood(unix_flood, |_| {
+        let socket = socket.clone();
+        async move { tokio::net::UnixStream::connect(socket).await.unwrap() }
+    }));
+    poll("flood 2 to fill the Unix socket's budget", || {
+        connections().unix.open >= cap as u64
+    });
+    // An honest client over TCP, from another address.
+    rt.block_on(async {
+        let channel = tonic::transport::Endpoint::from_shared(format!("http://{addr}"))
+            .unwrap()
+            .local_address(Some([127, 0, 0, 2].into()))
+            .connect_timeout(Duration::from_secs(5))
+            .connect()
+            .await
+            .unwrap();
+        let control = pb::control_client::ControlClient::with_interceptor(
+            channel,
+            proto::auth::ClientAuth::new(Some(&token)),
+        );
+        honest(control, 0).await;
+    });
+    eprintln!(
+        "with both floods: an honest TCP client was served; {:?}",
+        connections()
+    );
+
+    // Flood 3: the rest of the TCP budget, from three more addresses; flood 2 leaves.
+    let (third, third_closed) = rt.block_on(idle_flood(3 * per_ip, |i| {
+        tcp_from([127, 0, 0, 3 + (i / per_ip) as u8], to)
+    }));
+    poll("flood 3 to fill the TCP budget", || {
+        connections().tcp.open >= cap as u64
+    });
+    for task in unix {
+        task.abort();
+    }
+    rt.block_on(async {
+        let a = LearnerAddress {
+            addr: format!("unix:{}", socket.display()),
+            token: Some(token.clone()),
+            tls: None,
+        };
+        let (control, _data) = a.connect().await.unwrap();
+        honest(control, 1).await;
+    });
+    eprintln!(
+        "with the TCP budget full: an honest Unix-socket client was served; {:?}",
+        connections()
+    );
+
+    // Every idle peer is closed once the authentication deadline passes.
+    let all = first.len() + third.len();
+    poll("every idle TCP peer to be closed", || {
+        first_closed.load(std::sync::atomic::Ordering::SeqCst)
+            + third_closed.load(std::sync::atomic::Ordering::SeqCst)
+            == all
+    });
+    // The idle peers held (128 + 384) were closed for want of a token (`status.json` is
+    // rewritten every 0.2 s: polled).
+    poll("the closures counted in status.json", || {
+        connections().closed_unauthenticated >= 4 * per_ip as u64
+    });
+    let c = connections();
+    eprintln!("after the deadline: {c:?}");
+    assert!(c.refused_per_address >= (first_flood - per_ip) as u64, "{c:?}");
+    drop((first, third));
+    let log = std::fs::read_to_string(dir.join("learner.stderr")).unwrap();
+    for needle in [
+        "max_connections_per_ip",
+        "no request with the run token within [service] auth_deadline_ms",
+        "tcp 127.0.0.1:",
+    ] {
+        assert!(log.contains(needle), "the log names `{needle}`:\n{log}");
+    }
+}
+
+/// Issue 30, part 6: a token holder that registers a live actor's rank does not retire it: the
+/// first actor's heartbeat keeps its lease valid, its steps are stored and its next assignment
+/// is its lease; the newcomer works beside it under its own id. A registration that carries
+/// the first actor's secret (as a restarting `adp actor` does with its previous registration)
+/// retires it at once. Counted in `status.json`, logged with the peer.
+#[test]
+fn registering_a_live_rank_again_leaves_its_actor_and_lease_alone() {
+    let dir = fresh_dir("hostile-rank");
+    let (_learner, run, addr, token) = learner(&dir, "heartbeat_ms = 1000\nlease_ttl_ms = 60000");
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    rt.block_on(async {
+        let (mut control, mut data, a) = register(&addr, &token, 0).await;
+        let first = control
+            .next_assignment(pb::AssignmentRequest {
+                run: a.run.clone(),
+                actor_id: a.actor_id,
+                actor_secret: a.actor_secret.clone(),
+            })
+            .await
+            .unwrap()
+            .into_inner();
+        let Some(pb::assignment_reply::Decision::Assign(lease)) = first.decision else {
+            panic!("no assignment: {first:?}");
+        };
+        // The hijack: rank 0 again, without A's secret.
+        let (mut other, _, b) = register(&addr, &token, 0).await;
+        assert_ne!(b.actor_id, a.actor_id);
+        let beat = control
+            .heartbeat(pb::HeartbeatRequest {
+                run: a.run.clone(),
+                actor_id: a.actor_id,
+                lease_id: lease.lease_id,
+                actor_secret: a.actor_secret.clone(),
+            })
+            .await
+            .unwrap()
+            .into_inner();
+        assert!(beat.lease_valid, "{beat:?}");
+        let spec = a.spec.clone().unwrap();
+        let step = pb::StepRecord {
+            episode_id: lease.first_episode_id,
+            step_index: 0,
+            obs: proto::floats::encode(&vec![0.25f32; spec.obs_dim as usize]).into(),
+            action: proto::floats::encode(&vec![0.1f32; spec.act_dim as usize]).into(),
+            reward: -0.5,
+            ..Default::default()
+        };
+        let ack = data
+            .push_steps(tokio_stream::iter([pb::StepBatch {
+                run: a.run.clone(),
+                actor_id: a.actor_id,
+                lease_id: lease.lease_id,
+                actor_secret: a.actor_secret.clone(),
+                steps: vec![step],
+            }]))
+            .await
+            .unwrap()
+            .into_inner();
+        assert_eq!((ack.accepted, ack.refused), (1, 0), "{ack:?}");
+        let again = control
+            .next_assignment(pb::AssignmentRequest {
+                run: a.run.clone(),
+                actor_id: a.actor_id,
+                actor_secret: a.actor_secret.clone(),
+            })
+            .await
+            .unwrap()
+            .into_inner();
+        assert!(
+            matches!(again.decision, Some(pb::assignment_reply::Decision::IdleMs(_))),
+            "A still works on its lease: {again:?}"
+        );
+        // The newcomer gets its own work.
+        let b_work = other
+            .next_assignment(pb::AssignmentRequest {
+                run: b.run.clone(),
+                actor_id: b.actor_id,
+                actor_secret: b.actor_secret.clone(),
+            })
+            .await
+            .unwrap()
+            .into_inner();
+        match b_work.decision {
+            Some(pb::assignment_reply::Decision::Assign(l)) => assert_ne!(l.lease_id, lease.lease_id),
+            other => panic!("the newcomer has no work: {other:?}"),
+        }
+        // With A's secret, a registration replaces A at once.
+        let c = other
+            .register(pb::RegisterRequest {
+                rank: 0,
+                host: "test".into(),
+                pid: 2,
+                previous_actor_id: a.actor_id,
+                previous_actor_secret: a.actor_secret.clone(),
+                ..Default::default()
+            })
+            .await
+            .unwrap()
+            .into_inner();
+        assert_ne!(c.actor_id, a.actor_id);
+        let gone = control
+            .heartbeat(pb::HeartbeatRequest {
+                run: a.run.clone(),
+                actor_id: a.actor_id,
+                lease_id: lease.lease_id,
+                actor_secret: a.actor_secret.clone(),
+            })
+            .await
+            .unwrap_err();
+        assert_eq!(gone.code(), tonic::Code::NotFound, "{gone}");
+        assert!(gone.message().contains("retired"), "{gone}");
+        // B, live and unproven by C, is still served.
+        let beat = other
+            .heartbeat(pb::HeartbeatRequest {
+                run: b.run.clone(),
+                actor_id: b.actor_id,
+                lease_id: 0,
+                actor_secret: b.actor_secret.clone(),
+            })
+            .await
+            .unwrap()
+            .into_inner();
+        assert!(!beat.shutdown);
+    });
+    // B registered beside A, C beside B.
+    poll("the registrations beside live ones in status.json", || {
+        status(&run).is_some_and(|s| s.registrations_beside_live == 2 && s.rank_states.live == 1)
+    });
+    let s = status(&run).unwrap();
+    assert_eq!(s.rank_states.extra_live, 1, "{:?}", s.rank_states);
+    let log = std::fs::read_to_string(dir.join("learner.stderr")).unwrap();
+    assert!(
+        log.contains("registered again without the secret of its live actor")
+            && log.contains("tcp 127.0.0.1:"),
+        "{log}"
+    );
+}
+
+/// Issue 30, part 6: `status.json` stays small however many ranks are live: 4,000 live ranks
+/// (596 KB before) list the 256 lowest in detail and the rest in aggregate.
+#[test]
+fn four_thousand_live_ranks_leave_a_small_status() {
+    let dir = fresh_dir("hostile-live-ranks");
+    let (_learner, run, addr, token) = learner(&dir, "heartbeat_ms = 1000\nlease_ttl_ms = 600000");
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    rt.block_on(async {
+        let a = LearnerAddress {
+            addr: addr.clone(),
+            token: Some(token.clone()),
+            tls: None,
+        };
+        let (mut control, _data) = a.connect().await.unwrap();
+        for rank in 0..4_000 {
+            control
+                .register(pb::RegisterRequest {
+                    rank,
+                    host: "test".into(),
+                    pid: 1,
+                    ..Default::default()
+                })
+                .await
+                .unwrap();
+        }
+    });
+    poll("4,000 live ranks in status.json", || {
+        status(&run).is_some_and(|s| s.rank_states.live == 4_000)
+    });
+    let size = std::fs::metadata(run.join("status.json")).unwrap().len();
+    let s = status(&run).unwrap();
+    eprintln!("status.json with 4,000 live ranks: {size} bytes");
+    assert_eq!(s.ranks.len(), learner_service::status::RANKS_DETAILED);
+    assert_eq!(s.ranks.last().unwrap().rank, 255);
+    assert_eq!(
+        (s.ranks_omitted.ranks, s.ranks_omitted.registrations),
+        (4_000 - 256, 4_000 - 256)
+    );
+    assert!(size < 100 * 1024, "status.json is {size} bytes");
+}
+
+/// The gRPC status of a request made of raw bytes: `message` (a protobuf message, or not) in
+/// one gRPC frame, to `path`, with the run token. A refusal arrives in the response head.
+async fn raw_grpc(addr: &str, token: &str, path: &str, message: &str) -> tonic::Status {
+    use tonic::codegen::Service;
+    let mut channel = tonic::transport::Endpoint::from_shared(format!("http://{addr}"))
+        .unwrap()
+        .connect()
+        .await
+        .unwrap();
+    // The frame's bytes travel in a `String` body: a message shorter than 128 bytes keeps the
+    // length prefix ASCII.
+    let frame = String::from_utf8(raw::grpc_message(message.as_bytes())).unwrap();
+    let request = tonic::codegen::http::Request::builder()
+        .method("POST")
+        .uri(format!("http://{addr}{path}"))
+        .header("content-type", "application/grpc")
+        .header("te", "trailers")
+        .header("authorization", format!("Bearer {token}"))
+        .body(tonic::body::Body::new(frame))
+        .unwrap();
+    std::future::poll_fn(|cx| channel.poll_ready(cx)).await.unwrap();
+    let response = channel.call(request).await.unwrap();
+    tonic::Status::from_header_map(response.headers()).expect("a refusal in the response head")
+}
+
+/// Issue 30, part 7: a request whose message does not decode is INVALID_ARGUMENT (it was
+/// INTERNAL, as if the learner had failed): bytes that are not protobuf, invalid UTF-8 in a
+/// string field, on unary and client-streamed methods; counted in `status.json`, logged with
+/// the peer; the learner serves the next request.
+#[test]
+fn undecodable_requests_are_invalid_argument() {
+    let dir = fresh_dir("hostile-undecodable");
+    let (_learner, run, addr, token) = learner(&dir, "");
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    rt.block_on(async {
+        // Field 1 with wire type 7 (no such type).
+        let not_protobuf = "\u{0f}\u{0f}";
+        // Field 4 (`run_id`, a string) of one byte: the first byte of a three-byte character.
+        let bad_utf8 = "\u{22}\u{01}\u{20ac}";
+        for (path, message) in [
+            ("/adp.v1.Control/Register", not_protobuf),
+            ("/adp.v1.Control/Register", bad_utf8),
+            ("/adp.v1.Control/Heartbeat", not_protobuf),
+            ("/adp.v1.Data/PushSteps", not_protobuf),
+        ] {
+            let status = raw_grpc(&addr, &token, path, message).await;
+            assert_eq!(status.code(), tonic::Code::InvalidArgument, "{path}: {status:?}");
+            assert!(status.message().contains("does not decode"), "{status:?}");
+        }
+        let utf8 = raw_grpc(&addr, &token, "/adp.v1.Control/Register", bad_utf8).await;
+        assert!(utf8.message().contains("UTF-8"), "{utf8:?}");
+        register(&addr, &token, 0).await;
+    });
+    poll("the refusals in status.json", || {
+        status(&run).is_some_and(|s| s.connections.undecodable_requests == 5)
+    });
+    let log = std::fs::read_to_string(dir.join("learner.stderr")).unwrap();
+    assert!(
+        log.contains("does not decode") && log.contains("tcp 127.0.0.1:"),
+        "{log}"
+    );
+}
+
+/// Issue 30, part 7: a grpc-core client (Python's grpcio) on `learner.sock` sends the socket's
+/// path, percent-encoded, as `:authority` (`run%2Flearner.sock`), which the HTTP/2 library
+/// refused with RST_STREAM (PROTOCOL_ERROR). Two `Register` calls written the way grpc-core
+/// writes them (the first names the authority literally and adds it to the HPACK dynamic
+/// table, the second names it by table index) are both answered with a registration.
+#[test]
+fn grpc_core_authorities_on_the_unix_socket_are_served() {
+    use tokio::io::AsyncWriteExt;
+    let dir = fresh_dir("hostile-authority");
+    let (_learner, run, _addr, token) = learner(&dir, "");
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    let replies = rt.block_on(async {
+        let mut s = tokio::net::UnixStream::connect(run.join(learner_service::SOCKET_FILE))
+            .await
+            .unwrap();
+        let headers = |authority: &[u8]| {
+            // :method POST, :scheme http (static indices).
+            let mut block = vec![0x83, 0x86];
+            // :path, name by static index 4.
+            block.push(0x04);
+            block.extend(raw::string(b"/adp.v1.Control/Register"));
+            block.extend_from_slice(authority);
+            block.extend(raw::literal("content-type", "application/grpc"));
+            block.extend(raw::literal("te", "trailers"));
+            block.extend(raw::literal("authorization", &format!("Bearer {token}")));
+            block
+        };
+        // grpc-core: literal name, incremental indexing (the table's entry 62 from then on).
+        let mut literal = vec![0x40];
+        literal.extend(raw::string(b":authority"));
+        literal.extend(raw::string(b"run%2Flearner.sock"));
+        // RegisterRequest { rank: 7, host: "test" }.
+        let request = raw::grpc_message(&[0x08, 0x07, 0x12, 0x04, b't', b'e', b's', b't']);
+        let mut out = raw::PREFACE.to_vec();
+        out.extend(raw::frame(raw::SETTINGS, 0, 0, &[]));
+        for (stream, authority) in [(1, literal), (3, vec![0x80 | 62])] {
+            out.extend(raw::frame(
+                raw::HEADERS,
+                raw::END_HEADERS,
+                stream,
+                &headers(&authority),
+            ));
+            out.extend(raw::frame(raw::DATA, raw::END_STREAM, stream, &request));
+        }
+        s.write_all(&out).await.unwrap();
+        // Each stream's response body, until both have ended (a watchdog bounds the wait).
+        let mut bodies = std::collections::BTreeMap::<u32, Vec<u8>>::new();
+        let mut ended = 0;
+        while ended < 2 {
+            let (kind, flags, stream, payload) =
+                tokio::time::timeout(Duration::from_secs(60), raw::next_frame(&mut s))
+                    .await
+                    .expect("watchdog: no answer")
+                    .unwrap();
+            match kind {
+                raw::DATA => bodies.entry(stream).or_default().extend(payload),
+                raw::RST_STREAM => panic!("stream {stream} reset: error code {payload:?}"),
+                _ => {}
+            }
+            if kind == raw::HEADERS && flags & raw::END_STREAM != 0 {
+                ended += 1;
+            }
+        }
+        bodies
+    });
+    for stream in [1, 3] {
+        let body = &replies[&stream];
+        // One gRPC message: a RegisterReply, whose last field is the 16-byte actor secret.
+        assert_eq!(body[0], 0, "uncompressed");
+        let len = u32::from_be_bytes(body[1..5].try_into().unwrap()) as usize;
+        let reply = &body[5..5 + len];
+        assert_eq!(
+            &reply[len - 18..len - 16],
+            [0x22, 16],
+            "stream {stream}: {reply:?}"
+        );
+    }
+    poll("the rewrites and registrations in status.json", || {
+        status(&run).is_some_and(|s| {
+            s.connections.authorities_rewritten == 1
+                && s.ranks.iter().any(|r| r.rank == 7 && r.registrations == 2)
+        })
+    });
 }

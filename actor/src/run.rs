@@ -176,9 +176,11 @@ pub fn run(setup: &ActorSetup<'_>) -> Result<(), ActorError> {
         .map_err(ActorError::Runtime)?;
     let mut wait = Duration::from_millis(200);
     let mut down_since: Option<Instant> = None;
+    // The registration of the previous session, which the next registration replaces.
+    let mut previous: Option<Previous> = None;
     loop {
         let span = tracing::info_span!("actor", rank = setup.rank, actor_id = tracing::field::Empty);
-        let why = match span.in_scope(|| session(&rt, setup, &mut down_since, &span)) {
+        let why = match span.in_scope(|| session(&rt, setup, &mut down_since, &mut previous, &span)) {
             Ok(SessionEnd::Shutdown) => {
                 span.in_scope(|| tracing::info!("the learner ended the run"));
                 return Ok(());
@@ -310,11 +312,21 @@ fn grpc_policies(
     ))
 }
 
-/// One session with the learner, in `span` (whose `actor_id` it records once registered).
+/// A registration this actor process held: its id and credential. Sent with the next
+/// registration, it lets the learner retire it at once (a registration without it leaves a
+/// live registration of the rank in place, lease and all).
+struct Previous {
+    actor_id: u64,
+    secret: proto::Bytes,
+}
+
+/// One session with the learner, in `span` (whose `actor_id` it records once registered);
+/// `previous` is the registration it replaces, and becomes this session's.
 fn session(
     rt: &tokio::runtime::Runtime,
     setup: &ActorSetup<'_>,
     down_since: &mut Option<Instant>,
+    previous: &mut Option<Previous>,
     span: &tracing::Span,
 ) -> Result<SessionEnd, SessionError> {
     let Registered {
@@ -329,7 +341,11 @@ fn session(
         planner,
         env_cfg,
         dims,
-    } = register(rt, setup, down_since, span)?;
+    } = register(rt, setup, down_since, previous.as_ref(), span)?;
+    *previous = Some(Previous {
+        actor_id,
+        secret: wire_secret.clone(),
+    });
     let planes = open_planes(rt, setup, &spec, data.clone(), &run, actor_id, &secret)?;
     tracing::info!(
         run_id = %run.run_id,
@@ -437,11 +453,13 @@ struct Registered {
     dims: Vec<usize>,
 }
 
-/// Connects, registers this actor and decodes the run's spec; records the actor id in `span`.
+/// Connects, registers this actor (replacing its `previous` registration) and decodes the
+/// run's spec; records the actor id in `span`.
 fn register(
     rt: &tokio::runtime::Runtime,
     setup: &ActorSetup<'_>,
     down_since: &mut Option<Instant>,
+    previous: Option<&Previous>,
     span: &tracing::Span,
 ) -> Result<Registered, SessionError> {
     let (mut control, data) = rt.block_on(setup.learner.connect())?;
@@ -452,6 +470,8 @@ fn register(
             pid: std::process::id(),
             run_id: String::new(),
             actor_kind: "rust".into(),
+            previous_actor_id: previous.map_or(0, |p| p.actor_id),
+            previous_actor_secret: previous.map(|p| p.secret.clone()).unwrap_or_default(),
         }))
         .map_err(|s| SessionError::Register(status_text(&s)))?
         .into_inner();

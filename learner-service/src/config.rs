@@ -61,14 +61,25 @@ pub struct ServiceConfig {
     pub ddp_init: bool,
     /// TLS for the gRPC server (`cert` and `key`; with `ca`, clients must present certificates).
     pub tls: Option<TlsFiles>,
-    /// Most connections (TCP and Unix socket together) served at once; further ones wait in
+    /// Most connections served at once by each listener: the TCP one and the Unix socket have
+    /// a budget each, so that a flood of one cannot lock the other out. Further ones wait in
     /// the kernel's backlog until one closes (logged when reached). The learner also lowers it
     /// to what its open-file limit leaves after the files it needs for itself (checkpoints,
-    /// status). Default 1024.
+    /// status), shared by the two. Default 1024.
     pub max_connections: u32,
+    /// Most TCP connections open at once from one source address; one more is closed at once
+    /// (counted and logged). An `adp actor` needs one connection, so a host running more
+    /// actors than this over TCP needs it raised (actors on the learner's host use the Unix
+    /// socket). Default 256.
+    pub max_connections_per_ip: u32,
     /// A connection that has not sent the HTTP/2 preface (or the start of its TLS handshake)
     /// within this long (ms) is closed. Default 5000.
     pub handshake_timeout_ms: u32,
+    /// A connection that has made no request carrying the run token within this long (ms) of
+    /// being accepted is closed, whatever else it sends (HTTP/2 settings, pings, requests
+    /// without the token); one that has is never closed for it. An actor makes its first
+    /// request (`Register`) at once. Default 10000.
+    pub auth_deadline_ms: u32,
     /// Most `WatchPolicy` streams open at once over all actors (more are refused with
     /// RESOURCE_EXHAUSTED). Every stream shares one encoded copy of the newest policy. Default
     /// 1024.
@@ -94,8 +105,8 @@ impl ServiceConfig {
     }
 
     /// Refuses settings that cannot work: a heartbeat not shorter than the lease, no port for
-    /// shared memory, and a network address other than loopback without TLS unless
-    /// `allow_insecure_listen`.
+    /// shared memory, a connection limit or deadline of 0, and a network address other than
+    /// loopback without TLS unless `allow_insecure_listen`.
     pub fn check(&self) -> Result<(), SettingsError> {
         if self.shared_memory && self.shm_max_actors == 0 {
             return Err(SettingsError::ShmMaxActors);
@@ -111,6 +122,16 @@ impl ServiceConfig {
                 progress_timeout_ms: self.progress_timeout_ms,
                 heartbeat_ms: self.heartbeat_ms,
             });
+        }
+        for (key, value) in [
+            ("max_connections", self.max_connections),
+            ("max_connections_per_ip", self.max_connections_per_ip),
+            ("handshake_timeout_ms", self.handshake_timeout_ms),
+            ("auth_deadline_ms", self.auth_deadline_ms),
+        ] {
+            if value == 0 {
+                return Err(SettingsError::ZeroConnectionLimit { key });
+            }
         }
         if self.tls.is_none() && !self.allow_insecure_listen && !is_loopback_listen(&self.listen) {
             return Err(SettingsError::InsecureListen {
@@ -152,7 +173,9 @@ impl Default for ServiceConfig {
             ddp_init: true,
             tls: None,
             max_connections: 1024,
+            max_connections_per_ip: 256,
             handshake_timeout_ms: 5000,
+            auth_deadline_ms: 10_000,
             max_policy_streams: 1024,
             policy_streams_per_actor: 2,
             rank_forget_ms: 600_000,
@@ -227,5 +250,21 @@ mod tests {
         assert_eq!(c.progress_timeout(), 1500);
         c.progress_timeout_ms = 10;
         assert!(c.check().unwrap_err().to_string().contains("progress_timeout_ms"));
+    }
+
+    #[test]
+    fn connection_limits_and_deadlines_of_zero_are_refused_by_name() {
+        let c = ServiceConfig {
+            auth_deadline_ms: 0,
+            ..ServiceConfig::default()
+        };
+        let e = c.check().unwrap_err().to_string();
+        assert!(e.contains("auth_deadline_ms") && e.contains("at least 1"), "{e}");
+        let c = ServiceConfig {
+            max_connections_per_ip: 0,
+            ..ServiceConfig::default()
+        };
+        let e = c.check().unwrap_err().to_string();
+        assert!(e.contains("max_connections_per_ip"), "{e}");
     }
 }

@@ -1,5 +1,6 @@
 //! The gRPC control plane: register, next assignment, heartbeat, episode report, shutdown.
 
+use std::sync::atomic::Ordering;
 use std::sync::Arc;
 
 use proto::pb::{self, control_server::Control};
@@ -7,7 +8,9 @@ use proto::validate::Refusal;
 use scheduler::{Decision, RegistryError};
 use tonic::{Request, Response, Status};
 
+use crate::listen::peer_name;
 use crate::shared::Shared;
+use crate::state::Core;
 
 /// The `adp.v1.Control` service over the learner's shared state.
 pub struct ControlService {
@@ -55,6 +58,19 @@ impl ControlService {
         })
     }
 
+    /// The registration a `Register` request proves to replace: `previous_actor_id` when
+    /// `previous_actor_secret` is its credential and it is a registration of the same rank.
+    /// Anything else (no claim, an id this learner does not know or retired, a wrong secret,
+    /// another rank) proves nothing.
+    fn replaced(core: &Core, r: &pb::RegisterRequest) -> Option<u64> {
+        let proven = !r.previous_actor_secret.is_empty()
+            && core
+                .check_secret(r.previous_actor_id, &r.previous_actor_secret)
+                .is_ok()
+            && core.registry.rank_of(r.previous_actor_id) == Some(r.rank);
+        proven.then_some(r.previous_actor_id)
+    }
+
     fn run_ref(&self) -> pb::RunRef {
         pb::RunRef {
             run_id: self.shared.validator.run_id.clone(),
@@ -78,6 +94,7 @@ impl Control for ControlService {
         &self,
         request: Request<pb::RegisterRequest>,
     ) -> Result<Response<pb::RegisterReply>, Status> {
+        let peer = peer_name(request.extensions());
         let r = request.into_inner();
         if !r.run_id.is_empty() && r.run_id != self.shared.validator.run_id {
             let why = Refusal::WrongRun {
@@ -99,11 +116,23 @@ impl Control for ControlService {
         let secret = proto::auth::new_actor_secret()
             .map_err(|e| Status::unavailable(format!("cannot make an actor secret: {e}")))?;
         let now = self.shared.now_ms();
-        let actor_id = {
+        let (actor_id, replaced, kept) = {
             let mut core = self.shared.lock();
-            let id = core.registry.register(r.rank, r.host.clone(), r.pid, now);
+            let replaced = Self::replaced(&core, &r);
+            let id = core
+                .registry
+                .register(r.rank, r.host.clone(), r.pid, now, replaced);
             core.registered(id, r.rank, kind, secret);
-            id
+            // The rank's live registrations this request could not prove to be: they keep their
+            // leases, and the new registration works beside them.
+            let kept: Vec<(u64, u64)> = core
+                .registry
+                .live_actors_of_rank(r.rank)
+                .into_iter()
+                .filter(|&(other, _)| other != id)
+                .map(|(other, seen)| (other, now.saturating_sub(seen)))
+                .collect();
+            (id, replaced, kept)
         };
         tracing::info!(
             actor_id,
@@ -111,8 +140,29 @@ impl Control for ControlService {
             kind,
             host = %r.host,
             pid = r.pid,
+            replaces = ?replaced,
+            peer = %peer,
             "actor registered"
         );
+        if !kept.is_empty() {
+            self.shared
+                .registrations_beside_live
+                .fetch_add(1, Ordering::Relaxed);
+            tracing::warn!(
+                actor_id,
+                rank = r.rank,
+                peer = %peer,
+                host = %r.host,
+                pid = r.pid,
+                "rank {} registered again without the secret of its live actor(s) {:?} \
+                 (actor id, ms since heard from): they keep their leases, and this registration \
+                 works beside them as actor {actor_id} (an actor restarted by its supervisor, or \
+                 a second process claiming the rank); the older one is retired once it stops \
+                 heartbeating",
+                r.rank,
+                kept
+            );
+        }
         Ok(Response::new(pb::RegisterReply {
             actor_id,
             run: Some(self.run_ref()),

@@ -55,6 +55,13 @@ pub enum SettingsError {
         /// `[service] heartbeat_ms`.
         heartbeat_ms: u32,
     },
+    /// A connection limit or deadline of 0, which would refuse every connection.
+    #[error("[service] {key} must be at least 1 (0 would refuse every connection)")]
+    ZeroConnectionLimit {
+        /// The key (`max_connections`, `max_connections_per_ip`, `handshake_timeout_ms` or
+        /// `auth_deadline_ms`).
+        key: &'static str,
+    },
     /// A network address other than loopback without TLS, and insecure listening not allowed.
     #[error(
         "refusing to listen on {listen} without TLS (the run's token would cross the network in clear \

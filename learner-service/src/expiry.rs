@@ -44,8 +44,8 @@ impl Shared {
         let forgotten = core
             .registry
             .forget_dead_ranks(now, self.rank_forget_ms, self.dead_ranks_kept);
-        for (rank, actor) in forgotten {
-            core.forget_rank(rank, actor);
+        for (rank, actors) in forgotten {
+            core.forget_rank(rank, &actors);
         }
         for expired in core.registry.tick(now) {
             if revoked.contains(&expired.lease_id) {
@@ -68,6 +68,7 @@ impl Shared {
             });
             core.drop_lease(expired.lease_id);
         }
+        core.forget_retired();
         drop(core);
         self.wake.notify_all();
     }

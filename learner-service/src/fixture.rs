@@ -66,7 +66,7 @@ pub fn fixture(td3: Td3Config, progress_timeout_ms: u64) -> Fixture {
     ));
     let now = shared.now_ms();
     let mut core = shared.lock();
-    let actor = core.registry.register(0, "host".into(), 1, now);
+    let actor = core.registry.register(0, "host".into(), 1, now, None);
     core.registered(actor, 0, "rust", SECRET);
     let Decision::Assign(a) = core.registry.next_assignment(actor, now, 0).unwrap() else {
         panic!("no assignment");

@@ -14,12 +14,14 @@
 //!   resume keeps;
 //! - `ingest`: what enters the replay buffer (steps from both data planes, episode reports),
 //!   `expiry`: leases that expire or are dropped;
-//! - `control`, `data`, `policy_streams`, `listen`, `size_status`: the gRPC services and the
-//!   connection handling around them; `servers`: the servers on their runtime, `planes`: the
-//!   shared-memory data plane;
+//! - `control`, `data`, `policy_streams`, `listen`, `authority`, `wire_status`: the gRPC
+//!   services and the connection handling around them (budgets and deadlines per listener,
+//!   grpc-core's authorities on the Unix socket, the status codes of refused requests);
+//!   `servers`: the servers on their runtime, `planes`: the shared-memory data plane;
 //! - `run_dir`: the run directory (its files and lock, fresh or resumed), `resume`: the state a
 //!   checkpoint continues.
 
+mod authority;
 mod config;
 mod control;
 mod data;
@@ -36,11 +38,11 @@ mod resume;
 mod run_dir;
 mod servers;
 mod shared;
-mod size_status;
 mod state;
 pub mod status;
 mod totals;
 mod trainer;
+mod wire_status;
 
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};

@@ -9,12 +9,13 @@ use std::time::Duration;
 
 use proto::pb;
 use tokio::sync::watch;
+use tonic::service::Interceptor;
 
 use crate::config::LearnerOptions;
 use crate::error::{FileError, StartError};
 use crate::run_dir::{write_atomic, ADDR_FILE, OPERATOR_TOKEN_FILE, SOCKET_FILE};
 use crate::shared::Shared;
-use crate::{control, data, listen, policy_streams, size_status};
+use crate::{control, data, listen, policy_streams, wire_status};
 
 /// HTTP/2 pings every this long on an idle connection; a peer that does not answer within
 /// [`KEEPALIVE_TIMEOUT`] is dropped with its streams (a dead host, a cut network).
@@ -24,6 +25,34 @@ const KEEPALIVE_TIMEOUT: Duration = Duration::from_secs(20);
 /// Concurrent requests one connection may have in flight (an actor needs four: heartbeat,
 /// assignment or report, the step stream and the policy stream); more wait.
 const REQUESTS_PER_CONNECTION: usize = 16;
+
+/// The run-token check ([`proto::auth::ServerAuth`], which counts refusals) that also marks the
+/// request's connection as authenticated, lifting its `[service] auth_deadline_ms`, and logs a
+/// refusal with the peer.
+#[derive(Clone)]
+struct ConnectionAuth {
+    auth: proto::auth::ServerAuth,
+    stats: Arc<listen::ConnectionStats>,
+}
+
+impl Interceptor for ConnectionAuth {
+    fn call(&mut self, request: tonic::Request<()>) -> Result<tonic::Request<()>, tonic::Status> {
+        let peer = listen::PeerInfo::of(request.extensions()).cloned();
+        match self.auth.call(request) {
+            Ok(request) => {
+                if let Some(peer) = peer {
+                    peer.mark_authenticated();
+                }
+                Ok(request)
+            }
+            Err(status) => {
+                let peer = peer.map_or_else(|| "an unknown peer".to_owned(), |p| p.peer().to_string());
+                self.stats.log_token_refusal(&peer, &status.message());
+                Err(status)
+            }
+        }
+    }
+}
 
 /// A gRPC server with the learner's connection limits.
 fn server_builder() -> tonic::transport::Server {
@@ -102,7 +131,11 @@ impl ControlPlane {
             .local_addr()
             .map_err(FileError::at("cannot read the bound address"))?;
         let (policy_tx, policy_rx) = watch::channel(Arc::new(pb::PolicySnapshot::default()));
-        let auth = proto::auth::ServerAuth::new(&opts.token, shared.refusals.clone());
+        let stats = shared.connections.clone();
+        let auth = ConnectionAuth {
+            auth: proto::auth::ServerAuth::new(&opts.token, shared.refusals.clone()),
+            stats: stats.clone(),
+        };
         let operator: Arc<str> =
             proto::auth::read_or_create_token_file(&run_dir.join(OPERATOR_TOKEN_FILE))?.into();
         let mut builder = server_builder();
@@ -112,39 +145,51 @@ impl ControlPlane {
                 .map_err(StartError::Tls)?;
         }
         let control = tonic::service::interceptor::InterceptedService::new(
-            // Oversized requests are refused with RESOURCE_EXHAUSTED.
-            size_status::SizeStatus(
-                pb::control_server::ControlServer::new(control::ControlService {
+            // Oversized requests are refused with RESOURCE_EXHAUSTED, undecodable ones with
+            // INVALID_ARGUMENT.
+            wire_status::WireStatus {
+                inner: pb::control_server::ControlServer::new(control::ControlService {
                     shared: shared.clone(),
                     operator,
                 })
                 .max_decoding_message_size(proto::grpc::MAX_CONTROL_REQUEST_BYTES),
-            ),
+                stats: stats.clone(),
+            },
             auth.clone(),
         );
         let policy = policy_rx.clone();
         let data = tonic::service::interceptor::InterceptedService::new(
-            size_status::SizeStatus(policy_streams::DataRoutes {
-                // Requests are step batches (bounded).
-                inner: pb::data_server::DataServer::new(data::DataService {
-                    shared: shared.clone(),
-                })
-                .max_decoding_message_size(proto::grpc::MAX_REQUEST_BYTES),
-                streams: Arc::new(policy_streams::PolicyStreams::new(
-                    shared.clone(),
-                    policy_rx,
-                    svc.max_policy_streams,
-                    svc.policy_streams_per_actor,
-                )),
-            }),
+            wire_status::WireStatus {
+                inner: policy_streams::DataRoutes {
+                    // Requests are step batches (bounded).
+                    inner: pb::data_server::DataServer::new(data::DataService {
+                        shared: shared.clone(),
+                    })
+                    .max_decoding_message_size(proto::grpc::MAX_REQUEST_BYTES),
+                    streams: Arc::new(policy_streams::PolicyStreams::new(
+                        shared.clone(),
+                        policy_rx,
+                        svc.max_policy_streams,
+                        svc.policy_streams_per_actor,
+                    )),
+                },
+                stats: stats.clone(),
+            },
             auth,
         );
-        // One cap over both servers, fitted to the open-file limit so that connections can
-        // never take the descriptors a checkpoint needs.
-        let limits = listen::ConnectionLimits::new(
-            listen::fit_connections_to_fd_limit(svc.max_connections as usize),
-            Duration::from_millis(u64::from(svc.handshake_timeout_ms)),
-        );
+        // A budget per listener, so that a flood of one cannot lock the other out, each fitted
+        // to the open-file limit so that connections can never take the descriptors a
+        // checkpoint needs.
+        let cap = listen::fit_connections_to_fd_limit(svc.max_connections as usize, 2);
+        let limits = || {
+            listen::ConnectionLimits::new(
+                cap,
+                svc.max_connections_per_ip as usize,
+                Duration::from_millis(u64::from(svc.handshake_timeout_ms)),
+                Duration::from_millis(u64::from(svc.auth_deadline_ms)),
+                stats.clone(),
+            )
+        };
         let _in_runtime = runtime.enter();
         let (server_stop, stop_rx) = watch::channel(false);
         let stopped = |mut rx: watch::Receiver<bool>| async move {
@@ -162,7 +207,7 @@ impl ControlPlane {
                         .add_service(control.clone())
                         .add_service(data.clone())
                         .serve_with_incoming_shutdown(
-                            listen::incoming(unix, limits.clone(), "unix"),
+                            listen::incoming(listen::UnixSocket::new(unix, &stats), limits()),
                             stopped(stop_rx.clone()),
                         ),
                 ),
@@ -174,7 +219,7 @@ impl ControlPlane {
         };
         let router = builder.add_service(control).add_service(data);
         let server = runtime.spawn(
-            router.serve_with_incoming_shutdown(listen::incoming(listener, limits, "tcp"), stopped(stop_rx)),
+            router.serve_with_incoming_shutdown(listen::incoming(listener, limits()), stopped(stop_rx)),
         );
         write_atomic(&run_dir.join(ADDR_FILE), &format!("{addr}\n"))?;
 

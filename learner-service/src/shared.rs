@@ -8,7 +8,7 @@
 //! stop request.
 
 use std::collections::VecDeque;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Condvar, Mutex, MutexGuard};
 use std::time::Instant;
 
@@ -16,8 +16,12 @@ use proto::pb;
 use proto::plane::LeaseHeader;
 use proto::validate::{Refusal, RefusalCounts, Validator};
 
+use crate::listen::ConnectionStats;
 use crate::state::Core;
-use crate::status::{KindStatus, RefusedLease, ResumeStatus, Status, LEASES_REMEMBERED};
+use crate::status::{
+    KindStatus, OmittedRankSteps, OmittedRanks, RefusedLease, ResumeStatus, Status, KINDS_DETAILED,
+    LEASES_REMEMBERED, OTHER_KINDS, RANKS_DETAILED,
+};
 
 /// The state shared by the planes, the control service and the training thread.
 pub struct Shared {
@@ -60,6 +64,12 @@ pub struct Shared {
     /// refused (bounded by [`LEASES_REMEMBERED`]).
     refused_leases: Mutex<VecDeque<RefusedLease>>,
     log_budget: Mutex<u32>,
+    /// Connections and requests the servers refused, closed or repaired (shown in
+    /// `status.json`).
+    pub connections: Arc<ConnectionStats>,
+    /// Registrations that found their rank held by a live registration whose secret they did
+    /// not carry (shown in `status.json`).
+    pub registrations_beside_live: AtomicU64,
 }
 
 /// What the training thread measured since its last status (see [`Shared::status`]).
@@ -104,6 +114,8 @@ impl Shared {
             resumed_from: None,
             refused_leases: Mutex::new(VecDeque::new()),
             log_budget: Mutex::new(50),
+            connections: Arc::new(ConnectionStats::default()),
+            registrations_beside_live: AtomicU64::new(0),
         }
     }
 
@@ -222,10 +234,20 @@ impl Shared {
                 .map(|(k, v)| (k.to_owned(), v))
                 .collect(),
             world_episodes: reg.worlds.iter().map(|w| (w.world, w.completed)).collect(),
-            rank_steps: t.rank_steps.iter().map(|(&r, &n)| (r, n)).collect(),
+            rank_steps: t
+                .rank_steps
+                .iter()
+                .take(RANKS_DETAILED)
+                .map(|(&r, &n)| (r, n))
+                .collect(),
+            rank_steps_omitted: OmittedRankSteps {
+                ranks: t.rank_steps.len().saturating_sub(RANKS_DETAILED),
+                steps: t.rank_steps.values().skip(RANKS_DETAILED).sum(),
+            },
             actor_kinds: {
                 let active = core.active_by_kind();
-                t.kinds
+                let mut kinds: Vec<KindStatus> = t
+                    .kinds
                     .iter()
                     .map(|(kind, k)| KindStatus {
                         kind: kind.clone(),
@@ -234,12 +256,42 @@ impl Shared {
                         episodes: k.episodes,
                         steps: k.steps,
                     })
-                    .collect()
+                    .collect();
+                if kinds.len() > KINDS_DETAILED {
+                    let rest = kinds.split_off(KINDS_DETAILED - 1);
+                    kinds.push(rest.into_iter().fold(
+                        KindStatus {
+                            kind: OTHER_KINDS.to_owned(),
+                            ..KindStatus::default()
+                        },
+                        |mut sum, k| {
+                            sum.registered += k.registered;
+                            sum.active += k.active;
+                            sum.episodes += k.episodes;
+                            sum.steps += k.steps;
+                            sum
+                        },
+                    ));
+                }
+                kinds
             },
             resume_warnings: self.resume_warnings.clone(),
             shm_unavailable: self.shm_unavailable.lock().expect("shm note lock").clone(),
             finished: is_set(&self.finished),
-            ranks: core.ranks().cloned().collect(),
+            ranks: core.ranks().take(RANKS_DETAILED).cloned().collect(),
+            ranks_omitted: core
+                .ranks()
+                .skip(RANKS_DETAILED)
+                .fold(OmittedRanks::default(), |mut sum, r| {
+                    sum.ranks += 1;
+                    sum.registrations += r.registrations;
+                    sum.steps_shm += r.steps_shm;
+                    sum.steps_grpc += r.steps_grpc;
+                    sum
+                }),
+            rank_states: core.registry.rank_counts(),
+            registrations_beside_live: self.registrations_beside_live.load(Ordering::Relaxed),
+            connections: self.connections.snapshot(),
             leases_expired_recent: core.expired_recent().copied().collect(),
             refused_leases: self.refused_leases(),
             resumed_from: self.resumed_from.clone(),

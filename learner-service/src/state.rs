@@ -121,12 +121,9 @@ impl Core {
     }
 
     /// Records a registration of `actor` of `rank` as `kind` with credential `secret`; the
-    /// rank's previous registration (retired by the registry) loses its credential.
+    /// registrations the registry retired lose their credentials.
     pub fn registered(&mut self, actor: u64, rank: u32, kind: &str, secret: ActorSecret) {
-        if let Some(previous) = self.ranks.get(&rank).and_then(|r| r.actor_ids.last()) {
-            self.secrets.remove(previous);
-            self.actor_kinds.remove(previous);
-        }
+        self.forget_retired();
         self.secrets.insert(actor, secret);
         self.actor_kinds.insert(actor, kind.to_owned());
         self.totals.kinds.entry(kind.to_owned()).or_default().registered += 1;
@@ -138,20 +135,29 @@ impl Core {
         }
     }
 
-    /// Forgets the records of `rank` (and of its last actor), which the registry forgot:
-    /// its counters go into [`Totals::pruned_ranks`].
-    pub(crate) fn forget_rank(&mut self, rank: u32, actor: Option<u64>) {
+    /// Drops the credentials and kinds of the registrations the registry retired since the last
+    /// call (requests naming them are then refused as retired).
+    pub(crate) fn forget_retired(&mut self) {
+        for id in self.registry.drain_retired() {
+            self.secrets.remove(&id);
+            self.actor_kinds.remove(&id);
+        }
+    }
+
+    /// Forgets the records of `rank` (and of its `actors`), which the registry forgot: its
+    /// counters go into [`Totals::pruned_ranks`].
+    pub(crate) fn forget_rank(&mut self, rank: u32, actors: &[u64]) {
         let pruned = &mut self.totals.pruned_ranks;
         pruned.ranks += 1;
         pruned.steps += self.totals.rank_steps.remove(&rank).unwrap_or(0);
         if let Some(r) = self.ranks.remove(&rank) {
             pruned.registrations += r.registrations;
         }
-        if let Some(id) = actor {
-            self.secrets.remove(&id);
-            self.actor_kinds.remove(&id);
+        for id in actors {
+            self.secrets.remove(id);
+            self.actor_kinds.remove(id);
         }
-        tracing::debug!(rank, actor_id = actor, "forgot a dead rank");
+        tracing::debug!(rank, actor_ids = ?actors, "forgot a dead rank");
     }
 
     /// The counters of `rank`, started at zero.

@@ -6,6 +6,7 @@
 
 use std::path::Path;
 
+use scheduler::RankCounts;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{FileError, StatusFileError};
@@ -32,6 +33,19 @@ pub struct KindStatus {
 /// Actor ids remembered per rank in [`RankStatus::actor_ids`].
 pub const RANK_IDS_REMEMBERED: usize = 16;
 
+/// Ranks listed one by one in [`Status::ranks`] and [`Status::rank_steps`] (the lowest rank
+/// numbers); the rest are summed up in [`Status::ranks_omitted`] and
+/// [`Status::rank_steps_omitted`], so `status.json` stays small however many ranks are live.
+pub const RANKS_DETAILED: usize = 256;
+
+/// Entries of [`Status::actor_kinds`] at most: when more kinds registered, the first
+/// `KINDS_DETAILED - 1` (in name order) are listed and the others summed up as one entry named
+/// [`OTHER_KINDS`].
+pub const KINDS_DETAILED: usize = 32;
+
+/// The kind under which the kinds beyond [`KINDS_DETAILED`] are summed up.
+pub const OTHER_KINDS: &str = "(other kinds)";
+
 /// Leases remembered in [`Status::leases_expired_recent`] and [`Status::refused_leases`]
 /// (like the registry's retired actors, a bounded record: the oldest are forgotten).
 pub const LEASES_REMEMBERED: usize = 1024;
@@ -51,6 +65,71 @@ pub struct RankStatus {
     pub steps_shm: u64,
     /// Step records of this rank stored from the gRPC data plane.
     pub steps_grpc: u64,
+}
+
+/// The ranks of this learner process left out of [`Status::ranks`], in aggregate.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct OmittedRanks {
+    /// Ranks left out.
+    pub ranks: usize,
+    /// Their registrations.
+    pub registrations: u64,
+    /// Their step records stored from the shared-memory data plane.
+    pub steps_shm: u64,
+    /// Their step records stored from the gRPC data plane.
+    pub steps_grpc: u64,
+}
+
+/// The ranks of [`Status::rank_steps`] (over the whole run) left out, in aggregate.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct OmittedRankSteps {
+    /// Ranks left out.
+    pub ranks: usize,
+    /// Their step records stored.
+    pub steps: u64,
+}
+
+/// The connections of one listener (TCP or the Unix socket) in `status.json`, over this learner
+/// process.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ListenerStatus {
+    /// Its cap: connections served at once (`[service] max_connections`, fitted to the
+    /// open-file limit).
+    pub cap: u64,
+    /// Connections accepted.
+    pub accepted: u64,
+    /// Connections open now.
+    pub open: u64,
+    /// Times the cap was reached (later connections waited in the kernel's backlog).
+    pub cap_reached: u64,
+}
+
+/// What the learner's servers refused or closed before serving it, and what they repaired, in
+/// `status.json`, over this learner process. Each refusal is also logged with the peer and the
+/// cause (the first 20 of each cause, then every 1000th).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ConnectionStatus {
+    /// The TCP listener (`[service] listen`).
+    pub tcp: ListenerStatus,
+    /// The Unix socket `learner.sock`.
+    pub unix: ListenerStatus,
+    /// TCP connections closed at once because their source address already had `[service]
+    /// max_connections_per_ip` open.
+    pub refused_per_address: u64,
+    /// Connections closed for sending no HTTP/2 preface (or TLS ClientHello) within `[service]
+    /// handshake_timeout_ms`.
+    pub closed_no_preface: u64,
+    /// Connections closed for making no request with the run token within `[service]
+    /// auth_deadline_ms`.
+    pub closed_unauthenticated: u64,
+    /// Requests refused for a message that does not decode (not protobuf, invalid UTF-8 in a
+    /// string, a broken gRPC frame): INVALID_ARGUMENT.
+    pub undecodable_requests: u64,
+    /// Requests refused for a message over the size limit: RESOURCE_EXHAUSTED.
+    pub oversized_requests: u64,
+    /// Requests on the Unix socket whose `:authority` was rewritten to one the server accepts
+    /// (grpc-core clients send the socket's percent-encoded path).
+    pub authorities_rewritten: u64,
 }
 
 /// A lease that expired (no heartbeat within its TTL), in `status.json`.
@@ -142,7 +221,8 @@ pub struct Status {
     pub refused: Vec<(String, u64)>,
     /// Episodes completed per training world `(world, episodes)`.
     pub world_episodes: Vec<(usize, u64)>,
-    /// Step records stored per actor rank `(rank, steps)`, over the whole run.
+    /// Step records stored per actor rank `(rank, steps)`, over the whole run: the
+    /// [`RANKS_DETAILED`] lowest ranks (the others in [`Status::rank_steps_omitted`]).
     pub rank_steps: Vec<(u32, u64)>,
     /// Counters per actor kind (`rust`, `python`, `unknown`, ...), a mixed fleet's view.
     pub actor_kinds: Vec<KindStatus>,
@@ -153,9 +233,27 @@ pub struct Status {
     /// The training thread has stopped (final checkpoint written).
     pub finished: bool,
     /// Counters per actor rank over this learner process (registrations, actor ids, steps per
-    /// data plane), by rank.
+    /// data plane), by rank: the [`RANKS_DETAILED`] lowest ranks (the others in
+    /// [`Status::ranks_omitted`]).
     #[serde(default)]
     pub ranks: Vec<RankStatus>,
+    /// The ranks left out of [`Status::ranks`], in aggregate.
+    #[serde(default)]
+    pub ranks_omitted: OmittedRanks,
+    /// The ranks left out of [`Status::rank_steps`], in aggregate.
+    #[serde(default)]
+    pub rank_steps_omitted: OmittedRankSteps,
+    /// How many ranks are live, dead and holding leases.
+    #[serde(default)]
+    pub rank_states: RankCounts,
+    /// Registrations in this learner process that found their rank held by a live
+    /// registration and did not carry its secret: the live one kept its lease, the new one
+    /// works beside it (logged with the peer).
+    #[serde(default)]
+    pub registrations_beside_live: u64,
+    /// Connections and requests refused, closed or repaired before they were served.
+    #[serde(default)]
+    pub connections: ConnectionStatus,
     /// Leases this learner process saw expire, oldest first (the newest
     /// [`LEASES_REMEMBERED`]; [`Status::leases_expired`] counts them all).
     #[serde(default)]

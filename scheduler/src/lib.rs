@@ -31,6 +31,8 @@ mod test_util;
 pub use assignment::{ActorId, Assignment, Decision, Expired};
 pub use backoff::{Backoff, BackoffPolicy};
 pub use dealer::{Dealer, DealerError, WorldCount, WorldPool};
-pub use registry::{ActorInfo, Registry, RegistryConfig, RegistryError, RegistrySnapshot, RegistryStatus};
+pub use registry::{
+    ActorInfo, RankCounts, Registry, RegistryConfig, RegistryError, RegistrySnapshot, RegistryStatus,
+};
 pub use sandbox::{BwrapMode, BwrapStatus, ProbeError, Sandbox, SandboxConfig, SandboxError};
 pub use supervisor::{ExitKind, RankLaunch, Supervisor, SupervisorConfig, SupervisorError, SupervisorEvent};

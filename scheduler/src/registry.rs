@@ -20,6 +20,15 @@
 //! it calls `finish`. An actor not heard from (any call naming it) for `lease_ttl_ms` counts as
 //! dead until it calls again.
 //!
+//! # Ranks
+//! A rank may have several registrations at once. Registering a rank retires the rank's dead
+//! registrations and the one the caller proves to be (`replaces`: the caller checked that
+//! actor's credential); a live registration the caller cannot prove is kept, with its lease,
+//! beside the new one, so no registration can end another's lease. A registration that goes
+//! dead while a newer one of its rank exists is retired then. Every registration of a rank
+//! draws from the rank's one episode counter, so seeds never repeat. Retired ids are queued
+//! for [`Registry::drain_retired`].
+//!
 //! # Checkpoints
 //! [`Registry::snapshot`] keeps what must survive a restart: the dealer counts, the cycle
 //! counter, the id counters and the per-rank episode counters. Actors and leases do not
@@ -74,7 +83,8 @@ pub enum RegistryError {
         /// The actor id given.
         actor: ActorId,
     },
-    /// The actor id was replaced by a newer registration of the same rank.
+    /// The actor id was retired: a registration of its rank proved to be it, or it stopped
+    /// heartbeating while its rank had registered again.
     #[error("actor {actor} is retired: its rank registered again under a new id")]
     RetiredActor {
         /// The actor id given.
@@ -173,6 +183,21 @@ pub struct RegistryStatus {
     pub worlds: Vec<WorldCount>,
 }
 
+/// How many ranks are in which state, from [`Registry::rank_counts`].
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct RankCounts {
+    /// Ranks with a live registration (heard from within the TTL).
+    pub live: usize,
+    /// Ranks without one, not forgotten yet (their actors stopped calling, or have not
+    /// registered since a restore).
+    pub dead: usize,
+    /// Ranks whose registrations hold an open lease.
+    pub leased: usize,
+    /// Live registrations beyond one per rank (a rank registered again without proving to be
+    /// its live registration: both work until one stops calling).
+    pub extra_live: usize,
+}
+
 /// What of a registry survives a checkpoint; see the module documentation.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 pub struct RegistrySnapshot {
@@ -205,6 +230,16 @@ struct ActorRecord {
     last_seen_ms: u64,
     liveness: Liveness,
     lease: Option<u64>,
+}
+
+/// The registrations of one rank.
+#[derive(Debug, Clone, Default)]
+struct RankSlot {
+    /// Its registrations that are not retired, oldest first: the live ones and at most one dead
+    /// one, the newest (older ones are retired when they die).
+    actors: Vec<ActorId>,
+    /// Episodes issued to the rank so far (its seeds' counter).
+    issued: u64,
 }
 
 #[derive(Debug, Clone)]
@@ -241,8 +276,10 @@ pub struct Registry {
     /// Retired actor ids still in `actors`, oldest first (at most
     /// [`RETIRED_ACTORS_REMEMBERED`]).
     retired: VecDeque<ActorId>,
-    /// Per rank: the current actor id and the episodes issued to the rank so far.
-    ranks: BTreeMap<u32, (Option<ActorId>, u64)>,
+    /// Actor ids retired since the last [`Registry::drain_retired`].
+    newly_retired: Vec<ActorId>,
+    /// Per rank: its registrations and the episodes issued to the rank so far.
+    ranks: BTreeMap<u32, RankSlot>,
     open: BTreeMap<u64, OpenLease>,
     closed: BTreeMap<u64, (ActorId, Closure)>,
     turns: BTreeMap<ActorId, Turn>,
@@ -298,10 +335,19 @@ impl Registry {
             next_lease_id: snapshot.next_lease_id,
             actors: BTreeMap::new(),
             retired: VecDeque::new(),
+            newly_retired: Vec::new(),
             ranks: snapshot
                 .rank_episodes
                 .into_iter()
-                .map(|(rank, issued)| (rank, (None, issued)))
+                .map(|(rank, issued)| {
+                    (
+                        rank,
+                        RankSlot {
+                            actors: Vec::new(),
+                            issued,
+                        },
+                    )
+                })
                 .collect(),
             open: BTreeMap::new(),
             closed: BTreeMap::new(),
@@ -326,7 +372,7 @@ impl Registry {
             rank_episodes: self
                 .ranks
                 .iter()
-                .map(|(&rank, &(_, issued))| (rank, issued))
+                .map(|(&rank, slot)| (rank, slot.issued))
                 .collect(),
             expired_leases_total: self.expired_leases_total,
             assignments_total: self.assignments_total,
@@ -345,28 +391,40 @@ impl Registry {
         self.cycle
     }
 
-    /// Registers actor `rank` running as process `pid` on `host` and returns its new id. If
-    /// the rank was registered before, its previous id is retired: its open lease expires at
-    /// once (reported by the next [`Registry::tick`]) and calls with it are refused. The rank's
-    /// episode counter continues, so its seeds never repeat.
-    pub fn register(&mut self, rank: u32, host: String, pid: u32, now_ms: u64) -> ActorId {
+    /// Registers actor `rank` running as process `pid` on `host` and returns its new id.
+    ///
+    /// Retires the rank's dead registrations and `replaces` (an id the caller proved to be,
+    /// ignored unless it is a current registration of `rank`): their open leases expire at
+    /// once (reported by the next [`Registry::tick`]) and calls with their ids are refused. The
+    /// rank's live registrations other than `replaces` are kept, leases and all, beside the new
+    /// one (see the module documentation). The rank's episode counter continues, so its seeds
+    /// never repeat.
+    pub fn register(
+        &mut self,
+        rank: u32,
+        host: String,
+        pid: u32,
+        now_ms: u64,
+        replaces: Option<ActorId>,
+    ) -> ActorId {
         self.settle(now_ms);
         let id = self.next_actor_id;
         self.next_actor_id += 1;
         let floor = self.episode_floor;
-        let slot = self.ranks.entry(rank).or_insert((None, floor));
-        if let Some(old) = slot.0.replace(id) {
-            let record = self.actors.get_mut(&old).expect("a rank's actor is registered");
-            record.liveness = Liveness::Retired;
-            if let Some(lease) = record.lease {
-                self.expire(lease);
-            }
-            self.retired.push_back(old);
-            if self.retired.len() > RETIRED_ACTORS_REMEMBERED {
-                let oldest = self.retired.pop_front().expect("over the bound");
-                self.actors.remove(&oldest);
-            }
+        let slot = self.ranks.entry(rank).or_insert_with(|| RankSlot {
+            actors: Vec::new(),
+            issued: floor,
+        });
+        let ending: Vec<ActorId> = slot
+            .actors
+            .iter()
+            .copied()
+            .filter(|&a| Some(a) == replaces || self.actors[&a].liveness == Liveness::Dead)
+            .collect();
+        for old in ending {
+            self.retire(old);
         }
+        self.ranks.get_mut(&rank).expect("inserted above").actors.push(id);
         self.actors.insert(
             id,
             ActorRecord {
@@ -380,6 +438,24 @@ impl Registry {
         );
         self.advance_if_done();
         id
+    }
+
+    /// The live registrations of `rank` (ids and when each was last heard from), oldest first.
+    pub fn live_actors_of_rank(&self, rank: u32) -> Vec<(ActorId, u64)> {
+        self.ranks.get(&rank).map_or_else(Vec::new, |slot| {
+            slot.actors
+                .iter()
+                .map(|id| (*id, &self.actors[id]))
+                .filter(|(_, record)| record.liveness == Liveness::Live)
+                .map(|(id, record)| (id, record.last_seen_ms))
+                .collect()
+        })
+    }
+
+    /// The ids retired since the last call (their rank registered again, or they died beside a
+    /// newer registration of their rank), for the caller to drop what it keeps per actor.
+    pub fn drain_retired(&mut self) -> Vec<ActorId> {
+        std::mem::take(&mut self.newly_retired)
     }
 
     /// The actor's next assignment: a new one (in the current cycle, at `policy_version`) if it
@@ -409,7 +485,7 @@ impl Registry {
             .ranks
             .get_mut(&rank)
             .expect("a registered rank has a record")
-            .1;
+            .issued;
         let seeds = (*issued..*issued + u64::from(episodes))
             .map(|counter| episode_seed(self.config.run_seed, rank, counter))
             .collect();
@@ -531,32 +607,31 @@ impl Registry {
         std::mem::take(&mut self.expired_queue)
     }
 
-    /// Forgets ranks whose actor is dead and holds no lease (and ranks without an actor since a
-    /// restore, counted as last seen at time 0): those not seen for `after_ms` or more, and all
-    /// but the `keep` most recently seen. Their actor records go too (calls naming those ids
-    /// are then refused as unknown). Their episode counters fold into a floor that every rank
-    /// registering later starts from, so seeds never repeat. Returns the forgotten ranks with
-    /// their actor ids.
-    pub fn forget_dead_ranks(
-        &mut self,
-        now_ms: u64,
-        after_ms: u64,
-        keep: usize,
-    ) -> Vec<(u32, Option<ActorId>)> {
+    /// Forgets ranks whose registrations are all dead and hold no lease (and ranks without one
+    /// since a restore, counted as last seen at time 0): those not seen for `after_ms` or more,
+    /// and all but the `keep` most recently seen. Their actor records go too (calls naming
+    /// those ids are then refused as unknown). Their episode counters fold into a floor that
+    /// every rank registering later starts from, so seeds never repeat. Returns the forgotten
+    /// ranks with their actor ids.
+    pub fn forget_dead_ranks(&mut self, now_ms: u64, after_ms: u64, keep: usize) -> Vec<(u32, Vec<ActorId>)> {
         self.settle(now_ms);
-        let mut dead: Vec<(u64, u32, Option<ActorId>)> = self
+        let mut dead: Vec<(u64, u32)> = self
             .ranks
             .iter()
-            .filter_map(|(&rank, &(id, _))| match id {
-                None => Some((0, rank, None)),
-                Some(id) => {
-                    let record = &self.actors[&id];
-                    (record.liveness == Liveness::Dead && record.lease.is_none()).then_some((
-                        record.last_seen_ms,
-                        rank,
-                        Some(id),
-                    ))
-                }
+            .filter(|(_, slot)| {
+                slot.actors.iter().all(|id| {
+                    let record = &self.actors[id];
+                    record.liveness == Liveness::Dead && record.lease.is_none()
+                })
+            })
+            .map(|(&rank, slot)| {
+                let seen = slot
+                    .actors
+                    .iter()
+                    .map(|id| self.actors[id].last_seen_ms)
+                    .max()
+                    .unwrap_or(0);
+                (seen, rank)
             })
             .collect();
         if dead.len() <= keep && dead.iter().all(|d| now_ms.saturating_sub(d.0) < after_ms) {
@@ -565,17 +640,17 @@ impl Registry {
         // Most recently seen first.
         dead.sort_by(|a, b| b.0.cmp(&a.0).then(a.1.cmp(&b.1)));
         let mut forgotten = Vec::new();
-        for (i, (seen, rank, id)) in dead.into_iter().enumerate() {
+        for (i, (seen, rank)) in dead.into_iter().enumerate() {
             if i < keep && now_ms.saturating_sub(seen) < after_ms {
                 continue;
             }
-            let (_, issued) = self.ranks.remove(&rank).expect("listed above");
-            self.episode_floor = self.episode_floor.max(issued);
-            if let Some(id) = id {
-                self.actors.remove(&id);
-                self.turns.remove(&id);
+            let slot = self.ranks.remove(&rank).expect("listed above");
+            self.episode_floor = self.episode_floor.max(slot.issued);
+            for id in &slot.actors {
+                self.actors.remove(id);
+                self.turns.remove(id);
             }
-            forgotten.push((rank, id));
+            forgotten.push((rank, slot.actors));
         }
         self.advance_if_done();
         forgotten
@@ -621,6 +696,28 @@ impl Registry {
         }
     }
 
+    /// How many ranks are live, dead and leased, as of the last `&mut` call.
+    pub fn rank_counts(&self) -> RankCounts {
+        let mut counts = RankCounts::default();
+        for slot in self.ranks.values() {
+            let records = slot.actors.iter().map(|id| &self.actors[id]);
+            let live = records
+                .clone()
+                .filter(|record| record.liveness == Liveness::Live)
+                .count();
+            if live > 0 {
+                counts.live += 1;
+                counts.extra_live += live - 1;
+            } else {
+                counts.dead += 1;
+            }
+            if records.clone().any(|record| record.lease.is_some()) {
+                counts.leased += 1;
+            }
+        }
+        counts
+    }
+
     /// Expires overdue leases, marks silent actors dead and advances the cycle if due.
     fn settle(&mut self, now_ms: u64) {
         let overdue: Vec<u64> = self
@@ -633,12 +730,44 @@ impl Registry {
             self.expire(lease);
         }
         let ttl = self.config.lease_ttl_ms;
-        for record in self.actors.values_mut() {
+        let mut died = Vec::new();
+        for (&id, record) in self.actors.iter_mut() {
             if record.liveness == Liveness::Live && now_ms >= record.last_seen_ms.saturating_add(ttl) {
                 record.liveness = Liveness::Dead;
+                died.push((id, record.rank));
+            }
+        }
+        // A registration that died beside a newer one of its rank is retired: each rank keeps
+        // at most one dead registration, its newest.
+        for (id, rank) in died {
+            if self.ranks[&rank].actors.last() != Some(&id) {
+                self.retire(id);
             }
         }
         self.advance_if_done();
+    }
+
+    /// Retires the current registration `id`: its open lease expires, calls with it are
+    /// refused, it leaves its rank's registrations, and it is queued for
+    /// [`Registry::drain_retired`]; the oldest retired records beyond
+    /// [`RETIRED_ACTORS_REMEMBERED`] are dropped.
+    fn retire(&mut self, id: ActorId) {
+        let record = self.actors.get_mut(&id).expect("retiring a registered actor");
+        record.liveness = Liveness::Retired;
+        let (lease, rank) = (record.lease, record.rank);
+        if let Some(lease) = lease {
+            self.expire(lease);
+        }
+        if let Some(slot) = self.ranks.get_mut(&rank) {
+            slot.actors.retain(|&a| a != id);
+        }
+        self.newly_retired.push(id);
+        self.retired.push_back(id);
+        if self.retired.len() > RETIRED_ACTORS_REMEMBERED {
+            let oldest = self.retired.pop_front().expect("over the bound");
+            self.actors.remove(&oldest);
+            self.turns.remove(&oldest);
+        }
     }
 
     /// Expires the open lease `lease`.
@@ -770,7 +899,7 @@ mod tests {
     fn worlds_stay_fair_over_many_cycles() {
         let mut registry = registry(7, 1);
         let actors: Vec<ActorId> = (0..3)
-            .map(|rank| registry.register(rank, "h".into(), rank, 0))
+            .map(|rank| registry.register(rank, "h".into(), rank, 0, None))
             .collect();
         let mut now = 0;
         for cycle in 0..70 {
@@ -799,14 +928,14 @@ mod tests {
     #[test]
     fn finished_actor_idles_until_the_cycle_barrier_and_late_joiner_starts_at_once() {
         let mut registry = registry(5, 2);
-        let a = registry.register(0, "h".into(), 1, 0);
-        let b = registry.register(1, "h".into(), 2, 0);
+        let a = registry.register(0, "h".into(), 1, 0, None);
+        let b = registry.register(1, "h".into(), 2, 0, None);
         let lease_a = assign(&mut registry, a, 0);
         let lease_b = assign(&mut registry, b, 0);
         registry.finish(a, lease_a.lease_id, 10).unwrap();
         assert!(is_idle(&mut registry, a, 20));
         assert_eq!(registry.cycle(), 0);
-        let c = registry.register(2, "h".into(), 3, 30);
+        let c = registry.register(2, "h".into(), 3, 30, None);
         let lease_c = assign(&mut registry, c, 30);
         assert_eq!(lease_c.cycle, 0);
         registry.finish(b, lease_b.lease_id, 40).unwrap();
@@ -820,8 +949,8 @@ mod tests {
     #[test]
     fn expired_lease_returns_its_world_and_refuses_late_data() {
         let mut registry = registry(6, 3);
-        let a = registry.register(0, "h".into(), 1, 0);
-        let b = registry.register(1, "h".into(), 2, 0);
+        let a = registry.register(0, "h".into(), 1, 0, None);
+        let b = registry.register(1, "h".into(), 2, 0, None);
         let lease = assign(&mut registry, a, 0);
         registry.heartbeat(b, None, 900).unwrap();
         assert!(registry.tick(TTL - 1).is_empty());
@@ -863,7 +992,7 @@ mod tests {
     #[test]
     fn lost_lease_counts_for_the_barrier() {
         let mut registry = registry(3, 4);
-        let a = registry.register(0, "h".into(), 1, 0);
+        let a = registry.register(0, "h".into(), 1, 0, None);
         let lease = assign(&mut registry, a, 0);
         assert_eq!(registry.tick(TTL).len(), 1);
         assert_eq!(
@@ -878,8 +1007,8 @@ mod tests {
     #[test]
     fn heartbeats_extend_leases_and_check_ownership() {
         let mut registry = registry(4, 5);
-        let a = registry.register(0, "h".into(), 1, 0);
-        let b = registry.register(1, "h".into(), 2, 0);
+        let a = registry.register(0, "h".into(), 1, 0, None);
+        let b = registry.register(1, "h".into(), 2, 0, None);
         let lease = assign(&mut registry, a, 0);
         registry.heartbeat(a, Some(lease.lease_id), 900).unwrap();
         registry.heartbeat(b, None, 900).unwrap();
@@ -914,7 +1043,7 @@ mod tests {
     #[test]
     fn finished_lease_refuses_data_and_a_second_finish() {
         let mut registry = registry(4, 6);
-        let a = registry.register(0, "h".into(), 1, 0);
+        let a = registry.register(0, "h".into(), 1, 0, None);
         let lease = assign(&mut registry, a, 0);
         registry.episode_done(a, lease.lease_id, 1).unwrap();
         registry.episode_done(a, lease.lease_id, 2).unwrap();
@@ -939,7 +1068,7 @@ mod tests {
     #[test]
     fn asking_again_with_an_open_lease_returns_the_same_assignment() {
         let mut registry = registry(4, 7);
-        let a = registry.register(0, "h".into(), 1, 0);
+        let a = registry.register(0, "h".into(), 1, 0, None);
         let first = assign(&mut registry, a, 0);
         registry.heartbeat(a, Some(first.lease_id), 500).unwrap();
         let again = assign(&mut registry, a, 600);
@@ -956,12 +1085,13 @@ mod tests {
     #[test]
     fn re_registration_retires_the_old_id_and_continues_seeds() {
         let mut registry = registry(5, 8);
-        let old = registry.register(4, "h".into(), 100, 0);
-        let other = registry.register(5, "h".into(), 101, 0);
+        let old = registry.register(4, "h".into(), 100, 0, None);
+        let other = registry.register(5, "h".into(), 101, 0, None);
         let lease_other = assign(&mut registry, other, 0);
         let lease = assign(&mut registry, old, 0);
-        let new = registry.register(4, "h".into(), 200, 10);
+        let new = registry.register(4, "h".into(), 200, 10, Some(old));
         assert_ne!(new, old);
+        assert_eq!(registry.drain_retired(), [old]);
         assert_eq!(
             registry.tick(10),
             vec![Expired {
@@ -999,23 +1129,79 @@ mod tests {
     }
 
     #[test]
+    fn a_live_registration_is_kept_unless_the_caller_proves_to_be_it() {
+        let mut registry = registry(5, 8);
+        let holder = registry.register(3, "h".into(), 100, 0, None);
+        let lease = assign(&mut registry, holder, 0);
+        // Another registration of rank 3 without the holder's credential: the holder keeps
+        // its lease and its heartbeats; the newcomer works beside it, on fresh seeds.
+        let beside = registry.register(3, "h".into(), 200, 10, None);
+        assert!(registry.drain_retired().is_empty());
+        assert!(registry.tick(10).is_empty(), "no lease ended");
+        registry.heartbeat(holder, Some(lease.lease_id), 20).unwrap();
+        registry.check_lease(holder, lease.lease_id, 20).unwrap();
+        let second = assign(&mut registry, beside, 20);
+        assert!(second.seeds.iter().all(|s| !lease.seeds.contains(s)));
+        assert_eq!(registry.live_actors_of_rank(3), [(holder, 20), (beside, 20)]);
+        // The newcomer goes silent while the holder heartbeats: it is the rank's newest, so
+        // it stays (dead) until the holder dies too; then the older one is retired.
+        for t in (20..=2 * TTL + 20).step_by(TTL as usize / 2) {
+            registry.heartbeat(holder, Some(lease.lease_id), t).unwrap();
+        }
+        assert_eq!(registry.live_actors_of_rank(3), [(holder, 2 * TTL + 20)]);
+        assert!(registry.drain_retired().is_empty());
+        registry.tick(4 * TTL);
+        assert_eq!(registry.drain_retired(), [holder], "died beside a newer one");
+        assert_eq!(
+            registry.heartbeat(holder, None, 4 * TTL),
+            Err(RegistryError::RetiredActor { actor: holder })
+        );
+        // A dead registration is retired by the next registration of its rank.
+        let third = registry.register(3, "h".into(), 300, 4 * TTL, None);
+        assert_eq!(registry.drain_retired(), [beside]);
+        assert_eq!(registry.live_actors_of_rank(3), [(third, 4 * TTL)]);
+        // `replaces` naming an actor of another rank retires nothing.
+        let other = registry.register(4, "h".into(), 400, 4 * TTL, None);
+        registry.register(3, "h".into(), 301, 4 * TTL, Some(other));
+        assert!(registry.drain_retired().is_empty());
+        assert_eq!(registry.live_actors_of_rank(4), [(other, 4 * TTL)]);
+    }
+
+    #[test]
+    fn a_rank_with_a_live_registration_is_never_forgotten() {
+        let mut registry = registry(3, 1);
+        let holder = registry.register(7, "h".into(), 1, 0, None);
+        let beside = registry.register(7, "h".into(), 2, 0, None);
+        // The holder heartbeats; the newest registration is dead: the rank stays.
+        for t in (0..=4 * TTL).step_by(TTL as usize / 2) {
+            registry.heartbeat(holder, None, t).unwrap();
+        }
+        assert!(registry.forget_dead_ranks(4 * TTL, 0, 0).is_empty());
+        assert!(registry.next_assignment(holder, 4 * TTL, 0).is_ok());
+        assert!(registry
+            .actors()
+            .iter()
+            .any(|info| info.id == beside && !info.live));
+    }
+
+    #[test]
     fn dead_ranks_are_forgotten_and_their_seeds_never_repeat() {
         let mut registry = registry(3, 1);
-        let first = registry.register(7, "h".into(), 1, 0);
+        let first = registry.register(7, "h".into(), 1, 0, None);
         let a = assign(&mut registry, first, 0);
         for _ in 0..a.episodes {
             registry.episode_done(first, a.lease_id, 1).unwrap();
         }
         registry.finish(first, a.lease_id, 1).unwrap();
         for rank in 100..110 {
-            registry.register(rank, "h".into(), 1, 2);
+            registry.register(rank, "h".into(), 1, 2, None);
         }
         // All silent, so dead after one TTL: keep the 4 most recently seen for now.
         let now = 2 + TTL + 1;
         let forgotten = registry.forget_dead_ranks(now, 10 * TTL, 4);
         assert_eq!(forgotten.len(), 7, "{forgotten:?}");
         assert!(
-            forgotten.contains(&(7, Some(first))),
+            forgotten.contains(&(7, vec![first])),
             "the least recently seen goes first"
         );
         assert_eq!(registry.snapshot().rank_episodes.len(), 4);
@@ -1028,7 +1214,7 @@ mod tests {
         assert!(registry.snapshot().rank_episodes.is_empty());
         // Rank 7 again: its episode counter continues from the floor, so no seed repeats.
         let later = now + 10 * TTL;
-        let again = registry.register(7, "h".into(), 1, later);
+        let again = registry.register(7, "h".into(), 1, later, None);
         let b = assign(&mut registry, again, later);
         assert!(
             b.seeds.iter().all(|s| !a.seeds.contains(s)),
@@ -1041,13 +1227,14 @@ mod tests {
     #[test]
     fn retired_records_are_bounded_and_the_oldest_become_unknown() {
         let mut registry = registry(3, 1);
-        let first = registry.register(0, "h".into(), 1, 0);
+        let first = registry.register(0, "h".into(), 1, 0, None);
         let mut last_retired = first;
         let mut current = first;
         for pid in 0..RETIRED_ACTORS_REMEMBERED as u32 + 10 {
             last_retired = current;
-            current = registry.register(0, "h".into(), pid + 2, 0);
+            current = registry.register(0, "h".into(), pid + 2, 0, Some(current));
         }
+        assert_eq!(registry.drain_retired().len(), RETIRED_ACTORS_REMEMBERED + 10);
         assert_eq!(registry.actors.len(), RETIRED_ACTORS_REMEMBERED + 1, "bounded");
         assert_eq!(
             registry.next_assignment(first, 1, 0),
@@ -1074,7 +1261,7 @@ mod tests {
         let run = |run_seed| {
             let mut registry = registry(9, run_seed);
             let actors: Vec<ActorId> = (0..4)
-                .map(|rank| registry.register(rank, "h".into(), rank, 0))
+                .map(|rank| registry.register(rank, "h".into(), rank, 0, None))
                 .collect();
             let mut seeds = Vec::new();
             for step in 0..25 {
@@ -1096,7 +1283,7 @@ mod tests {
     #[test]
     fn silent_actor_is_dead_until_it_calls_again() {
         let mut registry = registry(2, 9);
-        let a = registry.register(0, "h".into(), 1, 0);
+        let a = registry.register(0, "h".into(), 1, 0, None);
         registry.tick(TTL);
         assert_eq!(registry.status().live_actors, 0);
         assert!(!registry.actors()[0].live);
@@ -1110,7 +1297,7 @@ mod tests {
     #[test]
     fn restore_drops_actors_and_leases_but_keeps_counts() {
         let mut registry = registry(4, 10);
-        let a = registry.register(0, "h".into(), 1, 0);
+        let a = registry.register(0, "h".into(), 1, 0, None);
         let done = assign(&mut registry, a, 0);
         registry.finish(a, done.lease_id, 1).unwrap();
         let open = assign(&mut registry, a, 2);
@@ -1123,7 +1310,7 @@ mod tests {
             restored.check_lease(a, open.lease_id, 3),
             Err(RegistryError::UnknownActor { actor: a })
         );
-        let b = restored.register(0, "h".into(), 2, 3);
+        let b = restored.register(0, "h".into(), 2, 3, None);
         assert!(b > a, "ids are not reused");
         let next = assign(&mut restored, b, 3);
         assert!(next.lease_id > open.lease_id, "lease ids are not reused");

@@ -335,3 +335,30 @@ def test_mixed_fleet_counts_per_actor_kind(tmp_path):
     assert sum(x["steps"] for x in k.values()) == s["steps_received"], s
     assert sum(x["episodes"] for x in k.values()) == s["episodes"], s
     assert s["episodes_mismatched"] == 0, s
+
+
+def test_grpcio_over_the_unix_socket_needs_no_default_authority(tmp_path):
+    """grpc-core sends the socket's percent-encoded path as `:authority` on `unix:PATH`
+    (`tmp%2F...%2Flearner.sock`), which the learner's HTTP/2 library refused (the call failed
+    with INTERNAL "Stream removed") unless the client set `grpc.default_authority`. The learner
+    rewrites it: a session registers, gets work and heartbeats; `status.json` counts the
+    rewrite. A second session naming the first as its previous registration retires it."""
+    learner = Learner(tmp_path, steps=100000)
+    try:
+        conn = Connection(f"unix:{learner.run / 'learner.sock'}", token_file=learner.token)
+        try:
+            first = Session(conn, 3, print)
+            work = wait_for("an assignment", lambda: (x := first.next_assignment()) and not isinstance(x, int) and x)
+            assert work.lease_id > 0
+            second = Session(conn, 3, print, previous=(first.actor_id, first.secret))
+            assert second.actor_id != first.actor_id
+            with pytest.raises(_Reconnect, match="NOT_FOUND"):
+                first.next_assignment()
+            second.close()
+            first.close()
+        finally:
+            conn.close()
+        wait_for("the rewrites in status.json",
+                 lambda: (s := learner.status()) and s["connections"]["authorities_rewritten"] >= 1)
+    finally:
+        learner.stop()

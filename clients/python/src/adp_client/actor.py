@@ -171,14 +171,20 @@ def exploration_seed(seed: int) -> int:
 class Session:
     """One registration with the learner: run info, lease heartbeats, policy stream, step
     batching. Ends (`close`) when the learner restarts, forgets it, or the run is over.
-    The low-level building block of `Actor`; usable on its own for custom loops."""
+    The low-level building block of `Actor`; usable on its own for custom loops.
 
-    def __init__(self, conn: Connection, rank: int, log: Callable[[str], None]):
+    `previous` is the `(actor_id, secret)` of the registration this one replaces (the same
+    process's earlier session): the learner retires it at once. Without it, a live
+    registration of the same rank keeps its lease and the new one works beside it."""
+
+    def __init__(self, conn: Connection, rank: int, log: Callable[[str], None], previous=None):
         self.conn, self.rank, self.log = conn, rank, log
+        prev_id, prev_secret = previous if previous is not None else (0, b"")
         reply = conn.call(
             conn.control.Register,
             pb.RegisterRequest(rank=rank, host=socket.gethostname()[:255], pid=os.getpid(), run_id="",
-                               actor_kind=ACTOR_KIND),
+                               actor_kind=ACTOR_KIND, previous_actor_id=prev_id,
+                               previous_actor_secret=prev_secret),
             timeout=10.0,
         )
         s = reply.spec
@@ -433,11 +439,12 @@ class Actor:
         a lost session."""
         wait = 0.2
         down_since = None
+        previous = None
         while True:
             conn = Connection(self.address, **self._conn_args)
             try:
                 try:
-                    session = Session(conn, self.rank, self.log)
+                    session = Session(conn, self.rank, self.log, previous)
                 except grpc.RpcError as e:
                     if e.code() == grpc.StatusCode.UNAUTHENTICATED:
                         raise ConfigError(f"learner at {self.address} refused the token: {e.details()}") from e
@@ -446,6 +453,7 @@ class Actor:
                     down_since = None
                     wait = 0.2
                     self.sessions += 1
+                    previous = (session.actor_id, session.secret)
                     try:
                         if self._session(session):
                             return
