@@ -4,8 +4,11 @@
 //! without bound; a report with an enum value outside the contract is refused, naming the
 //! field, and the run goes on; at a 64-file limit (`prlimit`: the test skips without it, unless
 //! `ADP_REQUIRE_PRLIMIT=1`, set by `.ci/run`, where that is a failure) an honest actor is served
-//! and the SIGTERM checkpoint completes. Every wait is a bounded poll (a watchdog), never a
-//! timing assertion.
+//! and the SIGTERM checkpoint completes. The findings of issue 50: 2,000 idle HTTP/2 peers lock
+//! no honest actor out and are closed after the authentication deadline; registering a live
+//! rank again leaves its actor and lease alone; 4,000 live ranks leave a small `status.json`;
+//! undecodable requests are INVALID_ARGUMENT; grpc-core's authorities on the Unix socket are
+//! served. Every wait is a bounded poll (a watchdog), never a timing assertion.
 
 use std::io::Read;
 use std::net::TcpStream;
@@ -695,7 +698,7 @@ async fn honest(mut control: proto::grpc::ControlClient, rank: u32) {
     assert!(!beat.shutdown);
 }
 
-/// Issue 30, part 6: 2,000 idle HTTP/2 peers (preface, SETTINGS, PING answers, never a request)
+/// Issue 50, part 6: 2,000 idle HTTP/2 peers (preface, SETTINGS, PING answers, never a request)
 /// from 127.0.0.1 lock no honest client out. The learner runs with `max_connections = 512` per
 /// listener and `max_connections_per_ip = 128` (scaled down proportionally when the hard
 /// open-file limit is too low; the test prints the sizes):
@@ -819,7 +822,7 @@ fn idle_http2_peers_lock_no_honest_actor_out_and_are_closed_after_the_auth_deadl
     }
 }
 
-/// Issue 30, part 6: a token holder that registers a live actor's rank does not retire it: the
+/// Issue 50, part 6: a token holder that registers a live actor's rank does not retire it: the
 /// first actor's heartbeat keeps its lease valid, its steps are stored and its next assignment
 /// is its lease; the newcomer works beside it under its own id. A registration that carries
 /// the first actor's secret (as a restarting `adp actor` does with its previous registration)
@@ -957,7 +960,7 @@ fn registering_a_live_rank_again_leaves_its_actor_and_lease_alone() {
     );
 }
 
-/// Issue 30, part 6: `status.json` stays small however many ranks are live: 4,000 live ranks
+/// Issue 50, part 6: `status.json` stays small however many ranks are live: 4,000 live ranks
 /// (596 KB before) list the 256 lowest in detail and the rest in aggregate.
 #[test]
 fn four_thousand_live_ranks_leave_a_small_status() {
@@ -1023,7 +1026,7 @@ async fn raw_grpc(addr: &str, token: &str, path: &str, message: &str) -> tonic::
     tonic::Status::from_header_map(response.headers()).expect("a refusal in the response head")
 }
 
-/// Issue 30, part 7: a request whose message does not decode is INVALID_ARGUMENT (it was
+/// Issue 50, part 7: a request whose message does not decode is INVALID_ARGUMENT (it was
 /// INTERNAL, as if the learner had failed): bytes that are not protobuf, invalid UTF-8 in a
 /// string field, on unary and client-streamed methods; counted in `status.json`, logged with
 /// the peer; the learner serves the next request.
@@ -1061,7 +1064,7 @@ fn undecodable_requests_are_invalid_argument() {
     );
 }
 
-/// Issue 30, part 7: a grpc-core client (Python's grpcio) on `learner.sock` sends the socket's
+/// Issue 50, part 7: a grpc-core client (Python's grpcio) on `learner.sock` sends the socket's
 /// path, percent-encoded, as `:authority` (`run%2Flearner.sock`), which the HTTP/2 library
 /// refused with RST_STREAM (PROTOCOL_ERROR). Two `Register` calls written the way grpc-core
 /// writes them (the first names the authority literally and adds it to the HPACK dynamic
