@@ -4,8 +4,8 @@
 //! certificate and one speaking plain HTTP/2 are all turned away, and the learner keeps
 //! serving. The certificates are made for the test by the `openssl` command.
 
-use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::path::PathBuf;
+use std::process::{Child, Stdio};
 use std::time::Duration;
 
 use learner_service::read_addr;
@@ -14,79 +14,11 @@ use proto::grpc::LearnerAddress;
 use proto::pb;
 
 mod common;
+use common::certs::{make_ca, make_leaf};
 use common::{adp, fresh_dir};
 
 /// Polls of a watchdog that should never fire (about five minutes at 100 ms).
 const PATIENCE: u32 = 3000;
-
-/// Runs `openssl ARGS` in `dir`; panics with its stderr on failure.
-fn openssl(dir: &Path, args: &[&str]) {
-    let out = Command::new("openssl")
-        .args(args)
-        .current_dir(dir)
-        .output()
-        .expect("the `openssl` command is needed for this test (Debian package openssl)");
-    assert!(
-        out.status.success(),
-        "openssl {args:?}: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-}
-
-/// `openssl req` options for a new P-256 key without a passphrase.
-const NEW_EC_KEY: [&str; 5] = [
-    "-newkey",
-    "ec",
-    "-pkeyopt",
-    "ec_paramgen_curve:prime256v1",
-    "-nodes",
-];
-
-/// A self-signed CA `name`.pem / `name`.key in `dir`.
-fn make_ca(dir: &Path, name: &str) {
-    let (key, pem, subject) = (
-        format!("{name}.key"),
-        format!("{name}.pem"),
-        format!("/CN={name}"),
-    );
-    let out = ["-keyout", &key, "-out", &pem, "-days", "2", "-subj", &subject];
-    openssl(dir, &[&["req", "-x509"][..], &NEW_EC_KEY, &out].concat());
-}
-
-/// A certificate `name`.pem / `name`.key signed by CA `ca`, with the extensions in `ext`.
-fn make_leaf(dir: &Path, ca: &str, name: &str, ext: &str) {
-    let (key, pem, csr, extfile, subject) = (
-        format!("{name}.key"),
-        format!("{name}.pem"),
-        format!("{name}.csr"),
-        format!("{name}.ext"),
-        format!("/CN={name}"),
-    );
-    std::fs::write(dir.join(&extfile), ext).unwrap();
-    let request = ["-keyout", &key, "-out", &csr, "-subj", &subject];
-    openssl(dir, &[&["req"][..], &NEW_EC_KEY, &request].concat());
-    let (ca_pem, ca_key) = (format!("{ca}.pem"), format!("{ca}.key"));
-    openssl(
-        dir,
-        &[
-            "x509",
-            "-req",
-            "-in",
-            &csr,
-            "-CA",
-            &ca_pem,
-            "-CAkey",
-            &ca_key,
-            "-CAcreateserial",
-            "-out",
-            &pem,
-            "-days",
-            "2",
-            "-extfile",
-            &extfile,
-        ],
-    );
-}
 
 /// Kills the learner when the test ends, passing or not.
 struct Guard(Child);

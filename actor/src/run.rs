@@ -20,7 +20,7 @@ use planner::{ActionSpace, Planner, PlannerKind};
 use proto::checksum::step_checksum;
 use proto::grpc::{ControlClient, GrpcPolicySource, GrpcStepSink, LearnerAddress};
 use proto::pb;
-use proto::plane::{ActorSecret, LeaseHeader, PlaneError, PolicySource, StepSink};
+use proto::plane::{ActorSecret, LeaseHeader, PlaneError, PolicySource, SinkTally, StepSink};
 use proto::shm::{ShmConfig, ShmPolicySource, ShmStepSink};
 use proto::StepView;
 use sim::episode::{EpisodeConfig, Status};
@@ -178,11 +178,14 @@ pub fn run(setup: &ActorSetup<'_>) -> Result<(), ActorError> {
     let mut down_since: Option<Instant> = None;
     // The registration of the previous session, which the next registration replaces.
     let mut previous: Option<Previous> = None;
+    let mut tally = None;
     loop {
         let span = tracing::info_span!("actor", rank = setup.rank, actor_id = tracing::field::Empty);
-        let why = match span.in_scope(|| session(&rt, setup, &mut down_since, &mut previous, &span)) {
+        let ended = span.in_scope(|| session(&rt, setup, &mut down_since, &mut previous, &mut tally, &span));
+        let why = match ended {
             Ok(SessionEnd::Shutdown) => {
                 span.in_scope(|| tracing::info!("the learner ended the run"));
+                log_tally(tally);
                 return Ok(());
             }
             Ok(SessionEnd::Reconnect(why)) => SessionError::Lost(why),
@@ -190,6 +193,7 @@ pub fn run(setup: &ActorSetup<'_>) -> Result<(), ActorError> {
         };
         let since = *down_since.get_or_insert_with(Instant::now);
         if since.elapsed() > setup.give_up_after {
+            log_tally(tally);
             return Err(ActorError::GaveUp {
                 rank: setup.rank,
                 addr: setup.learner.addr.clone(),
@@ -200,6 +204,22 @@ pub fn run(setup: &ActorSetup<'_>) -> Result<(), ActorError> {
         span.in_scope(|| tracing::warn!(retry_in = ?wait, "session ended: {why}; reconnecting"));
         std::thread::sleep(wait);
         wait = (wait * 2).min(Duration::from_secs(5));
+    }
+}
+
+/// Logs what the learner said of this actor's step records over all its sessions (planes with
+/// acknowledgements only): the actor's side of the learner's counters.
+fn log_tally(tally: Option<SinkTally>) {
+    if let Some(t) = tally {
+        tracing::info!(
+            sent = t.sent,
+            accepted = t.accepted,
+            duplicates = t.duplicates,
+            refused = t.refused,
+            unacknowledged = t.unacknowledged,
+            resends = t.resends,
+            "step records over the run"
+        );
     }
 }
 
@@ -249,11 +269,11 @@ fn open_planes(
             Ok(planes) => Ok(planes),
             Err(e) if setup.plane == PlaneChoice::Auto => {
                 tracing::warn!(error = %e, "shared memory unavailable; streaming over gRPC");
-                Ok(open_grpc(rt, data, run, actor_id, secret))
+                Ok(open_grpc(rt, setup, data, run, actor_id, secret))
             }
             Err(e) => Err(e.into()),
         },
-        _ => Ok(open_grpc(rt, data, run, actor_id, secret)),
+        _ => Ok(open_grpc(rt, setup, data, run, actor_id, secret)),
     }
 }
 
@@ -274,8 +294,11 @@ fn open_shm(rank: u32, prefix: String) -> Result<Planes, PlaneError> {
     })
 }
 
+/// The gRPC planes; a broken step stream is resent for as long as the actor's patience with
+/// the learner (`give_up_after`).
 fn open_grpc(
     rt: &tokio::runtime::Runtime,
+    setup: &ActorSetup<'_>,
     data: proto::grpc::DataClient,
     run: &pb::RunRef,
     actor_id: u64,
@@ -287,6 +310,7 @@ fn open_grpc(
             data.clone(),
             &run.run_id,
             run.incarnation,
+            setup.give_up_after,
         )),
         policies: grpc_policies(rt, data, run, actor_id, secret),
         name: "grpc",
@@ -321,12 +345,14 @@ struct Previous {
 }
 
 /// One session with the learner, in `span` (whose `actor_id` it records once registered);
-/// `previous` is the registration it replaces, and becomes this session's.
+/// `previous` is the registration it replaces, and becomes this session's. What the learner
+/// said of the session's step records is added to `tally`.
 fn session(
     rt: &tokio::runtime::Runtime,
     setup: &ActorSetup<'_>,
     down_since: &mut Option<Instant>,
     previous: &mut Option<Previous>,
+    tally: &mut Option<SinkTally>,
     span: &tracing::Span,
 ) -> Result<SessionEnd, SessionError> {
     let Registered {
@@ -393,46 +419,63 @@ fn session(
     // How long a finished run may take to drain this actor's last lease before it leaves: as
     // long as the learner keeps the lease valid, up to the actor's patience with the learner.
     let drain_limit = setup.give_up_after;
-    loop {
-        if flags.shutdown.load(Ordering::Acquire) {
-            wait_for_lease_end(&flags, drain_limit);
-            return Ok(SessionEnd::Shutdown);
-        }
-        if flags.gone.load(Ordering::Acquire) {
-            return Ok(SessionEnd::Reconnect(
-                "the learner no longer knows this session, or stopped answering heartbeats".into(),
-            ));
-        }
-        let a = match live.next_assignment()? {
-            Next::Assign(a) => a,
-            Next::Idle(ms) => {
-                std::thread::sleep(Duration::from_millis(u64::from(ms.max(1))));
-                continue;
-            }
-            Next::Shutdown => {
-                wait_for_lease_end(&flags, drain_limit);
+    let ended = live.assignments(&ctx, &flags, drain_limit);
+    if let Some(t) = live.planes.sink.tally() {
+        *tally.get_or_insert_default() += t;
+    }
+    ended
+}
+
+impl Live<'_> {
+    /// Takes and runs assignments until the session ends.
+    fn assignments(
+        &mut self,
+        ctx: &EpisodeCtx<'_>,
+        flags: &Flags,
+        drain_limit: Duration,
+    ) -> Result<SessionEnd, SessionError> {
+        let live = self;
+        loop {
+            if flags.shutdown.load(Ordering::Acquire) {
+                wait_for_lease_end(flags, drain_limit);
                 return Ok(SessionEnd::Shutdown);
             }
-            Next::End(end) => return Ok(end),
-        };
-        tracing::debug!(
-            lease = a.lease_id,
-            world = a.world,
-            cycle = a.cycle,
-            episodes = a.episodes,
-            policy_version = a.policy_version,
-            "assignment"
-        );
-        flags.lease.store(a.lease_id, Ordering::Release);
-        flags.lease_lost.store(false, Ordering::Release);
-        if let Some(end) = live.await_policy(&a, &flags)? {
-            return Ok(end);
+            if flags.gone.load(Ordering::Acquire) {
+                return Ok(SessionEnd::Reconnect(
+                    "the learner no longer knows this session, or stopped answering heartbeats".into(),
+                ));
+            }
+            let a = match live.next_assignment()? {
+                Next::Assign(a) => a,
+                Next::Idle(ms) => {
+                    std::thread::sleep(Duration::from_millis(u64::from(ms.max(1))));
+                    continue;
+                }
+                Next::Shutdown => {
+                    wait_for_lease_end(flags, drain_limit);
+                    return Ok(SessionEnd::Shutdown);
+                }
+                Next::End(end) => return Ok(end),
+            };
+            tracing::debug!(
+                lease = a.lease_id,
+                world = a.world,
+                cycle = a.cycle,
+                episodes = a.episodes,
+                policy_version = a.policy_version,
+                "assignment"
+            );
+            flags.lease.store(a.lease_id, Ordering::Release);
+            flags.lease_lost.store(false, Ordering::Release);
+            if let Some(end) = live.await_policy(&a, flags)? {
+                return Ok(end);
+            }
+            if let Some(end) = live.run_assignment(ctx, &a, flags)? {
+                return Ok(end);
+            }
+            // The lease stays in the heartbeats until the learner has received all its steps and
+            // finished it (steps may still wait in the learner's queue behind its rate limiter).
         }
-        if let Some(end) = live.run_assignment(&ctx, &a, &flags)? {
-            return Ok(end);
-        }
-        // The lease stays in the heartbeats until the learner has received all its steps and
-        // finished it (steps may still wait in the learner's queue behind its rate limiter).
     }
 }
 

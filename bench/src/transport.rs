@@ -8,7 +8,7 @@
 use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Arc, Barrier, Mutex};
 use std::thread::{self, JoinHandle};
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, bail, Context};
 use proto::grpc::{for_each_step, DecodeScratch, GrpcStepSink, LearnerAddress, MAX_MESSAGE_BYTES};
@@ -228,7 +228,7 @@ pub fn grpc_throughput(records: usize, publishers: usize) -> anyhow::Result<f64>
                 let connected = handle.block_on(address.connect());
                 start.wait();
                 let (_, data) = connected?;
-                let mut sink = GrpcStepSink::new(handle, data, "bench", 1);
+                let mut sink = GrpcStepSink::new(handle, data, "bench", 1, Duration::from_secs(60));
                 Ok(publish(&mut sink, i as u64, count, Some(FLUSH_EVERY))?)
             })
         })

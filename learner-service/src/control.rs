@@ -267,8 +267,7 @@ impl Control for ControlService {
         match self.shared.report(&r) {
             Ok(()) => Ok(Response::new(pb::Ack {
                 accepted: 1,
-                refused: 0,
-                reason: String::new(),
+                ..pb::Ack::default()
             })),
             Err(why) => {
                 let _actor =

@@ -18,22 +18,28 @@ use proto::StepView;
 use tokio_stream::Stream;
 use tonic::{Request, Response, Status, Streaming};
 
-use crate::ingest::Plane;
+use crate::ingest::{Plane, Stored};
 use crate::shared::Shared;
 
 thread_local! {
     static SCRATCH: RefCell<DecodeScratch> = RefCell::new(DecodeScratch::default());
 }
 
-/// Validates and stores one batch; returns (accepted, refused, first reason).
-fn ingest_batch(shared: &Shared, batch: &pb::StepBatch) -> (u64, u64, String) {
+/// Validates and stores one batch; returns its acknowledgement (records accepted, recognised
+/// as duplicates, refused, and the first refusal's reason).
+fn ingest_batch(shared: &Shared, batch: &pb::StepBatch) -> pb::Ack {
     let n = batch.steps.len() as u64;
+    let refused_whole = |why: &Refusal| pb::Ack {
+        refused: n,
+        reason: why.to_string(),
+        ..pb::Ack::default()
+    };
     let run = batch.run.clone().unwrap_or_default();
     if let Err(why) = shared.validator.check_run(&run.run_id, run.incarnation) {
         let _actor =
             tracing::info_span!("actor", actor_id = batch.actor_id, lease = batch.lease_id).entered();
         shared.refuse(&why, n);
-        return (0, n, why.to_string());
+        return refused_whole(&why);
     }
     // Who sends decides whether anything of the batch is looked at: a batch naming another
     // actor (without its credential) is refused whole, before a record is decoded.
@@ -45,7 +51,7 @@ fn ingest_batch(shared: &Shared, batch: &pb::StepBatch) -> (u64, u64, String) {
             let _actor =
                 tracing::info_span!("actor", actor_id = batch.actor_id, lease = batch.lease_id).entered();
             shared.refuse(&why, n);
-            return (0, n, why.to_string());
+            return refused_whole(&why);
         }
     };
     let header = LeaseHeader {
@@ -54,7 +60,7 @@ fn ingest_batch(shared: &Shared, batch: &pb::StepBatch) -> (u64, u64, String) {
         lease_id: batch.lease_id,
         secret,
     };
-    let (mut accepted, mut refused, mut reason) = (0, 0, String::new());
+    let mut ack = pb::Ack::default();
     SCRATCH.with_borrow_mut(|scratch| {
         for_each_step(batch, scratch, |decoded| {
             let result = match decoded {
@@ -71,17 +77,18 @@ fn ingest_batch(shared: &Shared, batch: &pb::StepBatch) -> (u64, u64, String) {
                 }
             };
             match result {
-                Ok(()) => accepted += 1,
+                Ok(Stored::Inserted) => ack.accepted += 1,
+                Ok(Stored::Duplicate) => ack.duplicates += 1,
                 Err(why) => {
-                    if refused == 0 {
-                        reason = why.to_string();
+                    if ack.refused == 0 {
+                        ack.reason = why.to_string();
                     }
-                    refused += 1;
+                    ack.refused += 1;
                 }
             }
         })
     });
-    (accepted, refused, reason)
+    ack
 }
 
 /// The `adp.v1.Data` service's `PushSteps` (`WatchPolicy` is answered by
@@ -102,14 +109,15 @@ impl Data for DataService {
         let mut ack = pb::Ack::default();
         while let Some(batch) = stream.message().await? {
             let shared = self.shared.clone();
-            let (a, r, reason) = tokio::task::spawn_blocking(move || ingest_batch(&shared, &batch))
+            let b = tokio::task::spawn_blocking(move || ingest_batch(&shared, &batch))
                 .await
                 .map_err(|e| Status::internal(format!("step intake failed: {e}")))?;
-            ack.accepted += a;
-            if r > 0 && ack.refused == 0 {
-                ack.reason = reason;
+            ack.accepted += b.accepted;
+            ack.duplicates += b.duplicates;
+            if b.refused > 0 && ack.refused == 0 {
+                ack.reason = b.reason;
             }
-            ack.refused += r;
+            ack.refused += b.refused;
         }
         Ok(Response::new(ack))
     }

@@ -4,8 +4,11 @@
 //! A step is admitted only from the lease's actor (with its credential), under a valid lease,
 //! in order within its episode, made with a published policy version and within the episode
 //! cap; any other step is refused, and a refused step of a lease's own actor breaks the lease
-//! (its episode can never complete). A report is checked the same way, then verified against
-//! the steps received, and ends the lease once every episode of it is complete.
+//! (its episode can never complete). A step the learner stored already (a batch resent over a
+//! broken connection: same actor, lease, episode and step index) is recognised, counted and
+//! acknowledged as a duplicate without being stored again, even after its lease ended. A
+//! report is checked the same way, then verified against the steps received, and ends the
+//! lease once every episode of it is complete.
 
 use std::time::Duration;
 
@@ -29,6 +32,15 @@ pub enum Plane {
     Grpc,
 }
 
+/// What became of a step that was not refused.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Stored {
+    /// Stored in the replay buffer.
+    Inserted,
+    /// Stored earlier (the step arrived again); not stored twice.
+    Duplicate,
+}
+
 /// The refusal of a request whose lease the registry does not accept.
 fn lease_refusal(e: RegistryError) -> Refusal {
     match e {
@@ -47,9 +59,9 @@ fn lease_refusal(e: RegistryError) -> Refusal {
 
 impl Shared {
     /// Validates one step that arrived on `plane` and stores it, blocking while the rate
-    /// limiter holds inserts back. Returns the refusal when the step was refused (counted and
-    /// logged).
-    pub fn ingest(&self, plane: Plane, header: &LeaseHeader, step: &StepView<'_>) -> Result<(), Refusal> {
+    /// limiter holds inserts back, unless it was stored before ([`Stored::Duplicate`]).
+    /// Returns the refusal when the step was refused (counted and logged).
+    pub fn ingest(&self, plane: Plane, header: &LeaseHeader, step: &StepView<'_>) -> Result<Stored, Refusal> {
         let result = self.ingest_inner(plane, header, step);
         if let Err(why) = &result {
             let _actor =
@@ -59,7 +71,12 @@ impl Shared {
         result
     }
 
-    fn ingest_inner(&self, plane: Plane, header: &LeaseHeader, step: &StepView<'_>) -> Result<(), Refusal> {
+    fn ingest_inner(
+        &self,
+        plane: Plane,
+        header: &LeaseHeader,
+        step: &StepView<'_>,
+    ) -> Result<Stored, Refusal> {
         if header.incarnation != self.validator.incarnation {
             return Err(Refusal::StaleIncarnation {
                 current: self.validator.incarnation,
@@ -75,6 +92,11 @@ impl Shared {
         }
         let mut core = self.lock();
         core.check_secret(header.actor_id, &header.secret)?;
+        // A resent step is recognised before its lease is looked at: the lease may have ended
+        // since the step was first stored.
+        if core.take_duplicate(header, step) {
+            return Ok(Stored::Duplicate);
+        }
         // Hold inserts back while the learner lags, but only while an update can run: with
         // nothing ready to sample no update can make room, and waiting would deadlock.
         while core.rate.inserts_allowed() == 0 && core.replay.ready_len() > 0 && !core.abort {
@@ -83,6 +105,11 @@ impl Shared {
                 .wait_timeout(core, Duration::from_millis(50))
                 .expect("learner state lock poisoned")
                 .0;
+        }
+        // The same step may have come in on another stream (a resend racing the broken
+        // stream's last batch) while this one waited.
+        if core.take_duplicate(header, step) {
+            return Ok(Stored::Duplicate);
         }
         let now = self.now_ms();
         if step.step_index >= self.max_episode_steps {
@@ -106,7 +133,7 @@ impl Shared {
         }
         drop(core);
         self.wake.notify_all();
-        Ok(())
+        Ok(Stored::Inserted)
     }
 
     /// Handles an episode report: statistics, verification against the received steps, and the
@@ -170,6 +197,19 @@ impl Shared {
 }
 
 impl Core {
+    /// Whether `step` of `header`'s actor and lease was stored already (counted as a
+    /// duplicate if so).
+    fn take_duplicate(&mut self, header: &LeaseHeader, step: &StepView<'_>) -> bool {
+        let stored = self
+            .leases
+            .stored_steps(header.lease_id, header.actor_id, step.episode_id);
+        let duplicate = stored.is_some_and(|n| step.step_index < n);
+        if duplicate {
+            self.totals.steps_duplicate += 1;
+        }
+        duplicate
+    }
+
     /// Stores one validated step under its lease. Returns whether it ended its episode. A
     /// refusal after the lease was found valid breaks the lease (its episode cannot complete).
     fn store(
@@ -319,21 +359,57 @@ mod tests {
     }
 
     #[test]
-    fn out_of_order_and_duplicate_steps_are_refused_and_end_the_lease() {
-        for (index, what) in [(0, "duplicate"), (2, "gap")] {
-            let f = fixture(td3_config(), 60_000);
-            f.shared
-                .ingest(Plane::Grpc, &f.header, &step(f.first, 0))
-                .unwrap();
-            let e = f
-                .shared
-                .ingest(Plane::Grpc, &f.header, &step(f.first, index))
-                .unwrap_err();
-            assert_eq!(e.kind(), RefusalKind::Episode, "{what}: {e}");
-            assert!(e.to_string().contains("out of order"), "{what}: {e}");
-            f.shared.expire_leases_at(f.shared.now_ms());
-            assert_eq!(f.shared.lock().totals.leases_dropped, 1, "{what}");
+    fn a_step_beyond_the_next_index_is_refused_and_ends_the_lease() {
+        let f = fixture(td3_config(), 60_000);
+        f.shared
+            .ingest(Plane::Grpc, &f.header, &step(f.first, 0))
+            .unwrap();
+        let e = f
+            .shared
+            .ingest(Plane::Grpc, &f.header, &step(f.first, 2))
+            .unwrap_err();
+        assert_eq!(e.kind(), RefusalKind::Episode, "{e}");
+        assert!(e.to_string().contains("out of order"), "{e}");
+        f.shared.expire_leases_at(f.shared.now_ms());
+        assert_eq!(f.shared.lock().totals.leases_dropped, 1);
+    }
+
+    #[test]
+    fn a_resent_step_is_acknowledged_once_stored_even_after_its_lease_ended() {
+        let f = fixture(td3_config(), 60_000);
+        let ingest = |i: u32| f.shared.ingest(Plane::Grpc, &f.header, &step(f.first, i));
+        assert_eq!(ingest(0), Ok(Stored::Inserted));
+        assert_eq!(ingest(1), Ok(Stored::Inserted));
+        // The same steps again (a batch resent after a broken connection): not stored twice,
+        // and the lease stays valid.
+        assert_eq!(ingest(0), Ok(Stored::Duplicate));
+        assert_eq!(ingest(1), Ok(Stored::Duplicate));
+        assert_eq!(ingest(2), Ok(Stored::Inserted));
+        {
+            let core = f.shared.lock();
+            assert_eq!(core.totals.steps_received, 3);
+            assert_eq!(core.totals.steps_duplicate, 2);
+            assert_eq!(core.replay.len(), 3);
         }
+        f.shared.expire_leases_at(f.shared.now_ms());
+        assert_eq!(
+            f.shared.lock().open_leases(),
+            1,
+            "duplicates do not break the lease"
+        );
+        // The lease ends (its actor is silent past the TTL): what it stored is still
+        // recognised; what it did not store is refused with the lease's reason.
+        f.shared.expire_leases_at(f.shared.now_ms() + 3_600_000);
+        assert_eq!(f.shared.lock().open_leases(), 0);
+        assert_eq!(ingest(1), Ok(Stored::Duplicate));
+        let e = ingest(3).unwrap_err();
+        assert_eq!(e.kind(), RefusalKind::Lease, "{e}");
+        // Another actor's header on the same lease is never taken for a duplicate.
+        let mut other = f.header;
+        other.actor_id += 1;
+        assert!(f.shared.ingest(Plane::Grpc, &other, &step(f.first, 0)).is_err());
+        let core = f.shared.lock();
+        assert_eq!((core.totals.steps_received, core.totals.steps_duplicate), (3, 3));
     }
 
     #[test]

@@ -14,6 +14,9 @@ use crate::status::{ExpiredLease, LEASES_REMEMBERED};
 /// Dropped leases remembered with the reason (told to their actors on their next heartbeat).
 const DROPPED_REMEMBERED: usize = 4096;
 
+/// Closed leases whose stored steps are remembered, to recognise a resent batch of them.
+const CLOSED_REMEMBERED: usize = 4096;
+
 /// First episode id of a lease: episode ids are `lease * episodes + i`, unique within a run
 /// because lease ids are (they survive resumes in the registry snapshot).
 pub fn first_episode_id(lease_id: u64, episodes: u32) -> u64 {
@@ -60,11 +63,23 @@ impl LeaseTrack {
     }
 }
 
-/// The open leases and their episodes, with the recently dropped and expired ones.
+/// What a closed lease stored: enough to recognise its steps when they arrive again.
+#[derive(Debug)]
+struct ClosedLease {
+    actor: u64,
+    first_episode: u64,
+    /// Steps stored per episode, in episode order.
+    stored: Vec<u32>,
+}
+
+/// The open leases and their episodes, with the recently dropped, expired and closed ones.
 #[derive(Debug, Default)]
 pub struct Leases {
     leases: HashMap<u64, LeaseTrack>,
     episodes: HashMap<u64, EpisodeTrack>,
+    /// Recently closed leases (bounded by [`CLOSED_REMEMBERED`]), with their order of closing.
+    closed: HashMap<u64, ClosedLease>,
+    closed_order: VecDeque<u64>,
     /// Recently dropped leases and why, oldest first (bounded by [`DROPPED_REMEMBERED`]).
     dropped: VecDeque<(u64, String)>,
     /// Leases that expired in this learner process, oldest first (bounded by
@@ -132,14 +147,43 @@ impl Leases {
         let Some(lease) = self.leases.remove(&lease_id) else {
             return Vec::new();
         };
-        lease
+        let mut stored = Vec::with_capacity(lease.episodes as usize);
+        let abandoned = lease
             .episode_ids()
             .filter(|e| {
-                self.episodes
-                    .remove(e)
-                    .is_some_and(|track| !track.ended && track.next_index > 0)
+                let track = self.episodes.remove(e);
+                stored.push(track.as_ref().map_or(0, |t| t.next_index));
+                track.is_some_and(|t| !t.ended && t.next_index > 0)
             })
-            .collect()
+            .collect();
+        let closed = ClosedLease {
+            actor: lease.actor,
+            first_episode: lease.first_episode,
+            stored,
+        };
+        if self.closed.insert(lease_id, closed).is_none() {
+            self.closed_order.push_back(lease_id);
+        }
+        if self.closed_order.len() > CLOSED_REMEMBERED {
+            if let Some(old) = self.closed_order.pop_front() {
+                self.closed.remove(&old);
+            }
+        }
+        abandoned
+    }
+
+    /// How many steps of `episode` the learner stored under lease `lease_id` of `actor`, while
+    /// the lease is open or one of the recently closed: a step of it with a smaller index was
+    /// stored already. `None` when the lease is not `actor`'s, the episode not one of it, or
+    /// the lease unknown.
+    pub fn stored_steps(&self, lease_id: u64, actor: u64, episode: u64) -> Option<u32> {
+        if let Some(lease) = self.leases.get(&lease_id) {
+            return (lease.actor == actor && lease.episode_ids().contains(&episode))
+                .then(|| self.episodes.get(&episode).map_or(0, |t| t.next_index));
+        }
+        let closed = self.closed.get(&lease_id).filter(|c| c.actor == actor)?;
+        let i = episode.checked_sub(closed.first_episode)?;
+        closed.stored.get(usize::try_from(i).ok()?).copied()
     }
 
     /// Marks the lease broken with `why` if `actor` holds it (the first reason is kept).

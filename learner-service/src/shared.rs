@@ -218,6 +218,7 @@ impl Shared {
             live_actors: reg.live_actors,
             open_leases: core.open_leases(),
             steps_received: t.steps_received,
+            steps_duplicate: t.steps_duplicate,
             episodes: t.episodes_reported,
             episodes_verified: t.episodes_verified,
             episodes_mismatched: t.episodes_mismatched,

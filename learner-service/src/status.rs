@@ -199,6 +199,9 @@ pub struct Status {
     pub open_leases: usize,
     /// Step records stored in total.
     pub steps_received: u64,
+    /// Step records received again after they were stored (resent batches), not stored twice.
+    #[serde(default)]
+    pub steps_duplicate: u64,
     /// Episodes reported.
     pub episodes: u64,
     /// Episodes whose received steps matched the actor's count and checksum.

@@ -47,6 +47,10 @@ pub struct EpisodeStat {
 pub struct Totals {
     /// Step records stored.
     pub steps_received: u64,
+    /// Step records received again after they were stored (a batch resent over a broken
+    /// connection): acknowledged to the actor as duplicates, not stored again.
+    #[serde(default)]
+    pub steps_duplicate: u64,
     /// Episodes reported by actors.
     pub episodes_reported: u64,
     /// Reported episodes whose received steps matched the actor's count and checksum.

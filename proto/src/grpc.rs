@@ -19,7 +19,7 @@ use tonic::transport::{Channel, Endpoint};
 use crate::auth::{AuthError, ClientAuth, TlsFiles};
 use crate::floats::{self, RaggedBytes};
 use crate::pb;
-use crate::plane::{ActorSecret, LeaseHeader, PlaneError, PolicySource, PolicyUpdate, StepSink};
+use crate::plane::{ActorSecret, LeaseHeader, PlaneError, PolicySource, PolicyUpdate, SinkTally, StepSink};
 use crate::validate::StepView;
 
 /// Largest gRPC message either side accepts (a policy snapshot is about 2.5 MB; a step batch of
@@ -141,8 +141,10 @@ impl LearnerAddress {
             })?
             .connect_timeout(Duration::from_secs(5))
             .tcp_nodelay(true)
-            .http2_keep_alive_interval(Duration::from_secs(10))
-            .keep_alive_timeout(Duration::from_secs(20));
+            // A learner that stops answering (a partition, a dead node) is noticed within 15 s;
+            // the step sink then resends what was not acknowledged on a new connection.
+            .http2_keep_alive_interval(Duration::from_secs(5))
+            .keep_alive_timeout(Duration::from_secs(10));
         if let Some(tls) = &self.tls {
             ep = ep
                 .tls_config(tls.client_config(host)?)
@@ -211,19 +213,71 @@ pub fn encode_step(step: &StepView<'_>) -> pb::StepRecord {
 struct OpenStream {
     tx: mpsc::Sender<pb::StepBatch>,
     call: JoinHandle<Result<tonic::Response<pb::Ack>, tonic::Status>>,
-    sent: u64,
 }
+
+/// Why a stream ended without an acknowledgement, and whether resending may still work.
+struct Broken {
+    detail: String,
+    /// The learner may take the records on a new stream (a transport failure); `false` when it
+    /// turned the stream away for good (bad credentials, a malformed message).
+    resend: bool,
+}
+
+impl Broken {
+    fn of(call: Result<Result<tonic::Response<pb::Ack>, tonic::Status>, tokio::task::JoinError>) -> Self {
+        match call {
+            Ok(Err(status)) => Broken {
+                detail: format!("{:?}: {}", status.code(), status.message()),
+                resend: !matches!(
+                    status.code(),
+                    tonic::Code::InvalidArgument
+                        | tonic::Code::Unauthenticated
+                        | tonic::Code::PermissionDenied
+                        | tonic::Code::NotFound
+                        | tonic::Code::FailedPrecondition
+                        | tonic::Code::Unimplemented
+                        | tonic::Code::OutOfRange
+                ),
+            },
+            Ok(Ok(_)) => Broken {
+                detail: "the learner closed the step stream early".into(),
+                resend: true,
+            },
+            Err(e) => Broken {
+                detail: e.to_string(),
+                resend: false,
+            },
+        }
+    }
+}
+
+/// First wait before a broken stream is resent; it doubles up to [`RESEND_WAIT_MAX`].
+const RESEND_WAIT: Duration = Duration::from_millis(200);
+/// Longest wait between two resends.
+const RESEND_WAIT_MAX: Duration = Duration::from_secs(5);
 
 /// The actor side of the gRPC data plane: records are batched ([`BATCH_RECORDS`] per message)
 /// onto one client stream per flush interval; [`StepSink::flush`] closes the stream and waits
 /// for the learner's acknowledgement, so after it returns every record was received and
-/// accounted for (accepted or refused). `Send`, not `Sync`.
+/// accounted for (accepted, recognised as a duplicate, or refused). `Send`, not `Sync`.
+///
+/// Every batch is kept until a stream carrying it is acknowledged. When a stream breaks (the
+/// connection dropped, the learner did not answer its keep-alives), all kept batches are sent
+/// again on a new stream, with back-off, for up to the sink's patience; the learner stores
+/// each record once and acknowledges the ones it had already stored as duplicates. Past the
+/// patience the records are given up ([`SinkTally::unacknowledged`]) and the error says how
+/// many.
 pub struct GrpcStepSink {
     handle: Handle,
     client: DataClient,
     run: pb::RunRef,
     batch: pb::StepBatch,
     stream: Option<OpenStream>,
+    /// Batches sent since the last acknowledgement (cheap clones: the record bytes are shared).
+    unacked: Vec<pb::StepBatch>,
+    /// How long to go on resending after a stream broke.
+    patience: Duration,
+    tally: SinkTally,
 }
 
 fn disconnected(detail: impl ToString) -> PlaneError {
@@ -234,8 +288,15 @@ fn disconnected(detail: impl ToString) -> PlaneError {
 }
 
 impl GrpcStepSink {
-    /// A sink for run `run_id` / `incarnation` over `client`, driving its calls on `handle`.
-    pub fn new(handle: Handle, client: DataClient, run_id: &str, incarnation: u64) -> Self {
+    /// A sink for run `run_id` / `incarnation` over `client`, driving its calls on `handle`;
+    /// it resends after a broken stream for up to `patience`.
+    pub fn new(
+        handle: Handle,
+        client: DataClient,
+        run_id: &str,
+        incarnation: u64,
+        patience: Duration,
+    ) -> Self {
         Self {
             handle,
             client,
@@ -245,7 +306,33 @@ impl GrpcStepSink {
             },
             batch: pb::StepBatch::default(),
             stream: None,
+            unacked: Vec::new(),
+            patience,
+            tally: SinkTally::default(),
         }
+    }
+
+    fn open(&self) -> OpenStream {
+        let (tx, rx) = mpsc::channel(4);
+        let mut client = self.client.clone();
+        let call = self
+            .handle
+            .spawn(async move { client.push_steps(ReceiverStream::new(rx)).await });
+        OpenStream { tx, call }
+    }
+
+    /// Sends `batch` on the open stream (opened if none); `Err` when the stream ended early.
+    fn send_on_stream(&mut self, batch: pb::StepBatch) -> Result<(), Broken> {
+        let stream = match &mut self.stream {
+            Some(s) => s,
+            None => self.stream.insert(self.open()),
+        };
+        if stream.tx.blocking_send(batch).is_ok() {
+            return Ok(());
+        }
+        // The call ended early: its status says why.
+        let s = self.stream.take().expect("stream is open");
+        Err(Broken::of(self.handle.block_on(s.call)))
     }
 
     fn push_batch(&mut self) -> Result<(), PlaneError> {
@@ -253,29 +340,44 @@ impl GrpcStepSink {
             return Ok(());
         }
         let batch = std::mem::take(&mut self.batch);
-        let n = batch.steps.len() as u64;
-        let stream = match &mut self.stream {
-            Some(s) => s,
-            None => {
-                let (tx, rx) = mpsc::channel(4);
-                let mut client = self.client.clone();
-                let call = self
-                    .handle
-                    .spawn(async move { client.push_steps(ReceiverStream::new(rx)).await });
-                self.stream.insert(OpenStream { tx, call, sent: 0 })
-            }
-        };
-        if stream.tx.blocking_send(batch).is_err() {
-            // The call ended early: the learner refused the stream or went away. Its status says why.
-            let s = self.stream.take().expect("stream is open");
-            return Err(match self.handle.block_on(s.call) {
-                Ok(Err(status)) => disconnected(status.message()),
-                Ok(Ok(_)) => disconnected("the learner closed the step stream"),
-                Err(e) => disconnected(e),
-            });
+        self.unacked.push(batch.clone());
+        match self.send_on_stream(batch) {
+            Ok(()) => Ok(()),
+            Err(broken) => self.resend(broken),
         }
-        stream.sent += n;
-        Ok(())
+    }
+
+    fn unacked_records(&self) -> u64 {
+        self.unacked.iter().map(|b| b.steps.len() as u64).sum()
+    }
+
+    /// After `broken`, sends every unacknowledged batch again on new streams until one takes
+    /// them all, or gives them up (with the reason) once resending is hopeless or the patience
+    /// is spent.
+    fn resend(&mut self, mut broken: Broken) -> Result<(), PlaneError> {
+        let start = std::time::Instant::now();
+        let mut wait = RESEND_WAIT;
+        loop {
+            if !broken.resend || start.elapsed() + wait > self.patience {
+                let lost = self.unacked_records();
+                self.tally.unacknowledged += lost;
+                self.unacked.clear();
+                self.stream = None;
+                return Err(disconnected(format!(
+                    "{}; gave up {lost} unacknowledged step records after {:.1} s",
+                    broken.detail,
+                    start.elapsed().as_secs_f64()
+                )));
+            }
+            std::thread::sleep(wait);
+            wait = (wait * 2).min(RESEND_WAIT_MAX);
+            self.tally.resends += 1;
+            let batches = self.unacked.clone();
+            match batches.into_iter().try_for_each(|b| self.send_on_stream(b)) {
+                Ok(()) => return Ok(()),
+                Err(b) => broken = b,
+            }
+        }
     }
 }
 
@@ -296,28 +398,46 @@ impl StepSink for GrpcStepSink {
             self.batch.actor_secret = crate::Bytes::copy_from_slice(&header.secret);
         }
         self.batch.steps.push(encode_step(step));
+        self.tally.sent += 1;
         Ok(())
     }
 
     fn flush(&mut self) -> Result<(), PlaneError> {
         self.push_batch()?;
-        let Some(OpenStream { tx, call, sent }) = self.stream.take() else {
+        loop {
+            let Some(OpenStream { tx, call }) = self.stream.take() else {
+                return Ok(());
+            };
+            drop(tx);
+            let ack = match self.handle.block_on(call) {
+                Ok(Ok(r)) => r.into_inner(),
+                failed => {
+                    // The stream broke before its acknowledgement: send everything again, then
+                    // close that stream in the next round.
+                    self.resend(Broken::of(failed))?;
+                    continue;
+                }
+            };
+            let sent = self.unacked_records();
+            self.unacked.clear();
+            self.tally.accepted += ack.accepted;
+            self.tally.duplicates += ack.duplicates;
+            self.tally.refused += ack.refused;
+            let unanswered = sent.saturating_sub(ack.accepted + ack.duplicates + ack.refused);
+            self.tally.unacknowledged += unanswered;
+            if ack.refused > 0 || unanswered > 0 {
+                return Err(PlaneError::Refused {
+                    refused: ack.refused + unanswered,
+                    sent,
+                    reason: ack.reason,
+                });
+            }
             return Ok(());
-        };
-        drop(tx);
-        let ack = match self.handle.block_on(call) {
-            Ok(Ok(r)) => r.into_inner(),
-            Ok(Err(status)) => return Err(disconnected(status.message())),
-            Err(e) => return Err(disconnected(e)),
-        };
-        if ack.refused > 0 || ack.accepted != sent {
-            return Err(PlaneError::Refused {
-                refused: ack.refused,
-                sent,
-                reason: ack.reason,
-            });
         }
-        Ok(())
+    }
+
+    fn tally(&self) -> Option<SinkTally> {
+        Some(self.tally)
     }
 }
 

@@ -74,6 +74,37 @@ pub enum PlaneError {
     },
 }
 
+/// What became of the step records a sink was given, as far as the learner said. Over a plane
+/// with acknowledgements, `sent == accepted + duplicates + refused + unacknowledged` once the
+/// sink is flushed; `accepted` is what the learner stored from this sink, each record once.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct SinkTally {
+    /// Records handed to the sink.
+    pub sent: u64,
+    /// Records the learner acknowledged as stored.
+    pub accepted: u64,
+    /// Records the learner acknowledged as stored before (they were resent after a broken
+    /// connection): not stored twice.
+    pub duplicates: u64,
+    /// Records the learner refused, with the reason the sink returned.
+    pub refused: u64,
+    /// Records whose fate the learner never told: the sink gave up resending them.
+    pub unacknowledged: u64,
+    /// Times the sink opened a new stream to resend records after a broken one.
+    pub resends: u64,
+}
+
+impl std::ops::AddAssign for SinkTally {
+    fn add_assign(&mut self, o: Self) {
+        self.sent += o.sent;
+        self.accepted += o.accepted;
+        self.duplicates += o.duplicates;
+        self.refused += o.refused;
+        self.unacknowledged += o.unacknowledged;
+        self.resends += o.resends;
+    }
+}
+
 /// Where an actor's step records go. Not shared between threads (`Send` only).
 pub trait StepSink: Send {
     /// Sends one step under `header`. May block while the learner applies back-pressure (its
@@ -84,6 +115,10 @@ pub trait StepSink: Send {
     /// was closed and acknowledged; shared memory: delivered into the learner's queue). Call it
     /// at the end of an assignment, before the final episode report.
     fn flush(&mut self) -> Result<(), PlaneError>;
+
+    /// What the learner said of the records sent so far; `None` on a plane without
+    /// acknowledgements (shared memory delivers into the learner's queue and is told nothing).
+    fn tally(&self) -> Option<SinkTally>;
 }
 
 /// Where an actor gets policy versions from. Not shared between threads (`Send` only).

@@ -43,7 +43,7 @@ use iceoryx2::sample::Sample;
 use iceoryx2::service::port_factory::publish_subscribe::PortFactory as PubSubService;
 use thiserror::Error;
 
-use crate::plane::{LeaseHeader, PlaneError, PolicySource, PolicyUpdate, StepSink};
+use crate::plane::{LeaseHeader, PlaneError, PolicySource, PolicyUpdate, SinkTally, StepSink};
 use crate::validate::StepView;
 
 /// The iceoryx2 service flavour: inter-process, ports usable from any thread (`Send`).
@@ -546,6 +546,11 @@ impl StepSink for ShmStepSink {
     /// [`PlaneError::Disconnected`] if it exited or died.
     fn flush(&mut self) -> Result<(), PlaneError> {
         self.learner_present()
+    }
+
+    /// Shared memory carries no acknowledgements: `None`.
+    fn tally(&self) -> Option<SinkTally> {
+        None
     }
 }
 

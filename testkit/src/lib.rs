@@ -1,6 +1,7 @@
 //! Helpers shared by the tests of every crate in the workspace: defined once here, used as a
 //! dev-dependency (nothing in it ships).
 
+pub mod netem;
 pub mod process;
 
 use std::path::{Path, PathBuf};

@@ -9,6 +9,8 @@ use std::process::{Child, Command, Output, Stdio};
 
 use learner::{checkpoint, seeded_rng, Device, RateLimiter, RunState, Td3, Td3Config};
 use learner_service::{read_status, Status};
+
+pub mod certs;
 pub use testkit::process::{cluster, one_line_error, stderr, stdout, Needles};
 
 /// The `adp` binary under test.
