@@ -229,19 +229,17 @@ fn unread_policy_streams_share_one_policy_copy() {
     );
 }
 
-#[test]
-fn ten_thousand_distinct_ranks_leave_a_small_status() {
-    let dir = fresh_dir("hostile-ranks");
-    let (_learner, run, addr, token) = learner(&dir, "rank_forget_ms = 2000\ndead_ranks_kept = 64");
+/// Registers ranks `0..n` one after the other over one connection (one actor each).
+fn register_ranks(addr: &str, token: &str, n: u32) {
     let rt = tokio::runtime::Runtime::new().unwrap();
     rt.block_on(async {
         let a = LearnerAddress {
-            addr: addr.clone(),
-            token: Some(token.clone()),
+            addr: addr.to_owned(),
+            token: Some(token.to_owned()),
             tls: None,
         };
         let (mut control, _data) = a.connect().await.unwrap();
-        for rank in 0..10_000 {
+        for rank in 0..n {
             control
                 .register(pb::RegisterRequest {
                     rank,
@@ -253,6 +251,13 @@ fn ten_thousand_distinct_ranks_leave_a_small_status() {
                 .unwrap();
         }
     });
+}
+
+#[test]
+fn ten_thousand_distinct_ranks_leave_a_small_status() {
+    let dir = fresh_dir("hostile-ranks");
+    let (_learner, run, addr, token) = learner(&dir, "rank_forget_ms = 2000\ndead_ranks_kept = 64");
+    register_ranks(&addr, &token, 10_000);
     poll("a small status.json", || {
         let size = std::fs::metadata(run.join("status.json")).map_or(u64::MAX, |m| m.len());
         status(&run).is_some_and(|s| s.pruned_ranks.ranks >= 9_000 && s.ranks.len() <= 64)
@@ -966,26 +971,7 @@ fn registering_a_live_rank_again_leaves_its_actor_and_lease_alone() {
 fn four_thousand_live_ranks_leave_a_small_status() {
     let dir = fresh_dir("hostile-live-ranks");
     let (_learner, run, addr, token) = learner(&dir, "heartbeat_ms = 1000\nlease_ttl_ms = 600000");
-    let rt = tokio::runtime::Runtime::new().unwrap();
-    rt.block_on(async {
-        let a = LearnerAddress {
-            addr: addr.clone(),
-            token: Some(token.clone()),
-            tls: None,
-        };
-        let (mut control, _data) = a.connect().await.unwrap();
-        for rank in 0..4_000 {
-            control
-                .register(pb::RegisterRequest {
-                    rank,
-                    host: "test".into(),
-                    pid: 1,
-                    ..Default::default()
-                })
-                .await
-                .unwrap();
-        }
-    });
+    register_ranks(&addr, &token, 4_000);
     poll("4,000 live ranks in status.json", || {
         status(&run).is_some_and(|s| s.rank_states.live == 4_000)
     });
