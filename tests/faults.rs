@@ -1447,8 +1447,9 @@ fn phase(procs: &mut Procs, run: &Path, what: &str, steps: u64) -> f64 {
 }
 
 /// Stops `actor` (SIGSTOP) at a moment both ranks of the run hold a lease, as a status written
-/// after the stop shows; lets it run on a little and tries again otherwise. The caller resumes
-/// it (SIGCONT): until then its lease cannot end.
+/// half a second after the stop shows (what the actor sent before it was stopped has landed
+/// by then); lets it run on a little and tries again otherwise. The caller resumes it
+/// (SIGCONT): until then its lease cannot end.
 fn freeze_holding_a_lease(procs: &mut Procs, run: &Path, actor: usize) {
     let written = || {
         std::fs::metadata(run.join("status.json"))
@@ -1457,9 +1458,9 @@ fn freeze_holding_a_lease(procs: &mut Procs, run: &Path, actor: usize) {
     };
     for _ in 0..PATIENCE {
         procs.signal(actor, libc::SIGSTOP);
-        let stopped = std::time::SystemTime::now();
+        let settled = std::time::SystemTime::now() + Duration::from_millis(500);
         procs.wait_for("a status after the stop", PATIENCE, |_| {
-            written().is_some_and(|t| t > stopped)
+            written().is_some_and(|t| t > settled)
         });
         if read_status(run).unwrap().rank_states.leased == 2 {
             return;
@@ -1475,7 +1476,7 @@ fn freeze_holding_a_lease(procs: &mut Procs, run: &Path, actor: usize) {
 /// [`testkit::netem`] (the kernels this runs on have no `sch_netem`; the relay drops, delays and
 /// reorders packets the same way), with TLS as on a cluster. One run goes through: a clean
 /// link; 5 % loss; 200 ms delay with 50 ms jitter (which reorders); a 30 s partition of one
-/// actor's namespace, then healed; 20 s in which the learner's replies to the other actor are
+/// actor's namespace, then healed; 40 s in which the learner's replies to the other actor are
 /// lost while its steps arrive; and a partition of both that spans a checkpoint. Then the
 /// operator stops it (the budget is out of reach: how many steps the partitions let through
 /// depends on the machine), and every process exits 0.
@@ -1606,8 +1607,8 @@ fn training_across_an_impaired_network_stores_every_step_once_and_goes_on() {
         status(&run).is_some_and(|s| rank_steps(&s, 1) > healed_from + 100)
     });
 
-    // Replies lost: nothing of the learner reaches rank 0 for 20 s while its steps still
-    // arrive and are stored. Its connection's keep-alive gives up (15 s) with the step stream
+    // Replies lost: nothing of the learner reaches rank 0 for 40 s while its steps still
+    // arrive and are stored. Its connection's keep-alive gives up (30 s) with the step stream
     // unacknowledged; once healed, it resends the stream and the learner recognises every step
     // it stored. (Tried again in the rare case that rank 0 was between streams when cut off.)
     let mut replies_lost = 0;
@@ -1625,7 +1626,7 @@ fn training_across_an_impaired_network_stores_every_step_once_and_goes_on() {
             ..Impairment::default()
         });
         procs.signal(actors[0], libc::SIGCONT);
-        procs.stay_alive(200);
+        procs.stay_alive(400);
         link0.set(Impairment::default());
         let healed = read_status(&run).unwrap();
         procs.wait_for("rank 0 back after lost replies", PATIENCE, |_| {

@@ -141,10 +141,11 @@ impl LearnerAddress {
             })?
             .connect_timeout(Duration::from_secs(5))
             .tcp_nodelay(true)
-            // A learner that stops answering (a partition, a dead node) is noticed within 15 s;
-            // the step sink then resends what was not acknowledged on a new connection.
-            .http2_keep_alive_interval(Duration::from_secs(5))
-            .keep_alive_timeout(Duration::from_secs(10));
+            // A learner that stops answering (a partition, a dead node) is noticed within 30 s;
+            // the step sink then resends what was not acknowledged on a new connection. (An
+            // actor queued behind a flood in a loaded learner's backlog waits longer than 15 s.)
+            .http2_keep_alive_interval(Duration::from_secs(10))
+            .keep_alive_timeout(Duration::from_secs(20));
         if let Some(tls) = &self.tls {
             ep = ep
                 .tls_config(tls.client_config(host)?)
