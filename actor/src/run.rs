@@ -713,8 +713,19 @@ impl Live<'_> {
                 }
                 Err(EpisodeError::Fatal(e)) => return Err(e),
             };
-            if let Err(e) = self.planes.sink.flush() {
-                return Ok(Some(SessionEnd::Reconnect(e.to_string())));
+            match self.planes.sink.flush() {
+                Ok(()) => {}
+                // The learner answered: the lease is over (expired, broken, or the run ended),
+                // the session is not. The next assignment (or the shutdown) comes from it.
+                Err(PlaneError::Refused {
+                    refused,
+                    sent,
+                    reason,
+                }) => {
+                    tracing::warn!(lease = a.lease_id, refused, sent, %reason, "the learner refused step records");
+                    break;
+                }
+                Err(e) => return Ok(Some(SessionEnd::Reconnect(e.to_string()))),
             }
             tracing::debug!(
                 lease = a.lease_id,

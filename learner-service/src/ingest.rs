@@ -41,6 +41,15 @@ pub enum Stored {
     Duplicate,
 }
 
+/// The refusal of a step or report that arrives once the run is over (the final checkpoint is
+/// being written without it).
+fn run_over(lease: u64) -> Refusal {
+    Refusal::Lease(
+        lease,
+        "the run is over: the learner is writing its final checkpoint".into(),
+    )
+}
+
 /// The refusal of a request whose lease the registry does not accept.
 fn lease_refusal(e: RegistryError) -> Refusal {
     match e {
@@ -97,9 +106,12 @@ impl Shared {
         if core.take_duplicate(header, step) {
             return Ok(Stored::Duplicate);
         }
+        if core.closed {
+            return Err(run_over(header.lease_id));
+        }
         // Hold inserts back while the learner lags, but only while an update can run: with
         // nothing ready to sample no update can make room, and waiting would deadlock.
-        while core.rate.inserts_allowed() == 0 && core.replay.ready_len() > 0 && !core.abort {
+        while core.rate.inserts_allowed() == 0 && core.replay.ready_len() > 0 && !core.abort && !core.closed {
             core = self
                 .wake
                 .wait_timeout(core, Duration::from_millis(50))
@@ -110,6 +122,9 @@ impl Shared {
         // stream's last batch) while this one waited.
         if core.take_duplicate(header, step) {
             return Ok(Stored::Duplicate);
+        }
+        if core.closed {
+            return Err(run_over(header.lease_id));
         }
         let now = self.now_ms();
         if step.step_index >= self.max_episode_steps {
@@ -144,6 +159,9 @@ impl Shared {
         let now = self.now_ms();
         let mut core = self.lock();
         core.check_secret(r.actor_id, &r.actor_secret)?;
+        if core.closed {
+            return Err(run_over(r.lease_id));
+        }
         core.registry
             .check_lease(r.actor_id, r.lease_id, now)
             .map_err(lease_refusal)?;
@@ -372,6 +390,25 @@ mod tests {
         assert!(e.to_string().contains("out of order"), "{e}");
         f.shared.expire_leases_at(f.shared.now_ms());
         assert_eq!(f.shared.lock().totals.leases_dropped, 1);
+    }
+
+    #[test]
+    fn once_the_run_is_over_steps_and_reports_are_refused_not_stored() {
+        let f = fixture(td3_config(), 60_000);
+        let ingest = |i: u32| f.shared.ingest(Plane::Grpc, &f.header, &step(f.first, i));
+        assert_eq!(ingest(0), Ok(Stored::Inserted));
+        f.shared.lock().closed = true;
+        // What was stored is still recognised; nothing new is stored, and the actor is told.
+        assert_eq!(ingest(0), Ok(Stored::Duplicate));
+        let e = ingest(1).unwrap_err();
+        assert!(e.to_string().contains("the run is over"), "{e}");
+        let e = f.shared.report(&report(&f, 1.0)).unwrap_err();
+        assert!(e.to_string().contains("the run is over"), "{e}");
+        let core = f.shared.lock();
+        assert_eq!(
+            (core.totals.steps_received, core.totals.episodes_reported),
+            (1, 0)
+        );
     }
 
     #[test]

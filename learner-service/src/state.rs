@@ -41,6 +41,9 @@ pub struct Core {
     pub stopping: bool,
     /// Stop now (signal, shutdown call) rather than after the owed updates.
     pub abort: bool,
+    /// The training thread is done and writes the final checkpoint: steps and reports are
+    /// refused from now on (the actor is told), so none is acknowledged and then lost.
+    pub closed: bool,
 }
 
 impl Core {
@@ -64,6 +67,7 @@ impl Core {
             secrets: HashMap::new(),
             ranks: BTreeMap::new(),
             stopping: false,
+            closed: false,
             abort: false,
         }
     }

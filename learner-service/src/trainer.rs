@@ -92,7 +92,7 @@ impl Trainer {
         let completed;
         loop {
             // Decide under the lock; act outside it.
-            let core = self.shared.lock();
+            let mut core = self.shared.lock();
             let cycle = core.registry.cycle();
             let publish = published.is_none_or(|v| cycle > v);
             let can_update = core.rate.updates_allowed() > 0 && core.replay.ready_len() > 0 && !core.abort;
@@ -106,6 +106,7 @@ impl Trainer {
                     && core.open_leases() == 0);
             if done {
                 completed = !core.abort;
+                core.closed = true;
                 break;
             }
             if publish {
@@ -113,7 +114,6 @@ impl Trainer {
                 let sigma = exploration.sigma(core.rate.inserts());
                 // Steps made with this version may arrive as soon as either plane carries it:
                 // the learner must already accept it.
-                let mut core = core;
                 core.policy_version = version;
                 drop(core);
                 shm_retry = self.publish(version, sigma, shm_pub.as_mut().filter(|_| !shm_silent));
