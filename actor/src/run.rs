@@ -434,7 +434,6 @@ impl Live<'_> {
         flags: &Flags,
         drain_limit: Duration,
     ) -> Result<SessionEnd, SessionError> {
-        let live = self;
         loop {
             if flags.shutdown.load(Ordering::Acquire) {
                 wait_for_lease_end(flags, drain_limit);
@@ -445,7 +444,7 @@ impl Live<'_> {
                     "the learner no longer knows this session, or stopped answering heartbeats".into(),
                 ));
             }
-            let a = match live.next_assignment()? {
+            let a = match self.next_assignment()? {
                 Next::Assign(a) => a,
                 Next::Idle(ms) => {
                     std::thread::sleep(Duration::from_millis(u64::from(ms.max(1))));
@@ -467,10 +466,10 @@ impl Live<'_> {
             );
             flags.lease.store(a.lease_id, Ordering::Release);
             flags.lease_lost.store(false, Ordering::Release);
-            if let Some(end) = live.await_policy(&a, flags)? {
+            if let Some(end) = self.await_policy(&a, flags)? {
                 return Ok(end);
             }
-            if let Some(end) = live.run_assignment(ctx, &a, flags)? {
+            if let Some(end) = self.run_assignment(ctx, &a, flags)? {
                 return Ok(end);
             }
             // The lease stays in the heartbeats until the learner has received all its steps and
