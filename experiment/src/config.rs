@@ -1267,6 +1267,49 @@ mod tests {
         assert_eq!(stuck.test_worlds, base.test_worlds);
     }
 
+    /// The learner-setting experiments train the paper's DWA 1.5 m/s arm exactly as the paper
+    /// does (the same seeds, worlds, networks, steps and TD3 settings) except for `[td3]
+    /// batch_size` and `updates_per_insert`, and evaluate and search as it does, in its store:
+    /// so their ADP rows differ from the paper's by the learner setting alone.
+    #[test]
+    fn the_learner_settings_differ_from_the_paper_only_in_batch_and_update_rate() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/experiments");
+        let paper = Experiment::load(&dir.join("paper.toml"), &Restrict::default()).unwrap();
+        let arm = paper
+            .arms
+            .iter()
+            .find(|a| a.id() == "dwa-decremental-1.5-fit")
+            .unwrap();
+        for (file, batch) in [("learner-batch512.toml", 512), ("learner-upi025.toml", 128)] {
+            let ex = Experiment::load(&dir.join(file), &Restrict::default()).unwrap();
+            assert_eq!(ex.arms, [arm.clone()], "{file}");
+            assert_eq!(ex.seeds, paper.seeds, "{file}");
+            assert_eq!(ex.section.first_seed, paper.section.first_seed, "{file}");
+            assert_eq!(ex.section.store, paper.section.store, "{file}");
+            for seed in 0..ex.seeds {
+                let mut setting = ex.train_config(&ex.arms[0], seed);
+                assert_eq!(
+                    (setting.td3.batch_size, setting.td3.updates_per_insert),
+                    (batch, 0.25),
+                    "{file}"
+                );
+                let original = paper.train_config(arm, seed);
+                setting.td3.batch_size = original.td3.batch_size;
+                setting.td3.updates_per_insert = original.td3.updates_per_insert;
+                assert_eq!(setting, original, "{file} seed {seed}");
+            }
+            let eval = EvalSection {
+                vanilla: paper.eval.vanilla,
+                ..ex.eval.clone()
+            };
+            assert_eq!(eval, paper.eval, "{file}");
+            assert_eq!(ex.search, paper.search, "{file}");
+            assert_eq!(ex.stats, paper.stats, "{file}");
+            assert_eq!(ex.shuffle, paper.shuffle, "{file}");
+            assert_eq!(ex.test_worlds, paper.test_worlds, "{file}");
+        }
+    }
+
     /// Groups add their own cross products after the section's arms, without repeating an
     /// arm; their world selections are checked like the section's, and a restriction may
     /// name what only a group declares.

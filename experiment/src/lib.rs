@@ -1311,7 +1311,7 @@ fn write_report(ctx: &Ctx<'_>) -> anyhow::Result<PathBuf> {
 }
 
 /// The learning-curve figure of `d` (each seed's greedy evaluations during training), or a
-/// note that no run wrote them.
+/// note that no finished training wrote them.
 fn learning_figure(
     ctx: &Ctx<'_>,
     arm: usize,
@@ -1321,13 +1321,16 @@ fn learning_figure(
     notes: &mut Vec<String>,
 ) -> anyhow::Result<()> {
     let id = d.arm.id();
+    // Finished trainings only: a training still running (or stopped to resume) has a curve
+    // that ends early, and its directory is not committed with the report.
     let curves: Vec<(String, Vec<figures::GreedyPoint>)> = (0..ctx.ex.seeds)
+        .filter(|&s| ctx.layout.done(&Stage::Train { arm, seed: s }))
         .filter_map(|s| figures::read_greedy(&ctx.layout.run_dir(arm, s)).map(|g| (format!("seed {s}"), g)))
         .filter(|(_, g)| !g.is_empty())
         .collect();
     if curves.is_empty() {
         notes.push(format!(
-            "{id}: no run wrote greedy_eval.jsonl (the learner's periodic greedy evaluation), so \
+            "{id}: no finished training wrote greedy_eval.jsonl (the learner's periodic greedy evaluation), so \
              there is no learning-curve figure"
         ));
     } else {

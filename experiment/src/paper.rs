@@ -22,7 +22,7 @@ use planner::{ActionSpace, PlannerKind};
 use super::config::{planner_name, space_label, speed_label, Experiment};
 use super::record::EvalRecord;
 use super::report::{compare, ArmData, Comparison};
-use super::stats::{mean, sample_sd};
+use super::stats::{mean, sample_sd, Interval};
 
 /// A published row: success (%), time (s), score, and collision and timeout (%) where the
 /// paper gives them.
@@ -531,32 +531,46 @@ fn measured_row(out: &mut String, name: &str, r: &Option<Row>, published: Option
     let _ = writeln!(out, "| {name} | {} | {} | {rest} | {paper} |", pct(r), score(r));
 }
 
-fn delta(c: &Option<Comparison>) -> String {
-    c.as_ref().map_or_else(
-        || "–".into(),
-        |c| {
-            format!(
-                "score {:+.4} [{:+.4}, {:+.4}]; success {:+.2} pp [{:+.2}, {:+.2}]; McNemar p {:.3}",
-                c.d_score_seeds.mean,
-                c.d_score_seeds.lo,
-                c.d_score_seeds.hi,
-                100.0 * c.d_success_seeds.mean,
-                100.0 * c.d_success_seeds.lo,
-                100.0 * c.d_success_seeds.hi,
-                c.mcnemar.p_exact
-            )
-        },
+/// ADP against one control in words: the score and success differences with their intervals
+/// over seeds and worlds, each with its verdict, and McNemar's test with the side it favours.
+fn delta(c: &Option<Comparison>, control: &str) -> String {
+    let Some(c) = c else {
+        return "– (not measured yet)".into();
+    };
+    let m = &c.mcnemar;
+    let level = 1.0 - c.d_score_seeds.confidence;
+    let favours = if m.p_exact >= level {
+        format!("no difference shown at {:.0} %", 100.0 * level)
+    } else if m.adp_only > m.control_only {
+        "ADP succeeds more often".to_string()
+    } else {
+        format!("{control} succeeds more often")
+    };
+    format!(
+        "score {:+.4} [{:+.4}, {:+.4}] ({}); success {:+.2} pp [{:+.2}, {:+.2}] ({}); McNemar: \
+         ADP alone succeeded in {} runs, {control} alone in {}, p {:.3} ({favours})",
+        c.d_score_seeds.mean,
+        c.d_score_seeds.lo,
+        c.d_score_seeds.hi,
+        verdict(&c.d_score_seeds),
+        100.0 * c.d_success_seeds.mean,
+        100.0 * c.d_success_seeds.lo,
+        100.0 * c.d_success_seeds.hi,
+        verdict(&c.d_success_seeds),
+        m.adp_only,
+        m.control_only,
+        m.p_exact
     )
 }
 
-/// A verdict in words: whether ADP's score beats the control's, from the interval over
-/// seeds and worlds.
-fn verdict(c: &Option<Comparison>) -> &'static str {
-    match c {
-        None => "not measured yet",
-        Some(c) if c.d_score_seeds.lo > 0.0 => "ADP better",
-        Some(c) if c.d_score_seeds.hi < 0.0 => "ADP worse",
-        Some(_) => "a tie (the interval holds 0)",
+/// A verdict in words on one difference of ADP minus a control, from its interval.
+fn verdict(d: &Interval) -> &'static str {
+    if d.lo > 0.0 {
+        "ADP better"
+    } else if d.hi < 0.0 {
+        "ADP worse"
+    } else {
+        "a tie: the interval holds 0"
     }
 }
 
@@ -585,11 +599,9 @@ fn cell_block(out: &mut String, title: &str, c: &Cell) {
     );
     let _ = writeln!(
         out,
-        "\nADP − DDP: {} ({}). ADP − best constant: {} ({}).",
-        delta(&c.adp_vs_ddp),
-        verdict(&c.adp_vs_ddp),
-        delta(&c.adp_vs_constant),
-        verdict(&c.adp_vs_constant)
+        "\nADP − DDP: {}.\n\nADP − best constant: {}.",
+        delta(&c.adp_vs_ddp, "DDP"),
+        delta(&c.adp_vs_constant, "the best constant")
     );
     if let Some(line) = calibration(c) {
         let _ = writeln!(out, "{line}");
@@ -743,6 +755,7 @@ mod tests {
     use super::*;
     use crate::config::Restrict;
     use crate::record::one_run_record;
+    use crate::stats::McNemar;
 
     fn rec(controller: &str, worlds: &[(usize, bool, f64)]) -> EvalRecord {
         one_run_record(controller, worlds)
@@ -770,6 +783,60 @@ mod tests {
             80.0
         );
         assert_eq!(published_table2(None, Some(125)).unwrap().time_s, 10.79);
+    }
+
+    /// Each difference gets its own verdict, and McNemar's test names the side it favours:
+    /// a higher score with fewer successful runs is said as both.
+    #[test]
+    fn a_cell_says_which_side_each_test_favours() {
+        let interval = |mean: f64, lo: f64, hi: f64| Interval {
+            n: 225,
+            mean,
+            lo,
+            hi,
+            confidence: 0.95,
+        };
+        let mcnemar = McNemar {
+            n: 6750,
+            adp_only: 50,
+            control_only: 83,
+            p_exact: 0.005,
+            chi2: 7.7,
+            p_chi2: 0.0055,
+        };
+        let c = Some(Comparison {
+            control: "ddp".into(),
+            d_success: interval(-0.003, -0.007, 0.0002),
+            d_score: interval(0.0037, 0.0017, 0.0059),
+            d_score_seeds: interval(0.0037, 0.0014, 0.0062),
+            d_success_seeds: interval(-0.003, -0.0081, 0.001),
+            mcnemar,
+            per_seed: vec![],
+        });
+        let words = delta(&c, "DDP");
+        assert_eq!(
+            words,
+            "score +0.0037 [+0.0014, +0.0062] (ADP better); success -0.30 pp [-0.81, +0.10] (a \
+             tie: the interval holds 0); McNemar: ADP alone succeeded in 50 runs, DDP alone in \
+             83, p 0.005 (DDP succeeds more often)"
+        );
+        let even = Some(Comparison {
+            mcnemar: McNemar {
+                p_exact: 0.2,
+                ..mcnemar
+            },
+            ..c.clone().unwrap()
+        });
+        assert!(delta(&even, "DDP").ends_with("p 0.200 (no difference shown at 5 %)"));
+        let ahead = Some(Comparison {
+            mcnemar: McNemar {
+                adp_only: 83,
+                control_only: 50,
+                ..mcnemar
+            },
+            ..c.unwrap()
+        });
+        assert!(delta(&ahead, "DDP").ends_with("(ADP succeeds more often)"));
     }
 
     /// Table I takes the decremental arms of the first training worlds; Table III is the
@@ -806,14 +873,23 @@ mod tests {
         let c = &t.table1[0];
         assert_eq!(c.adp.as_ref().unwrap().seeds, 2);
         assert_eq!(c.ddp.as_ref().unwrap().success_pct, 50.0);
-        assert_eq!(verdict(&c.adp_vs_ddp), "ADP better");
-        assert_eq!(verdict(&c.adp_vs_constant), "not measured yet");
+        let ddp = c.adp_vs_ddp.as_ref().unwrap();
+        assert_eq!(verdict(&ddp.d_score_seeds), "ADP better");
+        assert_eq!(verdict(&ddp.d_success_seeds), "ADP better");
+        assert!(c.adp_vs_constant.is_none());
+        assert_eq!(
+            delta(&c.adp_vs_constant, "the best constant"),
+            "– (not measured yet)"
+        );
         assert_eq!(c.published.len(), 3);
         // On worlds 5 to 8 both succeed everywhere: a tie, on four worlds.
         let h = &t.table3[0];
         assert_eq!(h.ddp.as_ref().unwrap().success_pct, 100.0);
         assert_eq!(h.adp_vs_ddp.as_ref().unwrap().d_score.n, 4);
-        assert_eq!(verdict(&h.adp_vs_ddp), "a tie (the interval holds 0)");
+        let hard = h.adp_vs_ddp.as_ref().unwrap();
+        assert_eq!(verdict(&hard.d_score_seeds), "a tie: the interval holds 0");
+        let words = delta(&h.adp_vs_ddp, "DDP");
+        assert!(words.contains("no difference shown at 5 %"), "{words}");
         let md = render(&t);
         assert!(md.contains("### Table I") && md.contains("### Table III"), "{md}");
         assert!(md.contains("| DDP | 50.00 | 0.250 |"), "{md}");
