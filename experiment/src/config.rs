@@ -1282,7 +1282,7 @@ mod tests {
             .unwrap();
         for (file, batch) in [("learner-batch512.toml", 512), ("learner-upi025.toml", 128)] {
             let ex = Experiment::load(&dir.join(file), &Restrict::default()).unwrap();
-            assert_eq!(ex.arms, [arm.clone()], "{file}");
+            assert_eq!(ex.arms, std::slice::from_ref(arm), "{file}");
             assert_eq!(ex.seeds, paper.seeds, "{file}");
             assert_eq!(ex.section.first_seed, paper.section.first_seed, "{file}");
             assert_eq!(ex.section.store, paper.section.store, "{file}");

@@ -804,7 +804,7 @@ mod tests {
             chi2: 7.7,
             p_chi2: 0.0055,
         };
-        let c = Some(Comparison {
+        let base = Comparison {
             control: "ddp".into(),
             d_success: interval(-0.003, -0.007, 0.0002),
             d_score: interval(0.0037, 0.0017, 0.0059),
@@ -812,8 +812,8 @@ mod tests {
             d_success_seeds: interval(-0.003, -0.0081, 0.001),
             mcnemar,
             per_seed: vec![],
-        });
-        let words = delta(&c, "DDP");
+        };
+        let words = delta(&Some(base.clone()), "DDP");
         assert_eq!(
             words,
             "score +0.0037 [+0.0014, +0.0062] (ADP better); success -0.30 pp [-0.81, +0.10] (a \
@@ -825,7 +825,7 @@ mod tests {
                 p_exact: 0.2,
                 ..mcnemar
             },
-            ..c.clone().unwrap()
+            ..base.clone()
         });
         assert!(delta(&even, "DDP").ends_with("p 0.200 (no difference shown at 5 %)"));
         let ahead = Some(Comparison {
@@ -834,7 +834,7 @@ mod tests {
                 control_only: 50,
                 ..mcnemar
             },
-            ..c.unwrap()
+            ..base
         });
         assert!(delta(&ahead, "DDP").ends_with("(ADP succeeds more often)"));
     }
