@@ -9,7 +9,7 @@ use super::config::{planner_name, space_label, Experiment};
 use super::controls::halving;
 use super::plan::{Stage, SweepWho};
 use super::recipe::Kind;
-use super::store::{cost_class, StageMeta};
+use super::store::{class_of, cost_class, train_class, StageMeta};
 
 /// The kind of a stage's result.
 pub fn kind(stage: &Stage) -> Kind {
@@ -36,7 +36,16 @@ pub fn units(ex: &Experiment, stage: &Stage) -> (f64, String) {
             .expect("a DDP stage comes from an arm")
     };
     match *stage {
-        Stage::Train { arm, .. } => (ex.train.run.steps as f64, class(arm, true, true)),
+        Stage::Train { arm, .. } => {
+            let a = &ex.arms[arm];
+            let td3 = &ex.train.td3;
+            let class = train_class(
+                &planner_name(a.planner),
+                Some(&space_label(a.space)),
+                td3.batch_size as f64 * td3.updates_per_insert,
+            );
+            (ex.train.run.steps as f64, class)
+        }
         Stage::Search { arm } => {
             let s = &ex.search;
             let rungs = halving(
@@ -116,7 +125,7 @@ impl Rates {
     pub fn measured(metas: &[StageMeta]) -> Self {
         let mut measured: BTreeMap<String, (f64, f64)> = BTreeMap::new();
         for m in metas.iter().filter(|m| m.units > 0.0 && m.seconds > 0.0) {
-            let e = measured.entry(m.class.clone()).or_default();
+            let e = measured.entry(class_of(m)).or_default();
             // The CPU time it used where measured (a machine shared with other work inflates
             // wall time, not CPU time), else its wall time on every thread it had.
             e.0 += m.cpu_s.unwrap_or(m.seconds * m.threads.max(1) as f64);
@@ -215,6 +224,40 @@ mod tests {
         assert_eq!(rates.rate("eval:dwa:schedule:-"), (0.05, true));
         let (mppi, measured) = rates.rate("eval:mppi:schedule:-");
         assert!(!measured && mppi > rates.rate("eval:dwa:schedule:-").0);
+    }
+
+    /// A training's cost follows its learner's work per agent step: one that replays a
+    /// quarter of the default's samples is its own class, even where an older record named
+    /// only its planner and space, and batch 512 at a quarter of the updates is the default's.
+    #[test]
+    fn trainings_are_classed_by_the_samples_their_learner_replays() {
+        let training = |batch: usize, rate: f64, cpu_s: f64| StageMeta {
+            cpu_s: Some(cpu_s),
+            recipe: serde_json::json!({
+                "kind": "train",
+                "inputs": {"td3": {"batch_size": batch, "updates_per_insert": rate}}
+            }),
+            ..meta("train:dwa:decremental", 120_000.0, 4000.0, 2)
+        };
+        let rates = Rates::measured(&[training(128, 1.0, 3000.0), training(128, 0.25, 780.0)]);
+        assert_eq!(rates.rate("train:dwa:decremental"), (0.025, true));
+        assert_eq!(rates.rate("train:dwa:decremental:replay32"), (0.0065, true));
+        let class = |td3: &str| {
+            let text = format!(
+                "[experiment]\nname = \"u\"\nplanners = [\"dwa\"]\nspeeds = [1.5]\n[train.td3]\n{td3}\n"
+            );
+            let ex = Experiment::parse("u.toml", &text, &Restrict::default()).unwrap();
+            units(&ex, &Stage::Train { arm: 0, seed: 0 }).1
+        };
+        assert_eq!(class(""), "train:dwa:decremental");
+        assert_eq!(
+            class("updates_per_insert = 0.25"),
+            "train:dwa:decremental:replay32"
+        );
+        assert_eq!(
+            class("batch_size = 512\nupdates_per_insert = 0.25"),
+            "train:dwa:decremental"
+        );
     }
 
     #[test]

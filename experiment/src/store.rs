@@ -45,7 +45,8 @@ pub struct StageMeta {
     pub description: String,
     /// The experiment that computed it (`[experiment] name`).
     pub experiment: String,
-    /// Its cost class ([`cost_class`]): results of one class cost alike per unit.
+    /// Its cost class ([`cost_class`], [`train_class`]): results of one class cost alike per
+    /// unit.
     pub class: String,
     /// Work units: episodes for searches and evaluations, agent steps for trainings.
     pub units: f64,
@@ -129,9 +130,48 @@ impl Store {
     }
 }
 
+/// Samples a training with the default learner replays per agent step: `[td3] batch_size`
+/// (128) times `updates_per_insert` (1).
+const DEFAULT_REPLAY: f64 = 128.0;
+
+/// The cost class of a training that replays `replay` samples per agent step (`[td3]
+/// batch_size` x `updates_per_insert`): the learner's work per agent step, which a training's
+/// cost follows besides its planner's. The default replay keeps [`cost_class`]'s name
+/// (`train:dwa:decremental`); another gets a class of its own (`train:dwa:decremental:replay32`),
+/// so a cheap learner's trainings do not lower the estimate of the default's.
+pub fn train_class(planner: &str, space: Option<&str>, replay: f64) -> String {
+    let base = cost_class(Kind::Train, planner, space, true);
+    if (replay - DEFAULT_REPLAY).abs() < 1e-9 {
+        base
+    } else {
+        format!("{base}:replay{replay}")
+    }
+}
+
+/// The cost class of a finished stage's record: a training's from the learner settings of its
+/// recipe ([`train_class`]; records written before trainings were told apart by them name
+/// only the planner and space), any other stage's as recorded.
+pub fn class_of(meta: &StageMeta) -> String {
+    let td3 = &meta.recipe["inputs"]["td3"];
+    let mut parts = meta.class.split(':');
+    match (
+        parts.next(),
+        parts.next(),
+        parts.next(),
+        td3["batch_size"].as_f64(),
+        td3["updates_per_insert"].as_f64(),
+    ) {
+        (Some("train"), Some(planner), space, Some(batch), Some(rate)) => {
+            train_class(planner, space, batch * rate)
+        }
+        _ => meta.class.clone(),
+    }
+}
+
 /// The cost class of a stage: the kind, the planner and, for evaluations, whether a network
 /// chooses (`policy`) or a fixed schedule does (`schedule`), and the action space (a policy
-/// that drives the robot itself runs every episode to its time limit).
+/// that drives the robot itself runs every episode to its time limit). A training's class
+/// also depends on its learner: see [`train_class`].
 pub fn cost_class(kind: Kind, planner: &str, space: Option<&str>, network: bool) -> String {
     match kind {
         Kind::Train => format!("train:{planner}:{}", space.unwrap_or("-")),
