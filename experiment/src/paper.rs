@@ -22,7 +22,7 @@ use planner::{ActionSpace, PlannerKind};
 use super::config::{planner_name, space_label, speed_label, Experiment};
 use super::record::EvalRecord;
 use super::report::{compare, ArmData, Comparison};
-use super::stats::{mean, sample_sd, Interval};
+use super::stats::{mean, sample_sd, Interval, Side};
 
 /// A published row: success (%), time (s), score, and collision and timeout (%) where the
 /// paper gives them.
@@ -565,12 +565,10 @@ fn delta(c: &Option<Comparison>, control: &str) -> String {
 
 /// A verdict in words on one difference of ADP minus a control, from its interval.
 fn verdict(d: &Interval) -> &'static str {
-    if d.lo > 0.0 {
-        "ADP better"
-    } else if d.hi < 0.0 {
-        "ADP worse"
-    } else {
-        "a tie: the interval holds 0"
+    match d.side() {
+        Side::Above => "ADP better",
+        Side::Below => "ADP worse",
+        Side::Holds => "a tie: the interval holds 0",
     }
 }
 

@@ -12,7 +12,7 @@ use super::controls::SearchResult;
 use super::record::{EvalRecord, Summary};
 use super::stats::{
     bootstrap_mean, bootstrap_seeds_and_worlds, mcnemar, mean, paired_differences, sample_sd, Interval,
-    McNemar,
+    McNemar, Side,
 };
 
 /// Everything evaluated for one arm (missing stages are `None` or absent).
@@ -325,12 +325,10 @@ pub fn sensing_results(d: &ArmData, ex: &Experiment) -> Vec<SensingResult> {
 /// The sign of a difference's interval in words: "ADP higher", "ADP lower", or that the
 /// interval includes 0.
 fn in_words(i: &Interval) -> &'static str {
-    if i.lo > 0.0 {
-        "ADP higher"
-    } else if i.hi < 0.0 {
-        "ADP lower"
-    } else {
-        "no difference resolved (the interval includes 0)"
+    match i.side() {
+        Side::Above => "ADP higher",
+        Side::Below => "ADP lower",
+        Side::Holds => "no difference resolved (the interval includes 0)",
     }
 }
 

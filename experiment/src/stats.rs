@@ -58,6 +58,30 @@ pub struct Interval {
     pub confidence: f64,
 }
 
+/// Where an interval lies against 0: what a difference's verdict says in words.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Side {
+    /// The whole interval is above 0.
+    Above,
+    /// The whole interval is below 0.
+    Below,
+    /// The interval holds 0: no difference resolved.
+    Holds,
+}
+
+impl Interval {
+    /// Where the interval lies against 0.
+    pub fn side(&self) -> Side {
+        if self.lo > 0.0 {
+            Side::Above
+        } else if self.hi < 0.0 {
+            Side::Below
+        } else {
+            Side::Holds
+        }
+    }
+}
+
 /// SplitMix64: a tiny, well-mixed, seedable generator (Steele et al. 2014), enough for
 /// resampling indices.
 #[derive(Clone, Debug)]
