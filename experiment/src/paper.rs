@@ -286,6 +286,8 @@ pub struct Tables {
     pub test_worlds: usize,
     /// Agent steps per training.
     pub steps: u64,
+    /// Training seeds per arm the protocol asks for: an ADP row over fewer says so.
+    pub seeds: usize,
     /// Table I, planner-major, then speed.
     pub table1: Vec<Cell>,
     /// Table II, action spaces.
@@ -480,6 +482,7 @@ pub fn tables(ex: &Experiment, data: &[ArmData], hardest: &str, hardest_worlds: 
         trim: ex.eval.trim,
         test_worlds: ex.test_worlds.len(),
         steps: ex.train.run.steps,
+        seeds: ex.seeds,
         table1,
         table2_spaces,
         table2_worlds,
@@ -646,7 +649,8 @@ pub fn calibration(c: &Cell) -> Option<String> {
 }
 
 /// The compact Table I: one line per cell (DDP, best constant and ADP score and success, and
-/// the verdicts), the table README shows.
+/// the verdicts), the table README shows. An ADP cell over fewer seeds than the protocol's
+/// says how many it has.
 pub fn summary_table(t: &Tables) -> String {
     let mut out = String::from(
         "| planner | speed (m/s) | vanilla | DDP | best constant | ADP | ADP − DDP score | ADP − constant score |\n|---|---|---|---|---|---|---|---|\n",
@@ -677,7 +681,12 @@ pub fn summary_table(t: &Tables) -> String {
             both(&c.vanilla),
             both(&c.ddp),
             both(&c.constant),
-            both(&c.adp),
+            match &c.adp {
+                Some(r) if r.seeds < t.seeds => {
+                    format!("{} ({} of {} seeds)", both(&c.adp), r.seeds, t.seeds)
+                }
+                _ => both(&c.adp),
+            },
             d(&c.adp_vs_ddp),
             d(&c.adp_vs_constant)
         );
@@ -904,6 +913,14 @@ mod tests {
         assert!(calibration(&near).unwrap().contains("within 8 points"));
         assert!(summary_table(&t)
             .contains("| dwa | 1.5 | 50.0 % / 0.250 | 50.0 % / 0.250 | – | 100.0 % / 0.500 |"));
+        let more = Tables {
+            seeds: 3,
+            ..t.clone()
+        };
+        assert!(
+            summary_table(&more).contains("| 100.0 % / 0.500 (2 of 3 seeds) |"),
+            "a cell with fewer seeds than the protocol says so"
+        );
     }
 
     /// README's results table is the one the paper's report generated.
