@@ -153,6 +153,7 @@ fn adopt_one(ctx: &Ctx<'_>, dir: &Path, cores: u32) -> anyhow::Result<Option<Sta
             seconds: 0.0,
             threads: 0,
             cpu_s: None,
+            timed_units: None,
             finished_unix_s: 0,
             recipe: serde_json::to_value(&recipe).expect("recipes serialize"),
         },

@@ -124,12 +124,17 @@ impl Rates {
     /// The rates of `metas` (every finished stage of a store).
     pub fn measured(metas: &[StageMeta]) -> Self {
         let mut measured: BTreeMap<String, (f64, f64)> = BTreeMap::new();
-        for m in metas.iter().filter(|m| m.units > 0.0 && m.seconds > 0.0) {
+        for m in metas.iter().filter(|m| m.seconds > 0.0) {
+            // Only the units its time covers (a resumed training's may be fewer than all).
+            let timed = m.timed_units.unwrap_or(m.units).min(m.units);
+            if timed <= 0.0 {
+                continue;
+            }
             let e = measured.entry(class_of(m)).or_default();
             // The CPU time it used where measured (a machine shared with other work inflates
             // wall time, not CPU time), else its wall time on every thread it had.
             e.0 += m.cpu_s.unwrap_or(m.seconds * m.threads.max(1) as f64);
-            e.1 += m.units;
+            e.1 += timed;
         }
         Rates { measured }
     }
@@ -197,6 +202,7 @@ mod tests {
             seconds,
             threads,
             cpu_s: None,
+            timed_units: None,
             finished_unix_s: 0,
             recipe: serde_json::Value::Null,
         }
@@ -212,6 +218,24 @@ mod tests {
             Rates::measured(&[shared]).rate("eval:dwa:schedule:-"),
             (0.1, true)
         );
+    }
+
+    /// A training resumed after a run whose time is not known is priced by the steps its
+    /// recorded time covers, not by all of them.
+    #[test]
+    fn a_resumed_training_is_priced_by_the_steps_its_time_covers() {
+        let through = StageMeta {
+            cpu_s: Some(4800.0),
+            ..meta("train:log-mppi:decremental", 120_000.0, 2900.0, 2)
+        };
+        let resumed = StageMeta {
+            cpu_s: Some(1400.0),
+            timed_units: Some(35_000.0),
+            ..meta("train:log-mppi:decremental", 120_000.0, 900.0, 2)
+        };
+        let (rate, measured) = Rates::measured(&[through, resumed]).rate("train:log-mppi:decremental");
+        // 6,200 core-seconds over 155,000 steps, not over 240,000.
+        assert!(measured && (rate - 0.04).abs() < 1e-12, "{rate}");
     }
 
     #[test]

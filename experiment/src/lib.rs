@@ -27,6 +27,7 @@ pub mod report;
 pub mod runner;
 pub mod shard;
 pub mod slurm;
+pub mod spent;
 pub mod stats;
 pub mod store;
 
@@ -56,6 +57,7 @@ use record::{EvalRecord, Summary};
 use report::{comparisons, sensing_results, ArmData, Comparison, SensingResult};
 use runner::{evaluate, observations, Controller, RunSpec};
 use shard::Shard;
+use spent::Spent;
 use store::{Layout, StageMeta, Store};
 
 /// The file in an experiment directory holding the experiment file it was started with.
@@ -412,7 +414,7 @@ fn run_stages(ctx: &Ctx<'_>, args: &Options, pool: &rayon::ThreadPool, todo: &[S
                     .with_context(|| format!("merging the shards of {}", out.display()))?
                     .save(&out)?;
                 // Merged from shards computed elsewhere: no time of its own to record.
-                record_meta(ctx, stage, 0.0, threads, None)?;
+                record_meta(ctx, stage, (0.0, None, None), threads)?;
                 tracing::info!(
                     "{step} {}: merged {} shards",
                     describe(stage, &ex.arms),
@@ -423,19 +425,21 @@ fn run_stages(ctx: &Ctx<'_>, args: &Options, pool: &rayon::ThreadPool, todo: &[S
         }
         tracing::info!("{step} {}", describe(stage, &ex.arms));
         let cpu0 = cpu_seconds();
-        let used = match stage {
-            Stage::Train { arm, seed } => {
-                train(ctx, *arm, *seed)?;
-                ctx.trainer.actors() as usize
-            }
+        let (used, trained) = match stage {
+            Stage::Train { arm, seed } => (ctx.trainer.actors() as usize, Some(train(ctx, *arm, *seed)?)),
             _ => {
                 pool.install(|| run_stage(ctx, stage, &out))?;
-                threads
+                (threads, None)
             }
         };
         let seconds = t0.elapsed().as_secs_f64();
         let cpu = cpu0.zip(cpu_seconds()).map(|(a, b)| b - a);
-        record_meta(ctx, stage, seconds, used, cpu)?;
+        // A training's time is that of every run that worked on it.
+        let (total, total_cpu, timed) = match trained {
+            Some((spent, timed)) => (spent.seconds, spent.cpu_s, timed),
+            None => (seconds, cpu, None),
+        };
+        record_meta(ctx, stage, (total, total_cpu, timed), used)?;
         tracing::info!("{step} done in {seconds:.0} s");
     }
     Ok(())
@@ -469,14 +473,13 @@ fn eta_clock(done_est: f64, left_est: f64, elapsed_s: f64) -> String {
     format!(" (ETA {:02}:{:02} UTC)", at / 3600, at % 3600 / 60)
 }
 
-/// Records in the store how `stage` was computed (by this experiment, in `seconds` on
-/// `threads` cores).
+/// Records in the store how `stage` was computed: by this experiment, on `threads` cores,
+/// in `(seconds, cpu_s, timed_units)` ([`StageMeta`]'s fields of those names).
 fn record_meta(
     ctx: &Ctx<'_>,
     stage: &Stage,
-    seconds: f64,
+    (seconds, cpu_s, timed_units): (f64, Option<f64>, Option<f64>),
     threads: usize,
-    cpu_s: Option<f64>,
 ) -> anyhow::Result<()> {
     let recipe = ctx.layout.recipe(stage);
     let (units, class) = estimate::units(ctx.ex, stage);
@@ -488,6 +491,7 @@ fn record_meta(
         seconds,
         threads,
         cpu_s,
+        timed_units,
         finished_unix_s: std::time::SystemTime::now()
             .duration_since(std::time::UNIX_EPOCH)
             .map_or(0, |d| d.as_secs()),
@@ -703,8 +707,11 @@ struct Trained {
 }
 
 /// Trains one seed of one arm with `adp train` in its run directory (resuming a run that
-/// stopped), then checks its export and writes the marker.
-fn train(ctx: &Ctx<'_>, arm: usize, seed: usize) -> anyhow::Result<()> {
+/// stopped), then checks its export and writes the marker. Returns the time of every run
+/// that worked on it ([`Spent`]) and, when some run's time is missing, the agent steps that
+/// time covers ([`spent::timed_units`]). A run that stops before the end adds its time to the
+/// run directory's account and fails, saying to resume.
+fn train(ctx: &Ctx<'_>, arm: usize, seed: usize) -> anyhow::Result<(Spent, Option<f64>)> {
     let a = &ctx.ex.arms[arm];
     let cfg = ctx.ex.train_config(a, seed);
     let run_dir = ctx.layout.run_dir(arm, seed);
@@ -716,13 +723,32 @@ fn train(ctx: &Ctx<'_>, arm: usize, seed: usize) -> anyhow::Result<()> {
             .as_bytes(),
     )?;
     let resume = has_checkpoint(&run_dir);
+    // The steps this run starts from; `None` when the checkpoint cannot be read here (the
+    // trainer then says why, or this run's steps go untimed).
+    let resumed_from = if resume {
+        checkpoint_steps(&run_dir)
+    } else {
+        Some(0.0)
+    };
+    let before = Spent::load(&run_dir).unwrap_or_else(|e| {
+        tracing::warn!("{e:#}; timing this training from this run on");
+        Spent::default()
+    });
+    let (t0, cpu0) = (Instant::now(), cpu_seconds());
     ctx.trainer
         .train(&file, &run_dir, resume)
         .with_context(|| format!("training {} seed {seed} in {}", a.id(), run_dir.display()))?;
+    let seconds = t0.elapsed().as_secs_f64();
+    let cpu = cpu0.zip(cpu_seconds()).map(|(a, b)| b - a);
     let export = run_dir.join("export");
     let policy = load_policy(&export, a.space)?;
     let src = &policy.card.source;
+    let this_run = resumed_from.map_or(0.0, |from| (src.inserts as f64 - from).max(0.0));
+    let spent = before.plus(seconds, cpu, this_run);
     if src.inserts < cfg.run.steps {
+        if let Err(e) = spent.save(&run_dir) {
+            tracing::warn!("{e:#}: this run's time will be missing from the training's record");
+        }
         bail!(
             "training {} seed {seed} stopped after {} of {} agent steps; run the experiment again \
              with --resume to continue it",
@@ -731,7 +757,15 @@ fn train(ctx: &Ctx<'_>, arm: usize, seed: usize) -> anyhow::Result<()> {
             cfg.run.steps
         );
     }
-    write_trained(ctx, arm, seed, &cfg, &policy, export)
+    let timed = spent::timed_units(&before, resumed_from.unwrap_or(f64::INFINITY), this_run);
+    write_trained(ctx, arm, seed, &cfg, &policy, export)?;
+    Ok((spent, timed))
+}
+
+/// The agent steps of the newest checkpoint of `run_dir` (where a resumed run starts).
+fn checkpoint_steps(run_dir: &Path) -> Option<f64> {
+    let dir = learner::retention::latest(&run_dir.join("checkpoints")).ok()??;
+    Some(learner::checkpoint::read_manifest(&dir).ok()?.inserts as f64)
 }
 
 /// Writes the marker of arm `arm`'s finished training `seed` (configuration `cfg`, exported

@@ -234,10 +234,12 @@ pub struct ClutterFollow {
     pub param: String,
     /// Correlation with clutter.
     pub corr: f64,
-    /// Its mean value in the open (clutter below the median) and in clutter (above).
-    pub open: f64,
+    /// Its mean value in the open (steps whose clutter is at most the median) and in clutter
+    /// (above it); `None` for a side without steps (more than half the steps at the largest
+    /// clutter leave the cluttered side empty).
+    pub open: Option<f64>,
     /// See `open`.
-    pub cluttered: f64,
+    pub cluttered: Option<f64>,
 }
 
 /// One arm's results as a table cell.
@@ -334,14 +336,16 @@ fn clutter_follow(space: ActionSpace, adp: &[EvalRecord]) -> Vec<ClutterFollow> 
         .enumerate()
         .map(|(k, (name, _, _))| {
             let ys: Vec<f64> = trace.iter().map(|t| t.params[k]).collect();
+            // Ties go to the open side: where most steps see no clutter at all (a fast
+            // planner's runs in open worlds), the median is 0 and the open side is those steps.
             let part = |open: bool| {
                 let v: Vec<f64> = xs
                     .iter()
                     .zip(&ys)
-                    .filter(|(c, _)| (**c < median) == open)
+                    .filter(|(c, _)| (**c <= median) == open)
                     .map(|(_, y)| *y)
                     .collect();
-                mean(&v)
+                (!v.is_empty()).then(|| mean(&v))
             };
             ClutterFollow {
                 param: (*name).to_string(),
@@ -612,9 +616,13 @@ fn cell_block(out: &mut String, title: &str, c: &Cell) {
             .clutter
             .iter()
             .map(|f| {
+                let side = |v: Option<f64>| v.map_or("–".to_string(), |v| format!("{v:.2}"));
                 format!(
-                    "{} r = {:+.2} ({:.2} open, {:.2} cluttered)",
-                    f.param, f.corr, f.open, f.cluttered
+                    "{} r = {:+.2} ({} open, {} cluttered)",
+                    f.param,
+                    f.corr,
+                    side(f.open),
+                    side(f.cluttered)
                 )
             })
             .collect();
@@ -766,6 +774,33 @@ mod tests {
 
     fn rec(controller: &str, worlds: &[(usize, bool, f64)]) -> EvalRecord {
         one_run_record(controller, worlds)
+    }
+
+    /// Where most traced steps see no clutter, the median is 0: the open side is those
+    /// steps, not an empty set printed as 0; a side without steps is `None`.
+    #[test]
+    fn clutter_sides_hold_the_ties_and_an_empty_side_is_none() {
+        let point = |clutter: f64, p: f64| crate::runner::TracePoint {
+            world: 0,
+            clutter,
+            params: vec![p, 2.0, 20.0, 0.1],
+        };
+        let mut r = rec("adp", &[(0, true, 10.0)]);
+        // Three steps in the open choosing p = 1.0, two in clutter choosing 2.0 and 3.0.
+        r.trace = vec![
+            point(0.0, 1.0),
+            point(0.0, 1.0),
+            point(0.0, 1.0),
+            point(0.4, 2.0),
+            point(0.6, 3.0),
+        ];
+        let f = clutter_follow(ActionSpace::Decremental, std::slice::from_ref(&r));
+        assert_eq!((f[0].open, f[0].cluttered), (Some(1.0), Some(2.5)));
+        assert!(f[0].corr > 0.9, "{}", f[0].corr);
+        // Every step equally cluttered: no cluttered side.
+        r.trace = vec![point(0.3, 1.0), point(0.3, 2.0), point(0.3, 3.0)];
+        let f = clutter_follow(ActionSpace::Decremental, std::slice::from_ref(&r));
+        assert_eq!((f[0].open, f[0].cluttered), (Some(2.0), None));
     }
 
     #[test]

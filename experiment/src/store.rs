@@ -50,7 +50,8 @@ pub struct StageMeta {
     pub class: String,
     /// Work units: episodes for searches and evaluations, agent steps for trainings.
     pub units: f64,
-    /// Wall-clock seconds it took.
+    /// Wall-clock seconds it took (a training's: over every run that worked on it that
+    /// left an account, [`super::spent`]).
     pub seconds: f64,
     /// Worker threads it ran on (the cores it had).
     pub threads: usize,
@@ -58,6 +59,11 @@ pub struct StageMeta {
     /// actors), when measured: the cost, whatever else shared the machine.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub cpu_s: Option<f64>,
+    /// The units `seconds` and `cpu_s` cover, when fewer than `units`: a training resumed
+    /// after a run whose time is not known (killed without writing its account, or from
+    /// before trainings kept one). Estimates count only these.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub timed_units: Option<f64>,
     /// When it finished (seconds since the Unix epoch).
     pub finished_unix_s: u64,
     /// The recipe whose key names it.
@@ -295,6 +301,7 @@ mod tests {
             seconds: 180.0,
             threads: 2,
             cpu_s: None,
+            timed_units: None,
             finished_unix_s: 1,
             recipe: serde_json::to_value(&r).unwrap(),
         };
