@@ -710,8 +710,11 @@ pub fn render(t: &Tables) -> String {
         "## The paper's tables\n\nEvery row: {} runs on each of the {} test worlds, the {} fastest and \
          slowest of each world dropped; ADP rows are mean ± sd over seeds of {} agent steps each. \
          Intervals are 95 % paired bootstrap intervals that resample the training seeds and the \
-         worlds (`results.json` also holds the narrower ones over worlds alone); McNemar's test \
-         pairs runs by seed. Each table sets the papers' published numbers (success / time / score) beside ours; \
+         worlds (`results.json` also holds the narrower ones over worlds alone); they decide \
+         better, worse or tied. McNemar's test pairs runs by seed and counts every run as \
+         independent, which the jittered runs of one world are not: its p-values overstate the \
+         evidence, and it says which side finishes more runs, not whether that holds over \
+         worlds. Each table sets the papers' published numbers (success / time / score) beside ours; \
          they were measured in Gazebo with the authors' planners, so they calibrate, they do not \
          decide.\n",
         t.runs, t.test_worlds, t.trim, t.steps
