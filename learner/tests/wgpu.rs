@@ -12,10 +12,18 @@ use learner::{seeded_rng, Batch, Device, RateLimiter, Td3, Td3Config};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 
-/// The tolerance on every loss (relative) and every parameter (absolute) after 20 updates:
-/// the two backends sum in different orders, so float32 results differ in their last bits,
-/// and Adam's steps carry those differences on.
+/// The tolerance on every parameter (absolute) after 20 updates: the two backends sum in
+/// different orders, so float32 results differ in their last bits, and Adam's steps carry
+/// those differences on. Measured on lavapipe (2026-11-30, 18 runs): at most 3.3e-6.
 const TOLERANCE: f32 = 1e-4;
+
+/// The tolerance on each update's losses and means (relative, at least absolute). The wgpu
+/// backend on lavapipe is not deterministic from run to run: in 18 runs (2026-11-30) most
+/// updates matched the CPU to about 1e-7, but about one run in three had one update whose
+/// statistics moved by 1e-5 to 1.0e-4 (the critic loss or the target mean), with the
+/// parameters afterwards still within 3.3e-6. 1e-4 failed one run in three; this is ten times
+/// the largest deviation seen.
+const LOSS_TOLERANCE: f32 = 1e-3;
 
 /// The wgpu device, when one works here.
 fn wgpu_device() -> Option<Device> {
@@ -93,7 +101,7 @@ fn max_difference(a: &[f32], b: &[f32]) -> f32 {
 }
 
 fn close(a: f32, b: f32) -> bool {
-    (a - b).abs() <= TOLERANCE * a.abs().max(b.abs()).max(1.0)
+    (a - b).abs() <= LOSS_TOLERANCE * a.abs().max(b.abs()).max(1.0)
 }
 
 #[test]
