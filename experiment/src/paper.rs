@@ -17,6 +17,7 @@ use std::fmt::Write as _;
 
 use serde::Serialize;
 
+use eval::greedy::{schedule_stats, ParamStats, StepRecord};
 use planner::{ActionSpace, PlannerKind};
 
 use super::config::{planner_name, space_label, speed_label, Experiment};
@@ -226,22 +227,6 @@ impl Row {
     }
 }
 
-/// How one schedule parameter follows clutter: its Pearson correlation with the local
-/// clutter over the traced agent steps (run 0 of every test world, every seed).
-#[derive(Clone, Debug, PartialEq, Serialize)]
-pub struct ClutterFollow {
-    /// Parameter name.
-    pub param: String,
-    /// Correlation with clutter.
-    pub corr: f64,
-    /// Its mean value in the open (steps whose clutter is at most the median) and in clutter
-    /// (above it); `None` for a side without steps (more than half the steps at the largest
-    /// clutter leave the cluttered side empty).
-    pub open: Option<f64>,
-    /// See `open`.
-    pub cluttered: Option<f64>,
-}
-
 /// One arm's results as a table cell.
 #[derive(Clone, Debug, Serialize)]
 pub struct Cell {
@@ -273,8 +258,10 @@ pub struct Cell {
     pub adp_vs_constant: Option<Comparison>,
     /// The papers' rows for this cell (method, row).
     pub published: Vec<(String, Published)>,
-    /// How ADP's schedule follows clutter.
-    pub clutter: Vec<ClutterFollow>,
+    /// How ADP's schedule follows clutter, one entry per schedule parameter, over the traced
+    /// agent steps (run 0 of every test world, every seed): the same summary as the
+    /// training's greedy evaluations ([`eval::greedy::schedule_stats`]).
+    pub clutter: Vec<ParamStats>,
 }
 
 /// Every table.
@@ -321,56 +308,19 @@ fn restrict(recs: &[EvalRecord], keep: Option<&[usize]>) -> Vec<EvalRecord> {
         .collect()
 }
 
-fn clutter_follow(space: ActionSpace, adp: &[EvalRecord]) -> Vec<ClutterFollow> {
-    let trace: Vec<_> = adp.iter().flat_map(|r| r.trace.iter()).collect();
-    let names = space.ranges();
-    if trace.len() < 3 || trace.iter().any(|t| t.params.len() != names.len()) {
+/// How ADP's schedule follows clutter over the traced steps of `adp` (empty with fewer than
+/// three steps or a trace whose parameters are not `space`'s).
+fn clutter_follow(space: ActionSpace, adp: &[EvalRecord]) -> Vec<ParamStats> {
+    let names: Vec<&str> = space.ranges().iter().map(|(name, _, _)| *name).collect();
+    let records: Vec<StepRecord> = adp
+        .iter()
+        .flat_map(|r| r.trace.iter())
+        .map(|t| (t.clutter, t.params.clone()))
+        .collect();
+    if records.len() < 3 || records.iter().any(|r| r.1.len() != names.len()) {
         return Vec::new();
     }
-    let mut clutter: Vec<f64> = trace.iter().map(|t| t.clutter).collect();
-    let xs = clutter.clone();
-    clutter.sort_by(f64::total_cmp);
-    let median = clutter[clutter.len() / 2];
-    names
-        .iter()
-        .enumerate()
-        .map(|(k, (name, _, _))| {
-            let ys: Vec<f64> = trace.iter().map(|t| t.params[k]).collect();
-            // Ties go to the open side: where most steps see no clutter at all (a fast
-            // planner's runs in open worlds), the median is 0 and the open side is those steps.
-            let part = |open: bool| {
-                let v: Vec<f64> = xs
-                    .iter()
-                    .zip(&ys)
-                    .filter(|(c, _)| (**c <= median) == open)
-                    .map(|(_, y)| *y)
-                    .collect();
-                (!v.is_empty()).then(|| mean(&v))
-            };
-            ClutterFollow {
-                param: (*name).to_string(),
-                corr: pearson(&xs, &ys),
-                open: part(true),
-                cluttered: part(false),
-            }
-        })
-        .collect()
-}
-
-/// Pearson's correlation (0 when either side is constant).
-fn pearson(x: &[f64], y: &[f64]) -> f64 {
-    let (mx, my) = (mean(x), mean(y));
-    let (mut sxy, mut sxx, mut syy) = (0.0, 0.0, 0.0);
-    for (a, b) in x.iter().zip(y) {
-        sxy += (a - mx) * (b - my);
-        sxx += (a - mx) * (a - mx);
-        syy += (b - my) * (b - my);
-    }
-    if sxx <= 0.0 || syy <= 0.0 {
-        0.0
-    } else {
-        sxy / (sxx * syy).sqrt()
-    }
+    schedule_stats(&records, &names)
 }
 
 /// The cell of `d` on the worlds `keep` (all when `None`).
@@ -616,13 +566,10 @@ fn cell_block(out: &mut String, title: &str, c: &Cell) {
             .clutter
             .iter()
             .map(|f| {
-                let side = |v: Option<f64>| v.map_or("–".to_string(), |v| format!("{v:.2}"));
+                let cluttered = f.cluttered.map_or("–".to_string(), |v| format!("{v:.2}"));
                 format!(
-                    "{} r = {:+.2} ({} open, {} cluttered)",
-                    f.param,
-                    f.corr,
-                    side(f.open),
-                    side(f.cluttered)
+                    "{} r = {:+.2} ({:.2} open, {cluttered} cluttered)",
+                    f.name, f.clutter_corr, f.open
                 )
             })
             .collect();
@@ -798,12 +745,12 @@ mod tests {
             point(0.6, 3.0),
         ];
         let f = clutter_follow(ActionSpace::Decremental, std::slice::from_ref(&r));
-        assert_eq!((f[0].open, f[0].cluttered), (Some(1.0), Some(2.5)));
-        assert!(f[0].corr > 0.9, "{}", f[0].corr);
+        assert_eq!((f[0].open, f[0].cluttered), (1.0, Some(2.5)));
+        assert!(f[0].clutter_corr > 0.9, "{}", f[0].clutter_corr);
         // Every step equally cluttered: no cluttered side.
         r.trace = vec![point(0.3, 1.0), point(0.3, 2.0), point(0.3, 3.0)];
         let f = clutter_follow(ActionSpace::Decremental, std::slice::from_ref(&r));
-        assert_eq!((f[0].open, f[0].cluttered), (Some(2.0), None));
+        assert_eq!((f[0].open, f[0].cluttered), (2.0, None));
     }
 
     #[test]
@@ -978,11 +925,5 @@ mod tests {
             table,
             "README's Table I differs from docs/paper/table1.md: paste the file between the markers"
         );
-    }
-
-    #[test]
-    fn pearson_sees_a_line_and_nothing_in_a_constant() {
-        assert!((pearson(&[1.0, 2.0, 3.0], &[2.0, 4.0, 6.0]) - 1.0).abs() < 1e-12);
-        assert_eq!(pearson(&[1.0, 2.0, 3.0], &[5.0, 5.0, 5.0]), 0.0);
     }
 }
