@@ -727,7 +727,7 @@ mod tests {
     }
 
     /// Where most traced steps see no clutter, the median is 0: the open side is those
-    /// steps, not an empty set printed as 0; a side without steps is `None`.
+    /// steps, not an empty set printed as 0; a cluttered side without steps is `None`.
     #[test]
     fn clutter_sides_hold_the_ties_and_an_empty_side_is_none() {
         let point = |clutter: f64, p: f64| crate::runner::TracePoint {
