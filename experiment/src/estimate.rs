@@ -156,9 +156,10 @@ impl Rates {
 }
 
 /// A one-line progress bar: `[#####.....] 5/10 stages, 1.2 of 2.4 core-h, about 0.9 h left`.
-/// `done_est` and `left_est` are the estimated core-seconds of the finished and the remaining
-/// stages, `elapsed_s` the wall time so far; the time left scales the remaining estimate by
-/// what the finished stages took against their estimate, over `cores`.
+/// `done_est` and `left_est` are the estimated core-seconds of the stages this run computed
+/// and of the remaining ones (a stage it skipped is in neither), `elapsed_s` the wall time so
+/// far; the time left scales the remaining estimate by what the computed stages took against
+/// their estimate, or, before any was computed, divides it over `cores`.
 pub fn progress_line(
     done: usize,
     total: usize,

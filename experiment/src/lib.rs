@@ -342,6 +342,9 @@ fn run_stages(ctx: &Ctx<'_>, args: &Options, pool: &rayon::ThreadPool, todo: &[S
     let estimates: Vec<f64> = todo.iter().map(|s| rates.cost(ex, s).0).collect();
     let started = Instant::now();
     let threads = pool.current_num_threads();
+    // The estimates of the stages this run computed: the rate of progress. A stage skipped
+    // (in the store, waiting for its policy, left to another shard) counts on neither side.
+    let mut worked_est = 0.0;
     for (i, stage) in todo.iter().enumerate() {
         let t0 = Instant::now();
         let step = format!("[{}/{}]", i + 1, todo.len());
@@ -352,13 +355,13 @@ fn run_stages(ctx: &Ctx<'_>, args: &Options, pool: &rayon::ThreadPool, todo: &[S
                 progress_line(
                     i,
                     todo.len(),
-                    estimates[..i].iter().sum(),
+                    worked_est,
                     estimates[i..].iter().sum(),
                     started.elapsed().as_secs_f64(),
                     threads
                 ),
                 eta_clock(
-                    estimates[..i].iter().sum(),
+                    worked_est,
                     estimates[i..].iter().sum(),
                     started.elapsed().as_secs_f64()
                 )
@@ -402,6 +405,7 @@ fn run_stages(ctx: &Ctx<'_>, args: &Options, pool: &rayon::ThreadPool, todo: &[S
                     sh.count
                 );
                 pool.install(|| run_stage(ctx, stage, &file))?;
+                worked_est += estimates[i];
                 tracing::info!("{step} done in {:.0} s", t0.elapsed().as_secs_f64());
                 continue;
             }
@@ -440,6 +444,7 @@ fn run_stages(ctx: &Ctx<'_>, args: &Options, pool: &rayon::ThreadPool, todo: &[S
             None => (seconds, cpu, None),
         };
         record_meta(ctx, stage, (total, total_cpu, timed), used)?;
+        worked_est += estimates[i];
         tracing::info!("{step} done in {seconds:.0} s");
     }
     Ok(())

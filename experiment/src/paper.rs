@@ -559,7 +559,7 @@ fn cell_block(out: &mut String, title: &str, c: &Cell) {
         delta(&c.adp_vs_constant, "the best constant")
     );
     if let Some(line) = calibration(c) {
-        let _ = writeln!(out, "{line}");
+        let _ = writeln!(out, "\n{line}");
     }
     if !c.clutter.is_empty() {
         let parts: Vec<String> = c
@@ -573,7 +573,7 @@ fn cell_block(out: &mut String, title: &str, c: &Cell) {
                 )
             })
             .collect();
-        let _ = writeln!(out, "Schedule against clutter: {}.", parts.join("; "));
+        let _ = writeln!(out, "\nSchedule against clutter: {}.", parts.join("; "));
     }
     let _ = writeln!(out);
 }

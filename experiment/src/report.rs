@@ -446,8 +446,14 @@ fn protocol_section(out: &mut String, ex: &Experiment) {
 /// action space, training worlds and observation layout.
 fn table_one(out: &mut String, data: &[ArmData]) {
     // Table I: per planner, methods x (metric x speed), for the first action space.
-    let mut planners: Vec<_> = data.iter().map(|d| d.arm.planner).collect();
-    planners.dedup();
+    // Each planner once, in first-seen order: arms of a group (Table II's) come after the
+    // main grid and repeat its planners.
+    let mut planners = Vec::new();
+    for d in data {
+        if !planners.contains(&d.arm.planner) {
+            planners.push(d.arm.planner);
+        }
+    }
     let _ = writeln!(out, "## Table I: ADP against DDP and the controls\n");
     for p in &planners {
         let arms: Vec<&ArmData> = data
@@ -492,14 +498,13 @@ fn table_one(out: &mut String, data: &[ArmData]) {
 /// observation layout): per planner and speed, DDP and ADP in every one side by side.
 fn table_two(out: &mut String, ex: &Experiment, data: &[ArmData]) {
     // Table II: action spaces side by side per planner and speed.
-    let mut spaces: Vec<_> = data.iter().map(|d| d.arm.space).collect();
-    spaces.dedup();
+    let spaces = data.iter().any(|d| d.arm.space != data[0].arm.space);
     let layouts = data.iter().any(|d| d.arm.observation.is_some());
     let worlds = data
         .iter()
         .any(|d| d.arm.train_worlds != data[0].arm.train_worlds);
     let varied: Vec<&str> = [
-        (spaces.len() > 1, "action-space"),
+        (spaces, "action-space"),
         (worlds, "training-world"),
         (layouts, "observation-layout"),
     ]
@@ -1032,6 +1037,24 @@ mod tests {
         let mut none = String::new();
         table_two(&mut none, &ex, &data[..1]);
         assert!(none.is_empty());
+    }
+
+    /// A group's arms come after the main grid and repeat its planners: Table I still has one
+    /// block per planner, holding the main grid's arms.
+    #[test]
+    fn table_one_has_each_planner_once() {
+        let text = "[experiment]\nname = \"t\"\nplanners = [\"dwa\", \"mppi\"]\nspeeds = [1.5]\n\
+                    [[experiment.groups]]\nname = \"spaces\"\nplanners = [\"dwa\"]\n\
+                    action_spaces = [\"incremental\"]\nspeeds = [1.5]\n";
+        let ex = Experiment::parse("t.toml", text, &Default::default()).unwrap();
+        let planners: Vec<String> = ex.arms.iter().map(|a| planner_name(a.planner)).collect();
+        assert_eq!(planners, ["dwa", "mppi", "dwa"], "the group's arm comes last");
+        let data = one_world_arms(&ex, &[0.25, 0.25, 0.5]);
+        let mut one = String::new();
+        table_one(&mut one, &data);
+        assert_eq!(one.matches("### dwa\n").count(), 1, "{one}");
+        assert_eq!(one.matches("### mppi\n").count(), 1, "{one}");
+        assert_eq!(one.matches("| DDP |").count(), 2, "{one}");
     }
 
     /// Arms on several training-world selections make Table II, one ADP row per selection.
