@@ -160,7 +160,7 @@ pub fn protocol_command(args: &ProtocolArgs) -> anyhow::Result<()> {
             .map(|r| first_runs(r, runs, trim))
             .collect::<anyhow::Result<_>>()?;
     }
-    let text = protocol::study(&ddp, &seeds, args.resamples, args.confidence, args.seed)?.markdown();
+    let text = protocol::study(&ddp, &seeds, args.resamples, args.confidence, args.seed)?.markdown(None);
     if let Some(out) = &args.out {
         experiment::plan::write_atomic(out, text.as_bytes())?;
     }

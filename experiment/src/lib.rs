@@ -1339,7 +1339,7 @@ fn write_report(ctx: &Ctx<'_>) -> anyhow::Result<PathBuf> {
         let ddp = d.ddp.as_ref().expect("found with DDP");
         match protocol::study(ddp, &d.adp, st.resamples, st.confidence, st.seed) {
             Ok(s) => {
-                text += &format!("\nOn `{}`:\n\n{}", d.arm.id(), s.markdown());
+                text += &format!("\n{}", s.markdown(Some(&d.arm.id())));
             }
             Err(e) => text += &format!("\nNo protocol study on `{}`: {e:#}\n", d.arm.id()),
         }

@@ -528,16 +528,18 @@ impl Study {
     }
 
     /// The study as a markdown section: the components, the measured and the projected
-    /// widths, and a sentence per question computed from them.
-    pub fn markdown(&self) -> String {
+    /// widths, and a sentence per question computed from them. `subject`, where given, names
+    /// what was studied (an arm) at the head of the section.
+    pub fn markdown(&self, subject: Option<&str>) -> String {
         let mut out = String::new();
         let _ = writeln!(
             out,
             "## Evaluation protocol: the width of the ADP − DDP interval\n"
         );
+        let on = subject.map_or(String::new(), |s| format!("On `{s}`: "));
         let _ = writeln!(
             out,
-            "{} × {} worlds × {} runs per world (trim {} per end); {:.0} % percentile bootstrap \
+            "{on}{} × {} worlds × {} runs per world (trim {} per end); {:.0} % percentile bootstrap \
              over worlds, {} resamples.\n",
             seeds_word(self.seeds),
             self.worlds,
@@ -973,7 +975,11 @@ mod tests {
             .find(|m| (m.runs, m.seeds) == (20, 1))
             .expect("one seed");
         assert!((m.score_width - one).abs() < 1e-12, "{} {one}", m.score_width);
-        let md = st.markdown();
+        let md = st.markdown(Some("dwa-decremental-1.5-fit"));
+        assert!(
+            md.contains("\n\nOn `dwa-decremental-1.5-fit`: 3 seeds × "),
+            "{md}"
+        );
         for needle in [
             "10 runs per world (trim 3, keeping 4)",
             "5 runs per world (trim 1, keeping 3)",
