@@ -78,12 +78,15 @@ pub type StepRecord = (f64, Vec<f64>);
 
 /// Summarizes per-step `(clutter, params)` records into one [`ParamStats`] per name (none
 /// without records). Steps at or below the median clutter are "open", the others "cluttered".
-/// Pure.
+/// A name that occurs more than once (the unconstrained space's `dt` of every step) is
+/// numbered by its occurrence, `dt1`, `dt2`, ..., so that each statistic, TensorBoard tag
+/// and report entry says which parameter it is. Pure.
 pub fn schedule_stats(records: &[StepRecord], names: &[&str]) -> Vec<ParamStats> {
     let n = records.len();
     if n == 0 {
         return Vec::new();
     }
+    let labels = distinct_names(names);
     // Over non-empty rows only (`all` and `open` always hold a step; `busy` may not).
     let mean = |f: &dyn Fn(&StepRecord) -> f64, rows: &[&StepRecord]| {
         rows.iter().map(|r| f(r)).sum::<f64>() / rows.len() as f64
@@ -99,8 +102,8 @@ pub fn schedule_stats(records: &[StepRecord], names: &[&str]) -> Vec<ParamStats>
     let open: Vec<&StepRecord> = records.iter().filter(|r| r.0 <= median).collect();
     let busy: Vec<&StepRecord> = records.iter().filter(|r| r.0 > median).collect();
     let c_mean = mean(&|r| r.0, &all);
-    names
-        .iter()
+    labels
+        .into_iter()
         .enumerate()
         .map(|(k, name)| {
             let v = |r: &StepRecord| r.1[k];
@@ -114,13 +117,30 @@ pub fn schedule_stats(records: &[StepRecord], names: &[&str]) -> Vec<ParamStats>
                 0.0
             };
             ParamStats {
-                name: (*name).to_string(),
+                name,
                 mean: m,
                 sd: var.sqrt(),
                 open: mean(&v, &open),
                 cluttered: (!busy.is_empty()).then(|| mean(&v, &busy)),
                 clutter_corr: corr,
             }
+        })
+        .collect()
+}
+
+/// `names`, each one that occurs more than once numbered by its occurrence from 1
+/// (`["dt", "dt"]` gives `["dt1", "dt2"]`); the others unchanged. Pure.
+fn distinct_names(names: &[&str]) -> Vec<String> {
+    let mut seen: std::collections::HashMap<&str, usize> = std::collections::HashMap::new();
+    names
+        .iter()
+        .map(|&name| {
+            if names.iter().filter(|&&m| m == name).count() == 1 {
+                return name.to_string();
+            }
+            let k = seen.entry(name).or_default();
+            *k += 1;
+            format!("{name}{k}")
         })
         .collect()
 }
@@ -469,6 +489,14 @@ mod tests {
         close(s[1].cluttered.unwrap(), 1.7);
         close(s[1].clutter_corr, -1.0);
         assert!(schedule_stats(&[], &["p"]).is_empty());
+        // Repeated names (the unconstrained space's dt per step) are numbered; unique ones
+        // keep their name.
+        let dts: Vec<StepRecord> = (0..3).map(|i| (i as f64, vec![0.1, 0.05, 1.0])).collect();
+        let names: Vec<String> = schedule_stats(&dts, &["dt", "dt", "N"])
+            .into_iter()
+            .map(|p| p.name)
+            .collect();
+        assert_eq!(names, ["dt1", "dt2", "N"]);
         // A policy that never moves: every step as cluttered as the median. The record still
         // reads back (a NaN would be written as `null` and refused by the reader).
         let still: Vec<StepRecord> = (0..3).map(|_| (0.0, vec![0.5])).collect();
