@@ -15,17 +15,19 @@ typedef enum AdpStatus {
   ADP_STATUS_CONFIG = 1,
   // The policy export cannot be loaded or does not fit.
   ADP_STATUS_POLICY = 2,
-  // The scan was refused (wrong beam count, a NaN range).
+  // The scan was refused (wrong beam count, a NaN range with `nan_as_no_return = false`).
   ADP_STATUS_SCAN = 3,
-  // The odometry was refused (not finite, or too old).
+  // The odometry was refused (not finite, outside the envelope, or too old).
   ADP_STATUS_ODOMETRY = 4,
-  // The goal was refused (not finite).
+  // The goal was refused (not finite, or farther than `max_goal_distance_m`).
   ADP_STATUS_GOAL = 5,
-  // The global path was refused (empty, or a point not finite).
+  // The global path was refused (empty, too long, or a point not finite or outside the
+  // envelope).
   ADP_STATUS_PATH = 6,
   // A required pointer was null, or a string was not UTF-8.
   ADP_STATUS_ARGUMENT = 7,
-  // A defect inside the library (a panic, caught); the message says where.
+  // A defect inside the library (a panic, caught); the message says where. The navigator
+  // stays usable: its next cycle starts a fresh run.
   ADP_STATUS_INTERNAL = 8,
 } AdpStatus;
 
@@ -77,7 +79,8 @@ typedef struct AdpPoint {
 typedef struct AdpCycleInput {
   // When the scan was taken (s, a monotonic clock shared with the odometry).
   double stamp_s;
-  // `n_ranges` ranges (m) in beam order; `+inf` reads as no return.
+  // `n_ranges` ranges (m) in beam order; NaN and `±inf` read as no return (unless
+  // `nan_as_no_return = false`).
   const double *ranges;
   // How many ranges (must be the configured lidar's beam count).
   size_t n_ranges;
@@ -97,7 +100,8 @@ typedef struct AdpCycleInput {
 
 // What a control cycle decided.
 typedef struct AdpCycleOutput {
-  // The command to issue now (a stop after an error).
+  // The command to issue now (a stop after an error), inside the configured speed and
+  // turn limits.
   struct AdpTwist command;
   // Whether the planner ran (false: the last cycle's modelled compute still runs and the
   // command repeats the last one).

@@ -9,7 +9,10 @@
 //!
 //! Errors: every call that can fail returns an [`AdpStatus`] and writes a one-line,
 //! NUL-terminated message into the caller's buffer (truncated to fit). On any error the
-//! output's command is a stop (0, 0): publish it. A refused cycle changes nothing.
+//! output's command is a stop (0, 0): publish it. A refused cycle changes nothing. Inputs
+//! and settings outside the runtime's envelope (a goal farther than `max_goal_distance_m`,
+//! a `max_speed` over the robot's `max_v`, ...) are refused, so no input aborts the process;
+//! every command is inside the configured speed and turn limits.
 //!
 //! Threads: a handle may be used from any thread and shared between threads (each call
 //! locks it); calls on one handle are serialized. A panic inside the library never crosses
@@ -43,17 +46,19 @@ pub enum AdpStatus {
     Config = 1,
     /// The policy export cannot be loaded or does not fit.
     Policy = 2,
-    /// The scan was refused (wrong beam count, a NaN range).
+    /// The scan was refused (wrong beam count, a NaN range with `nan_as_no_return = false`).
     Scan = 3,
-    /// The odometry was refused (not finite, or too old).
+    /// The odometry was refused (not finite, outside the envelope, or too old).
     Odometry = 4,
-    /// The goal was refused (not finite).
+    /// The goal was refused (not finite, or farther than `max_goal_distance_m`).
     Goal = 5,
-    /// The global path was refused (empty, or a point not finite).
+    /// The global path was refused (empty, too long, or a point not finite or outside the
+    /// envelope).
     Path = 6,
     /// A required pointer was null, or a string was not UTF-8.
     Argument = 7,
-    /// A defect inside the library (a panic, caught); the message says where.
+    /// A defect inside the library (a panic, caught); the message says where. The navigator
+    /// stays usable: its next cycle starts a fresh run.
     Internal = 8,
 }
 
@@ -66,6 +71,7 @@ impl From<&RuntimeError> for AdpStatus {
             RuntimeError::Odometry(_) => AdpStatus::Odometry,
             RuntimeError::Goal(_) => AdpStatus::Goal,
             RuntimeError::Path(_) => AdpStatus::Path,
+            RuntimeError::Internal(_) => AdpStatus::Internal,
         }
     }
 }
@@ -108,7 +114,8 @@ pub struct AdpPoint {
 pub struct AdpCycleInput {
     /// When the scan was taken (s, a monotonic clock shared with the odometry).
     pub stamp_s: f64,
-    /// `n_ranges` ranges (m) in beam order; `+inf` reads as no return.
+    /// `n_ranges` ranges (m) in beam order; NaN and `±inf` read as no return (unless
+    /// `nan_as_no_return = false`).
     pub ranges: *const f64,
     /// How many ranges (must be the configured lidar's beam count).
     pub n_ranges: usize,
@@ -130,7 +137,8 @@ pub struct AdpCycleInput {
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct AdpCycleOutput {
-    /// The command to issue now (a stop after an error).
+    /// The command to issue now (a stop after an error), inside the configured speed and
+    /// turn limits.
     pub command: AdpTwist,
     /// Whether the planner ran (false: the last cycle's modelled compute still runs and the
     /// command repeats the last one).

@@ -153,3 +153,85 @@ fn a_handle_is_shared_between_threads() {
     });
     unsafe { adp_navigator_free(nav) };
 }
+
+/// A runtime configuration file of the keys `body` and the example policy, in a directory
+/// of its own named after `name`.
+fn config_with(name: &str, body: &str) -> CString {
+    let dir = std::env::temp_dir().join(format!("adp-capi-{name}-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let policy = Path::new(env!("CARGO_MANIFEST_DIR")).join("../runtime/examples/policy");
+    let path = dir.join("runtime.toml");
+    std::fs::write(&path, format!("{body}\npolicy = \"{}\"\n", policy.display())).unwrap();
+    CString::new(path.to_str().unwrap()).unwrap()
+}
+
+#[test]
+fn input_outside_the_envelope_is_a_status_not_an_abort() {
+    let mut err = [0 as c_char; 512];
+    unsafe {
+        // A speed cap of 1e9 m/s: refused when loading (it once aborted the first cycle).
+        let fast = config_with("fast", "planner = \"dwa\"\nmax_speed = 1e9");
+        assert!(adp_navigator_from_file(fast.as_ptr(), err.as_mut_ptr(), err.len()).is_null());
+        assert!(
+            message(&err).ends_with("max_speed = 1000000000 m/s exceeds the runtime's limit of 5 m/s"),
+            "{}",
+            message(&err)
+        );
+        let nav = adp_navigator_from_file(config().as_ptr(), err.as_mut_ptr(), err.len());
+        let sim = adp_sim_new(nav, 7, 1, err.as_mut_ptr(), err.len());
+        let mut good = std::mem::zeroed::<AdpCycleInput>();
+        assert!(adp_sim_observe(sim, &mut good));
+        let mut out = AdpCycleOutput::default();
+        // A goal 14 km away, a pose at x = 1e6, a goal at 1e300: each a goal status and a
+        // stop (the first two once aborted allocating a 10 GB costmap).
+        let mut far = good;
+        far.goal.x = good.pose.x + 14_000.0;
+        let mut far_pose = good;
+        far_pose.pose.x = 1e6;
+        let mut beyond = good;
+        beyond.goal = AdpPoint { x: 1e300, y: 0.0 };
+        for (bad, want) in [
+            (far, "m from the robot; at most 50 m (max_goal_distance_m)"),
+            (far_pose, "m from the robot; at most 50 m (max_goal_distance_m)"),
+            (beyond, "is outside the envelope: |x| and |y| at most 1e7 m"),
+        ] {
+            out.command = AdpTwist { v: 9.0, w: 9.0 };
+            assert_eq!(
+                adp_navigator_cycle(nav, &bad, &mut out, err.as_mut_ptr(), err.len()),
+                AdpStatus::Goal
+            );
+            assert!(message(&err).contains(want), "{}", message(&err));
+            assert_eq!(out.command, AdpTwist { v: 0.0, w: 0.0 });
+        }
+        // Measured velocities far outside the limits: a command inside them.
+        for (v, w) in [(3.0, 0.0), (10.0, 50.0), (1e6, -1e6)] {
+            let mut fast = good;
+            fast.vel = AdpTwist { v, w };
+            assert_eq!(
+                adp_navigator_cycle(nav, &fast, &mut out, err.as_mut_ptr(), err.len()),
+                AdpStatus::Ok,
+                "{}",
+                message(&err)
+            );
+            assert!(
+                (-1.5..=1.5).contains(&out.command.v) && (-4.0..=4.0).contains(&out.command.w),
+                "{:?} measuring ({v}, {w})",
+                out.command
+            );
+        }
+        // A scan with NaN and infinite beams: read as no return, the cycle runs.
+        let mut ranges = std::slice::from_raw_parts(good.ranges, good.n_ranges).to_vec();
+        ranges[3] = f64::NAN;
+        ranges[4] = f64::NEG_INFINITY;
+        let mut nan_scan = good;
+        nan_scan.ranges = ranges.as_ptr();
+        assert_eq!(
+            adp_navigator_cycle(nav, &nan_scan, &mut out, err.as_mut_ptr(), err.len()),
+            AdpStatus::Ok,
+            "{}",
+            message(&err)
+        );
+        adp_sim_free(sim);
+        adp_navigator_free(nav);
+    }
+}

@@ -4,7 +4,9 @@
 //! Errors: a refused input raises `RefusedInput` (a `ValueError`) whose `args` are the
 //! one-line message and the fault's kind (`"scan"`, `"odometry"`, `"goal"`, `"path"`); the
 //! robot must then issue the stop command `STOP`. A configuration or policy that cannot be
-//! used raises `ConfigError` (also a `ValueError`). A refused cycle changes nothing.
+//! used raises `ConfigError` (also a `ValueError`). A refused cycle changes nothing. A defect
+//! inside the runtime (a panic) raises `InternalError` (a `RuntimeError`), never aborts the
+//! interpreter; issue `STOP` then too.
 //!
 //! Threads: a `Navigator` may be shared between Python threads; each call locks it and
 //! releases the GIL while it plans.
@@ -14,7 +16,7 @@ use std::sync::{Mutex, MutexGuard};
 
 use adp_runtime::{sim_robot, CycleInput, CycleOutput as Output, Navigator as Inner, Odometry, RuntimeError};
 use pyo3::create_exception;
-use pyo3::exceptions::PyValueError;
+use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use sim::episode::{Episode, Status};
 use sim::geometry::{Pose, Vec2};
@@ -32,11 +34,18 @@ create_exception!(
     PyValueError,
     "A runtime configuration or policy export that cannot be used."
 );
+create_exception!(
+    _native,
+    InternalError,
+    PyRuntimeError,
+    "A defect inside the runtime (a panic, caught): issue STOP; the next cycle starts afresh."
+);
 
 fn to_py(e: RuntimeError) -> PyErr {
     let message = e.to_string();
     let kind = match e {
         RuntimeError::Config { .. } | RuntimeError::Policy(_) => return ConfigError::new_err(message),
+        RuntimeError::Internal(_) => return InternalError::new_err(message),
         RuntimeError::Scan(_) => "scan",
         RuntimeError::Odometry(_) => "odometry",
         RuntimeError::Goal(_) => "goal",
@@ -140,10 +149,13 @@ impl Navigator {
         lock(&self.0).planner().name()
     }
 
-    /// Runs one control cycle. `ranges`: one range per beam (m; inf reads as no return);
+    /// Runs one control cycle. `ranges`: one range per beam (m; NaN and inf read as no return
+    /// unless `nan_as_no_return = false`);
     /// `pose`: (x, y, yaw) in the fixed frame; `vel`: (v, w); `goal`: (x, y); `path`: an
-    /// optional global path [(x, y), ...] replacing the runtime's own. Raises RefusedInput
-    /// (issue STOP) for a bad input.
+    /// optional global path [(x, y), ...] replacing the runtime's own. The command is inside
+    /// the configured speed and turn limits. Raises RefusedInput (issue STOP) for a bad input
+    /// or one outside the envelope (a goal farther than `max_goal_distance_m`), InternalError
+    /// for a defect inside the runtime.
     #[pyo3(signature = (stamp_s, ranges, pose, vel, odom_stamp_s, goal, path=None))]
     #[allow(clippy::too_many_arguments)]
     fn cycle(
@@ -253,6 +265,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<Sim>()?;
     m.add("RefusedInput", m.py().get_type::<RefusedInput>())?;
     m.add("ConfigError", m.py().get_type::<ConfigError>())?;
+    m.add("InternalError", m.py().get_type::<InternalError>())?;
     m.add("STOP", (0.0f64, 0.0f64))?;
     Ok(())
 }

@@ -1,6 +1,6 @@
 """The ROS 2 node (``python -m adp_runtime.ros2``), started as its own process, drives a
-simulated BARN robot over ROS 2 topics to its goal, and publishes a stop for a scan it
-refuses. Skipped when rclpy cannot be imported, unless ADP_REQUIRE_ROS2=1 (CI sets it)."""
+simulated BARN robot over ROS 2 topics to its goal, and publishes a stop for an input the
+runtime refuses. Skipped when rclpy cannot be imported, unless ADP_REQUIRE_ROS2=1 (CI sets it)."""
 
 import math
 import os
@@ -117,7 +117,7 @@ def ros_node():
         rclpy.shutdown()
 
 
-def test_the_node_drives_a_world_and_stops_for_a_bad_scan(ros_node):
+def test_the_node_drives_a_world_and_stops_for_a_goal_out_of_reach(ros_node):
     nav, bridge, proc = ros_node
     sim = adp_runtime.Sim(nav, 3, 5)
     # Before a goal the node answers every scan with a stop.
@@ -132,13 +132,14 @@ def test_the_node_drives_a_world_and_stops_for_a_bad_scan(ros_node):
         periods += 1
         assert periods < 2000, "the robot did not finish"
     assert status == "succeeded", sim.result()
-    # A scan with a NaN range: the node publishes a stop and says why.
-    bridge.send_goal(gx + 5.0, gy)
+    # A goal 14 km away (once an abort of the whole process): the node publishes a stop, says
+    # why, and still answers the next scan.
+    bridge.send_goal(gx + 14000.0, gy)
     bridge.spin_until(lambda: True, "goal")
     inputs = sim.observe()
-    bad = list(inputs["ranges"])
-    bad[3] = math.nan
-    assert bridge.send(inputs, bad) == adp_runtime.STOP
+    assert bridge.send(inputs) == adp_runtime.STOP
+    assert bridge.send(sim.observe()) == adp_runtime.STOP
+    assert proc.poll() is None
     proc.terminate()
     log = proc.communicate(timeout=30)[0]
-    assert "scan: range 3 is NaN; stopping" in log, log
+    assert "m from the robot; at most 50 m (max_goal_distance_m)" in log, log

@@ -1,6 +1,7 @@
 """The adp_runtime package: a navigator built from a configuration file drives a BARN world
-to its goal, repeats itself, refuses bad input with a stop and loses nothing, and can be
-shared between threads."""
+to its goal, repeats itself, refuses bad input (and input outside its envelope) with a stop
+and loses nothing, keeps its commands inside the limits, reads NaN beams as no return, and
+can be shared between threads."""
 
 import math
 import pathlib
@@ -59,7 +60,10 @@ def test_the_c_example_and_python_agree():
     "change, kind, message",
     [
         (lambda i: i.update(ranges=i["ranges"][1:]), "scan", "scan: 719 ranges, but the configured lidar has 720 beams"),
-        (lambda i: i["ranges"].__setitem__(3, math.nan), "scan", "scan: range 3 is NaN"),
+        (lambda i: i.update(goal=(14000.0, 0.0)), "goal", "goal: (14000, 0) is "),
+        (lambda i: i.update(pose=(1e6, 0.0, 0.0)), "goal", "goal: "),
+        (lambda i: i.update(goal=(1e300, 0.0)), "goal", "goal: (1e300, 0e0) is outside the envelope"),
+        (lambda i: i.update(pose=(0.0, 0.0, 1e7)), "odometry", "odometry: pose.yaw = 1e7 rad is outside"),
         (lambda i: i.update(odom_stamp_s=i["stamp_s"] - 1.0), "odometry", "odometry: 1.000 s older than the scan"),
         (lambda i: i.update(pose=(math.nan, 0.0, 0.0)), "odometry", "odometry: pose.x = NaN is not finite"),
         (lambda i: i.update(goal=(0.0, math.inf)), "goal", "goal: (0, inf) is not finite"),
@@ -85,6 +89,47 @@ def test_bad_input_is_refused_with_a_stop_and_loses_nothing(change, kind, messag
         sim.step(out)
 
 
+def test_nan_and_infinite_beams_read_as_no_return(tmp_path):
+    nav = adp_runtime.Navigator(str(CONFIG))
+    clean = adp_runtime.Navigator(str(CONFIG))
+    sim = adp_runtime.Sim(nav, 10, 1)
+    for k in range(8):
+        inputs = sim.observe()
+        faulty = list(inputs["ranges"])
+        no_return = list(inputs["ranges"])
+        for j, bad in enumerate([math.nan, math.inf, -math.inf]):
+            faulty[k * 40 + j * 7] = bad
+            no_return[k * 40 + j * 7] = 30.0
+        out = nav.cycle(**dict(inputs, ranges=faulty))
+        assert out == clean.cycle(**dict(inputs, ranges=no_return))
+        sim.step(out)
+    strict = tmp_path / "strict.toml"
+    strict.write_text('planner = "dwa"\nmax_speed = 1.5\nnan_as_no_return = false\n')
+    inputs = sim.observe()
+    inputs["ranges"][3] = math.nan
+    with pytest.raises(adp_runtime.RefusedInput, match=r"scan: range 3 is NaN \(nan_as_no_return = false\)"):
+        adp_runtime.Navigator(str(strict)).cycle(**inputs)
+
+
+@pytest.mark.parametrize("planner", ["dwa", "mppi", "log-mppi", "system"])
+def test_commands_stay_inside_the_limits_whatever_the_measured_velocity(tmp_path, planner):
+    config = tmp_path / "runtime.toml"
+    config.write_text(f'planner = "{planner}"\nmax_speed = 1.5\n')
+    recorded = adp_runtime.Sim(adp_runtime.Navigator(str(CONFIG)), 10, 1).observe()
+    for vel in [(3.0, 0.0), (10.0, 0.0), (1e6, 0.0), (-1e6, 0.0), (0.5, 50.0), (1e6, -1e6)]:
+        nav = adp_runtime.Navigator(str(config))
+        for _ in range(6):
+            v, w = nav.cycle(**dict(recorded, vel=vel)).command
+            assert -1.5 <= v <= 1.5 and -4.0 <= w <= 4.0, (vel, v, w)
+
+
+def test_a_panic_would_raise_an_exception_not_abort():
+    # A defect inside the runtime raises InternalError, an ordinary RuntimeError that a
+    # robot's `except Exception` catches (pyo3's own PanicException is a BaseException).
+    assert issubclass(adp_runtime.InternalError, RuntimeError)
+    assert "InternalError" in adp_runtime.__all__
+
+
 def test_a_bad_configuration_names_the_file_and_key(tmp_path):
     bad = tmp_path / "runtime.toml"
     bad.write_text('planner = "dwa"\nmax_speed = 1.5\nspeed = 2\n')
@@ -94,6 +139,10 @@ def test_a_bad_configuration_names_the_file_and_key(tmp_path):
     missing = tmp_path / "nowhere.toml"
     with pytest.raises(adp_runtime.ConfigError, match="cannot read"):
         adp_runtime.Navigator(str(missing))
+    fast = tmp_path / "fast.toml"
+    fast.write_text('planner = "dwa"\nmax_speed = 1e9\n')
+    with pytest.raises(adp_runtime.ConfigError, match="max_speed = 1000000000 m/s exceeds the runtime's limit of 5 m/s"):
+        adp_runtime.Navigator(str(fast))
     with pytest.raises(ValueError, match="world 300 does not exist"):
         adp_runtime.Sim(adp_runtime.Navigator(str(CONFIG)), 300)
 

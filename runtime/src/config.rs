@@ -8,6 +8,8 @@
 //! fixed = "ddp"                # the schedule without a policy: ddp (default) | vanilla
 //! seed = 0                     # the planner's sampling stream (MPPI, Log-MPPI)
 //! max_odometry_age_s = 0.1     # odometry older than the scan by more is refused
+//! max_goal_distance_m = 50.0   # a goal farther from the robot is refused (the envelope)
+//! nan_as_no_return = true      # NaN and +-inf ranges read as no return; false refuses NaN
 //! settings = "eval.toml"       # optional: [episode] (lidar, costmap, robot), planner tables,
 //!                              # [compute]; the embedded configs/eval.toml when absent
 //! ```
@@ -19,6 +21,7 @@ use eval::EvalConfig;
 use planner::PlannerKind;
 use serde::Deserialize;
 
+use crate::envelope::{DEFAULT_MAX_GOAL_DISTANCE_M, MAX_SPEED_MPS};
 use crate::error::RuntimeError;
 
 /// The schedule the planner runs without a policy.
@@ -37,7 +40,8 @@ pub enum FixedSchedule {
 pub struct RuntimeOptions {
     /// The local planner.
     pub planner: PlannerKind,
-    /// The speed cap (m/s).
+    /// The speed cap (m/s): at most the robot's `[episode.robot] max_v`
+    /// ([`crate::envelope`]); every command's forward speed is clamped to it.
     pub max_speed: f64,
     /// The schedule without a policy.
     pub fixed: FixedSchedule,
@@ -45,10 +49,18 @@ pub struct RuntimeOptions {
     pub seed: u64,
     /// Odometry older than the scan by more than this (s) is refused.
     pub max_odometry_age_s: f64,
+    /// A goal farther than this from the robot (m) is refused: it bounds the costmap
+    /// ([`crate::envelope`]).
+    pub max_goal_distance_m: f64,
+    /// Whether a NaN or infinite range reads as no return (the lidar's max range), as lidar
+    /// drivers publish beams without one. `false` refuses a scan with a NaN range, reads
+    /// `+inf` as no return and `-inf` as the lidar's min range.
+    pub nan_as_no_return: bool,
 }
 
 impl RuntimeOptions {
-    /// `planner` at `max_speed` on DDP, seed 0, odometry at most 0.1 s old.
+    /// `planner` at `max_speed` on DDP, seed 0, odometry at most 0.1 s old, goals at most
+    /// 50 m away, NaN and infinite ranges read as no return.
     pub fn new(planner: PlannerKind, max_speed: f64) -> Self {
         Self {
             planner,
@@ -56,6 +68,8 @@ impl RuntimeOptions {
             fixed: FixedSchedule::Ddp,
             seed: 0,
             max_odometry_age_s: DEFAULT_MAX_ODOMETRY_AGE_S,
+            max_goal_distance_m: DEFAULT_MAX_GOAL_DISTANCE_M,
+            nan_as_no_return: true,
         }
     }
 
@@ -63,6 +77,18 @@ impl RuntimeOptions {
     pub fn validate(&self) -> Result<(), String> {
         if !(self.max_speed.is_finite() && self.max_speed > 0.0) {
             return Err(format!("max_speed = {} must be finite and > 0", self.max_speed));
+        }
+        if self.max_speed > MAX_SPEED_MPS {
+            return Err(format!(
+                "max_speed = {} m/s exceeds the runtime's limit of {MAX_SPEED_MPS} m/s",
+                self.max_speed
+            ));
+        }
+        if !(self.max_goal_distance_m.is_finite() && self.max_goal_distance_m > 0.0) {
+            return Err(format!(
+                "max_goal_distance_m = {} must be finite and > 0",
+                self.max_goal_distance_m
+            ));
         }
         if self.max_odometry_age_s.is_nan() || self.max_odometry_age_s < 0.0 {
             return Err(format!(
@@ -81,6 +107,14 @@ fn default_max_odometry_age_s() -> f64 {
     DEFAULT_MAX_ODOMETRY_AGE_S
 }
 
+fn default_max_goal_distance_m() -> f64 {
+    DEFAULT_MAX_GOAL_DISTANCE_M
+}
+
+fn default_true() -> bool {
+    true
+}
+
 /// The configuration file (see the module docs).
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -94,6 +128,10 @@ struct RuntimeFile {
     seed: u64,
     #[serde(default = "default_max_odometry_age_s")]
     max_odometry_age_s: f64,
+    #[serde(default = "default_max_goal_distance_m")]
+    max_goal_distance_m: f64,
+    #[serde(default = "default_true")]
+    nan_as_no_return: bool,
     settings: Option<PathBuf>,
 }
 
@@ -115,6 +153,8 @@ pub fn read(path: &Path) -> Result<(EvalConfig, RuntimeOptions, Option<LearnedPo
         fixed: file.fixed,
         seed: file.seed,
         max_odometry_age_s: file.max_odometry_age_s,
+        max_goal_distance_m: file.max_goal_distance_m,
+        nan_as_no_return: file.nan_as_no_return,
     };
     options.validate().map_err(config)?;
     let dir = path.parent().unwrap_or(Path::new("."));

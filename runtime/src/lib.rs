@@ -25,19 +25,24 @@
 //!   `sim::nav_stack`, `planner::run::CycleDriver`, `actor::agent_action`), so a world
 //!   driven through it repeats `adp eval`'s episode bit for bit.
 //! * [`input`] states the inputs' units and frames and checks them.
+//! * [`envelope`] states the inputs and settings accepted (so no input aborts the process or
+//!   makes a cycle unbounded) and the limits every command is clamped to.
 //! * [`config`] reads the runtime's configuration file.
-//! * [`RuntimeError`] names what was refused; [`STOP`] is the command to issue then.
+//! * [`RuntimeError`] names what was refused (or the panic caught); [`STOP`] is the command
+//!   to issue then.
 //! * [`sim_robot`] is a simulated robot: a BARN episode observed and driven as a robot is.
 
 #![warn(missing_docs)]
 
 pub mod config;
+pub mod envelope;
 pub mod error;
 pub mod input;
 pub mod navigator;
 pub mod sim_robot;
 
 pub use config::{load_policy, FixedSchedule, RuntimeOptions};
+pub use envelope::CommandLimits;
 pub use error::{RuntimeError, STOP};
 pub use input::{CycleInput, Odometry};
 pub use navigator::{CycleOutput, Navigator, ScheduleSummary};

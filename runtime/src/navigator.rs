@@ -14,13 +14,14 @@ use sim::nav_stack::{NavStack, Scan};
 use sim::robot::Twist;
 
 use crate::config::{FixedSchedule, RuntimeOptions};
-use crate::error::RuntimeError;
+use crate::envelope::{self, CommandLimits};
+use crate::error::{guarded, RuntimeError};
 use crate::input::{check, CycleInput};
 
 /// What one control cycle decided.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct CycleOutput {
-    /// The velocity command to issue now (robot frame).
+    /// The velocity command to issue now (robot frame), inside [`Navigator::limits`].
     pub command: Twist,
     /// Whether the planner ran this cycle. `false`: under a compute model the last cycle's
     /// modelled compute still runs, and `command` repeats the last command.
@@ -80,7 +81,10 @@ struct Agent {
 /// goal, a fresh planner and policy state).
 ///
 /// Contract: call it once per control period (`[episode] control_dt`, 0.05 s by default),
-/// in order. Once warm a cycle allocates nothing on a fixed schedule; a policy step builds
+/// in order. Inputs outside the envelope ([`crate::envelope`]) are refused, so a cycle's
+/// memory and time are bounded; every command is clamped to [`Navigator::limits`]; a panic
+/// inside a cycle is caught and returned as [`RuntimeError::Internal`]. Once warm a cycle
+/// allocates nothing on a fixed schedule; a policy step builds
 /// its schedule (four small vectors) and a new goal reallocates. Inside a rayon pool, the
 /// planners' parallel rollouts allocate nothing either (outside one, rayon's global queue
 /// may). `Send`: a robot may move it to its control thread; share it
@@ -99,12 +103,15 @@ pub struct Navigator {
     /// The policy's space (or the fixed schedule's), and what the current agent step runs.
     space: Option<ActionSpace>,
     applied: Applied,
-    /// Control periods of this run so far.
+    /// Control periods of this run so far (set to 1 when a panic drops the run, so that the
+    /// next run rebuilds the planner, driver and policy state).
     periods: u64,
     /// The last command issued.
     last: Twist,
     /// The checked scan of the current cycle.
     ranges: Vec<f64>,
+    /// What every command is clamped to.
+    limits: CommandLimits,
 }
 
 impl Navigator {
@@ -113,7 +120,18 @@ impl Navigator {
     /// tables), and `policy` choosing the schedule (the fixed schedule of `options` without
     /// one). With a policy the robot's profile is the policy's (its planner predicts with
     /// the model it was trained with), as in `adp eval --policy`.
+    ///
+    /// Settings outside the envelope ([`crate::envelope`]) are refused; a panic while
+    /// building is returned as [`RuntimeError::Internal`].
     pub fn new(
+        settings: &EvalConfig,
+        options: RuntimeOptions,
+        policy: Option<LearnedPolicy>,
+    ) -> Result<Self, RuntimeError> {
+        guarded(|| Self::build(settings, options, policy))
+    }
+
+    fn build(
         settings: &EvalConfig,
         options: RuntimeOptions,
         policy: Option<LearnedPolicy>,
@@ -138,6 +156,14 @@ impl Navigator {
             episode = episode.with_profile(p.env.profile, p.env.dynamics);
         }
         episode.validate().map_err(|e| config(format!("[episode] {e}")))?;
+        envelope::check_settings(
+            &episode.robot,
+            &episode.costmap,
+            episode.lidar.beams,
+            options.max_speed,
+            options.max_goal_distance_m,
+        )
+        .map_err(config)?;
         let lidar = Lidar::new(episode.lidar);
         let compute = settings
             .compute
@@ -189,6 +215,7 @@ impl Navigator {
             periods: 0,
             last: Twist::default(),
             ranges: Vec::new(),
+            limits: CommandLimits::new(&episode.robot, options.max_speed),
         })
     }
 
@@ -221,6 +248,12 @@ impl Navigator {
         &self.episode
     }
 
+    /// The limits every command is clamped to: `max_speed` forward, the robot's reverse
+    /// speed and yaw rate ([`crate::envelope`]).
+    pub fn limits(&self) -> CommandLimits {
+        self.limits
+    }
+
     /// The navigation state of the current run (costmap, global path, local goal); `None`
     /// before the first cycle.
     pub fn nav(&self) -> Option<&NavStack> {
@@ -229,14 +262,27 @@ impl Navigator {
 
     /// Runs one control cycle on `input`: checks it (a refused input changes nothing and
     /// the robot must issue [`crate::STOP`]), updates the costmap and path, lets the policy
-    /// choose the schedule when an agent period begins, and plans.
+    /// choose the schedule when an agent period begins, and plans. The command is clamped
+    /// to [`Navigator::limits`], whatever the planner or the measured velocity. A panic is
+    /// returned as [`RuntimeError::Internal`] and drops the run: the next cycle starts afresh,
+    /// as for a new goal.
     pub fn cycle(&mut self, input: &CycleInput<'_>) -> Result<CycleOutput, RuntimeError> {
+        let decided = guarded(|| self.cycle_unguarded(input));
+        if matches!(decided, Err(RuntimeError::Internal(_))) {
+            // The state a panic left half-updated is not trusted: a fresh run next cycle.
+            self.nav = None;
+            self.periods = 1;
+        }
+        decided
+    }
+
+    fn cycle_unguarded(&mut self, input: &CycleInput<'_>) -> Result<CycleOutput, RuntimeError> {
         let cfg = &self.episode.lidar;
         check(
             input,
             self.lidar.angles().len(),
             (cfg.min_range, cfg.max_range),
-            self.options.max_odometry_age_s,
+            &self.options,
             &mut self.ranges,
         )?;
         if self.nav.as_ref().is_none_or(|n| n.goal() != input.goal) {
@@ -292,6 +338,10 @@ impl Navigator {
                 }
             }
         };
+        // Planners command inside the limits from a measured state inside them (the clamp
+        // leaves those commands bit for bit); from one outside (wheel slip, an odometry fault)
+        // they may not.
+        let command = self.limits.clamp(command);
         let work = match (&self.applied, planned) {
             (Applied::Schedule(_), true) => self.planner.trace().cycle,
             _ => CycleWork::default(),
@@ -309,7 +359,8 @@ impl Navigator {
     }
 
     /// Starts a run towards `input.goal` from the robot's pose: a fresh costmap, planner,
-    /// cycle driver and policy state.
+    /// cycle driver and policy state (the planner, driver and policy state are rebuilt when
+    /// the last run planned at least once, or was dropped by a panic).
     fn start_run(&mut self, input: &CycleInput<'_>) {
         let world_moves = false;
         let clearing = self.episode.costmap.clearing.enabled(world_moves);

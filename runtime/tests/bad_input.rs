@@ -57,8 +57,7 @@ fn each_bad_input_is_refused_with_a_stop_and_loses_nothing() {
     for (k, (ranges, odom, goal)) in recorded.iter().enumerate() {
         // Every period, each kind of fault first (each refused), then the good input: the
         // faulty navigator must answer it as the clean one does.
-        let mut nan_scan = ranges.clone();
-        nan_scan[k * 7] = f64::NAN;
+        let far_goal = Vec2::new(goal.x + 14_000.0, goal.y);
         let short_scan = &ranges[1..];
         let stale = Odometry {
             stamp_s: odom.stamp_s - 0.5,
@@ -68,8 +67,14 @@ fn each_bad_input_is_refused_with_a_stop_and_loses_nothing() {
         let empty: &[Vec2] = &[];
         let faults: [(CycleInput<'_>, String); 5] = [
             (
-                input(&nan_scan, *odom, *goal),
-                format!("scan: range {} is NaN", k * 7),
+                input(ranges, *odom, far_goal),
+                format!(
+                    "goal: ({}, {}) is {:.1} m from the robot; at most 50 m (max_goal_distance_m): \
+                     give a nearer goal, e.g. a waypoint of a global plan",
+                    far_goal.x,
+                    far_goal.y,
+                    far_goal.dist(odom.pose.position())
+                ),
             ),
             (
                 input(short_scan, *odom, *goal),

@@ -9,20 +9,24 @@ per call.
     except adp_runtime.RefusedInput as e:
         message, kind = e.args
         v, w = adp_runtime.STOP
+    except adp_runtime.InternalError:
+        v, w = adp_runtime.STOP
 
 Units are SI; poses, goals and paths are in one fixed frame (the one the robot's
 localization reports), yaw counter-clockwise from its x axis; velocities are in the robot's
 frame; ranges are in the configured lidar's beam order (increasing angle, centred on the
-heading). `Sim` runs a BARN world in place of a robot.
+heading). The command is always inside the configured speed and turn limits. `Sim` runs a
+BARN world in place of a robot.
 """
 
 from adp_runtime._native import (
     STOP,
     ConfigError,
     CycleOutput,
+    InternalError,
     Navigator,
     RefusedInput,
     Sim,
 )
 
-__all__ = ["STOP", "ConfigError", "CycleOutput", "Navigator", "RefusedInput", "Sim"]
+__all__ = ["STOP", "ConfigError", "CycleOutput", "InternalError", "Navigator", "RefusedInput", "Sim"]

@@ -13,8 +13,9 @@ Topics (relative names, so they follow the node's namespace and remappings):
 * ``goal_pose`` (geometry_msgs/PoseStamped), subscribed: the goal in the same fixed frame. A
   new goal starts a new run; within ``goal_tolerance_m`` of it the node stops and drops it.
 * ``cmd_vel`` (geometry_msgs/Twist), published after every scan: the planner's command, or a
-  stop when there is no goal, no odometry yet, or the runtime refused the input (the reason
-  is logged).
+  stop when there is no goal, no odometry yet, or the runtime refused the input (a goal
+  farther than ``max_goal_distance_m`` included) or failed inside (the reason is logged).
+  Commands are inside the configured speed and turn limits.
 
 Parameters: ``config`` (the runtime configuration file, required), ``goal_tolerance_m``
 (default 0.3).
@@ -102,7 +103,7 @@ class AdpNode(Node):
             return
         try:
             out = self.nav.cycle(stamp_s(msg.header), list(msg.ranges), pose, vel, odom_stamp, self.goal)
-        except adp_runtime.RefusedInput as e:
+        except (adp_runtime.RefusedInput, adp_runtime.InternalError) as e:
             self.get_logger().warning(f"{e.args[0]}; stopping")
             self.publish(*adp_runtime.STOP)
             return
