@@ -2,21 +2,16 @@
 //! refused cycle leaves the navigator as it was, so the next good cycle is the one a
 //! navigator that never saw the bad input would run.
 
-use std::path::{Path, PathBuf};
+mod common;
 
-use adp_runtime::{
-    load_policy, sim_robot, CycleInput, Navigator, Odometry, RuntimeError, RuntimeOptions, STOP,
-};
+use common::{input, policy_dir, recorded};
+
+use adp_runtime::{load_policy, CycleInput, Navigator, Odometry, RuntimeError, RuntimeOptions, STOP};
 use eval::EvalConfig;
 use planner::PlannerKind;
-use sim::episode::Episode;
 use sim::geometry::Vec2;
 use sim::robot::Twist;
 use testkit::fresh_dir;
-
-fn policy_dir() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/policy")
-}
 
 fn navigator() -> Navigator {
     let cfg = EvalConfig::load(None).unwrap();
@@ -24,34 +19,9 @@ fn navigator() -> Navigator {
     Navigator::new(&cfg, RuntimeOptions::new(PlannerKind::Dwa, 1.5), Some(policy)).unwrap()
 }
 
-/// The inputs of the first `n` control periods of a BARN world, driven by a navigator.
-fn scans(n: usize) -> Vec<(Vec<f64>, Odometry, Vec2)> {
-    let world = &sim::catalog::barn_worlds()[10];
-    let mut nav = navigator();
-    let mut ep = Episode::new(world, *nav.episode(), 3);
-    let mut out = Vec::new();
-    for _ in 0..n {
-        let seen = sim_robot::observe(&ep);
-        let cycle = nav.cycle(&seen).unwrap();
-        out.push((seen.ranges.to_vec(), seen.odom, seen.goal));
-        sim_robot::apply(&mut ep, cycle.command, cycle.planned, cycle.compute_s);
-    }
-    out
-}
-
-fn input(ranges: &[f64], odom: Odometry, goal: Vec2) -> CycleInput<'_> {
-    CycleInput {
-        stamp_s: odom.stamp_s,
-        ranges,
-        odom,
-        goal,
-        global_path: None,
-    }
-}
-
 #[test]
 fn each_bad_input_is_refused_with_a_stop_and_loses_nothing() {
-    let recorded = scans(12);
+    let recorded = recorded(navigator(), 12);
     let mut clean = navigator();
     let mut faulty = navigator();
     for (k, (ranges, odom, goal)) in recorded.iter().enumerate() {
@@ -196,7 +166,7 @@ fn a_configuration_file_builds_a_navigator_and_bad_keys_are_named() {
 
 #[test]
 fn a_new_goal_starts_a_new_run() {
-    let recorded = scans(3);
+    let recorded = recorded(navigator(), 3);
     let mut nav = navigator();
     let (ranges, odom, goal) = &recorded[0];
     let first = nav.cycle(&input(ranges, *odom, *goal)).unwrap();

@@ -4,22 +4,16 @@
 //! the limits still gets a command inside them from every planner, and NaN or infinite
 //! beams read as no return.
 
-use std::path::{Path, PathBuf};
+mod common;
 
-use adp_runtime::{
-    load_policy, sim_robot, CommandLimits, CycleInput, Navigator, Odometry, RuntimeError, RuntimeOptions,
-    STOP,
-};
+use common::{input, policy_dir, recorded};
+
+use adp_runtime::{load_policy, CommandLimits, Navigator, Odometry, RuntimeError, RuntimeOptions, STOP};
 use eval::EvalConfig;
 use planner::PlannerKind;
-use sim::episode::Episode;
 use sim::geometry::{Pose, Vec2};
 use sim::robot::Twist;
 use testkit::fresh_dir;
-
-fn policy_dir() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/policy")
-}
 
 fn navigator(kind: PlannerKind, with_policy: bool, options: RuntimeOptions) -> Navigator {
     let cfg = EvalConfig::load(None).unwrap();
@@ -39,34 +33,9 @@ fn dwa() -> Navigator {
     navigator(PlannerKind::Dwa, true, RuntimeOptions::new(PlannerKind::Dwa, 1.5))
 }
 
-/// The inputs of the first `n` control periods of BARN world 10, driven by a navigator.
-fn recorded(n: usize) -> Vec<(Vec<f64>, Odometry, Vec2)> {
-    let world = &sim::catalog::barn_worlds()[10];
-    let mut nav = dwa();
-    let mut ep = Episode::new(world, *nav.episode(), 3);
-    let mut out = Vec::new();
-    for _ in 0..n {
-        let seen = sim_robot::observe(&ep);
-        let cycle = nav.cycle(&seen).unwrap();
-        out.push((seen.ranges.to_vec(), seen.odom, seen.goal));
-        sim_robot::apply(&mut ep, cycle.command, cycle.planned, cycle.compute_s);
-    }
-    out
-}
-
-fn input(ranges: &[f64], odom: Odometry, goal: Vec2) -> CycleInput<'_> {
-    CycleInput {
-        stamp_s: odom.stamp_s,
-        ranges,
-        odom,
-        goal,
-        global_path: None,
-    }
-}
-
 #[test]
 fn goals_and_poses_outside_the_envelope_are_refused_and_lose_nothing() {
-    let inputs = recorded(6);
+    let inputs = recorded(dwa(), 6);
     let mut clean = dwa();
     let mut faulty = dwa();
     for (k, (ranges, odom, goal)) in inputs.iter().enumerate() {
@@ -118,7 +87,7 @@ fn goals_and_poses_outside_the_envelope_are_refused_and_lose_nothing() {
 
 #[test]
 fn a_goal_at_the_envelopes_edge_plans_on_a_bounded_costmap() {
-    let (ranges, odom, _) = recorded(1).remove(0);
+    let (ranges, odom, _) = recorded(dwa(), 1).remove(0);
     let here = odom.pose.position();
     // 50 m away on the diagonal: the largest costmap the default envelope allows.
     let edge = here + Vec2::new(35.3, 35.3);
@@ -188,7 +157,7 @@ fn settings_outside_the_envelope_are_refused_naming_the_key() {
     )
     .unwrap();
     let mut near = Navigator::from_file(&dir.join("near.toml")).unwrap();
-    let (ranges, odom, goal) = recorded(1).remove(0);
+    let (ranges, odom, goal) = recorded(self::dwa(), 1).remove(0);
     let err = near.cycle(&input(&ranges, odom, goal)).unwrap_err().to_string();
     assert!(err.contains("at most 5 m (max_goal_distance_m)"), "{err}");
     let _ = std::fs::remove_dir_all(&dir);
@@ -196,7 +165,7 @@ fn settings_outside_the_envelope_are_refused_naming_the_key() {
 
 #[test]
 fn every_planner_commands_inside_the_limits_whatever_the_measured_velocity() {
-    let inputs = recorded(12);
+    let inputs = recorded(dwa(), 12);
     let measured = [
         Twist::new(3.0, 0.0),
         Twist::new(10.0, 0.0),
@@ -235,7 +204,7 @@ fn every_planner_commands_inside_the_limits_whatever_the_measured_velocity() {
 
 #[test]
 fn nan_and_infinite_beams_read_as_no_return_unless_turned_off() {
-    let inputs = recorded(8);
+    let inputs = recorded(dwa(), 8);
     let mut with_nan = dwa();
     let mut with_max = dwa();
     let max_range = with_nan.lidar().config().max_range;
