@@ -12,8 +12,13 @@ dropped except '-' and '_', a repeated heading gets -1, -2, ...) or an explicit 
 Links with a scheme (http:, https:, mailto:, ...) are not checked. Links inside code spans and
 fenced code blocks are not links.
 
-Exit status 0 when every link resolves, 1 otherwise, with one line per broken link:
-`FILE:LINE: TARGET: why`. Python 3 standard library only.
+With the built book it also checks what the pages show: no en dash directly before a
+lowercase letter anywhere (`–release`: smart punctuation turned a flag's `--` into a dash, and
+the flag no longer survives copy-paste), and no entity shown as typed (`&lt;name&gt;`) inside
+code on the generated references (reference/cli.html, reference/config.html).
+
+Exit status 0 when every link resolves and no page shows either, 1 otherwise, with one line
+per problem: `FILE:LINE: TARGET: why`. Python 3 standard library only.
 """
 
 import html.parser
@@ -38,6 +43,12 @@ REFDEF = re.compile(r"^ {0,3}\[([^\]]+)\]:\s*(<[^>]*>|\S+)")
 HTML_ATTR = re.compile(r"<(?:a|img)\b[^>]*?\b(?:href|src)\s*=\s*(\"[^\"]*\"|'[^']*')", re.I)
 HTML_ID = re.compile(r"<[A-Za-z][^>]*?\b(?:id|name)\s*=\s*(\"[^\"]*\"|'[^']*')", re.I)
 GITHUB_LINE = re.compile(r"^L\d+(?:C\d+)?(?:-L\d+(?:C\d+)?)?$")
+# An en dash where a flag's "--" was: smart punctuation's work on `--release`.
+DASHED_FLAG = re.compile("\u2013[a-z]")
+# An HTML entity a page shows as text (the markdown escaped it where it was already literal).
+SHOWN_ENTITY = re.compile(r"&(?:lt|gt|amp|quot);")
+# The generated references, whose code spans must show `<name>`, not `&lt;name&gt;`.
+REFERENCE_PAGES = (os.path.join("reference", "cli.html"), os.path.join("reference", "config.html"))
 
 
 def rel(path):
@@ -171,8 +182,25 @@ class _HtmlScan(html.parser.HTMLParser):
         self.links = []  # (line, attribute value)
         self.ids = set()
         self.base = None
+        self.text = []  # (line, shown text, inside <code>)
+        self._code = 0
+        self._hidden = 0  # inside <script> or <style>
+
+    def handle_endtag(self, tag):
+        if tag == "code":
+            self._code = max(0, self._code - 1)
+        elif tag in ("script", "style"):
+            self._hidden = max(0, self._hidden - 1)
+
+    def handle_data(self, data):
+        if not self._hidden:
+            self.text.append((self.getpos()[0], data, self._code > 0))
 
     def handle_starttag(self, tag, attrs):
+        if tag == "code":
+            self._code += 1
+        elif tag in ("script", "style"):
+            self._hidden += 1
         attrs = dict(attrs)
         for key in ("id", "name"):
             if attrs.get(key):
@@ -184,7 +212,10 @@ class _HtmlScan(html.parser.HTMLParser):
         elif tag == "img" and attrs.get("src") is not None:
             self.links.append((self.getpos()[0], attrs["src"]))
 
-    handle_startendtag = handle_starttag
+    def handle_startendtag(self, tag, attrs):
+        # A self-closing tag opens nothing.
+        if tag not in ("code", "script", "style"):
+            self.handle_starttag(tag, attrs)
 
 
 _html_cache = {}
@@ -289,6 +320,27 @@ def check_html(path, book, problems):
     return count
 
 
+def check_shown_text(path, book, problems):
+    """An en dash before a lowercase letter anywhere on the page; an entity shown as typed
+    inside code on the generated reference pages."""
+    scan = scan_html(path)
+    reference = os.path.relpath(path, book) in REFERENCE_PAGES
+    for number, data, in_code in scan.text:
+        for m in DASHED_FLAG.finditer(data):
+            snippet = data[max(0, m.start() - 20) : m.end() + 20].replace("\n", " ")
+            problems.append(
+                "%s:%d: ...%s...: an en dash before a word (smart punctuation's `--`?)"
+                % (rel(path), number, snippet)
+            )
+        if reference and in_code:
+            for m in SHOWN_ENTITY.finditer(data):
+                snippet = data[max(0, m.start() - 20) : m.end() + 20].replace("\n", " ")
+                problems.append(
+                    "%s:%d: `%s`: code shows the entity %s as typed"
+                    % (rel(path), number, snippet, m.group(0))
+                )
+
+
 def main(argv):
     if len(argv) > 2 or (len(argv) == 2 and argv[1] in ("-h", "--help")):
         print(__doc__.strip())
@@ -310,11 +362,16 @@ def main(argv):
         if not pages:
             problems.append("%s: no .html files (build the book first: mdbook build docs)" % argv[1])
         links += sum(check_html(p, book, problems) for p in pages)
+        for p in pages:
+            check_shown_text(p, book, problems)
+        for page in REFERENCE_PAGES:
+            if pages and not os.path.isfile(os.path.join(book, page)):
+                problems.append("%s: missing from the built book" % os.path.join(argv[1], page))
         checked += " and %d HTML pages" % len(pages)
     for p in problems:
         print(p)
     if problems:
-        print("%d broken link(s) in %s" % (len(problems), checked))
+        print("%d problem(s) in %s" % (len(problems), checked))
         return 1
     print("%d relative links in %s: all resolve" % (links, checked))
     return 0

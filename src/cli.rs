@@ -67,7 +67,8 @@ pub enum Cmd {
         #[command(subcommand)]
         cmd: tracks::TracksCmd,
     },
-    /// Measure the DESIGN §8 figures on this machine (release build) next to their targets.
+    /// Measure the project's performance figures on this machine (release build) next to
+    /// their targets (docs/guide/benchmarks/running.md).
     Bench(bench::BenchArgs),
 }
 

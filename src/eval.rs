@@ -39,7 +39,7 @@ pub struct EvalArgs {
     pub prediction: Vec<ObstaclePrediction>,
     /// Lidar beam count(s) over the field of view, comma-separated: one row per value
     /// (overrides `[episode.lidar]` beams). A trained policy reads any beam count, resampled to
-    /// its own layout (README "Sensing conditions").
+    /// its own layout (docs/guide/simulator/sensing.md#resampling).
     #[arg(long, value_delimiter = ',')]
     pub lidar_beams: Vec<usize>,
     /// Lidar range noise as a fraction of each scan's mean range (replaces `[episode.lidar]`
@@ -50,9 +50,9 @@ pub struct EvalArgs {
     /// row per value (overrides `[episode.lidar]` dropout).
     #[arg(long, value_delimiter = ',')]
     pub lidar_dropout: Vec<f64>,
-    /// Worlds: comma-separated splits (BARN: train, test, hardest50, all; DynaBARN: dynabarn,
-    /// dynabarn-easy|medium|hard, dynabarn-train, dynabarn-test, ...), ranges (0..50, 300..320)
-    /// and ids (3,7,305).
+    /// Worlds: comma-separated splits (BARN: fit, val, train = fit + val, test, hardest50, all;
+    /// DynaBARN: dynabarn, dynabarn-easy|medium|hard, dynabarn-fit, dynabarn-val,
+    /// dynabarn-train, dynabarn-test, ...), ranges (0..50, 300..320) and ids (3,7,305).
     #[arg(long, default_value = "test")]
     pub worlds: String,
     /// Runs per world.

@@ -40,9 +40,50 @@ fn cell(s: &str) -> String {
     s.replace('|', "\\|").trim().to_string()
 }
 
-/// Escapes a table cell of prose: also `<` and `>`, which markdown would take for HTML tags.
+/// Escapes a table cell of prose: also `<` and `>` outside code spans, which markdown would
+/// take for HTML tags. Inside a code span they stay as they are: markdown shows a code span's
+/// text literally, so an entity there would be shown as `&lt;`.
 fn prose(s: &str) -> String {
-    cell(s).replace('<', "&lt;").replace('>', "&gt;")
+    let s = cell(s);
+    let mut out = String::with_capacity(s.len());
+    let mut rest = s.as_str();
+    while let Some(open) = rest.find('`') {
+        let (before, from) = rest.split_at(open);
+        out.push_str(&escape_angles(before));
+        let ticks = from.len() - from.trim_start_matches('`').len();
+        let fence = &from[..ticks];
+        // The span closes at the next run of exactly as many backticks.
+        let mut search = ticks;
+        let close = loop {
+            match from[search..].find(fence) {
+                None => break None,
+                Some(i) => {
+                    let at = search + i;
+                    let run = from[at..].len() - from[at..].trim_start_matches('`').len();
+                    if run == ticks {
+                        break Some(at + ticks);
+                    }
+                    search = at + run;
+                }
+            }
+        };
+        match close {
+            Some(end) => {
+                out.push_str(&from[..end]);
+                rest = &from[end..];
+            }
+            None => {
+                out.push_str(fence);
+                rest = &from[ticks..];
+            }
+        }
+    }
+    out.push_str(&escape_angles(rest));
+    out
+}
+
+fn escape_angles(s: &str) -> String {
+    s.replace('<', "&lt;").replace('>', "&gt;")
 }
 
 /// The command-line reference: every command and subcommand with its usage and options.
@@ -89,11 +130,10 @@ fn command(out: &mut String, cmd: &clap::Command, path: &str, level: usize) {
                 .iter()
                 .map(|v| v.to_string_lossy().to_string())
                 .collect();
-            let possible: Vec<String> = if a.get_action().takes_values() {
+            let possible: Vec<clap::builder::PossibleValue> = if a.get_action().takes_values() {
                 a.get_possible_values()
-                    .iter()
+                    .into_iter()
                     .filter(|p| !p.is_hide_set())
-                    .map(|p| p.get_name().to_string())
                     .collect()
             } else {
                 Vec::new()
@@ -104,9 +144,7 @@ fn command(out: &mut String, cmd: &clap::Command, path: &str, level: usize) {
                 .map(|h| h.to_string())
                 .unwrap_or_default()
                 .replace('\n', " ");
-            if !possible.is_empty() {
-                let _ = write!(help, " (one of: {})", possible.join(", "));
-            }
+            help.push_str(&possible_values(&possible));
             let _ = writeln!(
                 out,
                 "| `{}` | {} | {} |",
@@ -123,6 +161,30 @@ fn command(out: &mut String, cmd: &clap::Command, path: &str, level: usize) {
     {
         command(out, sub, &format!("{path} {}", sub.get_name()), level + 1);
     }
+}
+
+/// The values an option accepts, as `--help` lists them: " (one of: a, b)", or with the
+/// values' descriptions when they have any (`--help` prints them under "Possible values").
+fn possible_values(values: &[clap::builder::PossibleValue]) -> String {
+    if values.is_empty() {
+        return String::new();
+    }
+    if values.iter().all(|p| p.get_help().is_none()) {
+        let names: Vec<&str> = values.iter().map(|p| p.get_name()).collect();
+        return format!(" (one of: {})", names.join(", "));
+    }
+    let described: Vec<String> = values
+        .iter()
+        .map(|p| match p.get_help() {
+            Some(h) => format!(
+                "`{}`: {}",
+                p.get_name(),
+                h.to_string().replace('\n', " ").trim_end_matches('.')
+            ),
+            None => format!("`{}`", p.get_name()),
+        })
+        .collect();
+    format!(" (one of: {})", described.join("; "))
 }
 
 /// One documented key of a configuration file.
@@ -246,9 +308,277 @@ pub fn config() -> String {
     out
 }
 
+/// Every text of `adp --help` and its subcommands' help: abouts, options and their values'
+/// descriptions, one `(where, text)` per command.
+#[cfg(test)]
+fn help_texts() -> Vec<(String, String)> {
+    fn walk(cmd: &clap::Command, path: &str, out: &mut Vec<(String, String)>) {
+        let mut text = String::new();
+        let mut add = |t: Option<&clap::builder::StyledStr>| {
+            if let Some(t) = t {
+                text.push_str(&t.to_string());
+                text.push('\n');
+            }
+        };
+        add(cmd.get_about());
+        add(cmd.get_long_about());
+        add(cmd.get_before_help());
+        add(cmd.get_before_long_help());
+        add(cmd.get_after_help());
+        add(cmd.get_after_long_help());
+        for a in cmd.get_arguments() {
+            add(a.get_help());
+            add(a.get_long_help());
+            for p in a.get_possible_values() {
+                add(p.get_help());
+            }
+        }
+        out.push((format!("`{path} --help`"), text));
+        for sub in cmd.get_subcommands() {
+            walk(sub, &format!("{path} {}", sub.get_name()), out);
+        }
+    }
+    let mut root = crate::cli::Cli::command();
+    root.build();
+    let mut out = Vec::new();
+    walk(&root, "adp", &mut out);
+    out
+}
+
+/// The anchors of a markdown file's headings (GitHub's slugs: lowercase, spaces to `-`,
+/// punctuation other than `-` and `_` dropped, a repeated heading `-1`, `-2`, ...) and the
+/// headings' text.
+#[cfg(test)]
+fn headings(markdown: &str) -> Vec<(String, String)> {
+    let mut out = Vec::new();
+    let mut counts = std::collections::HashMap::<String, usize>::new();
+    let mut fence = false;
+    for line in markdown.lines() {
+        let t = line.trim_start();
+        if t.starts_with("```") || t.starts_with("~~~") {
+            fence = !fence;
+            continue;
+        }
+        if fence || !t.starts_with('#') {
+            continue;
+        }
+        let hashes = t.len() - t.trim_start_matches('#').len();
+        let rest = &t[hashes..];
+        if hashes > 6 || !(rest.is_empty() || rest.starts_with(' ')) {
+            continue;
+        }
+        let text: String = rest
+            .trim()
+            .trim_end_matches('#')
+            .trim()
+            .chars()
+            .filter(|c| *c != '`' && *c != '*')
+            .collect();
+        let base: String = text
+            .to_lowercase()
+            .chars()
+            .filter_map(|c| match c {
+                ' ' => Some('-'),
+                c if c.is_alphanumeric() || c == '-' || c == '_' => Some(c),
+                _ => None,
+            })
+            .collect();
+        let n = counts.entry(base.clone()).or_insert(0);
+        let slug = if *n == 0 {
+            base.clone()
+        } else {
+            format!("{base}-{n}")
+        };
+        *n += 1;
+        out.push((slug, text));
+    }
+    out
+}
+
+/// What is wrong with each reference of `text` to a file of the repository at `root` or to a
+/// section of one: a path whose first part is a directory or file of the repository
+/// (`docs/guide/x.md`, `configs/eval.toml`, `README.md#anchor`: the file must exist, the anchor
+/// be one of its headings), and a document named in capitals with a section (`README
+/// "Section"`, `README's "Section"`, `DESIGN §5`, `DESIGN.md section 5`: `NAME.md` must exist
+/// with that heading). Paths with a placeholder (`<name>`, `NAME.toml`, `*`) are not checked;
+/// neither are `runs/` and `target/`, which a run makes.
+#[cfg(test)]
+fn missing_references(root: &std::path::Path, text: &str) -> Vec<String> {
+    let mut problems = Vec::new();
+    let read_headings = |path: &std::path::Path| {
+        std::fs::read_to_string(path)
+            .map(|t| headings(&t))
+            .unwrap_or_default()
+    };
+    // Paths: words of path characters with a '/' or a capitalised root document.
+    let word_char = |c: char| c.is_alphanumeric() || "_.-/#<>{}*".contains(c);
+    for word in text.split(|c: char| !word_char(c)) {
+        let word = word.trim_end_matches(['.', '-', '#']);
+        if word.contains(['<', '>', '{', '}', '*']) {
+            continue;
+        }
+        let (path, anchor) = match word.split_once('#') {
+            Some((p, a)) => (p, Some(a)),
+            None => (word, None),
+        };
+        let first = path.split('/').next().unwrap_or("");
+        let root_doc = !path.contains('/')
+            && path.ends_with(".md")
+            && path[..path.len() - 3]
+                .chars()
+                .all(|c| c.is_ascii_uppercase() || c == '_' || c == '-')
+            && path.len() > 3;
+        let in_repo = path.contains('/')
+            && !first.is_empty()
+            && !matches!(first, "runs" | "target" | "." | "..")
+            && root.join(first).exists();
+        if !(root_doc || in_repo) {
+            continue;
+        }
+        let placeholder = path.split('/').any(|part| {
+            let stem = part.split('.').next().unwrap_or("");
+            !stem.is_empty()
+                && stem.len() <= 4
+                && stem.chars().all(|c| c.is_ascii_uppercase() || c.is_ascii_digit())
+                && stem.chars().any(|c| c.is_ascii_uppercase())
+        });
+        if placeholder {
+            continue;
+        }
+        let file = root.join(path);
+        if !file.exists() {
+            problems.push(format!("{word}: no such file"));
+        } else if let Some(anchor) = anchor.filter(|a| !a.is_empty()) {
+            if path.ends_with(".md") && !read_headings(&file).iter().any(|(s, _)| s == anchor) {
+                problems.push(format!("{word}: {path} has no heading #{anchor}"));
+            }
+        }
+    }
+    // Sections of a document named in capitals: README "Section", DESIGN §5, X.md section 5.
+    let words: Vec<&str> = text.split_whitespace().collect();
+    for (i, w) in words.iter().enumerate() {
+        let name = w.trim_start_matches(['(', '[', '"', '`']);
+        let name = name.strip_suffix("'s").unwrap_or(name);
+        let name = name.strip_suffix(".md").unwrap_or(name);
+        if name.len() < 3 || !name.chars().all(|c| c.is_ascii_uppercase() || c == '_') || i + 1 >= words.len()
+        {
+            continue;
+        }
+        let rest = words[i + 1..]
+            .iter()
+            .take(16)
+            .copied()
+            .collect::<Vec<_>>()
+            .join(" ");
+        let section = if let Some(quoted) = rest.strip_prefix('"') {
+            match quoted.split_once('"') {
+                Some((title, _)) => title.to_string(),
+                None => continue,
+            }
+        } else if let Some(n) = rest.strip_prefix('§').or_else(|| rest.strip_prefix("section ")) {
+            format!(
+                "§{}",
+                n.trim_start()
+                    .split(|c: char| !c.is_ascii_digit())
+                    .next()
+                    .unwrap_or("")
+            )
+        } else {
+            continue;
+        };
+        let file = root.join(format!("{name}.md"));
+        if !file.exists() {
+            problems.push(format!("{name} {section:?}: there is no {name}.md"));
+            continue;
+        }
+        let found = read_headings(&file)
+            .iter()
+            .any(|(_, text)| match section.strip_prefix('§') {
+                Some(n) => text.starts_with(n) && !text[n.len()..].starts_with(|c: char| c.is_ascii_digit()),
+                None => text.eq_ignore_ascii_case(&section),
+            });
+        if !found {
+            problems.push(format!("{name} {section:?}: {name}.md has no such section"));
+        }
+    }
+    problems
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The repository's root.
+    fn root() -> std::path::PathBuf {
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).to_path_buf()
+    }
+
+    /// Every `.toml` under `dir`, recursively.
+    fn tomls(dir: &std::path::Path, out: &mut Vec<std::path::PathBuf>) {
+        for entry in std::fs::read_dir(dir).unwrap() {
+            let path = entry.unwrap().path();
+            if path.is_dir() {
+                tomls(&path, out);
+            } else if path.extension().is_some_and(|e| e == "toml") {
+                out.push(path);
+            }
+        }
+    }
+
+    #[test]
+    fn missing_references_are_found() {
+        let text = "See README \"No such section\" and README's \"Quick start\", DESIGN §8, \
+                    (DESIGN.md section 5), docs/guide/nowhere.md, docs/guide/concepts/fidelity.md#fidelity, \
+                    docs/guide/concepts/fidelity.md#nowhere, configs/experiments/NAME.toml, \
+                    runs/<name>/policy.json, runs/a, m/s, configs/eval.toml.";
+        let problems = missing_references(&root(), text);
+        assert_eq!(
+            problems,
+            [
+                "DESIGN.md: no such file",
+                "docs/guide/nowhere.md: no such file",
+                "docs/guide/concepts/fidelity.md#nowhere: docs/guide/concepts/fidelity.md has no heading #nowhere",
+                "README \"No such section\": README.md has no such section",
+                "DESIGN \"§8\": there is no DESIGN.md",
+                "DESIGN \"§5\": there is no DESIGN.md",
+            ],
+        );
+    }
+
+    /// No configuration file and no help text names a file or a README section that does not
+    /// exist.
+    #[test]
+    fn config_files_and_help_texts_name_only_what_exists() {
+        let root = root();
+        let mut texts = help_texts();
+        let mut files = Vec::new();
+        tomls(&root.join("configs"), &mut files);
+        files.sort();
+        assert!(files.len() > 5, "configs/ has its files");
+        for path in files {
+            let text = std::fs::read_to_string(&path).unwrap();
+            // Comments continue over lines: join them, without their '#'.
+            let joined: Vec<&str> = text
+                .lines()
+                .map(|l| l.trim().trim_start_matches('#').trim())
+                .collect();
+            let name = path.strip_prefix(&root).unwrap().display().to_string();
+            texts.push((name, joined.join(" ")));
+        }
+        let problems: Vec<String> = texts
+            .iter()
+            .flat_map(|(name, text)| {
+                missing_references(&root, text)
+                    .into_iter()
+                    .map(move |p| format!("{name}: {p}"))
+            })
+            .collect();
+        assert!(
+            problems.is_empty(),
+            "references to nothing:\n{}",
+            problems.join("\n")
+        );
+    }
 
     #[test]
     fn keys_take_the_comments_above_and_after_them() {
@@ -270,6 +600,32 @@ mod tests {
         assert_eq!(keys[2].section, "experiment.groups");
         assert_eq!(keys[2].value, "[ \"a\", \"b\", ]");
         assert_eq!(keys[2].meaning, "two");
+    }
+
+    #[test]
+    fn prose_escapes_angles_outside_code_spans_only() {
+        assert_eq!(
+            prose("default: `runs/<name>`, N > 0, ``a`<b>`` <c> `open <d>"),
+            "default: `runs/<name>`, N &gt; 0, ``a`<b>`` &lt;c&gt; `open &lt;d&gt;"
+        );
+        assert_eq!(prose("a | `b|c`"), "a \\| `b\\|c`");
+    }
+
+    #[test]
+    fn the_references_keep_value_descriptions_and_literal_code_spans() {
+        let text = cli();
+        assert!(
+            text.contains("`kf-res`: kf, with PADP's residual corrector"),
+            "the possible values of --prediction lost their descriptions"
+        );
+        for line in text.lines().chain(config().lines()) {
+            for (i, span) in line.split('`').enumerate() {
+                assert!(
+                    i % 2 == 0 || !span.contains("&lt;") && !span.contains("&gt;"),
+                    "an entity inside a code span, which markdown shows as typed: {line}"
+                );
+            }
+        }
     }
 
     #[test]
