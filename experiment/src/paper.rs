@@ -701,8 +701,9 @@ pub fn render(t: &Tables) -> String {
     let _ = writeln!(
         out,
         "### Table III: the hardest test worlds (`{}`)\n\nTable I's evaluations restricted to these \
-         worlds: no extra training and no extra runs. The paper does not state the speed of its \
-         Table III; its numbers stand beside our 1.5 m/s cells.\n",
+         worlds: no extra training and no extra runs. The paper's Table III is at 1.5 m/s (its \
+         note: every approach runs at a maximum linear velocity of 1.5 m/s); its numbers stand \
+         beside our 1.5 m/s cells.\n",
         t.hardest
     );
     for c in &t.table3 {

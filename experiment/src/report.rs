@@ -402,10 +402,16 @@ pub fn render(ex: &Experiment, data: &[ArmData], figures: &[(String, String)], n
 fn protocol_section(out: &mut String, ex: &Experiment) {
     let sec = &ex.section;
     let _ = writeln!(out, "# Experiment `{}`\n", sec.name);
+    // The ADP paper runs 20 times per world and drops the 5 fastest and 5 slowest.
+    let whose = if ex.eval.runs == 20 && ex.eval.trim == 5 {
+        "the ADP paper's protocol"
+    } else {
+        "the ADP paper runs 20 times per world and drops 5 from each end"
+    };
     let _ = writeln!(
         out,
-        "Protocol (the ADP paper's): every policy and control runs {} times on each of the {} test \
-         worlds (`{}`), the {} fastest and {} slowest runs of each world are dropped, failed runs \
+        "Protocol: every policy and control runs {} times on each of the {} test worlds (`{}`), \
+         the {} fastest and {} slowest runs of each world are dropped ({whose}), failed runs \
          count 50 s. The start pose is jittered by U(±{} m) in x and y and U(±{} rad) in heading, \
          seeded per (world, run), and run r of world w has the same seed for every controller, so \
          runs pair by seed. Simulator profile `{}`. ADP: {} seed(s) per arm, {} agent steps each \
