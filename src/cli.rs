@@ -56,6 +56,9 @@ pub enum Cmd {
     /// Where the width of ADP's paired interval comes from (runs within a world, worlds,
     /// seeds) in finished evaluation records, and what other protocols would give.
     Protocol(experiment::ProtocolArgs),
+    /// Rewrite format-1 evaluation records (under directories, recursively) in the compact
+    /// format 2, once, after checking that their statistics are unchanged.
+    CompactRecords(experiment::CompactArgs),
     /// List, inspect, generate or compare worlds and splits.
     Worlds {
         #[command(subcommand)]
@@ -77,6 +80,7 @@ pub fn run(cmd: Cmd) -> anyhow::Result<()> {
     match cmd {
         Cmd::Bench(args) => bench::run(args),
         Cmd::Protocol(args) => experiment::protocol_command(&args),
+        Cmd::CompactRecords(args) => experiment::compact_command(&args),
         Cmd::Train(a) => train::train_command(a),
         Cmd::Learner(a) => train::learner_command(a),
         Cmd::Actor(args) => actor_process::command(args),

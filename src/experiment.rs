@@ -200,3 +200,62 @@ impl RestrictArgs {
         }
     }
 }
+
+/// What `adp compact-records` was asked.
+#[derive(Clone, Debug, clap::Args)]
+pub struct CompactArgs {
+    /// Directories (searched recursively) or files of evaluation records.
+    #[arg(required = true)]
+    pub paths: Vec<PathBuf>,
+}
+
+/// `adp compact-records`: rewrites every format-1 evaluation record under `paths` in the
+/// compact format 2 after checking that its statistics are unchanged; compact records and
+/// other JSON files are left alone. Prints what it did per path.
+pub fn compact_command(args: &CompactArgs) -> anyhow::Result<()> {
+    use experiment::compact::{compact_file, Compacted};
+    use rayon::prelude::*;
+    for root in &args.paths {
+        let mut files = Vec::new();
+        json_files(root, &mut files)?;
+        files.sort();
+        let done = files
+            .par_iter()
+            .map(|f| compact_file(f))
+            .collect::<anyhow::Result<Vec<_>>>()?;
+        let (mut n, mut before, mut after, mut compact, mut other) = (0, 0u64, 0u64, 0, 0);
+        for d in done {
+            match d {
+                Compacted::Converted(b, a) => (n, before, after) = (n + 1, before + b, after + a),
+                Compacted::AlreadyCompact => compact += 1,
+                Compacted::NotARecord => other += 1,
+            }
+        }
+        println!(
+            "{}: {n} records compacted, {:.1} MB -> {:.1} MB; {compact} already compact; {other} other JSON files left alone",
+            root.display(),
+            before as f64 / 1e6,
+            after as f64 / 1e6
+        );
+    }
+    Ok(())
+}
+
+/// Every `.json` file at or under `path`.
+fn json_files(path: &Path, out: &mut Vec<PathBuf>) -> anyhow::Result<()> {
+    use anyhow::Context;
+    let meta = std::fs::metadata(path).with_context(|| format!("cannot read {}", path.display()))?;
+    if meta.is_file() {
+        out.push(path.to_path_buf());
+        return Ok(());
+    }
+    for entry in std::fs::read_dir(path).with_context(|| format!("cannot list {}", path.display()))? {
+        let p = entry?.path();
+        if p.is_dir() {
+            json_files(&p, out)?;
+        } else if p.extension().is_some_and(|e| e == "json") {
+            out.push(p);
+        }
+    }
+    Ok(())
+}

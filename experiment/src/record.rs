@@ -10,6 +10,7 @@ use sim::Status;
 
 use eval::summarize;
 
+use super::compact::{CompactRecord, FORMAT};
 use super::plan::write_atomic;
 use super::runner::{TracePoint, WorldOutcome};
 
@@ -68,16 +69,31 @@ pub struct Summary {
 }
 
 impl EvalRecord {
-    /// Reads a record.
+    /// Reads a record of either format ([`super::compact`]).
     pub fn load(path: &Path) -> anyhow::Result<Self> {
         let text =
             std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
-        serde_json::from_str(&text).with_context(|| format!("{}: not an evaluation record", path.display()))
+        Self::parse(&text).with_context(|| format!("{}: not an evaluation record", path.display()))
     }
 
-    /// Writes the record atomically.
+    /// Parses a record of either format: format 2 (compact) when the object has a `format`
+    /// key, format 1 (field by field) otherwise.
+    pub fn parse(text: &str) -> anyhow::Result<Self> {
+        let value: serde_json::Value = serde_json::from_str(text)?;
+        match value.get("format") {
+            None => Ok(serde_json::from_value(value)?),
+            Some(f) if f == &serde_json::json!(FORMAT) => serde_json::from_value::<CompactRecord>(value)?.expand(),
+            Some(f) => anyhow::bail!("record format {f} is not one this build reads (1 or {FORMAT})"),
+        }
+    }
+
+    /// Writes the record atomically, in the compact format 2.
+    ///
+    /// # Errors
+    /// A trace that cannot be stored ([`CompactRecord::of`]) or a failed write.
     pub fn save(&self, path: &Path) -> anyhow::Result<()> {
-        write_atomic(path, &serde_json::to_vec(self).expect("records serialize"))
+        let compact = CompactRecord::of(self).with_context(|| format!("{}: record not written", path.display()))?;
+        write_atomic(path, &serde_json::to_vec(&compact).expect("records serialize"))
     }
 
     /// Table values over every world, after trimming each world's runs.
