@@ -172,6 +172,10 @@ pub fn train(config: Option<&Path>, o: &Overrides, resume: bool) -> anyhow::Resu
         cfg.td3.seed,
         learner.status().inserts,
     )?;
+    if let (Some(g), Some((dims, weights))) = (greedy.as_mut(), learner.start_policy()) {
+        // Held-out selection counts the start among its candidates (nothing without it).
+        g.select_start(&dims, weights)?;
+    }
     while !learner.finished() {
         std::thread::sleep(Duration::from_millis(250));
         for event in supervisor.poll(Instant::now()) {
@@ -179,7 +183,7 @@ pub fn train(config: Option<&Path>, o: &Overrides, resume: bool) -> anyhow::Resu
         }
         let s = learner.status();
         if let Some(g) = greedy.as_mut() {
-            match g.poll(s.inserts, || learner.latest_policy()) {
+            match g.poll(s.inserts, s.updates, || learner.latest_policy()) {
                 Some(Ok(r)) => bar.println(eval::greedy::describe(&r)),
                 Some(Err(e)) => bar.println(error_line(&e.into())),
                 None => {}
@@ -202,19 +206,46 @@ pub fn train(config: Option<&Path>, o: &Overrides, resume: bool) -> anyhow::Resu
         ));
     }
     bar.finish();
-    if let Some(g) = greedy {
-        let inserts = learner.status().inserts;
-        for r in g.finish(inserts, || learner.latest_policy()) {
+    let mut chosen = None;
+    if let Some(mut g) = greedy {
+        let s = learner.status();
+        for r in g.finish(s.inserts, s.updates, || learner.latest_policy()) {
             eprintln!(
                 "{}",
                 r.map_or_else(|e| error_line(&e.into()), |r| eval::greedy::describe(&r))
             );
         }
+        chosen = g.chosen();
     }
-    let summary = learner.wait()?;
+    let mut summary = learner.wait()?;
     supervisor.shutdown(Duration::from_secs(3));
+    if let Some(c) = chosen {
+        export_chosen(&c, &mut summary, &out, cfg.run.action_space);
+    }
     print_summary(&summary, &out, &space_name(cfg.run.action_space), "train");
     Ok(())
+}
+
+/// Held-out selection's end: writes the chosen policy over the run's export (with
+/// `selection.json` there and in the run directory) and logs which step it is and how it
+/// compares with the start. A failure is logged and leaves no export in the summary: the
+/// directory then holds no policy the selection vouches for.
+fn export_chosen(
+    c: &eval::selection::Chosen,
+    summary: &mut TrainSummary,
+    out: &Path,
+    space: planner::ActionSpace,
+) {
+    match c.export(&summary.checkpoint, out, space) {
+        Ok(dir) => {
+            eprintln!("{}", eval::selection::describe(&c.report));
+            summary.export = Some(dir);
+        }
+        Err(e) => {
+            tracing::error!("held-out selection: the chosen policy could not be exported: {e}");
+            summary.export = None;
+        }
+    }
 }
 
 /// Logs what the actor supervisor reports: a crash as a warning, a failed restart as an error.

@@ -10,6 +10,9 @@
 //! `schedule/<param>_{mean,sd,open,cluttered,clutter_corr}`), and one JSON line per
 //! evaluation to `greedy_eval.jsonl` in the run directory. Evaluations run on one background
 //! thread, so the actors keep (almost) both cores; DDP is evaluated once.
+//!
+//! With `[greedy] select`, the monitor also evaluates the start policy (step 0) and keeps the
+//! best candidate (see [`crate::selection`]); [`GreedyMonitor::chosen`] gives it at the end.
 
 use planner::PlannerKind;
 use std::borrow::Cow;
@@ -28,6 +31,10 @@ use sim::{Status, World};
 
 use crate::config::EvalConfig;
 use crate::error::{Error, Result};
+use crate::selection::{
+    read_weights, write_atomic, write_weights, Candidate, Chosen, Selection, SelectionState, SELECTION_DIR,
+    START_WEIGHTS, STATE_FILE,
+};
 use crate::GreedySection;
 use crate::{eval_run, run_seed};
 
@@ -248,6 +255,159 @@ impl Setup {
 /// What a background evaluation returns: the result, and DDP's numbers when it computed them.
 type Job = JoinHandle<Result<(GreedyResult, (f64, f64))>>;
 
+/// A policy taken for evaluation, as held-out selection keeps it until its score is known.
+struct Taken {
+    /// Gradient updates done when it was taken.
+    updates: u64,
+    /// Its flat weights.
+    weights: Vec<f32>,
+    /// Whether it is the run's start policy.
+    start: bool,
+}
+
+/// Held-out selection within a monitor: the candidates, persisted in the run directory.
+struct Selector {
+    /// `<run dir>/selection`.
+    dir: PathBuf,
+    /// `[greedy] worlds` as written (for the report).
+    worlds: String,
+    state: SelectionState,
+    /// The best candidate's weights.
+    best: Option<Vec<f32>>,
+    /// The start policy's weights, while it waits for its evaluation.
+    start: Option<Vec<f32>>,
+}
+
+/// The number of parameters of an MLP of layer sizes `dims` (weights and biases).
+fn param_count(dims: &[usize]) -> usize {
+    dims.windows(2).map(|w| w[0] * w[1] + w[1]).sum()
+}
+
+impl Selector {
+    /// The selection of a run in `run_dir` evaluated on `worlds` x `runs`: a fresh one, or
+    /// the one a resumed run persisted (refused when it was made on other worlds or runs,
+    /// whose scores do not compare).
+    fn open(run_dir: &Path, section: &GreedySection, worlds: &[usize]) -> Result<Self> {
+        let dir = run_dir.join(SELECTION_DIR);
+        let path = dir.join(STATE_FILE);
+        let fresh = SelectionState {
+            worlds: worlds.to_vec(),
+            runs: section.runs,
+            dims: Vec::new(),
+            selection: Selection::default(),
+            best_weights: None,
+        };
+        let mut me = Self {
+            dir,
+            worlds: section.worlds.clone(),
+            state: fresh,
+            best: None,
+            start: None,
+        };
+        let text = match std::fs::read_to_string(&path) {
+            Ok(t) => t,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(me),
+            Err(e) => return Err(Error::io("read", &path, e)),
+        };
+        let state: SelectionState = serde_json::from_str(&text)
+            .map_err(|e| Error::Refused(format!("{}: not a selection state: {e}", path.display())))?;
+        if state.worlds != worlds || state.runs != section.runs {
+            return Err(Error::Refused(format!(
+                "{}: the run's selection compared policies on other worlds or runs ({} worlds x {} \
+                 runs) than [greedy] worlds = {:?}, runs = {} ({} worlds): their scores do not \
+                 compare; resume with the run's own [greedy] settings",
+                path.display(),
+                state.worlds.len(),
+                state.runs,
+                section.worlds,
+                section.runs,
+                worlds.len()
+            )));
+        }
+        let count = param_count(&state.dims);
+        if let Some(name) = &state.best_weights {
+            me.best = Some(read_weights(&me.dir.join(name), count)?);
+        }
+        let start = me.dir.join(START_WEIGHTS);
+        if state.selection.start().is_none() && start.exists() {
+            me.start = Some(read_weights(&start, count)?);
+        }
+        me.state = state;
+        Ok(me)
+    }
+
+    /// Writes the state file.
+    fn save(&self) -> Result<()> {
+        std::fs::create_dir_all(&self.dir).map_err(|e| Error::io("create", &self.dir, e))?;
+        let json = serde_json::to_vec_pretty(&self.state).expect("a selection state serializes");
+        write_atomic(&self.dir.join(STATE_FILE), &json)
+    }
+
+    /// Refuses policies of other layer sizes than the selection's (recording the first).
+    fn check_dims(&mut self, dims: &[usize]) -> Result<()> {
+        if self.state.dims.is_empty() {
+            self.state.dims = dims.to_vec();
+        } else if self.state.dims != dims {
+            return Err(Error::Refused(format!(
+                "held-out selection: a policy of layer sizes {dims:?}, but the run's candidates \
+                 have {:?}",
+                self.state.dims
+            )));
+        }
+        Ok(())
+    }
+
+    /// Keeps the start policy of a fresh run (persisted, so a run stopped before its
+    /// evaluation still evaluates it when resumed) for evaluation, forgetting any candidate
+    /// an earlier run in the same directory left.
+    fn keep_start(&mut self, dims: &[usize], weights: Vec<f32>) -> Result<()> {
+        if let Some(old) = self.state.best_weights.take() {
+            let _ = std::fs::remove_file(self.dir.join(old));
+        }
+        self.state.selection = Selection::default();
+        self.state.dims = Vec::new();
+        self.best = None;
+        self.check_dims(dims)?;
+        std::fs::create_dir_all(&self.dir).map_err(|e| Error::io("create", &self.dir, e))?;
+        write_weights(&self.dir.join(START_WEIGHTS), &weights)?;
+        self.save()?;
+        self.start = Some(weights);
+        Ok(())
+    }
+
+    /// Offers the evaluated policy `taken` with result `r`; persists the new best's weights
+    /// (under a name of its own, so the state never names weights that are not its best's),
+    /// then the state.
+    fn offer(&mut self, r: &GreedyResult, taken: Taken) -> Result<()> {
+        let c = Candidate {
+            agent_steps: r.agent_steps,
+            policy_version: r.policy_version,
+            updates: taken.updates,
+            score: r.score,
+            success: r.success,
+        };
+        let old = self.state.best_weights.clone();
+        // Taken over only once its weights are on disk.
+        let mut next = self.state.selection.clone();
+        if next.offer(c) {
+            let name = format!("best-{}-v{}.f32", r.agent_steps, r.policy_version);
+            std::fs::create_dir_all(&self.dir).map_err(|e| Error::io("create", &self.dir, e))?;
+            write_weights(&self.dir.join(&name), &taken.weights)?;
+            self.state.best_weights = Some(name);
+            self.best = Some(taken.weights);
+        }
+        self.state.selection = next;
+        self.save()?;
+        if let Some(old) = old.filter(|o| Some(o) != self.state.best_weights.as_ref()) {
+            let _ = std::fs::remove_file(self.dir.join(old));
+        }
+        if taken.start {
+            let _ = std::fs::remove_file(self.dir.join(START_WEIGHTS));
+        }
+        Ok(())
+    }
+}
+
 /// Drives the greedy evaluations of one training run (owned by the `adp train` loop; not
 /// shared between threads).
 pub struct GreedyMonitor {
@@ -258,11 +418,17 @@ pub struct GreedyMonitor {
     job: Option<Job>,
     run_dir: PathBuf,
     writer: Option<EventWriter>,
+    /// Held-out selection, with `[greedy] select`.
+    selector: Option<Selector>,
+    /// The policy of the running job, while selection waits for its score.
+    taken: Option<Taken>,
 }
 
 impl GreedyMonitor {
     /// A monitor for a run in `run_dir`, or `None` when `section.every_steps` is 0. Refuses
-    /// unknown worlds and zero runs. `resumed_at` is the run's agent steps so far.
+    /// unknown worlds and zero runs, and a selection that [`GreedySection::check_selection`]
+    /// refuses or that a resumed run made on other worlds. `resumed_at` is the run's agent
+    /// steps so far; with `select`, a resumed run continues the selection it persisted.
     #[allow(clippy::too_many_arguments)]
     pub fn new(
         section: &GreedySection,
@@ -274,6 +440,7 @@ impl GreedyMonitor {
         seed: u64,
         resumed_at: u64,
     ) -> Result<Option<Self>> {
+        section.check_selection()?;
         if section.every_steps == 0 {
             return Ok(None);
         }
@@ -282,6 +449,11 @@ impl GreedyMonitor {
         }
         let worlds = sim::splits::select(&section.worlds)
             .map_err(|e| Error::Refused(format!("[greedy] worlds = {:?}: {e}", section.worlds)))?;
+        let selector = if section.select {
+            Some(Selector::open(run_dir, section, &worlds)?)
+        } else {
+            None
+        };
         let setup = Setup {
             worlds,
             runs: section.runs,
@@ -301,53 +473,128 @@ impl GreedyMonitor {
             job: None,
             run_dir: run_dir.to_owned(),
             writer: None,
+            selector,
+            taken: None,
         }))
     }
 
-    /// Call often from the training loop with the run's agent steps and a way to take the
-    /// newest policy `(version, layer sizes, flat weights)`: collects a finished evaluation
-    /// (returning it for display) and starts the next one when due. A failed evaluation is
-    /// reported and skipped; training goes on.
+    /// With `[greedy] select`, makes the run's start policy (layer sizes and flat weights, as
+    /// `Learner::start_policy` gives them) the first candidate: persisted in the run
+    /// directory and evaluated before the next policy, as agent step 0. Without selection,
+    /// nothing.
+    pub fn select_start(&mut self, dims: &[usize], weights: Vec<f32>) -> Result<()> {
+        match self.selector.as_mut() {
+            Some(s) => s.keep_start(dims, weights),
+            None => Ok(()),
+        }
+    }
+
+    /// With `[greedy] select`, the best candidate so far (the earliest on ties) with the
+    /// report of the selection; `None` without selection or before any candidate.
+    pub fn chosen(&self) -> Option<Chosen> {
+        let s = self.selector.as_ref()?;
+        let report = s.state.selection.report(&s.worlds, s.state.runs)?;
+        Some(Chosen {
+            report,
+            candidate: s.state.selection.best()?.clone(),
+            weights: s.best.clone()?,
+        })
+    }
+
+    /// Call often from the training loop with the run's agent steps and updates and a way
+    /// to take the newest policy `(version, layer sizes, flat weights)`: collects a finished
+    /// evaluation (returning it for display) and starts the next one when due (with
+    /// selection, the start policy's first). A failed evaluation is reported and skipped;
+    /// training goes on.
     pub fn poll<E: std::error::Error + Send + Sync + 'static>(
         &mut self,
         inserts: u64,
+        updates: u64,
         latest: impl FnOnce() -> Result<(u64, Vec<usize>, Vec<f32>), E>,
     ) -> Option<Result<GreedyResult>> {
         let done = self.collect(false);
-        if self.job.is_none() && inserts >= self.next_at {
+        if self.job.is_none() && self.start_pending() {
+            if let Err(e) = self.launch_start() {
+                return Some(Err(e));
+            }
+        } else if self.job.is_none() && inserts >= self.next_at {
             self.next_at = (inserts / self.every + 1) * self.every;
-            if let Err(e) = self.start(inserts, latest) {
+            if let Err(e) = self.start(inserts, updates, latest) {
                 return Some(Err(e));
             }
         }
         done
     }
 
-    /// Evaluates the newest policy now and waits for it (and for one still running): the
-    /// final point of the curve.
+    /// Evaluates the newest policy now and waits for it (and for one still running, and with
+    /// selection for the start policy when it is still waiting): the final point of the
+    /// curve. [`GreedyMonitor::chosen`] then gives the selection's result.
     pub fn finish<E: std::error::Error + Send + Sync + 'static>(
-        mut self,
+        &mut self,
         inserts: u64,
+        updates: u64,
         latest: impl FnOnce() -> Result<(u64, Vec<usize>, Vec<f32>), E>,
     ) -> Vec<Result<GreedyResult>> {
         let mut out: Vec<_> = self.collect(true).into_iter().collect();
-        match self.start(inserts, latest) {
+        if self.start_pending() {
+            match self.launch_start() {
+                Ok(()) => out.extend(self.collect(true)),
+                Err(e) => out.push(Err(e)),
+            }
+        }
+        match self.start(inserts, updates, latest) {
             Ok(()) => out.extend(self.collect(true)),
             Err(e) => out.push(Err(e)),
         }
         out
     }
 
+    /// Whether selection's start policy waits for its evaluation.
+    fn start_pending(&self) -> bool {
+        self.selector.as_ref().is_some_and(|s| s.start.is_some())
+    }
+
+    /// Starts the evaluation of selection's start policy (agent step 0, version 0).
+    fn launch_start(&mut self) -> Result<()> {
+        let s = self.selector.as_mut().expect("a start waits only with selection");
+        let weights = s.start.take().expect("a start waits");
+        let dims = s.state.dims.clone();
+        self.launch(0, 0, 0, &dims, weights, true)
+    }
+
     fn start<E: std::error::Error + Send + Sync + 'static>(
         &mut self,
         inserts: u64,
+        updates: u64,
         latest: impl FnOnce() -> Result<(u64, Vec<usize>, Vec<f32>), E>,
     ) -> Result<()> {
         let (version, dims, weights) = latest().map_err(|e| Error::component("the newest policy", e))?;
         if version == 0 {
             return Ok(()); // nothing published yet
         }
-        let net = MlpPolicy::from_flat(&dims, weights)
+        self.launch(inserts, updates, version, &dims, weights, false)
+    }
+
+    /// Starts the evaluation of policy `version` taken at `inserts` agent steps and `updates`
+    /// updates (with selection, keeping its weights for the selection).
+    fn launch(
+        &mut self,
+        inserts: u64,
+        updates: u64,
+        version: u64,
+        dims: &[usize],
+        weights: Vec<f32>,
+        start: bool,
+    ) -> Result<()> {
+        if let Some(s) = self.selector.as_mut() {
+            s.check_dims(dims)?;
+            self.taken = Some(Taken {
+                updates,
+                weights: weights.clone(),
+                start,
+            });
+        }
+        let net = MlpPolicy::from_flat(dims, weights)
             .map_err(|e| Error::component(format!("greedy evaluation: policy {version}"), e))?;
         let setup = self.setup.clone();
         let ddp = self.ddp;
@@ -382,15 +629,24 @@ impl GreedyMonitor {
             return None;
         }
         let job = self.job.take()?;
+        let taken = self.taken.take();
         let result = match job.join() {
             Ok(Ok((r, ddp))) => {
                 self.ddp = Some(ddp);
-                self.record(&r).map(|()| r)
+                self.record(&r).and_then(|()| self.select(&r, taken)).map(|()| r)
             }
             Ok(Err(e)) => Err(Error::Greedy(Box::new(e))),
             Err(_) => Err(Error::Panicked),
         };
         Some(result)
+    }
+
+    /// Offers the evaluated policy to the selection, if any.
+    fn select(&mut self, r: &GreedyResult, taken: Option<Taken>) -> Result<()> {
+        match (self.selector.as_mut(), taken) {
+            (Some(s), Some(t)) => s.offer(r, t),
+            _ => Ok(()),
+        }
     }
 
     /// Appends `r` to `greedy_eval.jsonl` and to the `greedy/` TensorBoard run.
@@ -558,6 +814,7 @@ mod tests {
             every_steps: 100,
             worlds: "1".into(),
             runs: 1,
+            select: false,
         };
         let env = EnvConfig::default();
         let mut m = GreedyMonitor::new(
@@ -577,9 +834,10 @@ mod tests {
         let mut flat = vec![0.0f32; 730 * 4];
         flat.extend([0.0f32; 4]);
         let latest = || Ok::<_, std::io::Error>((7, vec![730, 4], flat.clone()));
-        assert!(m.poll(299, latest).is_none() && m.job.is_none(), "not due yet");
-        assert!(m.poll(300, latest).is_none() && m.job.is_some(), "started");
-        let results = m.finish(300, latest);
+        assert!(m.poll(299, 9, latest).is_none() && m.job.is_none(), "not due yet");
+        assert!(m.poll(300, 9, latest).is_none() && m.job.is_some(), "started");
+        let results = m.finish(300, 9, latest);
+        assert!(m.chosen().is_none(), "no selection without select");
         assert_eq!(results.len(), 2);
         let r = results[0].as_ref().unwrap();
         assert_eq!((r.agent_steps, r.policy_version), (300, 7));
@@ -598,6 +856,82 @@ mod tests {
             std::fs::read_dir(dir.join("greedy")).unwrap().count() == 1,
             "one event file"
         );
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    /// With selection, the start policy is evaluated first (as step 0), the best candidate is
+    /// persisted, a tie keeps the start, and a resumed monitor knows the best; a resumed run
+    /// whose [greedy] worlds changed is refused.
+    #[test]
+    fn selection_evaluates_the_start_persists_the_best_and_survives_a_resume() {
+        let dir = std::env::temp_dir().join(format!("adp-greedy-select-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let section = GreedySection {
+            every_steps: 100,
+            worlds: "156".into(),
+            runs: 1,
+            select: true,
+        };
+        let monitor = |section: &GreedySection, at: u64| {
+            GreedyMonitor::new(
+                section,
+                &dir,
+                PlannerKind::Dwa,
+                ActionSpace::Decremental,
+                1.5,
+                EnvConfig::default(),
+                3,
+                at,
+            )
+        };
+        let mut m = monitor(&section, 0).unwrap().unwrap();
+        // Start and later policy alike (zero outputs): the later one ties, the start wins.
+        let mut flat = vec![0.0f32; 730 * 4];
+        flat.extend([0.0f32; 4]);
+        m.select_start(&[730, 4], flat.clone()).unwrap();
+        assert!(dir.join(SELECTION_DIR).join(START_WEIGHTS).exists());
+        let latest = || Ok::<_, std::io::Error>((3, vec![730, 4], flat.clone()));
+        assert!(
+            m.poll(10, 1, latest).is_none() && m.job.is_some(),
+            "the start first"
+        );
+        let results = m.finish(120, 40, latest);
+        let steps: Vec<u64> = results.iter().map(|r| r.as_ref().unwrap().agent_steps).collect();
+        assert_eq!(steps, [0, 120]);
+        let chosen = m.chosen().unwrap();
+        assert_eq!(
+            (chosen.candidate.agent_steps, chosen.candidate.policy_version),
+            (0, 0)
+        );
+        assert_eq!(chosen.weights, flat);
+        assert_eq!(chosen.report.start_score, Some(chosen.report.exported_score));
+        assert_eq!(
+            (chosen.report.last_step, chosen.report.candidates.len()),
+            (120, 2)
+        );
+        assert!(
+            !dir.join(SELECTION_DIR).join(START_WEIGHTS).exists(),
+            "the start was evaluated"
+        );
+        // A resumed run continues the selection.
+        let resumed = monitor(&section, 120).unwrap().unwrap();
+        let again = resumed.chosen().unwrap();
+        assert_eq!(again.report, chosen.report);
+        assert_eq!(again.weights, flat);
+        // ... but not on other worlds.
+        let other = GreedySection {
+            worlds: "166".into(),
+            ..section.clone()
+        };
+        let e = monitor(&other, 120).err().unwrap().to_string();
+        assert!(e.contains("other worlds or runs"), "{e}");
+        // Selection on the test worlds is refused here too.
+        let test = GreedySection {
+            worlds: "hardest50".into(),
+            ..section
+        };
+        let e = monitor(&test, 0).err().unwrap().to_string();
+        assert!(e.contains("includes test world"), "{e}");
         std::fs::remove_dir_all(&dir).ok();
     }
 }

@@ -1,6 +1,9 @@
-//! `[greedy]` of a training configuration: how `adp train` monitors its greedy policy.
+//! `[greedy]` of a training configuration: how `adp train` monitors its greedy policy, and
+//! whether it exports the best policy it saw there (held-out selection).
 
 use serde::{Deserialize, Serialize};
+
+use crate::error::{Error, Result};
 
 /// `[greedy]` of a training config: how the run's greedy policy is monitored.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -15,6 +18,16 @@ pub struct GreedySection {
     /// Runs per world (default 1); run r of world w has the same seed in every evaluation and
     /// for DDP, so the curves are paired.
     pub runs: usize,
+    /// Held-out selection (default false). With it, the start policy (step 0: the actor as
+    /// initialized, fitted to DDP or to `[service] init_action`) is evaluated on `worlds` too,
+    /// every evaluation is a candidate, and the run exports the candidate with the best mean
+    /// score (the earliest on ties, so a run that never beats its start exports its start)
+    /// instead of its last policy; `selection.json` in the run directory and in `export/`
+    /// says which step won and by how much. Needs `every_steps` > 0 and `worlds` that meet no
+    /// test split (`test`, `hardest50`, any `*-test`). Written to a configuration (and so to
+    /// an experiment's training recipe) only when true.
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub select: bool,
 }
 
 impl Default for GreedySection {
@@ -23,6 +36,98 @@ impl Default for GreedySection {
             every_steps: 5000,
             worlds: "val".into(),
             runs: 1,
+            select: false,
         }
+    }
+}
+
+impl GreedySection {
+    /// Refuses a selection that cannot be one: `select` with `every_steps = 0` (no candidate
+    /// would ever be evaluated), or with `worlds` that do not resolve or that share a world
+    /// with a test split (`sim::splits::held_out_worlds`: the test worlds decide nothing but
+    /// the reported numbers). Without `select`, nothing is checked here.
+    pub fn check_selection(&self) -> Result<()> {
+        if !self.select {
+            return Ok(());
+        }
+        if self.every_steps == 0 {
+            return Err(Error::Refused(
+                "[greedy] select = true needs every_steps > 0: selection compares the greedy \
+                 evaluations"
+                    .into(),
+            ));
+        }
+        let worlds = sim::splits::select(&self.worlds)
+            .map_err(|e| Error::Refused(format!("[greedy] worlds = {:?}: {e}", self.worlds)))?;
+        let held_out = sim::splits::held_out_worlds();
+        if let Some(w) = worlds.iter().find(|w| held_out.binary_search(w).is_ok()) {
+            return Err(Error::Refused(format!(
+                "[greedy] select = true on worlds = {:?}, which includes test world {w}: a \
+                 policy is never chosen on the test worlds (choose on `val` or on training worlds)",
+                self.worlds
+            )));
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn selecting(worlds: &str) -> GreedySection {
+        GreedySection {
+            worlds: worlds.into(),
+            select: true,
+            ..GreedySection::default()
+        }
+    }
+
+    /// Selection on worlds that meet the test split is refused, naming the world; on `val`
+    /// or training worlds it is accepted; without `select` nothing is checked.
+    #[test]
+    fn selection_on_worlds_that_meet_the_test_split_is_refused() {
+        let test = sim::splits::select("test").unwrap();
+        for worlds in ["test", "hardest50", "val,test", &test[0].to_string()] {
+            let e = selecting(worlds).check_selection().unwrap_err().to_string();
+            assert!(
+                e.contains("includes test world") && e.contains("[greedy] select = true"),
+                "{worlds}: {e}"
+            );
+        }
+        let e = selecting("dynabarn-test")
+            .check_selection()
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("includes test world"), "{e}");
+        for worlds in ["val", "fit", "train", "dynabarn-val"] {
+            selecting(worlds).check_selection().unwrap();
+        }
+        let off = GreedySection {
+            worlds: "test".into(),
+            ..GreedySection::default()
+        };
+        off.check_selection().unwrap();
+        let never = GreedySection {
+            every_steps: 0,
+            ..selecting("val")
+        };
+        let e = never.check_selection().unwrap_err().to_string();
+        assert!(e.contains("every_steps"), "{e}");
+    }
+
+    /// `select` is written only when true: a configuration without it serializes as before
+    /// (an experiment's training recipe keys are unchanged).
+    #[test]
+    fn select_is_serialized_only_when_on() {
+        let off = serde_json::to_value(GreedySection::default()).unwrap();
+        assert_eq!(
+            off,
+            serde_json::json!({"every_steps": 5000, "worlds": "val", "runs": 1})
+        );
+        let on = serde_json::to_value(selecting("val")).unwrap();
+        assert_eq!(on["select"], true);
+        let back: GreedySection = toml::from_str("select = true\n").unwrap();
+        assert!(back.select);
     }
 }

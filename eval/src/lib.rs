@@ -6,7 +6,8 @@
 //!   episode with the seed every comparison shares ([`run_seed`]).
 //! - [`policy`]: a trained export or a constant action, loaded and checked against this
 //!   build's environment.
-//! - [`greedy`]: the greedy monitor a training run starts on its newest policy.
+//! - [`greedy`]: the greedy monitor a training run starts on its newest policy;
+//!   [`selection`]: its held-out selection of the policy to export (`[greedy] select`).
 //! - [`calibrate`]: the DDP paper's Table I and the checks of our rows against it.
 //! - [`render`]: a picture or a frame strip of one episode.
 //! - [`config`]: the evaluation configuration every one of them reads.
@@ -53,6 +54,7 @@ pub mod greedy;
 mod greedy_section;
 pub mod policy;
 pub mod render;
+pub mod selection;
 
 pub use config::EvalConfig;
 pub use error::{Error, Result};

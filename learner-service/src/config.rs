@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use proto::auth::TlsFiles;
 use serde::{Deserialize, Serialize};
-use settings::{ActionSpace, EnvConfig, PlannerKind};
+use settings::{ActionMap, ActionSpace, EnvConfig, PlannerKind};
 
 use crate::error::SettingsError;
 use learner::config::Td3Config;
@@ -59,6 +59,14 @@ pub struct ServiceConfig {
     /// spaces) before training (the ADP paper's initialization); skipped in the velocity space,
     /// which has no DDP.
     pub ddp_init: bool,
+    /// Start from this constant action instead: one value per action dimension of the run's
+    /// space, each in [-1, 1], in the space's normalized box (the coordinates of `adp eval`'s
+    /// constant actions and of an experiment's constant search; under `[env] action_map =
+    /// "ddp-centred"` the actor is fitted to the output that selects it). When given, it
+    /// overrides `ddp_init` (which is then ignored) and applies in every space, velocity
+    /// included. Absent by default, and then not written to a configuration.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub init_action: Option<Vec<f64>>,
     /// TLS for the gRPC server (`cert` and `key`; with `ca`, clients must present certificates).
     pub tls: Option<TlsFiles>,
     /// Most connections served at once by each listener: the TCP one and the Unix socket have
@@ -101,6 +109,50 @@ impl ServiceConfig {
         match self.progress_timeout_ms {
             0 => 4 * u64::from(self.lease_ttl_ms),
             ms => u64::from(ms),
+        }
+    }
+
+    /// What a fresh run's actor is fitted to before training: `init_action` when given, else
+    /// with `ddp_init` the output that selects DDP under `map`, else nothing. The learner and
+    /// an experiment's untrained control both start from it.
+    pub fn start_action(&self, map: ActionMap, space: ActionSpace) -> StartAction {
+        let ddp = space.ddp_action();
+        match &self.init_action {
+            Some(a) => StartAction::Given(
+                a.iter()
+                    .zip(&ddp)
+                    .map(|(&x, &d)| map.to_policy(x, d) as f32)
+                    .collect(),
+            ),
+            None if self.ddp_init => {
+                StartAction::Ddp(map.ddp_policy_action(space).iter().map(|&a| a as f32).collect())
+            }
+            None => StartAction::Random,
+        }
+    }
+
+    /// Refuses an `init_action` that does not fit `space`: another number of values than the
+    /// space's dimensions, or a value outside [-1, 1] (naming its index and value).
+    pub fn check_init_action(&self, space: ActionSpace) -> Result<(), SettingsError> {
+        let Some(a) = &self.init_action else {
+            return Ok(());
+        };
+        if a.len() != space.dim() {
+            return Err(SettingsError::InitActionLength {
+                len: a.len(),
+                space: space.to_string(),
+                dim: space.dim(),
+            });
+        }
+        match a
+            .iter()
+            .position(|v| !(v.is_finite() && (-1.0..=1.0).contains(v)))
+        {
+            Some(index) => Err(SettingsError::InitActionValue {
+                index,
+                value: a[index],
+            }),
+            None => Ok(()),
         }
     }
 
@@ -171,6 +223,7 @@ impl Default for ServiceConfig {
             checkpoint_replay: true,
             status_every_s: 1.0,
             ddp_init: true,
+            init_action: None,
             tls: None,
             max_connections: 1024,
             max_connections_per_ip: 256,
@@ -182,6 +235,19 @@ impl Default for ServiceConfig {
             dead_ranks_kept: 256,
         }
     }
+}
+
+/// What a fresh run's actor starts from ([`ServiceConfig::start_action`]): the policy output
+/// it is fitted to, if any.
+#[derive(Debug, Clone, PartialEq)]
+pub enum StartAction {
+    /// `[service] init_action`, as policy outputs.
+    Given(Vec<f32>),
+    /// The output that selects DDP (`ddp_init`). The learner skips it in the velocity space,
+    /// which has no DDP.
+    Ddp(Vec<f32>),
+    /// No fit: the actor's random initialization.
+    Random,
 }
 
 /// Everything a learner process needs to start one run.
@@ -224,6 +290,73 @@ pub struct LearnerOptions {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// `init_action` is checked per index against the space, overrides `ddp_init`, and maps
+    /// to policy outputs through the action map; without it `ddp_init` decides.
+    #[test]
+    fn init_action_is_checked_per_index_and_overrides_ddp_init() {
+        let space = ActionSpace::Decremental;
+        let with = |a: Vec<f64>| ServiceConfig {
+            init_action: Some(a),
+            ..ServiceConfig::default()
+        };
+        with(vec![0.5, -0.25, 1.0, -1.0])
+            .check_init_action(space)
+            .unwrap();
+        let e = with(vec![0.5, 1.5, 0.0, 0.0])
+            .check_init_action(space)
+            .unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "[service] init_action[1] = 1.5 is outside [-1, 1] (normalized actions)"
+        );
+        let e = with(vec![0.0, 0.0, f64::NAN, 0.0])
+            .check_init_action(space)
+            .unwrap_err();
+        assert!(e.to_string().starts_with("[service] init_action[2] = NaN"), "{e}");
+        let e = with(vec![0.0; 3]).check_init_action(space).unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "[service] init_action has 3 values, but the decremental action space has 4 dimensions"
+        );
+        ServiceConfig::default().check_init_action(space).unwrap();
+
+        let given = with(vec![0.5, -0.25, 1.0, -1.0]);
+        assert_eq!(
+            given.start_action(ActionMap::Affine, space),
+            StartAction::Given(vec![0.5, -0.25, 1.0, -1.0])
+        );
+        // ddp_init off or on, the given action wins.
+        let off = ServiceConfig {
+            ddp_init: false,
+            ..given.clone()
+        };
+        assert_eq!(
+            off.start_action(ActionMap::Affine, space),
+            given.start_action(ActionMap::Affine, space)
+        );
+        // The DDP action itself maps to 0 under the DDP-centred map.
+        let ddp = with(space.ddp_action());
+        assert_eq!(
+            ddp.start_action(ActionMap::DdpCentred, space),
+            StartAction::Given(vec![0.0; 4])
+        );
+        let ddp_f32: Vec<f32> = space.ddp_action().iter().map(|&a| a as f32).collect();
+        assert_eq!(
+            ServiceConfig::default().start_action(ActionMap::Affine, space),
+            StartAction::Ddp(ddp_f32)
+        );
+        let random = ServiceConfig {
+            ddp_init: false,
+            ..ServiceConfig::default()
+        };
+        assert_eq!(random.start_action(ActionMap::Affine, space), StartAction::Random);
+        // Absent, it is not written; given, it reads back.
+        let text = serde_json::to_string(&ServiceConfig::default()).unwrap();
+        assert!(!text.contains("init_action"), "{text}");
+        let back: ServiceConfig = serde_json::from_str(&serde_json::to_string(&given).unwrap()).unwrap();
+        assert_eq!(back, given);
+    }
 
     #[test]
     fn non_loopback_listen_without_tls_is_refused_naming_the_flag() {

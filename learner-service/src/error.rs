@@ -31,9 +31,28 @@ impl FileError {
     }
 }
 
-/// `[service]` settings that cannot work ([`crate::ServiceConfig::check`]).
-#[derive(Debug, Error, PartialEq, Eq)]
+/// `[service]` settings that cannot work ([`crate::ServiceConfig::check`],
+/// [`crate::ServiceConfig::check_init_action`]).
+#[derive(Debug, Error, PartialEq)]
 pub enum SettingsError {
+    /// `init_action` has another number of values than the action space's dimensions.
+    #[error("[service] init_action has {len} values, but the {space} action space has {dim} dimensions")]
+    InitActionLength {
+        /// Its number of values.
+        len: usize,
+        /// The run's action space.
+        space: String,
+        /// The space's dimensions.
+        dim: usize,
+    },
+    /// A value of `init_action` is outside [-1, 1] (or not a number).
+    #[error("[service] init_action[{index}] = {value} is outside [-1, 1] (normalized actions)")]
+    InitActionValue {
+        /// Its index.
+        index: usize,
+        /// The value.
+        value: f64,
+    },
     /// Shared memory is on with no port for actors.
     #[error("[service] shm_max_actors must be at least 1 while shared_memory = true")]
     ShmMaxActors,
@@ -168,8 +187,9 @@ pub enum StartError {
     /// The networks could not be built.
     #[error("[td3]: {0}")]
     Td3(#[source] learner::td3::Td3Error),
-    /// The actor could not be fitted to the DDP schedule.
-    #[error("DDP initialization: {0}")]
+    /// The actor could not be fitted to its start action (the DDP schedule, or `[service]
+    /// init_action`).
+    #[error("actor initialization (ddp_init or init_action): {0}")]
     DdpInit(#[source] learner::ddp_init::FitError),
     /// `[td3]` sizes that do not fit the run's action space and laser layout.
     #[error(

@@ -59,7 +59,7 @@ use proto::validate::{Spaces, Validator};
 use scheduler::RegistryConfig;
 use tokio::sync::watch;
 
-pub use config::{LearnerOptions, ServiceConfig};
+pub use config::{LearnerOptions, ServiceConfig, StartAction};
 pub use error::{
     FileError, PolicyError, ResumeError, SettingsError, StartError, StatusFileError, TrainError,
 };
@@ -94,6 +94,8 @@ pub struct Learner {
     heartbeat_ms: u32,
     /// The newest published policy (what `WatchPolicy` streams).
     policy: watch::Receiver<Arc<pb::PolicySnapshot>>,
+    /// The flat weights of the actor as initialized, on a fresh run ([`Learner::start_policy`]).
+    start_policy: Option<Vec<f32>>,
     /// Held while this learner serves the run directory (see [`lock_run_dir`]).
     _run_lock: std::fs::File,
 }
@@ -151,7 +153,9 @@ impl Learner {
                 laser_dim: cfg.laser_dim,
             },
         };
-        let (dims, _) = td3.policy().flat_weights();
+        let (dims, start_weights) = td3.policy().flat_weights();
+        // The policy training starts from, for a run that starts here (not a resumed one).
+        let start_policy = resumed_from.is_none().then_some(start_weights);
         let spec = run_spec(&opts, &cfg, planner, &dims, &planes);
         let core = Core::new(registry, replay, rate, totals, policy_version);
         let mut shared = shared_state(&opts, validator, spec, core, &run_id);
@@ -205,6 +209,7 @@ impl Learner {
             unix_server: control.unix_server,
             heartbeat_ms: svc.heartbeat_ms,
             policy: control.policy,
+            start_policy,
             _run_lock: run.lock,
         })
     }
@@ -239,6 +244,15 @@ impl Learner {
             }
         })?;
         Ok((snapshot.version, dims, weights))
+    }
+
+    /// The policy a fresh run starts from (the actor before any update: fitted to DDP or to
+    /// `[service] init_action`, or as randomly initialized), as the layer sizes and flat
+    /// weights [`Learner::latest_policy`] gives; `None` on a resumed run, whose start is gone.
+    /// For held-out selection, which counts the start among its candidates.
+    pub fn start_policy(&self) -> Option<(Vec<usize>, Vec<f32>)> {
+        let dims = self.shared.spec.policy_dims.iter().map(|&d| d as usize).collect();
+        self.start_policy.clone().map(|w| (dims, w))
     }
 
     /// Current counters.

@@ -11,7 +11,7 @@ use learner::retention;
 use learner::td3::{seeded_rng, Td3};
 use scheduler::{Registry, RegistryConfig};
 
-use crate::config::LearnerOptions;
+use crate::config::{LearnerOptions, StartAction};
 use crate::error::{FileError, ResumeError, StartError};
 use crate::resume::{newest_usable, TrainingState};
 use crate::status::ResumeStatus;
@@ -118,6 +118,7 @@ impl RunDir {
     pub(crate) fn open(opts: &LearnerOptions) -> Result<Self, StartError> {
         let path = opts.run_dir.clone();
         opts.service.check()?;
+        opts.service.check_init_action(opts.space)?;
         create_private_dir(&path)?;
         // Before anything in the run directory is touched: one learner per run directory.
         let lock = lock_run_dir(&path)?;
@@ -144,9 +145,10 @@ impl RunDir {
     }
 
     /// What training starts from: the newest usable checkpoint with `--resume` (and the
-    /// warnings about the newer ones skipped), or a fresh state (the actor fitted to the DDP
-    /// schedule with `ddp_init`, except in the velocity space). Refuses `--resume` without a
-    /// checkpoint and a fresh run in a directory that holds one.
+    /// warnings about the newer ones skipped), or a fresh state (the actor fitted to
+    /// `[service] init_action` when given, else to the DDP schedule with `ddp_init`, except in
+    /// the velocity space). Refuses `--resume` without a checkpoint and a fresh run in a
+    /// directory that holds one.
     pub(crate) fn training_state(
         &self,
         opts: &LearnerOptions,
@@ -183,26 +185,32 @@ impl RunDir {
             }
             (false, None) => {
                 let mut td3 = Td3::new(opts.td3.clone(), &device).map_err(StartError::Td3)?;
-                if opts.service.ddp_init && opts.space == settings::ActionSpace::Velocity {
-                    // The velocity space drives the robot itself: there is no DDP to start
-                    // from, and a constant fitted action would only be a fixed command.
-                    tracing::info!(
-                        "ddp_init skipped: the velocity action space has no DDP schedule; the actor \
-                         starts from its random initialization (outputs near 0: about half the \
-                         speed cap, straight ahead)"
-                    );
-                } else if opts.service.ddp_init {
-                    let target: Vec<f32> = opts
-                        .env
-                        .action_map
-                        .ddp_policy_action(opts.space)
-                        .iter()
-                        .map(|&a| a as f32)
-                        .collect();
-                    let report = td3
-                        .init_actor_to_action(&target, &FitOptions::default())
-                        .map_err(StartError::DdpInit)?;
-                    tracing::info!("actor initialized to the DDP schedule ({report:?})");
+                match opts.service.start_action(opts.env.action_map, opts.space) {
+                    StartAction::Ddp(_) if opts.space == settings::ActionSpace::Velocity => {
+                        // The velocity space drives the robot itself: there is no DDP to start
+                        // from, and a constant fitted action would only be a fixed command.
+                        tracing::info!(
+                            "ddp_init skipped: the velocity action space has no DDP schedule; the \
+                             actor starts from its random initialization (outputs near 0: about \
+                             half the speed cap, straight ahead)"
+                        );
+                    }
+                    StartAction::Ddp(target) => {
+                        let report = td3
+                            .init_actor_to_action(&target, &FitOptions::default())
+                            .map_err(StartError::DdpInit)?;
+                        tracing::info!("actor initialized to the DDP schedule ({report:?})");
+                    }
+                    StartAction::Given(target) => {
+                        let report = td3
+                            .init_actor_to_action(&target, &FitOptions::default())
+                            .map_err(StartError::DdpInit)?;
+                        tracing::info!(
+                            init_action = ?opts.service.init_action,
+                            "actor initialized to [service] init_action ({report:?})"
+                        );
+                    }
+                    StartAction::Random => {}
                 }
                 let registry =
                     Registry::new(*registry_cfg, opts.worlds.clone()).map_err(StartError::Registry)?;

@@ -36,7 +36,7 @@ pub use config::{ConfigError, Td3Config};
 pub use ddp_init::{fit_actor_to_action, FitError, FitOptions, FitReport};
 pub use device::{DeviceError, LearnerDevice};
 pub use exploration::ExplorationSchedule;
-pub use export::{export_checkpoint, ExportError, ExportSummary, PolicyCard};
+pub use export::{export_checkpoint, export_published, ExportError, ExportSummary, PolicyCard, Published};
 pub use nets::{Actor, Critic, TwinCritic};
 pub use rate::RateLimiter;
 pub use replay::{EpisodeId, ReplayBuffer, ReplayError, Step, StepEnd};

@@ -126,6 +126,33 @@ impl Actor {
         (dims, flat)
     }
 
+    /// This actor's layers with the parameters of `flat` (the layout of
+    /// [`Actor::flat_weights`], for the same layer sizes) on this actor's device: a policy
+    /// that was published (and evaluated) as flat weights, as a network again. `None` when
+    /// `flat` does not hold exactly this actor's number of parameters.
+    pub fn with_flat_weights(&self, flat: &[f32]) -> Option<Self> {
+        let device = self.device();
+        let mut rest = flat;
+        let mut layers = Vec::with_capacity(self.layers.len());
+        for layer in &self.layers {
+            let [fan_in, fan_out] = layer.weight.dims();
+            if rest.len() < fan_in * fan_out + fan_out {
+                return None;
+            }
+            let (weight, tail) = rest.split_at(fan_in * fan_out);
+            let (bias, tail) = tail.split_at(fan_out);
+            rest = tail;
+            layers.push(Linear {
+                weight: Param::from_data(TensorData::new(weight.to_vec(), [fan_in, fan_out]), &device),
+                bias: Some(Param::from_data(
+                    TensorData::new(bias.to_vec(), [fan_out]),
+                    &device,
+                )),
+            });
+        }
+        rest.is_empty().then_some(Self { layers })
+    }
+
     /// The device holding the weights (autodiff for a learner's online actor, plain for a
     /// snapshot).
     pub fn device(&self) -> Device {
@@ -369,8 +396,25 @@ mod tests {
     use rand::Rng;
     use rand_pcg::Pcg64Mcg;
 
-    use super::Critic;
+    use super::{Actor, Critic};
     use crate::td3::tensor2;
+
+    /// Flat weights read back into an actor of the same sizes give the same network; a
+    /// vector of another length is refused.
+    #[test]
+    fn flat_weights_round_trip() {
+        let device = Device::flex();
+        let a = Actor::new(7, &[5, 3], 2, &device, &mut Pcg64Mcg::new(1));
+        let b = Actor::new(7, &[5, 3], 2, &device, &mut Pcg64Mcg::new(2));
+        let (dims, flat) = a.flat_weights();
+        let back = b.with_flat_weights(&flat).unwrap();
+        assert_eq!(back.flat_weights(), (dims, flat.clone()));
+        let obs: Vec<f32> = (0..14).map(|i| i as f32 / 7.0 - 1.0).collect();
+        let mut rng = Pcg64Mcg::new(0);
+        assert_eq!(back.act(&obs, 0.0, &mut rng), a.act(&obs, 0.0, &mut rng));
+        assert!(b.with_flat_weights(&flat[1..]).is_none());
+        assert!(b.with_flat_weights(&[flat.as_slice(), &[0.0]].concat()).is_none());
+    }
 
     fn values(t: Tensor<2>) -> Vec<f32> {
         t.into_data().try_to_vec::<f32>().unwrap()

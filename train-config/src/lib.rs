@@ -13,3 +13,7 @@ mod train;
 
 pub use slurm::{check_time, SlurmSection};
 pub use train::{LearnerSection, RunSection, SandboxSection, TrainConfig};
+
+/// What a fresh run's actor starts from (`[service] init_action`, DDP, or its random
+/// initialization): `ServiceConfig::start_action` of a config's `[service]`.
+pub use learner_service::StartAction;

@@ -173,6 +173,12 @@ impl TrainConfig {
         if !(cfg.run.max_speed.is_finite() && cfg.run.max_speed > 0.0) {
             bail!("{name}: [run] max_speed = {} must be positive", cfg.run.max_speed);
         }
+        cfg.service
+            .check_init_action(cfg.run.action_space)
+            .map_err(|e| anyhow::anyhow!("{name}: {e}"))?;
+        cfg.greedy
+            .check_selection()
+            .map_err(|e| anyhow::anyhow!("{name}: {e}"))?;
         if let Some(g) = cfg.run.action_space.gains() {
             if g.planner() != cfg.run.planner.name() {
                 bail!(
@@ -279,6 +285,49 @@ mod tests {
         assert!(e.contains("needs the planner: write `weights:dwa`"), "{e}");
         let e = parse("log-mppi", "weights:log-mppi").unwrap_err().to_string();
         assert!(e.contains("`log-mppi` has no objective gains"), "{e}");
+    }
+
+    /// Held-out selection on worlds that meet the test split is refused when the config is
+    /// read, before anything runs; on `val` it is accepted.
+    #[test]
+    fn selection_on_test_worlds_is_refused_at_config_time() {
+        let parse = |worlds: &str| {
+            TrainConfig::parse(
+                "t.toml",
+                &format!("[greedy]\nselect = true\nworlds = \"{worlds}\"\n"),
+            )
+        };
+        assert!(parse("val").unwrap().greedy.select);
+        for worlds in ["test", "val,hardest50", "0..300"] {
+            let e = parse(worlds).unwrap_err().to_string();
+            assert!(
+                e.starts_with("t.toml: [greedy] select = true") && e.contains("test world"),
+                "{worlds}: {e}"
+            );
+        }
+        // Without select, the greedy curve may be drawn anywhere (as before).
+        TrainConfig::parse("t.toml", "[greedy]\nworlds = \"test\"\n").unwrap();
+        assert!(!TrainConfig::load(None).unwrap().greedy.select);
+    }
+
+    /// `[service] init_action` is checked against the run's action space when the config is
+    /// read, naming the index and value.
+    #[test]
+    fn init_action_is_checked_against_the_space() {
+        let parse = |text: &str| TrainConfig::parse("t.toml", text);
+        let cfg = parse("[service]\ninit_action = [1.0, 0.0, 0.0, -1.0]\n").unwrap();
+        assert_eq!(cfg.service.init_action, Some(vec![1.0, 0.0, 0.0, -1.0]));
+        let e = parse("[service]\ninit_action = [1.0, 0.0, -2.0, -1.0]\n")
+            .unwrap_err()
+            .to_string();
+        assert_eq!(
+            e,
+            "t.toml: [service] init_action[2] = -2 is outside [-1, 1] (normalized actions)"
+        );
+        let e = parse("[run]\naction_space = \"velocity\"\n[service]\ninit_action = [0.0, 0.0, 0.0, 0.0]\n")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("has 4 values") && e.contains("2 dimensions"), "{e}");
     }
 
     /// The network sizes follow the action space and the observation layout unless the file

@@ -73,6 +73,16 @@ pub enum ExportError {
         /// The OS error.
         source: std::io::Error,
     },
+    /// The weights of a published policy do not fit the checkpoint's actor.
+    #[error("export: the policy's {got} weights do not fit the actor of checkpoint {} ({expected} parameters)", checkpoint.display())]
+    Weights {
+        /// The checkpoint whose actor sizes were expected.
+        checkpoint: PathBuf,
+        /// Its actor's number of parameters.
+        expected: usize,
+        /// The number given.
+        got: usize,
+    },
     /// The safetensors encoder refused the weights.
     #[error("export {path}: cannot encode safetensors: {message}")]
     Safetensors {
@@ -113,13 +123,64 @@ pub fn export_checkpoint(
     out: &Path,
     space: ActionSpace,
 ) -> Result<ExportSummary, ExportError> {
-    let manifest = checkpoint::read_manifest(checkpoint)?;
+    export(checkpoint, out, space, None)
+}
+
+/// A policy a run published, as its flat weights (the layout of
+/// [`crate::nets::Actor::flat_weights`]) with the counters of when it was taken: what
+/// [`export_published`] writes in place of a checkpoint's actor.
+#[derive(Debug, Clone, Copy)]
+pub struct Published<'a> {
+    /// The flat weights.
+    pub weights: &'a [f32],
+    /// Its policy version.
+    pub policy_version: u64,
+    /// Agent steps stored when it was taken.
+    pub inserts: u64,
+    /// Gradient updates done when it was taken.
+    pub updates: u64,
+}
+
+/// Like [`export_checkpoint`], with the actor's weights replaced by `policy`'s and the card's
+/// step counters by its: the export of a policy the run published earlier than its last
+/// checkpoint (held-out selection). The checkpoint gives everything else (run id, network
+/// sizes, environment); `policy` must have its actor's number of parameters.
+pub fn export_published(
+    checkpoint: &Path,
+    out: &Path,
+    space: ActionSpace,
+    policy: &Published<'_>,
+) -> Result<ExportSummary, ExportError> {
+    export(checkpoint, out, space, Some(policy))
+}
+
+/// [`export_checkpoint`], or [`export_published`] with `published`.
+fn export(
+    checkpoint: &Path,
+    out: &Path,
+    space: ActionSpace,
+    published: Option<&Published<'_>>,
+) -> Result<ExportSummary, ExportError> {
+    let mut manifest = checkpoint::read_manifest(checkpoint)?;
     let (td3, run) = checkpoint::load(checkpoint, &Device::flex())?;
+    let mut actor = td3.policy();
+    if let Some(p) = published {
+        let expected = actor.flat_weights().1.len();
+        actor = actor
+            .with_flat_weights(p.weights)
+            .ok_or_else(|| ExportError::Weights {
+                checkpoint: checkpoint.to_path_buf(),
+                expected,
+                got: p.weights.len(),
+            })?;
+        manifest.policy_version = p.policy_version;
+        manifest.inserts = p.inserts;
+        manifest.updates = p.updates;
+    }
     let card = PolicyCard::new(space, &manifest, &run.environment).map_err(|what| ExportError::Mismatch {
         file: checkpoint.join(checkpoint::MANIFEST),
         what,
     })?;
-    let actor = td3.policy();
 
     std::fs::create_dir_all(out).map_err(|source| ExportError::Io {
         op: "create directory",
@@ -392,6 +453,58 @@ mod tests {
             config,
             files: BTreeMap::new(),
         }
+    }
+
+    /// A published policy's weights replace the checkpoint's actor in the export, with its
+    /// counters in the card; weights of another size are refused by name.
+    #[test]
+    fn export_published_writes_the_given_weights_and_counters() {
+        let dir = std::env::temp_dir().join(format!("adp-export-published-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let config = Td3Config {
+            actor_hidden: vec![8],
+            critic_hidden: vec![8],
+            ..Td3Config::default()
+        };
+        let td3 = crate::td3::Td3::new(config.clone(), &Device::flex()).unwrap();
+        let run = checkpoint::RunState {
+            run_id: "run-p".into(),
+            rate: crate::rate::RateLimiter::new(&config),
+            sampler_rng: seeded_rng(1, 2),
+            policy_version: 9,
+            extra: serde_json::Value::Null,
+            environment: serde_json::Value::Null,
+        };
+        let ckpt = dir.join("ckpt");
+        std::fs::create_dir_all(&dir).unwrap();
+        checkpoint::save(&ckpt, &td3, &run).unwrap();
+        let other = Actor::new(730, &[8], 4, &Device::flex(), &mut seeded_rng(77, 0));
+        let (_, weights) = other.flat_weights();
+        let published = Published {
+            weights: &weights,
+            policy_version: 2,
+            inserts: 500,
+            updates: 40,
+        };
+        let out = dir.join("export");
+        let summary = export_published(&ckpt, &out, ActionSpace::Decremental, &published).unwrap();
+        let s = &summary.card.source;
+        assert_eq!(
+            (s.run_id.as_str(), s.policy_version, s.inserts, s.updates),
+            ("run-p", 2, 500, 40)
+        );
+        let bytes = std::fs::read(out.join(SAFETENSORS_FILE)).unwrap();
+        let back = read_actor_safetensors(&bytes, &[730, 8, 4]).unwrap();
+        assert_eq!(back, weights);
+        let short = Published {
+            weights: &weights[1..],
+            ..published
+        };
+        let e = export_published(&ckpt, &out, ActionSpace::Decremental, &short)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("weights do not fit") && e.contains("ckpt"), "{e}");
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]
