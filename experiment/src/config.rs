@@ -112,6 +112,33 @@ pub struct ExperimentSection {
     /// product (a planner x speed grid, and action spaces on one planner).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub groups: Vec<ArmGroup>,
+    /// What every arm's training starts from (default `ddp`; a group may set its own). With
+    /// `best-constant` the arm's constant search runs before its training (see [`Start`]).
+    #[serde(default, skip_serializing_if = "Start::is_ddp")]
+    pub start: Start,
+}
+
+/// What an arm's training starts from (`start` of `[experiment]` or of a group).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Start {
+    /// The training configuration's own start: the actor fitted to DDP (`[train.service]
+    /// ddp_init`), or to `[train.service] init_action` when given. The paper's start, and
+    /// the one every stage stored before this key existed was trained from.
+    #[default]
+    Ddp,
+    /// The actor fitted to the arm's best constant action from its constant search (on
+    /// `[constant_search] worlds`, never a test world), as `[service] init_action` (in place
+    /// of any `[train.service] init_action`). The arm's id ends in `-bestconst`, its untrained
+    /// control is that fitted actor, and its trainings' recipes name the search's key.
+    BestConstant,
+}
+
+impl Start {
+    /// Whether this is the default start ([`Start::Ddp`]), which recipes and ids leave out.
+    pub fn is_ddp(&self) -> bool {
+        *self == Start::Ddp
+    }
 }
 
 /// `[[experiment.groups]]`: one more cross product of arms.
@@ -129,6 +156,9 @@ pub struct ArmGroup {
     pub speeds: Option<Vec<f64>>,
     /// Training-world selections (default: `[experiment] train_worlds`).
     pub train_worlds: Option<Vec<String>>,
+    /// What the group's arms start from (default: `[experiment] start`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub start: Option<Start>,
 }
 
 impl ArmGroup {
@@ -146,6 +176,7 @@ impl ArmGroup {
                 .clone()
                 .unwrap_or_else(|| ex.train_worlds.clone()),
             groups: Vec::new(),
+            start: self.start.unwrap_or(ex.start),
             ..ex.clone()
         }
     }
@@ -464,11 +495,14 @@ pub struct Arm {
     pub train_worlds: String,
     /// The observation layout when it is not `[train.env] observation` (`None`: that one).
     pub observation: Option<LaserLayout>,
+    /// What its training starts from.
+    pub start: Start,
 }
 
 impl Arm {
-    /// A file-name-safe id, e.g. `dwa-decremental-1.5-train`, and with an observation layout
-    /// of its own `dwa-decremental-1.5-train-sectors15`. Only letters, digits and `-+._`: a
+    /// A file-name-safe id, e.g. `dwa-decremental-1.5-train`, with an observation layout
+    /// of its own `dwa-decremental-1.5-train-sectors15`, and starting from the best constant
+    /// `dwa-decremental-1.5-train-bestconst`. Only letters, digits and `-+._`: a
     /// space's `:` becomes `_` (`dwa-weights_dwa-1.5-fit`), since the ids name directories of
     /// experiments kept in the repository, and Windows checkouts refuse `:` in a path.
     pub fn id(&self) -> String {
@@ -485,8 +519,12 @@ impl Arm {
                 .collect();
             format!("-{name}")
         });
+        let start = match self.start {
+            Start::Ddp => "",
+            Start::BestConstant => "-bestconst",
+        };
         format!(
-            "{}-{}-{}-{worlds}{layout}",
+            "{}-{}-{}-{worlds}{layout}{start}",
             planner_name(self.planner),
             space_label(self.space).replace(':', "_"),
             speed_label(self.speed)
@@ -501,10 +539,10 @@ impl Arm {
     }
 
     /// Whether `other` differs from this arm at most in its training worlds, so that its
-    /// untrained policy (the DDP-initialized actor of the first seed, which has seen no world)
-    /// is this arm's.
+    /// untrained policy (the initialized actor of the first seed, which has seen no world) is
+    /// this arm's.
     pub fn same_untrained(&self, other: &Arm) -> bool {
-        self.same_controls(other) && self.observation == other.observation
+        self.same_controls(other) && self.observation == other.observation && self.start == other.start
     }
 }
 
@@ -853,6 +891,7 @@ fn restricted_arms(
                             speed,
                             train_worlds: tw.clone(),
                             observation,
+                            start: ex.start,
                         });
                     }
                 }
@@ -1179,6 +1218,86 @@ mod tests {
 
     fn parse(text: &str) -> Result<Experiment> {
         Experiment::parse("x.toml", text, &Restrict::default())
+    }
+
+    /// Every shipped experiment keeps the test worlds for the reported numbers only: the
+    /// worlds its trainings deal, its greedy evaluations (and held-out selection) run on, its
+    /// constant searches and its state-shuffled pools read meet neither a test split of the
+    /// split files (`test`, `hardest50`, any `*-test`) nor its own test worlds.
+    #[test]
+    fn no_training_selection_search_or_pool_world_may_be_a_test_world() {
+        let dir = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../configs/experiments"));
+        let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
+            .unwrap()
+            .map(|e| e.unwrap().path())
+            .filter(|p| p.extension().is_some_and(|x| x == "toml"))
+            .collect();
+        files.sort();
+        assert!(files.len() >= 10, "{files:?}");
+        let held_out = sim::splits::held_out_worlds();
+        for file in &files {
+            let ex = Experiment::load(file, &Restrict::default()).unwrap();
+            let name = file.file_name().unwrap().to_string_lossy();
+            let is_test = |w: &usize| held_out.contains(w) || ex.test_worlds.contains(w);
+            let check = |what: &str, ids: &[usize]| {
+                assert!(!ids.is_empty(), "{name}: {what} selects no world");
+                if let Some(w) = ids.iter().find(|w| is_test(w)) {
+                    panic!("{name}: {what} reads test world {w}");
+                }
+            };
+            for arm in &ex.arms {
+                for seed in 0..ex.seeds {
+                    let cfg = ex.train_config(arm, seed);
+                    match cfg.worlds().unwrap() {
+                        scheduler::WorldPool::Listed(ids) => {
+                            check(&format!("the training of {} seed {seed}", arm.id()), &ids)
+                        }
+                        // Fresh generated worlds from `first` on: no test world may be one.
+                        scheduler::WorldPool::Fresh { first } => {
+                            if let Some(w) = ex.test_worlds.iter().find(|&&w| w >= first) {
+                                panic!("{name}: {} may deal test world {w}", arm.id());
+                            }
+                        }
+                    }
+                    if cfg.greedy.every_steps > 0 || cfg.greedy.select {
+                        let ids = sim::splits::select(&cfg.greedy.worlds).unwrap();
+                        check("[train.greedy] worlds (its curves and any selection)", &ids);
+                    }
+                }
+            }
+            check("[constant_search] worlds", &ex.search_worlds);
+            check(
+                "[shuffle] worlds",
+                &sim::splits::select(&ex.shuffle.worlds).unwrap(),
+            );
+            check("the shuffle pool", &ex.pool_worlds);
+        }
+    }
+
+    /// `start` of `[experiment]` and of a group: the default (`ddp`) changes no arm;
+    /// `best-constant` makes arms of their own, with ids that say so.
+    #[test]
+    fn the_start_of_arms_is_ddp_unless_given() {
+        let ex = parse(MINIMAL).unwrap();
+        assert_eq!(ex.arms[0].start, Start::Ddp);
+        assert_eq!(ex.arms[0].id(), "dwa-decremental-1.5-fit");
+        let best = parse(&MINIMAL.replace("speeds", "start = \"best-constant\"\nspeeds")).unwrap();
+        assert_eq!(best.arms[0].start, Start::BestConstant);
+        assert_eq!(best.arms[0].id(), "dwa-decremental-1.5-fit-bestconst");
+        let text = format!(
+            "{MINIMAL}[[experiment.groups]]\nname = \"from the best constant\"\nstart = \"best-constant\"\n"
+        );
+        let both = parse(&text).unwrap();
+        let ids: Vec<String> = both.arms.iter().map(Arm::id).collect();
+        assert_eq!(
+            ids,
+            ["dwa-decremental-1.5-fit", "dwa-decremental-1.5-fit-bestconst"]
+        );
+        assert!(both.arms[1].same_controls(&both.arms[0]) && !both.arms[1].same_untrained(&both.arms[0]));
+        let e = parse(&MINIMAL.replace("speeds", "start = \"constant\"\nspeeds"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("constant") && e.contains("ddp"), "{e}");
     }
 
     #[test]

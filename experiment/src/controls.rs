@@ -1,8 +1,9 @@
 //! The controls ADP is compared with, besides DDP itself:
 //!
 //! * **untrained**: the DDP-initialized policy before any update, made by the learner's own
-//!   code path (`Td3::new` with the arm's `[td3]`, then `init_actor_to_action` to the space's
-//!   DDP action when `[service] ddp_init` is on, as the learner does at step 0) and written as
+//!   code path (`Td3::new` with the arm's `[td3]`, then `init_actor_to_action` to the start
+//!   action the learner fits at step 0: `[service] init_action` when given, else the space's
+//!   DDP action when `[service] ddp_init` is on) and written as
 //!   an export directory (`policy.onnx`, `policy.safetensors`, `policy.json`), so it is loaded
 //!   and run exactly like a trained policy;
 //! * **best constant**: the constant action with the best mean score over a search on the
@@ -21,7 +22,7 @@ use learner::export::{actor_onnx, actor_safetensors, space_name, JSON_FILE, ONNX
 use learner::{Device, FitOptions, PolicyCard, Td3};
 use planner::ActionSpace;
 
-use train_config::TrainConfig;
+use train_config::{StartAction, TrainConfig};
 
 use super::plan::write_atomic;
 use super::stats::SplitMix64;
@@ -32,17 +33,19 @@ use super::stats::SplitMix64;
 /// process renamed its (identical) export there first, that one is kept.
 pub fn write_untrained_export(cfg: &TrainConfig, space: ActionSpace, dir: &Path) -> anyhow::Result<()> {
     let mut td3 = Td3::new(cfg.td3.clone(), &Device::flex()).context("untrained policy: [td3]")?;
-    if cfg.service.ddp_init {
-        // The output that selects DDP under the run's action map (as the learner does).
-        let target: Vec<f32> = cfg
-            .env
-            .action_map
-            .ddp_policy_action(space)
-            .iter()
-            .map(|&a| a as f32)
-            .collect();
-        td3.init_actor_to_action(&target, &FitOptions::default())
-            .context("untrained policy: DDP initialization")?;
+    // The learner's start action (`[service] init_action`, else DDP's under the run's action
+    // map with `ddp_init`). Unlike the learner, this control fits DDP's in the velocity space
+    // too (its output 0), as it always has.
+    match cfg.service.start_action(cfg.env.action_map, space) {
+        StartAction::Given(target) => {
+            td3.init_actor_to_action(&target, &FitOptions::default())
+                .context("untrained policy: [service] init_action")?;
+        }
+        StartAction::Ddp(target) => {
+            td3.init_actor_to_action(&target, &FitOptions::default())
+                .context("untrained policy: DDP initialization")?;
+        }
+        StartAction::Random => {}
     }
     let manifest = Manifest {
         format: FORMAT.into(),

@@ -719,7 +719,7 @@ struct Trained {
 /// run directory's account and fails, saying to resume.
 fn train(ctx: &Ctx<'_>, arm: usize, seed: usize) -> anyhow::Result<(Spent, Option<f64>)> {
     let a = &ctx.ex.arms[arm];
-    let cfg = ctx.ex.train_config(a, seed);
+    let cfg = run_train_config(ctx, arm, seed)?;
     let run_dir = ctx.layout.run_dir(arm, seed);
     let file = run_dir.join("experiment-train.toml");
     write_atomic(
@@ -748,10 +748,12 @@ fn train(ctx: &Ctx<'_>, arm: usize, seed: usize) -> anyhow::Result<(Spent, Optio
     let cpu = cpu0.zip(cpu_seconds()).map(|(a, b)| b - a);
     let export = run_dir.join("export");
     let policy = load_policy(&export, a.space)?;
-    let src = &policy.card.source;
-    let this_run = resumed_from.map_or(0.0, |from| (src.inserts as f64 - from).max(0.0));
+    // The run's steps: its final checkpoint's (with `[greedy] select` the export may be an
+    // earlier policy, whose card counts its own steps).
+    let inserts = checkpoint_steps(&run_dir).map_or(policy.card.source.inserts, |s| s as u64);
+    let this_run = resumed_from.map_or(0.0, |from| (inserts as f64 - from).max(0.0));
     let spent = before.plus(seconds, cpu, this_run);
-    if src.inserts < cfg.run.steps {
+    if inserts < cfg.run.steps {
         if let Err(e) = spent.save(&run_dir) {
             tracing::warn!("{e:#}: this run's time will be missing from the training's record");
         }
@@ -759,13 +761,32 @@ fn train(ctx: &Ctx<'_>, arm: usize, seed: usize) -> anyhow::Result<(Spent, Optio
             "training {} seed {seed} stopped after {} of {} agent steps; run the experiment again \
              with --resume to continue it",
             a.id(),
-            src.inserts,
+            inserts,
             cfg.run.steps
         );
     }
     let timed = spent::timed_units(&before, resumed_from.unwrap_or(f64::INFINITY), this_run);
     write_trained(ctx, arm, seed, &cfg, &policy, export)?;
     Ok((spent, timed))
+}
+
+/// The training configuration of arm `arm`'s seed `seed` as it runs:
+/// [`Experiment::train_config`], and for an arm that starts from its best constant
+/// ([`config::Start::BestConstant`]) that action, read from its constant search's result, as
+/// `[service] init_action`.
+fn run_train_config(ctx: &Ctx<'_>, arm: usize, seed: usize) -> anyhow::Result<TrainConfig> {
+    let a = &ctx.ex.arms[arm];
+    let mut cfg = ctx.ex.train_config(a, seed);
+    if a.start == config::Start::BestConstant {
+        let action = best_action(ctx, arm).with_context(|| {
+            format!(
+                "{} starts from its best constant: its constant search must be in the store first",
+                a.id()
+            )
+        })?;
+        cfg.service.init_action = Some(action);
+    }
+    Ok(cfg)
 }
 
 /// The agent steps of the newest checkpoint of `run_dir` (where a resumed run starts).
@@ -881,7 +902,7 @@ fn run_stage(ctx: &Ctx<'_>, stage: &Stage, out: &Path) -> anyhow::Result<()> {
             let a = &ex.arms[arm];
             let dir = ctx.layout.untrained_export(arm);
             if !dir.join(learner::export::JSON_FILE).exists() {
-                write_untrained_export(&ex.train_config(a, 0), a.space, &dir)?;
+                write_untrained_export(&run_train_config(ctx, arm, 0)?, a.space, &dir)?;
             }
             let p = load_policy(&dir, a.space)?;
             let ctrl = Controller::of(&p);

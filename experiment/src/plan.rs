@@ -15,7 +15,7 @@ use std::path::Path;
 
 use planner::PlannerKind;
 
-use super::config::Arm;
+use super::config::{Arm, Start};
 
 /// One unit of work.
 #[derive(Clone, Debug, PartialEq)]
@@ -154,8 +154,9 @@ pub fn untrained_arm(arms: &[Arm], arm: usize) -> usize {
 }
 
 /// Every stage of `arms` x `seeds`, in an order that respects their dependencies: all
-/// training first (the longest work, so a job that stops early has its policies), then the
-/// constant searches, then the evaluations. DDP runs once per (planner, speed), shared by the
+/// training first (the longest work, so a job that stops early has its policies; an arm that
+/// starts from its best constant has its constant search just before its first training),
+/// then the constant searches, then the evaluations. DDP runs once per (planner, speed), shared by the
 /// arms that differ only in action space, training worlds or observation layout; the constant
 /// search and the best constant once per group of arms that differ only in observation layout
 /// and training worlds ([`control_arm`]), the untrained policy once per group of arms that
@@ -165,14 +166,23 @@ pub fn untrained_arm(arms: &[Arm], arm: usize) -> usize {
 /// group, the seeds).
 pub fn stages(arms: &[Arm], seeds: usize, sweeps: &Sweeps) -> Vec<Stage> {
     let mut out = Vec::new();
+    let owns_controls = |arm: usize| control_arm(arms, arm) == arm;
     for arm in 0..arms.len() {
+        // An arm that starts from its best constant needs its search before its training.
+        let search = Stage::Search {
+            arm: control_arm(arms, arm),
+        };
+        if arms[arm].start == Start::BestConstant && !out.contains(&search) {
+            out.push(search);
+        }
         for seed in 0..seeds {
             out.push(Stage::Train { arm, seed });
         }
     }
-    let owns_controls = |arm: usize| control_arm(arms, arm) == arm;
     for arm in (0..arms.len()).filter(|&a| owns_controls(a)) {
-        out.push(Stage::Search { arm });
+        if !out.contains(&Stage::Search { arm }) {
+            out.push(Stage::Search { arm });
+        }
     }
     let mut ddp: Vec<(PlannerKind, f64)> = Vec::new();
     for a in arms {
@@ -262,8 +272,30 @@ mod tests {
             speed: 1.5,
             train_worlds: "train".into(),
             observation: None,
+            start: Start::Ddp,
         })
         .collect()
+    }
+
+    /// An arm that starts from its best constant has its constant search before its
+    /// training, once (also when it shares the search with a DDP-started arm listed first),
+    /// and an untrained policy of its own; an experiment without one keeps its order.
+    #[test]
+    fn a_best_constant_start_searches_before_it_trains() {
+        let mut arms = arms();
+        arms.push(Arm {
+            start: Start::BestConstant,
+            ..arms[0].clone()
+        });
+        let s = stages(&arms, 2, &Sweeps::default());
+        let at = |x: &Stage| s.iter().position(|y| y == x).unwrap();
+        assert_eq!(s.iter().filter(|x| **x == Stage::Search { arm: 0 }).count(), 1);
+        assert!(at(&Stage::Search { arm: 0 }) < at(&Stage::Train { arm: 2, seed: 0 }));
+        assert!(at(&Stage::Train { arm: 0, seed: 1 }) < at(&Stage::Search { arm: 0 }));
+        assert_eq!(control_arm(&arms, 2), 0);
+        assert_eq!(untrained_arm(&arms, 2), 2);
+        let plain = stages(&arms[..2], 2, &Sweeps::default());
+        assert!(matches!(plain[4], Stage::Search { arm: 0 }));
     }
 
     #[test]

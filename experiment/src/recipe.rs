@@ -11,7 +11,9 @@
 //!
 //! Left out on purpose, because they do not change a result: names (the arm id, the run
 //! name), where files go, the service's transport and timeouts, the sandbox and the SLURM
-//! settings. `[run] actors = 0` (one per core) is resolved to the number of actors it starts
+//! settings. Keys added after results were stored (`[greedy] select`, `[service]
+//! init_action`, an arm's `start`) enter a recipe only when they are not the default, so the
+//! stages stored before them keep their keys. `[run] actors = 0` (one per core) is resolved to the number of actors it starts
 //! here, since the actor count changes the data a training collects.
 //!
 //! Pure: no files are read or written here.
@@ -24,7 +26,7 @@ use eval::EvalConfig;
 use learner::LearnerDevice;
 use train_config::TrainConfig;
 
-use super::config::{planner_name, space_label, Arm, Experiment};
+use super::config::{planner_name, space_label, Arm, Experiment, Start};
 use super::plan::{Stage, SweepWho};
 
 /// The version of the code that changes results. Bump it in the commit that changes what any
@@ -193,10 +195,23 @@ impl Inputs<'_> {
         }
     }
 
-    /// The training recipe of `a`'s seed `seed`.
+    /// The training recipe of `a`'s seed `seed`; an arm that starts from its best constant
+    /// names its search's key under `start` (a DDP start, the default, adds nothing, so the
+    /// recipes of such trainings are those they always had).
     pub fn train(&self, a: &Arm, seed: usize) -> Recipe {
         let cfg = self.ex.train_config(a, seed);
-        Recipe::new(Kind::Train, train_inputs(&cfg, self.cores))
+        let mut inputs = train_inputs(&cfg, self.cores);
+        self.add_start(a, &mut inputs);
+        Recipe::new(Kind::Train, inputs)
+    }
+
+    /// Adds `a`'s start to `inputs` when it is not the default: the best constant as the key
+    /// of the search that finds it.
+    fn add_start(&self, a: &Arm, inputs: &mut Value) {
+        match a.start {
+            Start::Ddp => {}
+            Start::BestConstant => inputs["start"] = json!({ "best-constant": self.search(a).key }),
+        }
     }
 
     /// The recipe of `a`'s constant search.
@@ -218,18 +233,21 @@ impl Inputs<'_> {
     }
 
     /// The recipe of `a`'s untrained, DDP-initialized policy: the first seed's networks
-    /// before any update.
+    /// before any update (with `[train.service] init_action` and a best-constant start when
+    /// given, which are left out otherwise).
     pub fn untrained_policy(&self, a: &Arm) -> Recipe {
         let cfg = self.ex.train_config(a, 0);
-        Recipe::new(
-            Kind::Policy,
-            json!({
-                "td3": cfg.td3,
-                "env": cfg.env,
-                "ddp_init": cfg.service.ddp_init,
-                "space": space_label(a.space),
-            }),
-        )
+        let mut inputs = json!({
+            "td3": cfg.td3,
+            "env": cfg.env,
+            "ddp_init": cfg.service.ddp_init,
+            "space": space_label(a.space),
+        });
+        if let Some(action) = &cfg.service.init_action {
+            inputs["init_action"] = json!(action);
+        }
+        self.add_start(a, &mut inputs);
+        Recipe::new(Kind::Policy, inputs)
     }
 
     /// The controller `who` of arm `arm`, as it enters an evaluation's recipe.
@@ -268,8 +286,9 @@ impl Inputs<'_> {
 
 /// The parts of a training configuration that decide what it learns: `[run]` without its
 /// name (and with `actors = 0` resolved to `cores`), `[env]`, `[td3]`, `[greedy]` (the
-/// learning curves kept with the run), the two `[service]` keys that change the data
-/// (`ddp_init`, `episodes_per_assignment`) and, when it is not the CPU, `[learner] device`
+/// learning curves kept with the run, and with `select` the policy exported), the `[service]`
+/// keys that change the data (`ddp_init`, `episodes_per_assignment`, and `init_action` when
+/// given) and, when it is not the CPU, `[learner] device`
 /// (another backend sums in another order: the same run learns slightly different weights).
 pub fn train_inputs(cfg: &TrainConfig, cores: u32) -> Value {
     let mut run = serde_json::to_value(&cfg.run).expect("configs serialize");
@@ -287,6 +306,9 @@ pub fn train_inputs(cfg: &TrainConfig, cores: u32) -> Value {
             "episodes_per_assignment": cfg.service.episodes_per_assignment,
         },
     });
+    if let Some(action) = &cfg.service.init_action {
+        inputs["service"]["init_action"] = json!(action);
+    }
     if cfg.learner.device != LearnerDevice::Cpu {
         inputs["learner"] = json!({ "device": cfg.learner.device });
     }
@@ -422,6 +444,47 @@ mod tests {
              RESULTS_VERSION in experiment/src/recipe.rs and set FINGERPRINT to (the new version, \
              {hex:?})"
         );
+    }
+
+    /// The keys added after results were stored change no key at their defaults: a file
+    /// that writes `start = "ddp"` and `[train.greedy] select = false` has the keys of one
+    /// that leaves them out.
+    #[test]
+    fn default_start_and_selection_keep_the_stored_keys() {
+        let base = keys(ONE);
+        let explicit = keys(&format!(
+            "{}start = \"ddp\"\n[train.greedy]\nselect = false\n",
+            ONE
+        ));
+        assert_eq!(base, explicit);
+        // Turned on, they key trainings of their own.
+        let select = keys(&format!("{ONE}[train.greedy]\nselect = true\n"));
+        let given = keys(&format!(
+            "{ONE}[train.service]\ninit_action = [1.0, 0.0, 0.0, -1.0]\n"
+        ));
+        for other in [&select, &given] {
+            for ((stage, a), (_, b)) in base.iter().zip(other.iter()) {
+                if stage.starts_with("Train") {
+                    assert_ne!(a, b, "{stage}");
+                }
+            }
+        }
+    }
+
+    /// An arm that starts from its best constant has trainings, an untrained policy and
+    /// evaluations of its own, and shares its constant search, DDP and best constant with
+    /// the DDP-started arm.
+    #[test]
+    fn a_best_constant_start_keys_its_own_trainings() {
+        let base = keys(ONE);
+        let best = keys(&ONE.replace("[experiment]\n", "[experiment]\nstart = \"best-constant\"\n"));
+        assert_eq!(base.len(), best.len());
+        for (stage, key) in &best {
+            let shared = stage.starts_with("Search")
+                || stage.starts_with("EvalDdp")
+                || stage.starts_with("EvalConstant");
+            assert_eq!(base.iter().any(|(_, k)| k == key), shared, "{stage}");
+        }
     }
 
     #[test]
