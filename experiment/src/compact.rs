@@ -139,7 +139,9 @@ fn quantize(x: f64, lo: f64, hi: f64) -> u16 {
     if hi <= lo {
         return 0;
     }
-    ((x - lo) / (hi - lo) * f64::from(u16::MAX)).round().clamp(0.0, f64::from(u16::MAX)) as u16
+    ((x - lo) / (hi - lo) * f64::from(u16::MAX))
+        .round()
+        .clamp(0.0, f64::from(u16::MAX)) as u16
 }
 
 /// The value of the word `q` between `lo` and `hi`; the bounds come back exactly.
@@ -187,12 +189,24 @@ impl CompactTrace {
         let lo: Vec<f64> = columns
             .iter()
             .enumerate()
-            .map(|(i, c)| if i == 0 { 0.0 } else { c.iter().copied().fold(f64::INFINITY, f64::min) })
+            .map(|(i, c)| {
+                if i == 0 {
+                    0.0
+                } else {
+                    c.iter().copied().fold(f64::INFINITY, f64::min)
+                }
+            })
             .collect();
         let hi: Vec<f64> = columns
             .iter()
             .enumerate()
-            .map(|(i, c)| if i == 0 { 1.0 } else { c.iter().copied().fold(f64::NEG_INFINITY, f64::max) })
+            .map(|(i, c)| {
+                if i == 0 {
+                    1.0
+                } else {
+                    c.iter().copied().fold(f64::NEG_INFINITY, f64::max)
+                }
+            })
             .collect();
         let mut bytes = Vec::with_capacity(columns.len() * trace.len() * 2);
         for (c, (&l, &h)) in columns.iter().zip(lo.iter().zip(&hi)) {
@@ -315,7 +329,10 @@ impl CompactRecord {
             ("score", self.score.len()),
             ("distance_m", self.distance_m.len()),
         ] {
-            ensure!(len == n, "{name} holds {len} runs where world_runs adds up to {n}");
+            ensure!(
+                len == n,
+                "{name} holds {len} runs where world_runs adds up to {n}"
+            );
         }
         let mut per_world = Vec::with_capacity(self.worlds.len());
         let mut i = 0;
@@ -393,8 +410,8 @@ pub fn compact_file(path: &std::path::Path) -> anyhow::Result<Compacted> {
     if value.get("per_world").is_none() {
         return Ok(Compacted::NotARecord);
     }
-    let old: EvalRecord =
-        serde_json::from_value(value).with_context(|| format!("{}: not an evaluation record", path.display()))?;
+    let old: EvalRecord = serde_json::from_value(value)
+        .with_context(|| format!("{}: not an evaluation record", path.display()))?;
     let compact = CompactRecord::of(&old).with_context(|| format!("{}", path.display()))?;
     let bytes = serde_json::to_vec(&compact).expect("records serialize");
     let new = EvalRecord::parse(std::str::from_utf8(&bytes).expect("JSON is UTF-8"))?;
@@ -433,7 +450,10 @@ mod tests {
     use crate::record::one_run_record;
 
     fn traced() -> EvalRecord {
-        let mut rec = one_run_record("adp", &[(3, true, 0.4321987654321), (5, false, 0.0), (9, true, 0.25)]);
+        let mut rec = one_run_record(
+            "adp",
+            &[(3, true, 0.4321987654321), (5, false, 0.0), (9, true, 0.25)],
+        );
         rec.per_world[1].runs[0].status = Status::TimedOut;
         rec.per_world[0].runs[0].time_s = 8.699999999999852;
         rec.trace = (0..40)
@@ -456,12 +476,19 @@ mod tests {
             assert_eq!(a.world, b.world);
             for (x, y) in a.runs.iter().zip(&b.runs) {
                 assert_eq!((x.world, x.status), (y.world, y.status));
-                for (u, v) in [(x.time_s, y.time_s), (x.score, y.score), (x.sim_time_s, y.sim_time_s)] {
+                for (u, v) in [
+                    (x.time_s, y.time_s),
+                    (x.score, y.score),
+                    (x.sim_time_s, y.sim_time_s),
+                ] {
                     assert!((u - v).abs() <= 0.5e-7, "{u} vs {v}");
                 }
             }
         }
-        assert_eq!(back.per_world[0].runs[0].time_s, 8.7, "summation noise is rounded away");
+        assert_eq!(
+            back.per_world[0].runs[0].time_s, 8.7,
+            "summation noise is rounded away"
+        );
         assert_eq!(back.trace.len(), rec.trace.len());
         for (a, b) in rec.trace.iter().zip(&back.trace) {
             assert_eq!(a.world, b.world);
@@ -470,7 +497,13 @@ mod tests {
             assert_eq!(b.params[2], 0.18);
             assert!((a.params[1] - b.params[1]).abs() <= 0.156 / 131_000.0);
         }
-        assert_eq!(back.trace[0].params[1], rec.trace.iter().map(|t| t.params[1]).fold(f64::INFINITY, f64::min));
+        assert_eq!(
+            back.trace[0].params[1],
+            rec.trace
+                .iter()
+                .map(|t| t.params[1])
+                .fold(f64::INFINITY, f64::min)
+        );
         check_same_statistics(&rec, &back).unwrap();
     }
 

@@ -4,8 +4,9 @@
 //! Every table refuses keys it does not know, naming the key and the file. `[train]` is a
 //! training configuration in the format of `configs/local.toml` (`[train.run]`,
 //! `[train.env]`, `[train.td3]`, `[train.service]`, `[train.sandbox]`), laid over the embedded
-//! `configs/local.toml` and checked by [`TrainConfig::parse`], so every key `adp train`
-//! knows is available here. Per arm and seed the experiment sets `[run] planner`,
+//! `configs/local.toml` less the main job's recipe ([`MAIN_JOB_KEYS`]) and checked by
+//! [`TrainConfig::parse`], so every key `adp train` knows is available here and the main
+//! job's recipe can change without changing any experiment. Per arm and seed the experiment sets `[run] planner`,
 //! `action_space`, `max_speed`, `worlds` and `name`, `[env] observation` (an arm of
 //! `[experiment] observations`), `[td3] seed`, `obs_dim` and `act_dim` (see
 //! [`Experiment::train_config`]).
@@ -66,8 +67,34 @@ impl ConfigError {
 /// A result of reading an experiment file.
 pub type Result<T, E = ConfigError> = std::result::Result<T, E>;
 
-/// The embedded training defaults that `[train]` is laid over.
+/// The embedded training defaults that `[train]` is laid over ([`train_base`]).
 const LOCAL_TOML: &str = include_str!("../../configs/local.toml");
+
+/// The keys of `configs/local.toml` that make the main job's recipe (`adp train` with no
+/// `--config`), as `(table, key)`. They do not reach experiments: an experiment takes the
+/// code's default of each unless its `[train]` sets it, so changing the main job changes no
+/// stored stage.
+pub const MAIN_JOB_KEYS: [(&str, &str); 7] = [
+    ("run", "steps"),
+    ("run", "planner"),
+    ("td3", "updates_per_insert"),
+    ("service", "init_action"),
+    ("greedy", "every_steps"),
+    ("greedy", "runs"),
+    ("greedy", "select"),
+];
+
+/// The table `[train]` is laid over: the embedded `configs/local.toml` less
+/// [`MAIN_JOB_KEYS`].
+pub fn train_base() -> toml::Table {
+    let mut base: toml::Table = toml::from_str(LOCAL_TOML).expect("the embedded local.toml parses");
+    for (table, key) in MAIN_JOB_KEYS {
+        if let Some(toml::Value::Table(t)) = base.get_mut(table) {
+            t.remove(key);
+        }
+    }
+    base
+}
 
 /// `[experiment]`: what is compared.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -595,7 +622,7 @@ pub struct Experiment {
     pub stats: StatsSection,
     /// `[slurm]`.
     pub slurm: SlurmJob,
-    /// `[train]` over the embedded `configs/local.toml`.
+    /// `[train]` over [`train_base`].
     pub train: TrainConfig,
     /// The arms (after restrictions), planner-major.
     pub arms: Vec<Arm>,
@@ -627,13 +654,13 @@ fn merge(base: &mut toml::Table, over: toml::Table) {
     }
 }
 
-/// `[train]` laid over the embedded `configs/local.toml` and checked, with `--steps` applied;
-/// unknown keys of `[train]` are named as written.
+/// `[train]` laid over [`train_base`] and checked, with `--steps` applied; unknown keys of
+/// `[train]` are named as written.
 fn parse_train(name: &str, table: toml::Table, restrict: &Restrict) -> Result<TrainConfig> {
     // Unknown keys of [train] are named before the merge (whose text has other lines).
     TrainConfig::deserialize(table.clone())
         .map_err(|e| ConfigError::invalid(name, format!("[train]: {}", one_line(&e.to_string()))))?;
-    let mut base: toml::Table = toml::from_str(LOCAL_TOML).expect("the embedded local.toml parses");
+    let mut base = train_base();
     merge(&mut base, table);
     let mut train = TrainConfig::parse(
         &format!("{name}: [train]"),
@@ -1475,7 +1502,14 @@ mod tests {
         assert_eq!(ex.arms.len(), 1);
         assert_eq!(ex.arms[0].id(), "dwa-decremental-1.5-fit");
         assert_eq!(ex.seeds, 3);
-        assert_eq!(ex.train, TrainConfig::load(None).unwrap());
+        let base = toml::to_string(&train_base()).unwrap();
+        assert_eq!(ex.train, TrainConfig::parse("base", &base).unwrap());
+        // The main job's recipe does not reach experiments; the rest of local.toml does.
+        let (code, local) = (TrainConfig::parse("none", "").unwrap(), TrainConfig::load(None).unwrap());
+        assert_eq!((ex.train.run.steps, ex.train.run.planner), (code.run.steps, code.run.planner));
+        assert_eq!(ex.train.td3.updates_per_insert, code.td3.updates_per_insert);
+        assert_eq!((&ex.train.service.init_action, &ex.train.greedy), (&None, &code.greedy));
+        assert_eq!(ex.train.env.action_map, local.env.action_map);
         let c = ex.train_config(&ex.arms[0], 2);
         assert_eq!((c.td3.seed, c.run.max_speed, c.td3.act_dim), (3, 1.5, 4));
     }

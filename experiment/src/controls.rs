@@ -315,7 +315,8 @@ mod tests {
     #[test]
     fn untrained_export_loads_and_reproduces_ddp() {
         let dir = std::env::temp_dir().join(format!("adp-untrained-{}", std::process::id()));
-        let cfg = TrainConfig::load(None).unwrap();
+        let mut cfg = TrainConfig::load(None).unwrap();
+        cfg.service.init_action = None;
         write_untrained_export(&cfg, ActionSpace::Decremental, &dir).unwrap();
         let eval::policy::EvalPolicy::Learned(p) = eval::policy::load(&dir, None).unwrap() else {
             panic!("a learned policy")

@@ -82,7 +82,9 @@ impl EvalRecord {
         let value: serde_json::Value = serde_json::from_str(text)?;
         match value.get("format") {
             None => Ok(serde_json::from_value(value)?),
-            Some(f) if f == &serde_json::json!(FORMAT) => serde_json::from_value::<CompactRecord>(value)?.expand(),
+            Some(f) if f == &serde_json::json!(FORMAT) => {
+                serde_json::from_value::<CompactRecord>(value)?.expand()
+            }
             Some(f) => anyhow::bail!("record format {f} is not one this build reads (1 or {FORMAT})"),
         }
     }
@@ -92,7 +94,8 @@ impl EvalRecord {
     /// # Errors
     /// A trace that cannot be stored ([`CompactRecord::of`]) or a failed write.
     pub fn save(&self, path: &Path) -> anyhow::Result<()> {
-        let compact = CompactRecord::of(self).with_context(|| format!("{}: record not written", path.display()))?;
+        let compact =
+            CompactRecord::of(self).with_context(|| format!("{}: record not written", path.display()))?;
         write_atomic(path, &serde_json::to_vec(&compact).expect("records serialize"))
     }
 

@@ -307,7 +307,7 @@ mod tests {
         }
         // Without select, the greedy curve may be drawn anywhere (as before).
         TrainConfig::parse("t.toml", "[greedy]\nworlds = \"test\"\n").unwrap();
-        assert!(!TrainConfig::load(None).unwrap().greedy.select);
+        assert!(!TrainConfig::parse("t.toml", "").unwrap().greedy.select);
     }
 
     /// `[service] init_action` is checked against the run's action space when the config is
