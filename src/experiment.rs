@@ -213,7 +213,7 @@ pub struct CompactArgs {
 /// compact format 2 after checking that its statistics are unchanged; compact records and
 /// other JSON files are left alone. Prints what it did per path.
 pub fn compact_command(args: &CompactArgs) -> anyhow::Result<()> {
-    use experiment::compact::{compact_file, Compacted};
+    use experiment::record::compact::{compact_file, Compacted};
     use rayon::prelude::*;
     for root in &args.paths {
         let mut files = Vec::new();

@@ -1505,10 +1505,19 @@ mod tests {
         let base = toml::to_string(&train_base()).unwrap();
         assert_eq!(ex.train, TrainConfig::parse("base", &base).unwrap());
         // The main job's recipe does not reach experiments; the rest of local.toml does.
-        let (code, local) = (TrainConfig::parse("none", "").unwrap(), TrainConfig::load(None).unwrap());
-        assert_eq!((ex.train.run.steps, ex.train.run.planner), (code.run.steps, code.run.planner));
+        let (code, local) = (
+            TrainConfig::parse("none", "").unwrap(),
+            TrainConfig::load(None).unwrap(),
+        );
+        assert_eq!(
+            (ex.train.run.steps, ex.train.run.planner),
+            (code.run.steps, code.run.planner)
+        );
         assert_eq!(ex.train.td3.updates_per_insert, code.td3.updates_per_insert);
-        assert_eq!((&ex.train.service.init_action, &ex.train.greedy), (&None, &code.greedy));
+        assert_eq!(
+            (&ex.train.service.init_action, &ex.train.greedy),
+            (&None, &code.greedy)
+        );
         assert_eq!(ex.train.env.action_map, local.env.action_map);
         let c = ex.train_config(&ex.arms[0], 2);
         assert_eq!((c.td3.seed, c.run.max_speed, c.td3.act_dim), (3, 1.5, 4));

@@ -14,7 +14,6 @@
 //! key; reading an experiment file fails with a typed [`config::ConfigError`].
 
 pub mod adopt;
-pub mod compact;
 pub mod config;
 pub mod controls;
 pub mod estimate;

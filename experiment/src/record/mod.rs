@@ -10,9 +10,11 @@ use sim::Status;
 
 use eval::summarize;
 
-use super::compact::{CompactRecord, FORMAT};
+pub mod compact;
+
 use super::plan::write_atomic;
 use super::runner::{TracePoint, WorldOutcome};
+use compact::{CompactRecord, FORMAT};
 
 /// One controller's evaluation on the test worlds.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -69,7 +71,7 @@ pub struct Summary {
 }
 
 impl EvalRecord {
-    /// Reads a record of either format ([`super::compact`]).
+    /// Reads a record of either format ([`compact`]).
     pub fn load(path: &Path) -> anyhow::Result<Self> {
         let text =
             std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;

@@ -30,8 +30,8 @@ use serde::{Deserialize, Serialize};
 
 use sim::{EpisodeResult, Status};
 
-use super::record::EvalRecord;
-use super::runner::{TracePoint, WorldOutcome};
+use super::EvalRecord;
+use crate::runner::{TracePoint, WorldOutcome};
 
 /// The value of a format-2 record's `format` key.
 pub const FORMAT: u32 = 2;
@@ -416,7 +416,7 @@ pub fn compact_file(path: &std::path::Path) -> anyhow::Result<Compacted> {
     let bytes = serde_json::to_vec(&compact).expect("records serialize");
     let new = EvalRecord::parse(std::str::from_utf8(&bytes).expect("JSON is UTF-8"))?;
     check_same_statistics(&old, &new).with_context(|| format!("{}: left as it was", path.display()))?;
-    super::plan::write_atomic(path, &bytes)?;
+    crate::plan::write_atomic(path, &bytes)?;
     Ok(Compacted::Converted(text.len() as u64, bytes.len() as u64))
 }
 
