@@ -10,13 +10,13 @@
 //!   of the 10 ms physics step, so rounding only removes summation noise; a score moves by at
 //!   most 5e-8);
 //! - the trace as runs of equal world ids (`trace.worlds`: `[world, steps]` pairs) and one
-//!   column per quantity (clutter, then the schedule's parameters), each quantized to 16 bits
-//!   between bounds `lo` and `hi`: clutter (a share of beams) between 0 and 1 in every record,
-//!   so that equal shares stay equal across records and their order is kept; a parameter
-//!   between its own least and greatest value. A value moves by at most `(hi - lo) / 131070`
-//!   (7.6e-6 of clutter; about 1.2 µs for a 20-180 ms step), and a parameter column's bounds
-//!   and a constant column come back exactly. The 16-bit words are written column after column,
-//!   low bytes of a column before its high bytes, deflated and base64-encoded (`trace.q`).
+//!   column per quantity (clutter, then the schedule's parameters), each value on the fixed
+//!   grid of [`TRACE_SCALE`] (`trace.scale`): the 32-bit integer `round(x * scale)`. A value
+//!   moves by at most 5e-7 (0.5 µs of a step), the grid is the same in every record, so equal
+//!   values stay equal and ordered across records, and a record read back and written again
+//!   (as when shards of a stage are merged) stores the same integers. The integers are
+//!   written column after column, each as four planes of bytes (little end first), deflated
+//!   and base64-encoded (`trace.q`).
 //!
 //! Every statistic the project reports (success, time, score, trimmed per-world values,
 //! paired intervals, clutter correlations, mean steps) is computed from these values exactly
@@ -38,6 +38,9 @@ pub const FORMAT: u32 = 2;
 
 /// Decimals kept of a run's times, score and distance.
 pub const RUN_DECIMALS: i32 = 7;
+
+/// The fixed-point scale of a format-2 trace: a value is stored as `round(x * TRACE_SCALE)`.
+pub const TRACE_SCALE: f64 = 1e6;
 
 /// A format-2 record as it is written.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -97,11 +100,10 @@ pub struct CompactTrace {
     pub worlds: Vec<[usize; 2]>,
     /// Schedule parameters per step.
     pub params: usize,
-    /// Least value of each column (clutter, then each parameter).
-    pub lo: Vec<f64>,
-    /// Greatest value of each column.
-    pub hi: Vec<f64>,
-    /// The quantized columns: base64 of the deflated 16-bit words (see the module comment).
+    /// The fixed-point scale ([`TRACE_SCALE`]).
+    pub scale: f64,
+    /// The columns: base64 of the deflated byte planes of the integers (see the module
+    /// comment).
     pub q: String,
 }
 
@@ -134,25 +136,6 @@ fn round(x: f64) -> f64 {
     }
 }
 
-/// Quantizes `x` in `[lo, hi]` to 16 bits.
-fn quantize(x: f64, lo: f64, hi: f64) -> u16 {
-    if hi <= lo {
-        return 0;
-    }
-    ((x - lo) / (hi - lo) * f64::from(u16::MAX))
-        .round()
-        .clamp(0.0, f64::from(u16::MAX)) as u16
-}
-
-/// The value of the word `q` between `lo` and `hi`; the bounds come back exactly.
-fn dequantize(q: u16, lo: f64, hi: f64) -> f64 {
-    match q {
-        0 => lo,
-        u16::MAX => hi,
-        _ => lo + f64::from(q) / f64::from(u16::MAX) * (hi - lo),
-    }
-}
-
 impl CompactTrace {
     fn of(trace: &[TracePoint]) -> anyhow::Result<Option<Self>> {
         let Some(first) = trace.first() else {
@@ -180,39 +163,23 @@ impl CompactTrace {
                 c.push(p);
             }
         }
-        ensure!(
-            columns[0].iter().all(|c| (0.0..=1.0).contains(c)),
-            "a traced step's clutter lies outside [0, 1]"
-        );
-        // Clutter on the fixed scale [0, 1], the same in every record: equal shares stay
-        // equal across records and so do the median splits over several records.
-        let lo: Vec<f64> = columns
-            .iter()
-            .enumerate()
-            .map(|(i, c)| {
-                if i == 0 {
-                    0.0
-                } else {
-                    c.iter().copied().fold(f64::INFINITY, f64::min)
-                }
-            })
-            .collect();
-        let hi: Vec<f64> = columns
-            .iter()
-            .enumerate()
-            .map(|(i, c)| {
-                if i == 0 {
-                    1.0
-                } else {
-                    c.iter().copied().fold(f64::NEG_INFINITY, f64::max)
-                }
-            })
-            .collect();
-        let mut bytes = Vec::with_capacity(columns.len() * trace.len() * 2);
-        for (c, (&l, &h)) in columns.iter().zip(lo.iter().zip(&hi)) {
-            let words: Vec<u16> = c.iter().map(|&x| quantize(x, l, h)).collect();
-            bytes.extend(words.iter().map(|w| w.to_le_bytes()[0]));
-            bytes.extend(words.iter().map(|w| w.to_le_bytes()[1]));
+        let mut bytes = Vec::with_capacity(columns.len() * trace.len() * 4);
+        for c in &columns {
+            let ints = c
+                .iter()
+                .map(|&x| {
+                    let i = (x * TRACE_SCALE).round();
+                    ensure!(
+                        i.abs() <= f64::from(i32::MAX),
+                        "traced value {x} is outside what the trace stores (|x| <= {})",
+                        f64::from(i32::MAX) / TRACE_SCALE
+                    );
+                    Ok(i as i32)
+                })
+                .collect::<anyhow::Result<Vec<i32>>>()?;
+            for plane in 0..4 {
+                bytes.extend(ints.iter().map(|i| i.to_le_bytes()[plane]));
+            }
         }
         let mut z = flate2::write::DeflateEncoder::new(Vec::new(), flate2::Compression::best());
         z.write_all(&bytes).expect("deflating into memory");
@@ -220,8 +187,7 @@ impl CompactTrace {
         Ok(Some(CompactTrace {
             worlds,
             params,
-            lo,
-            hi,
+            scale: TRACE_SCALE,
             q: base64::engine::general_purpose::STANDARD.encode(deflated),
         }))
     }
@@ -230,29 +196,27 @@ impl CompactTrace {
         let steps: usize = self.worlds.iter().map(|[_, n]| n).sum();
         let cols = self.params + 1;
         ensure!(
-            self.lo.len() == cols && self.hi.len() == cols,
-            "trace: {} parameters need {cols} bounds, found lo {} and hi {}",
-            self.params,
-            self.lo.len(),
-            self.hi.len()
+            self.scale.is_finite() && self.scale > 0.0,
+            "trace.scale {} is not a positive number",
+            self.scale
         );
         let deflated = base64::engine::general_purpose::STANDARD
             .decode(&self.q)
             .context("trace.q is not base64")?;
-        let mut bytes = Vec::with_capacity(cols * steps * 2);
+        let mut bytes = Vec::with_capacity(cols * steps * 4);
         flate2::read::DeflateDecoder::new(&deflated[..])
             .read_to_end(&mut bytes)
             .context("trace.q is not deflated data")?;
         ensure!(
-            bytes.len() == cols * steps * 2,
+            bytes.len() == cols * steps * 4,
             "trace.q holds {} bytes where {steps} steps of {cols} columns need {}",
             bytes.len(),
-            cols * steps * 2
+            cols * steps * 4
         );
         let value = |col: usize, step: usize| {
-            let base = col * steps * 2;
-            let q = u16::from_le_bytes([bytes[base + step], bytes[base + steps + step]]);
-            dequantize(q, self.lo[col], self.hi[col])
+            let base = col * steps * 4;
+            let b = |plane: usize| bytes[base + plane * steps + step];
+            f64::from(i32::from_le_bytes([b(0), b(1), b(2), b(3)])) / self.scale
         };
         let mut out = Vec::with_capacity(steps);
         for &[world, n] in &self.worlds {
@@ -492,23 +456,21 @@ mod tests {
         assert_eq!(back.trace.len(), rec.trace.len());
         for (a, b) in rec.trace.iter().zip(&back.trace) {
             assert_eq!(a.world, b.world);
-            assert!((a.clutter - b.clutter).abs() <= 1.0 / 131_000.0);
-            assert_eq!(b.params[0], 0.02, "a constant column comes back exactly");
+            assert!((a.clutter - b.clutter).abs() <= 0.5 / TRACE_SCALE);
+            assert_eq!(b.params[0], 0.02, "a value on the grid comes back exactly");
             assert_eq!(b.params[2], 0.18);
-            assert!((a.params[1] - b.params[1]).abs() <= 0.156 / 131_000.0);
+            assert!((a.params[1] - b.params[1]).abs() <= 0.5 / TRACE_SCALE);
+            assert!((a.params[3] - b.params[3]).abs() <= 0.5 / TRACE_SCALE);
         }
-        assert_eq!(
-            back.trace[0].params[1],
-            rec.trace
-                .iter()
-                .map(|t| t.params[1])
-                .fold(f64::INFINITY, f64::min)
-        );
+        // Read back and written again, a record stores the same values (shards merge so).
+        let again = CompactRecord::of(&back).unwrap();
+        assert_eq!(again, CompactRecord::of(&rec).unwrap());
+        assert_eq!(again.expand().unwrap(), back);
         check_same_statistics(&rec, &back).unwrap();
     }
 
     #[test]
-    fn equal_clutter_stays_equal_across_records_whatever_their_range() {
+    fn equal_clutter_stays_equal_and_ordered_across_records() {
         let point = |clutter| TracePoint {
             world: 3,
             clutter,
@@ -534,6 +496,9 @@ mod tests {
         let mut letter = good.clone();
         letter.status = "SXS".into();
         assert!(format!("{:#}", letter.expand().unwrap_err()).contains("status letter 'X'"));
+        let mut scale = good.clone();
+        scale.trace.as_mut().unwrap().scale = 0.0;
+        assert!(format!("{:#}", scale.expand().unwrap_err()).contains("trace.scale"));
         let mut trace = good.clone();
         trace.trace.as_mut().unwrap().worlds[0][1] += 1;
         assert!(format!("{:#}", trace.expand().unwrap_err()).contains("trace.q holds"));
