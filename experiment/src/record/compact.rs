@@ -351,7 +351,7 @@ pub enum Compacted {
 
 /// Largest difference allowed between a statistic of a record and of its compact form: far
 /// below the fourth decimal the reports print.
-const STATISTIC_TOLERANCE: f64 = 1e-6;
+pub const STATISTIC_TOLERANCE: f64 = 1e-6;
 
 /// Rewrites the format-1 evaluation record at `path` in format 2, after checking that the
 /// compact form gives the same table values and per-world values (within
