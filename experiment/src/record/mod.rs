@@ -81,11 +81,15 @@ impl EvalRecord {
     /// Parses a record of either format: format 2 (compact) when the object has a `format`
     /// key, format 1 (field by field) otherwise.
     pub fn parse(text: &str) -> anyhow::Result<Self> {
-        let value: serde_json::Value = serde_json::from_str(text)?;
-        match value.get("format") {
-            None => Ok(serde_json::from_value(value)?),
-            Some(f) if f == &serde_json::json!(FORMAT) => {
-                serde_json::from_value::<CompactRecord>(value)?.expand()
+        /// The one key that tells the formats apart (the others are skipped unread).
+        #[derive(Deserialize)]
+        struct Format {
+            format: Option<serde_json::Value>,
+        }
+        match serde_json::from_str::<Format>(text)?.format {
+            None => Ok(serde_json::from_str(text)?),
+            Some(f) if f == serde_json::json!(FORMAT) => {
+                serde_json::from_str::<CompactRecord>(text)?.expand()
             }
             Some(f) => anyhow::bail!("record format {f} is not one this build reads (1 or {FORMAT})"),
         }
