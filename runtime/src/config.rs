@@ -8,10 +8,22 @@
 //! fixed = "ddp"                # the schedule without a policy: ddp (default) | vanilla
 //! seed = 0                     # the planner's sampling stream (MPPI, Log-MPPI)
 //! max_odometry_age_s = 0.1     # odometry older than the scan by more is refused
+//! max_odometry_lead_s = 0.1    # odometry stamped after the scan by more is refused
 //! max_goal_distance_m = 50.0   # a goal farther from the robot is refused (the envelope)
 //! nan_as_no_return = true      # NaN and +-inf ranges read as no return; false refuses NaN
+//! allow_policy_mismatch = false # true runs a policy under another planner or speed than
+//!                              # its card records (a transfer experiment)
 //! settings = "eval.toml"       # optional: [episode] (lidar, costmap, robot), planner tables,
 //!                              # [compute]; the embedded configs/eval.toml when absent
+//!
+//! [lidar]                      # optional: the robot's laser (absent keys: [episode.lidar]'s)
+//! beams = 1081                 # beams, evenly from -fov/2 to +fov/2 inclusive
+//! fov_deg = 270.0              # degrees, centred on the laser's heading
+//! min_range = 0.06             # m
+//! max_range = 30.0             # m
+//! x = 0.12                     # its mount in the base frame: m forward, m left,
+//! y = 0.0
+//! yaw_deg = 0.0                # degrees counter-clockwise (default 0, 0, 0: the base origin)
 //! ```
 
 use std::path::{Path, PathBuf};
@@ -20,8 +32,9 @@ use eval::policy::{self, EvalPolicy, LearnedPolicy};
 use eval::EvalConfig;
 use planner::PlannerKind;
 use serde::Deserialize;
+use sim::geometry::Pose;
 
-use crate::envelope::{DEFAULT_MAX_GOAL_DISTANCE_M, MAX_SPEED_MPS};
+use crate::envelope::{DEFAULT_MAX_GOAL_DISTANCE_M, MAX_LASER_OFFSET_M, MAX_SPEED_MPS};
 use crate::error::RuntimeError;
 
 /// The schedule the planner runs without a policy.
@@ -49,6 +62,14 @@ pub struct RuntimeOptions {
     pub seed: u64,
     /// Odometry older than the scan by more than this (s) is refused.
     pub max_odometry_age_s: f64,
+    /// Odometry stamped after the scan by more than this (s) is refused: the two clocks
+    /// disagree (odometry newer than the scan by a little is usual: it arrives more often).
+    pub max_odometry_lead_s: f64,
+    /// The laser's pose in the base frame (m, m, rad); the origin for a laser at the base
+    /// origin facing the heading. Off the origin, each scan is re-projected to the base
+    /// origin: each return moved into the base frame and kept in the base-centred beam
+    /// nearest its bearing, the nearest winning.
+    pub laser_pose: Pose,
     /// A goal farther than this from the robot (m) is refused: it bounds the costmap
     /// ([`crate::envelope`]).
     pub max_goal_distance_m: f64,
@@ -56,11 +77,17 @@ pub struct RuntimeOptions {
     /// drivers publish beams without one. `false` refuses a scan with a NaN range, reads
     /// `+inf` as no return and `-inf` as the lidar's min range.
     pub nan_as_no_return: bool,
+    /// Whether a policy runs under a planner or speed cap other than those its card records
+    /// (`trained_for`), or with a card that records none. `false` (the default) refuses
+    /// them, naming both sides: a policy chose schedules for one planner at one speed, and
+    /// is untested under others. `true` is for transfer experiments.
+    pub allow_policy_mismatch: bool,
 }
 
 impl RuntimeOptions {
     /// `planner` at `max_speed` on DDP, seed 0, odometry at most 0.1 s old, goals at most
-    /// 50 m away, NaN and infinite ranges read as no return.
+    /// 50 m away, NaN and infinite ranges read as no return, a policy trained for another
+    /// planner or speed refused, the laser at the base origin.
     pub fn new(planner: PlannerKind, max_speed: f64) -> Self {
         Self {
             planner,
@@ -68,8 +95,11 @@ impl RuntimeOptions {
             fixed: FixedSchedule::Ddp,
             seed: 0,
             max_odometry_age_s: DEFAULT_MAX_ODOMETRY_AGE_S,
+            max_odometry_lead_s: DEFAULT_MAX_ODOMETRY_AGE_S,
+            laser_pose: Pose::new(0.0, 0.0, 0.0),
             max_goal_distance_m: DEFAULT_MAX_GOAL_DISTANCE_M,
             nan_as_no_return: true,
+            allow_policy_mismatch: false,
         }
     }
 
@@ -94,6 +124,26 @@ impl RuntimeOptions {
             return Err(format!(
                 "max_odometry_age_s = {} must be >= 0",
                 self.max_odometry_age_s
+            ));
+        }
+        if self.max_odometry_lead_s.is_nan() || self.max_odometry_lead_s < 0.0 {
+            return Err(format!(
+                "max_odometry_lead_s = {} must be >= 0",
+                self.max_odometry_lead_s
+            ));
+        }
+        let l = self.laser_pose;
+        if !(l.x.abs() <= MAX_LASER_OFFSET_M && l.y.abs() <= MAX_LASER_OFFSET_M) {
+            return Err(format!(
+                "[lidar] x = {}, y = {}: the laser's mount must be within {MAX_LASER_OFFSET_M} m \
+                 of the base origin",
+                l.x, l.y
+            ));
+        }
+        if l.yaw.is_nan() || l.yaw.abs() > std::f64::consts::TAU {
+            return Err(format!(
+                "[lidar] yaw_deg = {}: must be within +-360",
+                l.yaw.to_degrees()
             ));
         }
         Ok(())
@@ -128,11 +178,33 @@ struct RuntimeFile {
     seed: u64,
     #[serde(default = "default_max_odometry_age_s")]
     max_odometry_age_s: f64,
+    #[serde(default = "default_max_odometry_age_s")]
+    max_odometry_lead_s: f64,
     #[serde(default = "default_max_goal_distance_m")]
     max_goal_distance_m: f64,
     #[serde(default = "default_true")]
     nan_as_no_return: bool,
+    #[serde(default)]
+    allow_policy_mismatch: bool,
     settings: Option<PathBuf>,
+    #[serde(default)]
+    lidar: LidarTable,
+}
+
+/// The `[lidar]` table: the robot's laser.
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct LidarTable {
+    beams: Option<usize>,
+    fov_deg: Option<f64>,
+    min_range: Option<f64>,
+    max_range: Option<f64>,
+    #[serde(default)]
+    x: f64,
+    #[serde(default)]
+    y: f64,
+    #[serde(default)]
+    yaw_deg: f64,
 }
 
 /// What a configuration file (see the module docs) sets: the evaluation settings, the
@@ -153,16 +225,24 @@ pub fn read(path: &Path) -> Result<(EvalConfig, RuntimeOptions, Option<LearnedPo
         fixed: file.fixed,
         seed: file.seed,
         max_odometry_age_s: file.max_odometry_age_s,
+        max_odometry_lead_s: file.max_odometry_lead_s,
+        laser_pose: Pose::new(file.lidar.x, file.lidar.y, file.lidar.yaw_deg.to_radians()),
         max_goal_distance_m: file.max_goal_distance_m,
         nan_as_no_return: file.nan_as_no_return,
+        allow_policy_mismatch: file.allow_policy_mismatch,
     };
     options.validate().map_err(config)?;
     let dir = path.parent().unwrap_or(Path::new("."));
     let settings_path = file.settings.map(|s| dir.join(s));
-    let settings = EvalConfig::load(settings_path.as_deref()).map_err(|e| RuntimeError::Config {
+    let mut settings = EvalConfig::load(settings_path.as_deref()).map_err(|e| RuntimeError::Config {
         origin: origin.clone(),
         message: format!("settings: {e}"),
     })?;
+    let (table, lidar) = (&file.lidar, &mut settings.episode.lidar);
+    lidar.beams = table.beams.unwrap_or(lidar.beams);
+    lidar.fov_deg = table.fov_deg.unwrap_or(lidar.fov_deg);
+    lidar.min_range = table.min_range.unwrap_or(lidar.min_range);
+    lidar.max_range = table.max_range.unwrap_or(lidar.max_range);
     let policy = file.policy.map(|p| load_policy(&dir.join(p))).transpose()?;
     Ok((settings, options, policy))
 }

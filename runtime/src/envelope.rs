@@ -17,7 +17,8 @@
 //! * **Speeds**: `max_speed` is at most the robot's `[episode.robot] max_v`, which is at most
 //!   [`MAX_SPEED_MPS`]; the planners' local maps scale with it. A measured velocity of any
 //!   finite size is accepted: the command is clamped (below).
-//! * **The lidar** has at most [`MAX_BEAMS`] beams.
+//! * **The lidar** has at most [`MAX_BEAMS`] beams, mounted at most [`MAX_LASER_OFFSET_M`]
+//!   from the base origin in x and y, its yaw at most 2 pi.
 //!
 //! The planner tables of the settings file (sample counts, map resolutions) are trusted as
 //! `adp eval` trusts them.
@@ -51,6 +52,9 @@ pub const MAX_TURN_RATE_RADPS: f64 = 10.0;
 
 /// Most lidar beams.
 pub const MAX_BEAMS: usize = 20_000;
+
+/// Largest |x| or |y| of the laser's mount on the base (m).
+pub const MAX_LASER_OFFSET_M: f64 = 5.0;
 
 /// Most cells of the robot's costmap (about 60 MB with the global search's buffers).
 pub const MAX_COSTMAP_CELLS: f64 = 4_194_304.0;
@@ -141,7 +145,7 @@ pub(crate) fn check_settings(
     }
     if beams > MAX_BEAMS {
         return Err(format!(
-            "[episode.lidar] beams = {beams} exceeds the runtime's limit of {MAX_BEAMS}"
+            "[lidar] beams = {beams} exceeds the runtime's limit of {MAX_BEAMS}"
         ));
     }
     let cells = costmap_cells(costmap, max_goal_distance_m);

@@ -5,8 +5,10 @@
 //! one fixed frame of the caller's (`map` or `odom`: the frame its localization reports);
 //! yaw is counter-clockwise from that frame's x axis; velocities are in the robot's frame (v
 //! forward, w counter-clockwise). The scan is in the robot's frame, its beams in the order of
-//! increasing angle of the configured lidar (`[episode.lidar]`: `beams` over `fov_deg`,
-//! centred on the heading).
+//! increasing angle of the configured lidar (`[lidar]`: `beams` over `fov_deg`, centred on
+//! the laser's heading; the laser at its mount, `[lidar] x, y, yaw_deg`). The scan's stamp
+//! and the odometry's share one clock: odometry older than the scan by more than
+//! `max_odometry_age_s`, or newer by more than `max_odometry_lead_s`, is refused.
 
 use sim::geometry::{Pose, Vec2};
 use sim::robot::Twist;
@@ -61,7 +63,7 @@ pub(crate) fn check(
 ) -> Result<(), RuntimeError> {
     if input.ranges.len() != beams {
         return Err(RuntimeError::Scan(format!(
-            "{} ranges, but the configured lidar has {beams} beams ([episode.lidar] beams)",
+            "{} ranges, but the configured lidar has {beams} beams ([lidar] beams)",
             input.ranges.len()
         )));
     }
@@ -104,6 +106,13 @@ pub(crate) fn check(
         return Err(RuntimeError::Odometry(format!(
             "{age:.3} s older than the scan; at most {} s (max_odometry_age_s)",
             options.max_odometry_age_s
+        )));
+    }
+    if -age > options.max_odometry_lead_s {
+        return Err(RuntimeError::Odometry(format!(
+            "stamped {:.3} s after the scan; at most {} s (max_odometry_lead_s): the scan's and \
+             the odometry's clocks disagree",
+            -age, options.max_odometry_lead_s
         )));
     }
     if !(input.goal.x.is_finite() && input.goal.y.is_finite()) {
@@ -304,7 +313,7 @@ mod tests {
         let cases: Vec<(CycleInput<'_>, &str)> = vec![
             (
                 input(&[1.0, 1.0]),
-                "scan: 2 ranges, but the configured lidar has 3 beams ([episode.lidar] beams)",
+                "scan: 2 ranges, but the configured lidar has 3 beams ([lidar] beams)",
             ),
             (
                 CycleInput {
@@ -322,6 +331,14 @@ mod tests {
                     ..input(&ranges)
                 },
                 "odometry: 0.520 s older than the scan; at most 0.1 s (max_odometry_age_s)",
+            ),
+            (
+                CycleInput {
+                    stamp_s: 9.0,
+                    ..input(&ranges)
+                },
+                "odometry: stamped 0.980 s after the scan; at most 0.1 s (max_odometry_lead_s): \
+                 the scan's and the odometry's clocks disagree",
             ),
             (
                 CycleInput {

@@ -27,7 +27,9 @@
 //! * [`input`] states the inputs' units and frames and checks them.
 //! * [`envelope`] states the inputs and settings accepted (so no input aborts the process or
 //!   makes a cycle unbounded) and the limits every command is clamped to.
-//! * [`config`] reads the runtime's configuration file.
+//! * [`config`] reads the runtime's configuration file: the planner, the policy, the
+//!   robot's laser (any beam count and field of view; mounted anywhere on the base, its
+//!   scans re-projected to the base origin).
 //! * [`RuntimeError`] names what was refused (or the panic caught); [`STOP`] is the command
 //!   to issue then.
 //! * [`sim_robot`] is a simulated robot: a BARN episode observed and driven as a robot is.
@@ -38,6 +40,7 @@ pub mod config;
 pub mod envelope;
 pub mod error;
 pub mod input;
+mod laser;
 pub mod navigator;
 pub mod sim_robot;
 

@@ -17,6 +17,7 @@ use crate::config::{FixedSchedule, RuntimeOptions};
 use crate::envelope::{self, CommandLimits};
 use crate::error::{guarded, RuntimeError};
 use crate::input::{check, CycleInput};
+use crate::laser::Reprojection;
 
 /// What one control cycle decided.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -72,6 +73,34 @@ struct Agent {
     out: Vec<f32>,
 }
 
+/// Refuses `policy` when its card records another planner or speed cap than `options`', or
+/// none (see [`RuntimeOptions::allow_policy_mismatch`]); the message names both sides.
+fn check_trained_for(policy: &LearnedPolicy, options: &RuntimeOptions) -> Result<(), RuntimeError> {
+    let card = policy.card_path.display();
+    let runtime = format!(
+        "{} at max_speed = {} m/s",
+        options.planner.name(),
+        options.max_speed
+    );
+    let allow = "(allow_policy_mismatch = true runs it anyway, for a transfer experiment)";
+    let Some(t) = policy.card.trained_for else {
+        return Err(RuntimeError::Policy(format!(
+            "policy {card}: its card does not record the planner and speed it was trained for \
+             (exported before they were recorded), so it cannot be checked against the \
+             runtime's {runtime}: re-export it with `adp export --planner P --max-speed S`, \
+             the [run] planner and max_speed of the run's config.toml {allow}"
+        )));
+    };
+    let trained = format!("{} at max_speed = {} m/s", t.planner.name(), t.max_speed);
+    if t.planner != options.planner || (t.max_speed - options.max_speed).abs() > 1e-9 {
+        return Err(RuntimeError::Policy(format!(
+            "policy {card}: trained for {trained}, but the runtime runs {runtime}: run the \
+             planner and speed it was trained for {allow}"
+        )));
+    }
+    Ok(())
+}
+
 /// One robot's local planner, costmap, global path and policy.
 ///
 /// Each [`Navigator::cycle`] takes one scan and odometry and returns the command: the cycle
@@ -110,6 +139,9 @@ pub struct Navigator {
     last: Twist,
     /// The checked scan of the current cycle.
     ranges: Vec<f64>,
+    /// The re-projection of a laser mounted off the base origin, and its output (the scan
+    /// at the base origin); `None` for a laser at the base origin.
+    mount: Option<(Reprojection, Vec<f64>)>,
     /// What every command is clamped to.
     limits: CommandLimits,
 }
@@ -153,6 +185,9 @@ impl Navigator {
                     p.env.observe_tracks
                 )));
             }
+            if !options.allow_policy_mismatch {
+                check_trained_for(p, &options)?;
+            }
             episode = episode.with_profile(p.env.profile, p.env.dynamics);
         }
         episode.validate().map_err(|e| config(format!("[episode] {e}")))?;
@@ -165,6 +200,8 @@ impl Navigator {
         )
         .map_err(config)?;
         let lidar = Lidar::new(episode.lidar);
+        let mount = (options.laser_pose != sim::geometry::Pose::default())
+            .then(|| (Reprojection::new(&lidar, options.laser_pose), Vec::new()));
         let compute = settings
             .compute
             .resolve(options.planner.name())
@@ -215,6 +252,7 @@ impl Navigator {
             periods: 0,
             last: Twist::default(),
             ranges: Vec::new(),
+            mount,
             limits: CommandLimits::new(&episode.robot, options.max_speed),
         })
     }
@@ -289,18 +327,25 @@ impl Navigator {
             self.start_run(input);
         }
         let odom = input.odom;
+        let ranges = match &mut self.mount {
+            Some((reprojection, base)) => {
+                reprojection.apply(&self.ranges, base);
+                base
+            }
+            None => &self.ranges,
+        };
         let nav = self.nav.as_mut().expect("a run has started");
         nav.update(
             &self.lidar,
             &Scan {
-                ranges: &self.ranges,
+                ranges,
                 pose: odom.pose,
                 speed: odom.vel.v,
                 time: input.stamp_s,
             },
             input.global_path,
         );
-        let perception = nav.perception(&self.ranges, odom.vel, &odom.pose);
+        let perception = nav.perception(ranges, odom.vel, &odom.pose);
         let mut agent_step = false;
         if let Some(a) = &mut self.agent {
             if self.periods.is_multiple_of(a.agent_period) {

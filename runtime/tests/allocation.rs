@@ -55,7 +55,12 @@ fn allocations(kind: PlannerKind, with_policy: bool, w: usize, warm: usize, n: u
         )))
         .unwrap()
     });
-    let mut nav = Navigator::new(&cfg, RuntimeOptions::new(kind, 1.5), policy).unwrap();
+    // The example policy was trained for DWA; every planner's cycle is counted with it.
+    let options = RuntimeOptions {
+        allow_policy_mismatch: true,
+        ..RuntimeOptions::new(kind, 1.5)
+    };
+    let mut nav = Navigator::new(&cfg, options, policy).unwrap();
     let world = &sim::catalog::barn_worlds()[w];
     let mut ep = Episode::new(world, *nav.episode(), 1);
     let mut counted = 0;

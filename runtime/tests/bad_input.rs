@@ -49,7 +49,7 @@ fn each_bad_input_is_refused_with_a_stop_and_loses_nothing() {
             (
                 input(short_scan, *odom, *goal),
                 format!(
-                    "scan: {} ranges, but the configured lidar has {} beams ([episode.lidar] beams)",
+                    "scan: {} ranges, but the configured lidar has {} beams ([lidar] beams)",
                     ranges.len() - 1,
                     ranges.len()
                 ),
@@ -140,7 +140,8 @@ fn a_configuration_file_builds_a_navigator_and_bad_keys_are_named() {
     let dir = fresh_dir("runtime-config");
     let policy = policy_dir();
     let good = format!(
-        "planner = \"mppi\"\nmax_speed = 2.0\npolicy = \"{}\"\nseed = 4\n",
+        "planner = \"mppi\"\nmax_speed = 2.0\npolicy = \"{}\"\nseed = 4\n\
+         allow_policy_mismatch = true\n",
         policy.display()
     );
     std::fs::write(dir.join("runtime.toml"), good).unwrap();
@@ -178,4 +179,78 @@ fn a_new_goal_starts_a_new_run() {
     assert!(other.agent_step);
     assert_eq!(nav.nav().unwrap().goal(), moved);
     assert_eq!(nav.cycle(&input(ranges, *odom, *goal)).unwrap(), first);
+}
+
+#[test]
+fn a_policy_trained_for_another_planner_or_speed_is_refused_naming_both() {
+    let cfg = EvalConfig::load(None).unwrap();
+    let card = policy_dir().join("policy.json");
+    let refused = |options: RuntimeOptions, policy| {
+        Navigator::new(&cfg, options, Some(policy))
+            .err()
+            .expect("refused")
+            .to_string()
+    };
+    let allow = "(allow_policy_mismatch = true runs it anyway, for a transfer experiment)";
+    // The example policy was trained for DWA at 1.5 m/s.
+    assert_eq!(
+        refused(
+            RuntimeOptions::new(PlannerKind::Mppi, 1.5),
+            load_policy(&policy_dir()).unwrap()
+        ),
+        format!(
+            "policy {}: trained for dwa at max_speed = 1.5 m/s, but the runtime runs mppi at \
+             max_speed = 1.5 m/s: run the planner and speed it was trained for {allow}",
+            card.display()
+        )
+    );
+    let err = refused(
+        RuntimeOptions::new(PlannerKind::Dwa, 2.0),
+        load_policy(&policy_dir()).unwrap(),
+    );
+    assert!(
+        err.contains("trained for dwa at max_speed = 1.5 m/s, but the runtime runs dwa at max_speed = 2 m/s"),
+        "{err}"
+    );
+    // A card from before the planner was recorded: refused, with the way to re-export it.
+    let mut old = load_policy(&policy_dir()).unwrap();
+    old.card.trained_for = None;
+    let err = refused(RuntimeOptions::new(PlannerKind::Dwa, 1.5), old);
+    assert!(
+        err.contains("does not record the planner and speed it was trained for")
+            && err.contains("adp export --planner P --max-speed S")
+            && err.contains("runtime's dwa at max_speed = 1.5 m/s"),
+        "{err}"
+    );
+    // Allowed for a transfer experiment; the matching runtime needs no allowance.
+    let transfer = RuntimeOptions {
+        allow_policy_mismatch: true,
+        ..RuntimeOptions::new(PlannerKind::Mppi, 1.5)
+    };
+    let nav = Navigator::new(&cfg, transfer, Some(load_policy(&policy_dir()).unwrap())).unwrap();
+    assert_eq!(nav.planner(), PlannerKind::Mppi);
+    assert!(Navigator::new(
+        &cfg,
+        RuntimeOptions::new(PlannerKind::Dwa, 1.5),
+        Some(load_policy(&policy_dir()).unwrap())
+    )
+    .is_ok());
+    // Through a configuration file: the same refusal, and the key that allows it.
+    let dir = fresh_dir("runtime-trained-for");
+    let body = format!(
+        "planner = \"system\"\nmax_speed = 1.5\npolicy = \"{}\"\n",
+        policy_dir().display()
+    );
+    std::fs::write(dir.join("system.toml"), &body).unwrap();
+    let err = Navigator::from_file(&dir.join("system.toml"))
+        .err()
+        .expect("refused")
+        .to_string();
+    assert!(
+        err.contains("but the runtime runs system at max_speed = 1.5 m/s"),
+        "{err}"
+    );
+    std::fs::write(dir.join("allowed.toml"), body + "allow_policy_mismatch = true\n").unwrap();
+    assert!(Navigator::from_file(&dir.join("allowed.toml")).is_ok());
+    let _ = std::fs::remove_dir_all(&dir);
 }

@@ -2,7 +2,7 @@
 
 use layout::{LaserLayout, DEFAULT_LASER_CLIP_M, MAX_OBSERVED_TRACKS, MAX_SECTORS};
 use serde::{Deserialize, Serialize};
-use settings::ActionSpace;
+use settings::{ActionSpace, PlannerKind};
 use thiserror::Error;
 
 use super::onnx::{INPUT_NAME, OPSET, OUTPUT_NAME};
@@ -34,6 +34,21 @@ pub struct PolicyCard {
     /// defaults applied).
     #[serde(default)]
     pub environment: serde_json::Value,
+    /// The planner and speed cap the policy was trained with; absent from cards written
+    /// before they were recorded (and from an `adp export` not told them).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub trained_for: Option<TrainedFor>,
+}
+
+/// What a policy was trained for besides its action space (`action.space`) and observation
+/// (`observation`, `environment`): the planner whose schedule it chose and the runs' speed cap.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TrainedFor {
+    /// The planner (`dwa`, `mppi`, `log-mppi`, `system`).
+    pub planner: PlannerKind,
+    /// The speed cap of the training runs (m/s): the `[run] max_speed` of its configuration.
+    pub max_speed: f64,
 }
 
 /// Name and version of the exporting software.
@@ -397,6 +412,7 @@ impl PolicyCard {
                 ddp_physical,
             },
             environment: environment.clone(),
+            trained_for: None,
         })
     }
 }

@@ -30,7 +30,7 @@ use thiserror::Error;
 
 pub use card::{
     observation_layout, space_name, ActionCard, ActionDimension, CardError, CardMismatch, NetworkCard,
-    ObservationLayout, ObservationSegment, PolicyCard, Software, Source,
+    ObservationLayout, ObservationSegment, PolicyCard, Software, Source, TrainedFor,
 };
 pub use onnx::{actor_onnx, BATCH_DIM, INPUT_NAME, IR_VERSION, OPSET, OUTPUT_NAME};
 pub use weights::{actor_safetensors, read_actor_safetensors, WeightsError};
@@ -82,6 +82,15 @@ pub enum ExportError {
         expected: usize,
         /// The number given.
         got: usize,
+    },
+    /// The card of an export directory cannot be read back.
+    #[error("export {}: {what}", path.display())]
+    Card {
+        /// The card.
+        path: PathBuf,
+        /// Why it was not read.
+        #[source]
+        what: CardError,
     },
     /// The safetensors encoder refused the weights.
     #[error("export {path}: cannot encode safetensors: {message}")]
@@ -212,6 +221,28 @@ fn export(
         files.push((path, data.len() as u64));
     }
     Ok(ExportSummary { files, card })
+}
+
+/// Records in the card of the export directory `dir` what the policy was trained for (the
+/// trainer's export knows only the checkpoint, so `adp train` and `adp export` add the run's
+/// planner and speed cap after it): rewrites [`JSON_FILE`] with `trained_for` set, leaving
+/// the weights alone. Returns the card written.
+pub fn record_trained_for(dir: &Path, trained_for: TrainedFor) -> Result<PolicyCard, ExportError> {
+    let path = dir.join(JSON_FILE);
+    let text = std::fs::read_to_string(&path).map_err(|source| ExportError::Io {
+        op: "read",
+        path: path.clone(),
+        source,
+    })?;
+    let mut card = PolicyCard::parse(&text).map_err(|what| ExportError::Card {
+        path: path.clone(),
+        what,
+    })?;
+    card.trained_for = Some(trained_for);
+    let mut json = serde_json::to_vec_pretty(&card).expect("the card serializes");
+    json.push(b'\n');
+    write_file(&path, &json)?;
+    Ok(card)
 }
 
 #[cfg(test)]
@@ -504,6 +535,24 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("weights do not fit") && e.contains("ckpt"), "{e}");
+        // The card says nothing of the planner until told; once told, it reads back, the
+        // weights untouched.
+        assert_eq!(summary.card.trained_for, None);
+        let trained_for = TrainedFor {
+            planner: settings::PlannerKind::Mppi,
+            max_speed: 1.5,
+        };
+        let card = record_trained_for(&out, trained_for).unwrap();
+        let text = std::fs::read_to_string(out.join(JSON_FILE)).unwrap();
+        assert!(
+            text.contains("\"trained_for\"") && text.contains("\"mppi\""),
+            "{text}"
+        );
+        assert_eq!(PolicyCard::parse(&text).unwrap(), card);
+        assert_eq!(card.trained_for, Some(trained_for));
+        assert_eq!(std::fs::read(out.join(SAFETENSORS_FILE)).unwrap(), bytes);
+        let e = record_trained_for(&dir, trained_for).unwrap_err().to_string();
+        assert!(e.contains("read") && e.contains(JSON_FILE), "{e}");
         std::fs::remove_dir_all(&dir).unwrap();
     }
 
