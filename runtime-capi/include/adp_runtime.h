@@ -29,6 +29,9 @@ typedef enum AdpStatus {
   // A defect inside the library (a panic, caught); the message says where. The navigator
   // stays usable: its next cycle starts a fresh run.
   ADP_STATUS_INTERNAL = 8,
+  // The handle is not a live one: already freed, never made by this library, or a handle
+  // of the other kind.
+  ADP_STATUS_HANDLE = 9,
 } AdpStatus;
 
 // How a simulated run stands.
@@ -43,10 +46,12 @@ typedef enum AdpRunStatus {
   ADP_RUN_STATUS_TIMED_OUT = 3,
 } AdpRunStatus;
 
-// A navigator: a planner, its costmap and path, and its policy. Opaque.
+// A navigator: a planner, its costmap and path, and its policy. Opaque: its handle is a
+// token the library looks up among its live handles, never a pointer it dereferences.
 typedef struct AdpNavigator AdpNavigator;
 
-// A simulated BARN world for testing an integration without a robot. Opaque.
+// A simulated BARN world for testing an integration without a robot. Opaque, as
+// [`AdpNavigator`].
 typedef struct AdpSim AdpSim;
 
 // A pose in the fixed frame.
@@ -135,10 +140,11 @@ extern "C" {
 // the message in `err` (`err_len` bytes; may be null).
 struct AdpNavigator *adp_navigator_from_file(const char *path, char *err, size_t err_len);
 
-// Frees a navigator (null is ignored).
-void adp_navigator_free(struct AdpNavigator *nav);
+// Frees a navigator. Null is ignored ([`AdpStatus::Ok`]); a handle that is not live (freed
+// already) gets [`AdpStatus::Handle`] and changes nothing.
+enum AdpStatus adp_navigator_free(struct AdpNavigator *nav);
 
-// The beam count the navigator's scans must have (0 for null).
+// The beam count the navigator's scans must have (0 for a handle that is not live).
 size_t adp_navigator_beams(const struct AdpNavigator *nav);
 
 // Runs one control cycle: reads `input`, writes the decision into `out`. On error `out`'s
@@ -158,21 +164,22 @@ struct AdpSim *adp_sim_new(const struct AdpNavigator *nav,
                            char *err,
                            size_t err_len);
 
-// Frees a simulated run (null is ignored).
-void adp_sim_free(struct AdpSim *sim);
+// Frees a simulated run, as [`adp_navigator_free`] frees a navigator.
+enum AdpStatus adp_sim_free(struct AdpSim *sim);
 
 // Fills `input` with the simulated robot's current scan (pointing into the run, valid until
 // the next [`adp_sim_step`] or [`adp_sim_free`]), believed pose, velocity and goal. Returns
-// false for a null argument.
+// false for a null `input` or a handle that is not live.
 bool adp_sim_observe(const struct AdpSim *sim, struct AdpCycleInput *input);
 
 // Simulates one control period with the cycle's decision `out` (its command after the
 // modelled compute, or the last command while the planner holds). Returns the run's status
-// (`Running` for a null argument, which does nothing).
+// (`Running` for a null `out` or a handle that is not live, which does nothing).
 enum AdpRunStatus adp_sim_step(struct AdpSim *sim, const struct AdpCycleOutput *out);
 
 // The simulated run's time on the BARN clock (s) and its BARN score (0 unless it
-// succeeded) through the out-pointers (each may be null).
+// succeeded) through the out-pointers (each may be null; nothing is written for a handle
+// that is not live).
 void adp_sim_result(const struct AdpSim *sim, double *time_s, double *score);
 
 #ifdef __cplusplus

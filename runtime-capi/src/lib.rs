@@ -1,5 +1,7 @@
-//! The ADP runtime as a C library (`libadp_runtime_c.so`, header `include/adp_runtime.h`,
-//! generated from this file by cbindgen).
+//! The ADP runtime as a C library: `libadp_runtime.so` once installed
+//! (`runtime-capi/install.sh`: the stripped library with its SONAME `libadp_runtime.so.0`,
+//! the header `include/adp_runtime.h`, generated from this file by cbindgen, and the
+//! pkg-config file `adp_runtime.pc`); cargo builds it as `libadp_runtime_c.so`.
 //!
 //! A robot stack builds one `AdpNavigator` from a runtime configuration file and calls
 //! [`adp_navigator_cycle`] once per control period with its scan, odometry and goal; it gets
@@ -14,9 +16,16 @@
 //! a `max_speed` over the robot's `max_v`, ...) are refused, so no input aborts the process;
 //! every command is inside the configured speed and turn limits.
 //!
+//! Handles: an `AdpNavigator *` or `AdpSim *` is an opaque token, never a pointer the
+//! library dereferences. Every call looks it up among the live handles first, so a handle
+//! used after [`adp_navigator_free`] (or freed twice, or never made by the library, or one
+//! kind passed for the other) gets [`AdpStatus::Handle`] and a stop, never undefined
+//! behaviour. Tokens are never reused (a 64-bit counter; 2^28 handles on a 32-bit target).
+//!
 //! Threads: a handle may be used from any thread and shared between threads (each call
-//! locks it); calls on one handle are serialized. A panic inside the library never crosses
-//! into C: it is reported as [`AdpStatus::Internal`] with a stop.
+//! locks it); calls on one handle are serialized, and a free while another thread's call
+//! runs takes effect when that call returns. A panic inside the library never crosses into
+//! C: it is reported as [`AdpStatus::Internal`] with a stop.
 //!
 //! For testing an integration without a robot, `AdpSim` runs a BARN world: its scan and
 //! odometry go into the navigator and the command comes back into it.
@@ -26,10 +35,12 @@
 // them; the raw-pointer arguments are the C ABI itself.
 #![allow(clippy::missing_safety_doc)]
 
+use std::collections::BTreeMap;
 use std::ffi::{c_char, CStr};
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::path::Path;
-use std::sync::Mutex;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex, MutexGuard};
 
 use adp_runtime::{sim_robot, CycleInput, CycleOutput, Navigator, Odometry, RuntimeError};
 use sim::episode::{Episode, Status};
@@ -60,6 +71,9 @@ pub enum AdpStatus {
     /// A defect inside the library (a panic, caught); the message says where. The navigator
     /// stays usable: its next cycle starts a fresh run.
     Internal = 8,
+    /// The handle is not a live one: already freed, never made by this library, or a handle
+    /// of the other kind.
+    Handle = 9,
 }
 
 impl From<&RuntimeError> for AdpStatus {
@@ -184,11 +198,77 @@ impl From<&CycleOutput> for AdpCycleOutput {
     }
 }
 
-/// A navigator: a planner, its costmap and path, and its policy. Opaque.
-pub struct AdpNavigator(Mutex<Navigator>);
+/// A navigator: a planner, its costmap and path, and its policy. Opaque: its handle is a
+/// token the library looks up among its live handles, never a pointer it dereferences.
+pub struct AdpNavigator {
+    _opaque: [u8; 0],
+}
 
-/// A simulated BARN world for testing an integration without a robot. Opaque.
-pub struct AdpSim(Mutex<Episode<'static>>);
+/// A simulated BARN world for testing an integration without a robot. Opaque, as
+/// [`AdpNavigator`].
+pub struct AdpSim {
+    _opaque: [u8; 0],
+}
+
+/// The next handle token: tokens step by 16 from 16, so no handle is null or reused, and
+/// navigators and simulated runs share the sequence (one kind's token is never the other's).
+static NEXT_HANDLE: AtomicUsize = AtomicUsize::new(16);
+
+/// The live objects of one kind, by handle token, and the kind's name for messages.
+struct Live<T> {
+    name: &'static str,
+    table: Mutex<BTreeMap<usize, Arc<Mutex<T>>>>,
+}
+
+impl<T> Live<T> {
+    const fn new(name: &'static str) -> Self {
+        Self {
+            name,
+            table: Mutex::new(BTreeMap::new()),
+        }
+    }
+
+    fn table(&self) -> MutexGuard<'_, BTreeMap<usize, Arc<Mutex<T>>>> {
+        lock(&self.table)
+    }
+
+    /// Registers `value` under a fresh token.
+    fn insert(&self, value: T) -> usize {
+        let token = NEXT_HANDLE.fetch_add(16, Ordering::Relaxed);
+        self.table().insert(token, Arc::new(Mutex::new(value)));
+        token
+    }
+
+    /// The object of `token`, when it is live (it stays alive while the caller holds it,
+    /// even if another thread frees the handle meanwhile).
+    fn get(&self, token: usize) -> Result<Arc<Mutex<T>>, (AdpStatus, String)> {
+        self.table().get(&token).cloned().ok_or_else(|| self.dead(token))
+    }
+
+    /// Unregisters `token`'s object (dropped once no call holds it).
+    fn remove(&self, token: usize) -> Result<(), (AdpStatus, String)> {
+        let removed = self.table().remove(&token);
+        removed.map(drop).ok_or_else(|| self.dead(token))
+    }
+
+    /// The error for `token`, which is not live: null is [`AdpStatus::Argument`].
+    fn dead(&self, token: usize) -> (AdpStatus, String) {
+        let name = self.name;
+        if token == 0 {
+            return argument(&format!("{name} is null"));
+        }
+        (
+            AdpStatus::Handle,
+            format!(
+                "{name} handle {token:#x} is not live: already freed, never made by this \
+                 library, or a handle of the other kind"
+            ),
+        )
+    }
+}
+
+static NAVIGATORS: Live<Navigator> = Live::new("navigator");
+static SIMS: Live<Episode<'static>> = Live::new("simulated run");
 
 /// Writes `message` into the caller's buffer `err` of `len` bytes, NUL-terminated and
 /// truncated to fit (nothing when `err` is null or `len` is 0).
@@ -236,7 +316,7 @@ pub unsafe extern "C" fn adp_navigator_from_file(
         Navigator::from_file(Path::new(path)).map_err(|e| ((&e).into(), e.to_string()))
     });
     match built {
-        Ok(nav) => Box::into_raw(Box::new(AdpNavigator(Mutex::new(nav)))),
+        Ok(nav) => NAVIGATORS.insert(nav) as *mut AdpNavigator,
         Err((_, message)) => {
             write_error(err, err_len, &message);
             std::ptr::null_mut()
@@ -244,26 +324,33 @@ pub unsafe extern "C" fn adp_navigator_from_file(
     }
 }
 
-/// Frees a navigator (null is ignored).
+/// Frees a navigator. Null is ignored ([`AdpStatus::Ok`]); a handle that is not live (freed
+/// already) gets [`AdpStatus::Handle`] and changes nothing.
 #[no_mangle]
-pub unsafe extern "C" fn adp_navigator_free(nav: *mut AdpNavigator) {
-    if !nav.is_null() {
-        drop(Box::from_raw(nav));
+pub extern "C" fn adp_navigator_free(nav: *mut AdpNavigator) -> AdpStatus {
+    free(&NAVIGATORS, nav as usize)
+}
+
+/// Unregisters `token` from `live`: null is fine, a dead token is [`AdpStatus::Handle`].
+fn free<T>(live: &Live<T>, token: usize) -> AdpStatus {
+    if token == 0 {
+        return AdpStatus::Ok;
+    }
+    match guarded(|| live.remove(token)) {
+        Ok(()) => AdpStatus::Ok,
+        Err((status, _)) => status,
     }
 }
 
-/// The beam count the navigator's scans must have (0 for null).
+/// The beam count the navigator's scans must have (0 for a handle that is not live).
 #[no_mangle]
-pub unsafe extern "C" fn adp_navigator_beams(nav: *const AdpNavigator) -> usize {
-    match nav.as_ref() {
-        Some(n) => lock(&n.0).lidar().angles().len(),
-        None => 0,
-    }
+pub extern "C" fn adp_navigator_beams(nav: *const AdpNavigator) -> usize {
+    guarded(|| Ok(lock(&*NAVIGATORS.get(nav as usize)?).lidar().angles().len())).unwrap_or(0)
 }
 
 /// Locks a handle, recovering it when an earlier call panicked while holding it (the
 /// navigator validates every input before changing state, so it stays usable).
-fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
     m.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
 }
 
@@ -278,7 +365,7 @@ pub unsafe extern "C" fn adp_navigator_cycle(
     err_len: usize,
 ) -> AdpStatus {
     let result = guarded(|| {
-        let nav = nav.as_ref().ok_or_else(|| argument("navigator is null"))?;
+        let nav = NAVIGATORS.get(nav as usize)?;
         let i = input.as_ref().ok_or_else(|| argument("input is null"))?;
         if i.ranges.is_null() && i.n_ranges > 0 {
             return Err(argument("ranges is null"));
@@ -307,9 +394,8 @@ pub unsafe extern "C" fn adp_navigator_cycle(
             goal: Vec2::new(i.goal.x, i.goal.y),
             global_path: path,
         };
-        lock(&nav.0)
-            .cycle(&cycle)
-            .map_err(|e| ((&e).into(), e.to_string()))
+        let decided = lock(&nav).cycle(&cycle);
+        decided.map_err(|e| ((&e).into(), e.to_string()))
     });
     let (status, decided) = match result {
         Ok(o) => (AdpStatus::Ok, AdpCycleOutput::from(&o)),
@@ -336,7 +422,7 @@ pub unsafe extern "C" fn adp_sim_new(
     err_len: usize,
 ) -> *mut AdpSim {
     let built = guarded(|| {
-        let nav = nav.as_ref().ok_or_else(|| argument("navigator is null"))?;
+        let nav = NAVIGATORS.get(nav as usize)?;
         let worlds = sim::catalog::barn_worlds();
         let w = worlds.get(world as usize).ok_or_else(|| {
             argument(&format!(
@@ -344,11 +430,11 @@ pub unsafe extern "C" fn adp_sim_new(
                 worlds.len() - 1
             ))
         })?;
-        let cfg = *lock(&nav.0).episode();
+        let cfg = *lock(&nav).episode();
         Ok(Episode::new(w, cfg, seed))
     });
     match built {
-        Ok(ep) => Box::into_raw(Box::new(AdpSim(Mutex::new(ep)))),
+        Ok(ep) => SIMS.insert(ep) as *mut AdpSim,
         Err((_, message)) => {
             write_error(err, err_len, &message);
             std::ptr::null_mut()
@@ -356,23 +442,21 @@ pub unsafe extern "C" fn adp_sim_new(
     }
 }
 
-/// Frees a simulated run (null is ignored).
+/// Frees a simulated run, as [`adp_navigator_free`] frees a navigator.
 #[no_mangle]
-pub unsafe extern "C" fn adp_sim_free(sim: *mut AdpSim) {
-    if !sim.is_null() {
-        drop(Box::from_raw(sim));
-    }
+pub extern "C" fn adp_sim_free(sim: *mut AdpSim) -> AdpStatus {
+    free(&SIMS, sim as usize)
 }
 
 /// Fills `input` with the simulated robot's current scan (pointing into the run, valid until
 /// the next [`adp_sim_step`] or [`adp_sim_free`]), believed pose, velocity and goal. Returns
-/// false for a null argument.
+/// false for a null `input` or a handle that is not live.
 #[no_mangle]
 pub unsafe extern "C" fn adp_sim_observe(sim: *const AdpSim, input: *mut AdpCycleInput) -> bool {
-    let (Some(sim), Some(input)) = (sim.as_ref(), input.as_mut()) else {
+    let (Ok(sim), Some(input)) = (SIMS.get(sim as usize), input.as_mut()) else {
         return false;
     };
-    let ep = lock(&sim.0);
+    let ep = lock(&sim);
     let seen = sim_robot::observe(&ep);
     let (pose, vel, goal) = (seen.odom.pose, seen.odom.vel, seen.goal);
     *input = AdpCycleInput {
@@ -409,13 +493,13 @@ pub enum AdpRunStatus {
 
 /// Simulates one control period with the cycle's decision `out` (its command after the
 /// modelled compute, or the last command while the planner holds). Returns the run's status
-/// (`Running` for a null argument, which does nothing).
+/// (`Running` for a null `out` or a handle that is not live, which does nothing).
 #[no_mangle]
 pub unsafe extern "C" fn adp_sim_step(sim: *mut AdpSim, out: *const AdpCycleOutput) -> AdpRunStatus {
-    let (Some(sim), Some(out)) = (sim.as_ref(), out.as_ref()) else {
+    let (Ok(sim), Some(out)) = (SIMS.get(sim as usize), out.as_ref()) else {
         return AdpRunStatus::Running;
     };
-    let mut ep = lock(&sim.0);
+    let mut ep = lock(&sim);
     let cmd = Twist::new(out.command.v, out.command.w);
     let compute_s = out.has_compute.then_some(out.compute_s);
     match sim_robot::apply(&mut ep, cmd, out.planned, compute_s) {
@@ -427,13 +511,14 @@ pub unsafe extern "C" fn adp_sim_step(sim: *mut AdpSim, out: *const AdpCycleOutp
 }
 
 /// The simulated run's time on the BARN clock (s) and its BARN score (0 unless it
-/// succeeded) through the out-pointers (each may be null).
+/// succeeded) through the out-pointers (each may be null; nothing is written for a handle
+/// that is not live).
 #[no_mangle]
 pub unsafe extern "C" fn adp_sim_result(sim: *const AdpSim, time_s: *mut f64, score: *mut f64) {
-    let Some(sim) = sim.as_ref() else {
+    let Ok(sim) = SIMS.get(sim as usize) else {
         return;
     };
-    let r = lock(&sim.0).result();
+    let r = lock(&sim).result();
     if let Some(t) = time_s.as_mut() {
         *t = r.time_s;
     }

@@ -1,5 +1,7 @@
 //! The C functions called from Rust: errors come back as a status, a message and a stop;
-//! null pointers are refused, never dereferenced; a refused cycle changes nothing.
+//! null pointers are refused, never dereferenced; a refused cycle changes nothing; a handle
+//! used after it was freed, freed twice or of the other kind is a status, never undefined
+//! behaviour.
 
 use std::ffi::{c_char, CStr, CString};
 use std::path::Path;
@@ -151,7 +153,44 @@ fn a_handle_is_shared_between_threads() {
             });
         }
     });
-    unsafe { adp_navigator_free(nav) };
+    assert_eq!(adp_navigator_free(nav), AdpStatus::Ok);
+}
+
+#[test]
+fn a_free_while_another_thread_cycles_ends_that_threads_calls_with_a_status() {
+    let mut err = [0 as c_char; 256];
+    let nav = unsafe { adp_navigator_from_file(config().as_ptr(), err.as_mut_ptr(), err.len()) };
+    struct Shared(*mut AdpNavigator);
+    unsafe impl Send for Shared {}
+    unsafe impl Sync for Shared {}
+    let shared = &Shared(nav);
+    let (started_tx, started) = std::sync::mpsc::channel();
+    std::thread::scope(|s| {
+        let cycling = s.spawn(move || unsafe {
+            let nav = shared.0;
+            let mut err = [0 as c_char; 256];
+            let sim = adp_sim_new(nav, 3, 0, err.as_mut_ptr(), err.len());
+            let mut input = std::mem::zeroed();
+            adp_sim_observe(sim, &mut input);
+            let mut answered = 0;
+            loop {
+                let mut out = AdpCycleOutput::default();
+                match adp_navigator_cycle(nav, &input, &mut out, err.as_mut_ptr(), err.len()) {
+                    AdpStatus::Ok => answered += 1,
+                    AdpStatus::Handle => break,
+                    other => panic!("{other:?}: {}", message(&err)),
+                }
+                if answered == 1 {
+                    started_tx.send(()).unwrap();
+                }
+            }
+            assert_eq!(adp_sim_free(sim), AdpStatus::Ok);
+            answered
+        });
+        started.recv().unwrap();
+        assert_eq!(adp_navigator_free(nav), AdpStatus::Ok);
+        assert!(cycling.join().unwrap() >= 1);
+    });
 }
 
 /// A runtime configuration file of the keys `body` and the example policy, in a directory
@@ -233,5 +272,75 @@ fn input_outside_the_envelope_is_a_status_not_an_abort() {
         );
         adp_sim_free(sim);
         adp_navigator_free(nav);
+    }
+}
+
+#[test]
+fn a_freed_or_foreign_handle_is_a_status_not_undefined_behaviour() {
+    let mut err = [0 as c_char; 256];
+    let stop = AdpTwist { v: 0.0, w: 0.0 };
+    unsafe {
+        let nav = adp_navigator_from_file(config().as_ptr(), err.as_mut_ptr(), err.len());
+        let sim = adp_sim_new(nav, 7, 1, err.as_mut_ptr(), err.len());
+        assert!(!nav.is_null() && !sim.is_null());
+        let mut input = std::mem::zeroed::<AdpCycleInput>();
+        assert!(adp_sim_observe(sim, &mut input));
+        let mut out = AdpCycleOutput::default();
+        assert_eq!(
+            adp_navigator_cycle(nav, &input, &mut out, err.as_mut_ptr(), err.len()),
+            AdpStatus::Ok
+        );
+        // The run's handle given as a navigator, and a made-up one: refused, named.
+        let foreign: [*mut AdpNavigator; 2] = [sim.cast(), 0xdead0 as *mut AdpNavigator];
+        for h in foreign {
+            out.command = AdpTwist { v: 9.0, w: 9.0 };
+            assert_eq!(
+                adp_navigator_cycle(h, &input, &mut out, err.as_mut_ptr(), err.len()),
+                AdpStatus::Handle
+            );
+            assert_eq!(out.command, stop);
+            assert!(message(&err).contains("is not live"), "{}", message(&err));
+        }
+        assert_eq!(
+            message(&err),
+            "navigator handle 0xdead0 is not live: already freed, never made by this library, \
+             or a handle of the other kind"
+        );
+        // The navigator's handle freed as a run: refused, the navigator still live.
+        assert_eq!(adp_sim_free(nav.cast()), AdpStatus::Handle);
+        assert_eq!(adp_navigator_beams(nav), 720);
+        // Freed, then used: a status and a stop; then freed again: a status, no abort.
+        assert_eq!(adp_navigator_free(nav), AdpStatus::Ok);
+        out.command = AdpTwist { v: 9.0, w: 9.0 };
+        assert_eq!(
+            adp_navigator_cycle(nav, &input, &mut out, err.as_mut_ptr(), err.len()),
+            AdpStatus::Handle
+        );
+        assert_eq!(out.command, stop);
+        assert_eq!(adp_navigator_beams(nav), 0);
+        assert!(adp_sim_new(nav, 7, 1, err.as_mut_ptr(), err.len()).is_null());
+        assert!(message(&err).starts_with("navigator handle"), "{}", message(&err));
+        assert_eq!(adp_navigator_free(nav), AdpStatus::Handle);
+        assert_eq!(adp_navigator_free(std::ptr::null_mut()), AdpStatus::Ok);
+        // A new navigator never takes a freed one's handle, so the stale one stays dead.
+        let again = adp_navigator_from_file(config().as_ptr(), err.as_mut_ptr(), err.len());
+        assert!(!again.is_null() && again != nav);
+        assert_eq!(
+            adp_navigator_cycle(nav, &input, &mut out, err.as_mut_ptr(), err.len()),
+            AdpStatus::Handle
+        );
+        assert_eq!(
+            adp_navigator_cycle(again, &input, &mut out, err.as_mut_ptr(), err.len()),
+            AdpStatus::Ok
+        );
+        // The same for a simulated run.
+        assert_eq!(adp_sim_free(sim), AdpStatus::Ok);
+        assert!(!adp_sim_observe(sim, &mut input));
+        assert_eq!(adp_sim_step(sim, &out), AdpRunStatus::Running);
+        let (mut time_s, mut score) = (-1.0, -1.0);
+        adp_sim_result(sim, &mut time_s, &mut score);
+        assert_eq!((time_s, score), (-1.0, -1.0));
+        assert_eq!(adp_sim_free(sim), AdpStatus::Handle);
+        assert_eq!(adp_navigator_free(again), AdpStatus::Ok);
     }
 }
