@@ -15,10 +15,11 @@ use serde_json::Value;
 
 use train_config::TrainConfig;
 
+use super::execute::{load_policy, write_trained};
 use super::plan::Stage;
 use super::recipe::train_inputs;
 use super::store::StageMeta;
-use super::{describe, load_policy, write_trained, Ctx};
+use super::{describe, Ctx};
 
 /// Where two JSON values differ: up to `max` paths (`run.steps: 120000 against 40000`).
 pub fn differences(a: &Value, b: &Value, max: usize) -> Vec<String> {

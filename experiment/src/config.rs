@@ -186,6 +186,17 @@ pub struct ArmGroup {
     /// What the group's arms start from (default: `[experiment] start`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub start: Option<Start>,
+    /// The name of the group's training recipe (lower-case letters, digits and `-`): its
+    /// arms' ids end in `-<recipe>`, and the paper's tables show them as rows of their own
+    /// beside the experiment's recipe. Required with `train`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub recipe: Option<String>,
+    /// The recipe's training settings, in the format of `[train]`, laid over the experiment's
+    /// `[train]` for this group's trainings only. DDP, vanilla, the constant search and the
+    /// best constant are the experiment's (they read `[train.env]` of the experiment, not
+    /// this table), so every recipe of a cell is compared with the same controls.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub train: Option<toml::Table>,
 }
 
 impl ArmGroup {
@@ -524,12 +535,15 @@ pub struct Arm {
     pub observation: Option<LaserLayout>,
     /// What its training starts from.
     pub start: Start,
+    /// The training recipe of its group (`None`: the experiment's `[train]`).
+    pub recipe: Option<String>,
 }
 
 impl Arm {
     /// A file-name-safe id, e.g. `dwa-decremental-1.5-train`, with an observation layout
     /// of its own `dwa-decremental-1.5-train-sectors15`, and starting from the best constant
-    /// `dwa-decremental-1.5-train-bestconst`. Only letters, digits and `-+._`: a
+    /// `dwa-decremental-1.5-train-bestconst`, and of a group's recipe `project` in
+    /// `dwa-decremental-1.5-train-bestconst-project`. Only letters, digits and `-+._`: a
     /// space's `:` becomes `_` (`dwa-weights_dwa-1.5-fit`), since the ids name directories of
     /// experiments kept in the repository, and Windows checkouts refuse `:` in a path.
     pub fn id(&self) -> String {
@@ -550,8 +564,9 @@ impl Arm {
             Start::Ddp => "",
             Start::BestConstant => "-bestconst",
         };
+        let recipe = self.recipe.as_ref().map_or_else(String::new, |r| format!("-{r}"));
         format!(
-            "{}-{}-{}-{worlds}{layout}{start}",
+            "{}-{}-{}-{worlds}{layout}{start}{recipe}",
             planner_name(self.planner),
             space_label(self.space).replace(':', "_"),
             speed_label(self.speed)
@@ -569,7 +584,10 @@ impl Arm {
     /// untrained policy (the initialized actor of the first seed, which has seen no world) is
     /// this arm's.
     pub fn same_untrained(&self, other: &Arm) -> bool {
-        self.same_controls(other) && self.observation == other.observation && self.start == other.start
+        self.same_controls(other)
+            && self.observation == other.observation
+            && self.start == other.start
+            && self.recipe == other.recipe
     }
 }
 
@@ -624,6 +642,9 @@ pub struct Experiment {
     pub slurm: SlurmJob,
     /// `[train]` over [`train_base`].
     pub train: TrainConfig,
+    /// The groups' training recipes by name: a group's `train` over the experiment's
+    /// `[train]`.
+    pub recipes: Vec<(String, TrainConfig)>,
     /// The arms (after restrictions), planner-major.
     pub arms: Vec<Arm>,
     /// Seeds per arm (after restrictions).
@@ -657,13 +678,21 @@ fn merge(base: &mut toml::Table, over: toml::Table) {
 /// `[train]` laid over [`train_base`] and checked, with `--steps` applied; unknown keys of
 /// `[train]` are named as written.
 fn parse_train(name: &str, table: toml::Table, restrict: &Restrict) -> Result<TrainConfig> {
-    // Unknown keys of [train] are named before the merge (whose text has other lines).
-    TrainConfig::deserialize(table.clone())
-        .map_err(|e| ConfigError::invalid(name, format!("[train]: {}", one_line(&e.to_string()))))?;
+    parse_recipe(name, "[train]", &[table], restrict)
+}
+
+/// `layers` laid in order over [`train_base`] and checked, with `--steps` applied; `what`
+/// names the last layer in errors (`[train]`, or a group's `train`).
+fn parse_recipe(name: &str, what: &str, layers: &[toml::Table], restrict: &Restrict) -> Result<TrainConfig> {
     let mut base = train_base();
-    merge(&mut base, table);
+    for table in layers {
+        // Unknown keys are named before the merge (whose text has other lines).
+        TrainConfig::deserialize(table.clone())
+            .map_err(|e| ConfigError::invalid(name, format!("{what}: {}", one_line(&e.to_string()))))?;
+        merge(&mut base, table.clone());
+    }
     let mut train = TrainConfig::parse(
-        &format!("{name}: [train]"),
+        &format!("{name}: {what}"),
         &toml::to_string(&base).expect("a TOML table serializes"),
     )
     .map_err(|e| ConfigError::Train(one_line(&e.to_string())))?;
@@ -671,6 +700,59 @@ fn parse_train(name: &str, table: toml::Table, restrict: &Restrict) -> Result<Tr
         train.run.steps = steps;
     }
     Ok(train)
+}
+
+/// The groups' recipes (a group's `train` over `[train]`), by name: a name is lower-case
+/// letters, digits and `-`, a `train` table needs one, and groups that share a name share
+/// their table.
+fn group_recipes(
+    name: &str,
+    ex: &ExperimentSection,
+    train: &toml::Table,
+    restrict: &Restrict,
+) -> Result<Vec<(String, TrainConfig)>> {
+    let mut recipes: Vec<(String, &toml::Table, TrainConfig)> = Vec::new();
+    for (i, g) in ex.groups.iter().enumerate() {
+        let label = format!("[[experiment.groups]] {} ({:?})", i + 1, g.name);
+        let err = |what: String| ConfigError::invalid(name, format!("{label}: {what}"));
+        let (recipe, table) = match (&g.recipe, &g.train) {
+            (None, None) => continue,
+            (None, Some(_)) => return Err(err("`train` needs a `recipe` name for its arms".into())),
+            (Some(r), None) => {
+                return Err(err(format!(
+                    "recipe {r:?} has no `train` table (the experiment's own recipe has no name)"
+                )))
+            }
+            (Some(r), Some(t)) => (r, t),
+        };
+        if recipe.is_empty()
+            || !recipe
+                .chars()
+                .all(|c| c.is_ascii_lowercase() || c.is_ascii_digit() || c == '-')
+        {
+            return Err(err(format!(
+                "recipe {recipe:?}: a name is lower-case letters, digits and `-`"
+            )));
+        }
+        match recipes.iter().find(|(r, _, _)| r == recipe) {
+            Some((_, t, _)) if *t != table => {
+                return Err(err(format!(
+                    "recipe {recipe:?} is declared twice with different `train` tables"
+                )))
+            }
+            Some(_) => {}
+            None => {
+                let cfg = parse_recipe(
+                    name,
+                    &format!("{label} train"),
+                    &[train.clone(), table.clone()],
+                    restrict,
+                )?;
+                recipes.push((recipe.clone(), table, cfg));
+            }
+        }
+    }
+    Ok(recipes.into_iter().map(|(r, _, c)| (r, c)).collect())
 }
 
 /// The planners and action spaces of `[experiment]`, checked with its speeds and seeds.
@@ -897,6 +979,7 @@ fn restricted_arms(
     spaces: &[ActionSpace],
     ex: &ExperimentSection,
     observations: &[Option<LaserLayout>],
+    recipe: Option<&str>,
 ) -> Vec<Arm> {
     let mut arms = Vec::new();
     for &planner in planners
@@ -919,6 +1002,7 @@ fn restricted_arms(
                             train_worlds: tw.clone(),
                             observation,
                             start: ex.start,
+                            recipe: recipe.map(str::to_string),
                         });
                     }
                 }
@@ -1074,8 +1158,9 @@ impl Experiment {
     pub fn parse(name: &str, text: &str, restrict: &Restrict) -> Result<Self> {
         let raw: RawFile =
             toml::from_str(text).map_err(|e| ConfigError::invalid(name, one_line(&e.to_string())))?;
-        let train = parse_train(name, raw.train, restrict)?;
+        let train = parse_train(name, raw.train.clone(), restrict)?;
         let ex = &raw.experiment;
+        let recipes = group_recipes(name, ex, &raw.train, restrict)?;
         let (mut planners, mut spaces) = planners_and_spaces(name, ex)?;
         let (test_worlds, search_worlds, pool_worlds) =
             world_splits(name, ex, &train, &raw.constant_search, &raw.shuffle)?;
@@ -1128,9 +1213,9 @@ impl Experiment {
         let seeds = restricted_seeds(name, restrict, &planners, &spaces, &declared)?;
         let observations = observation_layouts(name, ex, train.env.observation)?;
         let (own_planners, own_spaces) = planners_and_spaces(name, ex)?;
-        let mut arms = restricted_arms(restrict, &own_planners, &own_spaces, ex, &observations);
-        for (gp, gs, gx) in &groups {
-            for a in restricted_arms(restrict, gp, gs, gx, &observations) {
+        let mut arms = restricted_arms(restrict, &own_planners, &own_spaces, ex, &observations, None);
+        for ((gp, gs, gx), g) in groups.iter().zip(&ex.groups) {
+            for a in restricted_arms(restrict, gp, gs, gx, &observations, g.recipe.as_deref()) {
                 if !arms.contains(&a) {
                     arms.push(a);
                 }
@@ -1170,6 +1255,7 @@ impl Experiment {
             stats: raw.stats,
             slurm: raw.slurm,
             train,
+            recipes,
             arms,
             seeds,
             test_worlds,
@@ -1220,11 +1306,20 @@ impl Experiment {
         arm.observation.unwrap_or(self.train.env.observation)
     }
 
-    /// The training configuration of `arm`'s seed `seed` (0-based): `[train]` with the arm's
+    /// The training configuration of `arm`'s seed `seed` (0-based): `[train]` (with the arm's
+    /// group's recipe laid over it, if it has one) with the arm's
     /// planner, action space and observation layout (and the observation, laser and action
     /// sizes they need), speed cap and training worlds, and `[td3] seed = first_seed + seed`.
     pub fn train_config(&self, arm: &Arm, seed: usize) -> TrainConfig {
-        let mut cfg = self.train.clone();
+        let mut cfg = match &arm.recipe {
+            None => self.train.clone(),
+            Some(r) => self
+                .recipes
+                .iter()
+                .find(|(name, _)| name == r)
+                .map(|(_, c)| c.clone())
+                .expect("an arm's recipe is one of the experiment's"),
+        };
         cfg.run.name = format!("{}-seed{seed}", arm.id());
         cfg.run.planner = arm.planner;
         cfg.run.action_space = arm.space;
@@ -1325,6 +1420,60 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("constant") && e.contains("ddp"), "{e}");
+    }
+
+    /// A group's recipe lays its `train` over `[train]` for its own arms only: their ids say
+    /// which recipe, they share the experiment's controls but not its untrained policy, and
+    /// a recipe without a name, a name without a table, a bad name or one name with two
+    /// tables is refused, naming the group.
+    #[test]
+    fn a_group_recipe_trains_its_own_arms_only() {
+        let group =
+            "[[experiment.groups]]\nname = \"ours\"\nstart = \"best-constant\"\nrecipe = \"project\"\n\
+                     [experiment.groups.train.td3]\nupdates_per_insert = 0.25\n\
+                     [experiment.groups.train.greedy]\nselect = true\n";
+        let text = format!("{MINIMAL}{group}[train.run]\nsteps = 1000\n");
+        let ex = parse(&text).unwrap();
+        let ids: Vec<String> = ex.arms.iter().map(Arm::id).collect();
+        assert_eq!(
+            ids,
+            [
+                "dwa-decremental-1.5-fit",
+                "dwa-decremental-1.5-fit-bestconst-project"
+            ]
+        );
+        let (paper, ours) = (ex.train_config(&ex.arms[0], 0), ex.train_config(&ex.arms[1], 0));
+        assert_eq!(
+            (paper.run.steps, ours.run.steps),
+            (1000, 1000),
+            "[train] reaches both"
+        );
+        assert_eq!(ours.td3.updates_per_insert, 0.25);
+        assert!(ours.greedy.select && !paper.greedy.select);
+        assert_ne!(paper.td3.updates_per_insert, 0.25);
+        assert!(ex.arms[1].same_controls(&ex.arms[0]) && !ex.arms[1].same_untrained(&ex.arms[0]));
+        for (bad, says) in [
+            (
+                group.replace("recipe = \"project\"\n", ""),
+                "needs a `recipe` name",
+            ),
+            (
+                "[[experiment.groups]]\nrecipe = \"project\"\n".to_string(),
+                "has no `train` table",
+            ),
+            (
+                group.replace("\"project\"", "\"Project 2\""),
+                "lower-case letters",
+            ),
+            (
+                format!("{group}{}", group.replace("0.25", "0.5")),
+                "declared twice with different `train` tables",
+            ),
+            (group.replace("select = true", "selekt = true"), "selekt"),
+        ] {
+            let e = parse(&format!("{MINIMAL}{bad}")).unwrap_err().to_string();
+            assert!(e.contains("[[experiment.groups]] ") && e.contains(says), "{e}");
+        }
     }
 
     #[test]
@@ -1451,7 +1600,14 @@ mod tests {
             assert_eq!(eval, paper.eval, "{file}");
             assert_eq!(ex.search, paper.search, "{file}");
             assert_eq!(ex.stats, paper.stats, "{file}");
-            assert_eq!(ex.shuffle, paper.shuffle, "{file}");
+            // The speeds with the control are the paper's arms' business; at 1.5 m/s both
+            // evaluate it.
+            assert!(ex.shuffle.speeds.contains(&1.5), "{file}");
+            let shuffle = ShuffleSection {
+                speeds: paper.shuffle.speeds.clone(),
+                ..ex.shuffle.clone()
+            };
+            assert_eq!(shuffle, paper.shuffle, "{file}");
             assert_eq!(ex.test_worlds, paper.test_worlds, "{file}");
         }
     }

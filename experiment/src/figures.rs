@@ -5,7 +5,8 @@
 //!   ([`GreedyPoint`]; a run without the file is skipped);
 //! * per-world ADP against DDP score (ADP: mean over seeds);
 //! * the chosen schedule's physical parameters against local clutter (binned means and
-//!   standard deviations over every traced agent step);
+//!   standard deviations over every traced agent step), per arm and for every Table I cell
+//!   in one grid;
 //! * one episode driven with the ADP schedule: the world, the path coloured by the rollout
 //!   horizon the policy chose at each agent step.
 
@@ -335,6 +336,75 @@ pub fn schedule_vs_clutter(
                 b.iter()
                     .map(|x| PathElement::new(vec![(x.0, x.1 - x.2), (x.0, x.1 + x.2)], red.stroke_width(2))),
             )
+            .map_err(err)?;
+    }
+    root.present()
+        .with_context(|| format!("cannot write {}", out.display()))
+}
+
+/// One panel of [`clutter_grid`]: its title, the action space and the traced steps of the
+/// cell's ADP seeds.
+pub struct ClutterPanel {
+    /// Panel title (planner and speed).
+    pub title: String,
+    /// The space the parameters are in.
+    pub space: ActionSpace,
+    /// ADP's traced steps.
+    pub adp: Vec<TracePoint>,
+}
+
+/// Every cell's schedule against local clutter in one figure, `cols` panels a row: per
+/// parameter, the binned mean of ADP's choice as a share of the space's range (0 = its low
+/// end, 1 = its high end). A policy that reacts to clutter draws sloped lines; a fixed
+/// schedule draws flat ones.
+pub fn clutter_grid(panels: &[ClutterPanel], cols: usize, title: &str, out: &Path) -> anyhow::Result<()> {
+    fonts();
+    let cols = cols.max(1);
+    let rows = panels.len().div_ceil(cols).max(1);
+    let root = BitMapBackend::new(out, (360 * cols as u32, 300 * rows as u32 + 40)).into_drawing_area();
+    root.fill(&WHITE).map_err(err)?;
+    let root = root.titled(title, (FAMILY, 20)).map_err(err)?;
+    let areas = root.split_evenly((rows, cols));
+    for (p, area) in panels.iter().zip(areas.iter()) {
+        let mut chart = ChartBuilder::on(area)
+            .caption(&p.title, (FAMILY, 15))
+            .margin(8)
+            .x_label_area_size(32)
+            .y_label_area_size(40)
+            .build_cartesian_2d(0.0..1.0, -0.05..1.05)
+            .map_err(err)?;
+        chart
+            .configure_mesh()
+            .x_desc("clutter")
+            .y_desc("share of range")
+            .label_style((FAMILY, 11))
+            .draw()
+            .map_err(err)?;
+        for (k, (name, lo, hi)) in p.space.ranges().into_iter().enumerate() {
+            let share = move |q: &[f64]| {
+                if hi > lo {
+                    (q.get(k).copied().unwrap_or(f64::NAN) - lo) / (hi - lo)
+                } else {
+                    0.5
+                }
+            };
+            let c = colour(k);
+            let line = binned(&p.adp, &share);
+            chart
+                .draw_series(LineSeries::new(
+                    line.iter().map(|x| (x.0, x.1)),
+                    c.stroke_width(2),
+                ))
+                .map_err(err)?
+                .label(name)
+                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], c.stroke_width(2)));
+        }
+        chart
+            .configure_series_labels()
+            .background_style(WHITE.mix(0.8))
+            .border_style(BLACK.mix(0.3))
+            .label_font((FAMILY, 10))
+            .draw()
             .map_err(err)?;
     }
     root.present()

@@ -17,12 +17,14 @@ pub mod adopt;
 pub mod config;
 pub mod controls;
 pub mod estimate;
+mod execute;
 pub mod figures;
 pub mod paper;
 pub mod plan;
 pub mod protocol;
 pub mod recipe;
 pub mod record;
+mod render;
 pub mod report;
 pub mod runner;
 pub mod shard;
@@ -35,30 +37,20 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{bail, Context};
-use serde::Serialize;
 
-use actor::closed_loop::{self, Chooser, Greedy};
-use planner::{ActionSpace, Schedule};
 use sim::World;
 
-use eval::policy::{EvalPolicy, LearnedPolicy};
 use eval::EvalConfig;
-use eval::{eval_run, run_seed};
-use train_config::TrainConfig;
 
-use config::{planner_name, space_label, speed_label, Arm, Experiment, Restrict};
-use controls::{
-    best_constant, candidates, halving, keep_best, search_pairs, shuffle_pool, write_untrained_export,
-    Candidate, SearchResult,
-};
+use config::{planner_name, speed_label, Arm, Experiment, Restrict};
 use estimate::{progress_line, Rates};
 use plan::{pending, stages, write_atomic, SensingPlan, Stage, SweepPlan, SweepWho, Sweeps};
-use record::{EvalRecord, Summary};
-use report::{comparisons, sensing_results, ArmData, Comparison, SensingResult};
-use runner::{evaluate, observations, Controller, RunSpec};
+use record::EvalRecord;
 use shard::Shard;
-use spent::Spent;
 use store::{Layout, StageMeta, Store};
+
+use execute::{run_stage, train};
+use render::write_report;
 
 /// The file in an experiment directory holding the experiment file it was started with.
 const CONFIG_COPY: &str = "experiment.toml";
@@ -680,909 +672,6 @@ fn sweeps(ex: &Experiment) -> Sweeps {
     }
 }
 
-/// The best constant action of arm `arm`, from its search's file.
-fn best_action(ctx: &Ctx<'_>, arm: usize) -> anyhow::Result<Vec<f64>> {
-    let search_file = ctx.layout.output(&Stage::Search { arm });
-    let text = std::fs::read_to_string(&search_file)
-        .with_context(|| format!("cannot read {}", search_file.display()))?;
-    let search: SearchResult = serde_json::from_str(&text)
-        .with_context(|| format!("{}: not a search result", search_file.display()))?;
-    Ok(search.candidates[search.best].action.clone())
-}
-
-/// Whether a run directory has a checkpoint to resume from.
-fn has_checkpoint(run_dir: &Path) -> bool {
-    std::fs::read_dir(run_dir.join("checkpoints")).is_ok_and(|entries| {
-        entries
-            .flatten()
-            .any(|e| !e.file_name().to_string_lossy().contains("tmp"))
-    })
-}
-
-/// The marker of a finished training run.
-#[derive(Serialize)]
-struct Trained {
-    arm: String,
-    seed_index: usize,
-    td3_seed: u64,
-    steps: u64,
-    agent_steps: u64,
-    updates: u64,
-    export: PathBuf,
-}
-
-/// Trains one seed of one arm with `adp train` in its run directory (resuming a run that
-/// stopped), then checks its export and writes the marker. Returns the time of every run
-/// that worked on it ([`Spent`]) and, when some run's time is missing, the agent steps that
-/// time covers ([`spent::timed_units`]). A run that stops before the end adds its time to the
-/// run directory's account and fails, saying to resume.
-fn train(ctx: &Ctx<'_>, arm: usize, seed: usize) -> anyhow::Result<(Spent, Option<f64>)> {
-    let a = &ctx.ex.arms[arm];
-    let cfg = run_train_config(ctx, arm, seed)?;
-    let run_dir = ctx.layout.run_dir(arm, seed);
-    let file = run_dir.join("experiment-train.toml");
-    write_atomic(
-        &file,
-        toml::to_string_pretty(&cfg)
-            .expect("configs serialize")
-            .as_bytes(),
-    )?;
-    let resume = has_checkpoint(&run_dir);
-    // The steps this run starts from; `None` when the checkpoint cannot be read here (the
-    // trainer then says why, or this run's steps go untimed).
-    let resumed_from = if resume {
-        checkpoint_steps(&run_dir)
-    } else {
-        Some(0.0)
-    };
-    let before = Spent::load(&run_dir).unwrap_or_else(|e| {
-        tracing::warn!("{e:#}; timing this training from this run on");
-        Spent::default()
-    });
-    let (t0, cpu0) = (Instant::now(), cpu_seconds());
-    ctx.trainer
-        .train(&file, &run_dir, resume)
-        .with_context(|| format!("training {} seed {seed} in {}", a.id(), run_dir.display()))?;
-    let seconds = t0.elapsed().as_secs_f64();
-    let cpu = cpu0.zip(cpu_seconds()).map(|(a, b)| b - a);
-    let export = run_dir.join("export");
-    let policy = load_policy(&export, a.space)?;
-    // The run's steps: its final checkpoint's (with `[greedy] select` the export may be an
-    // earlier policy, whose card counts its own steps).
-    let inserts = checkpoint_steps(&run_dir).map_or(policy.card.source.inserts, |s| s as u64);
-    let this_run = resumed_from.map_or(0.0, |from| (inserts as f64 - from).max(0.0));
-    let spent = before.plus(seconds, cpu, this_run);
-    if inserts < cfg.run.steps {
-        if let Err(e) = spent.save(&run_dir) {
-            tracing::warn!("{e:#}: this run's time will be missing from the training's record");
-        }
-        bail!(
-            "training {} seed {seed} stopped after {} of {} agent steps; run the experiment again \
-             with --resume to continue it",
-            a.id(),
-            inserts,
-            cfg.run.steps
-        );
-    }
-    let timed = spent::timed_units(&before, resumed_from.unwrap_or(f64::INFINITY), this_run);
-    write_trained(ctx, arm, seed, &cfg, &policy, export)?;
-    Ok((spent, timed))
-}
-
-/// The training configuration of arm `arm`'s seed `seed` as it runs:
-/// [`Experiment::train_config`], and for an arm that starts from its best constant
-/// ([`config::Start::BestConstant`]) that action, read from its constant search's result, as
-/// `[service] init_action`.
-fn run_train_config(ctx: &Ctx<'_>, arm: usize, seed: usize) -> anyhow::Result<TrainConfig> {
-    let a = &ctx.ex.arms[arm];
-    let mut cfg = ctx.ex.train_config(a, seed);
-    if a.start == config::Start::BestConstant {
-        let action = best_action(ctx, arm).with_context(|| {
-            format!(
-                "{} starts from its best constant: its constant search must be in the store first",
-                a.id()
-            )
-        })?;
-        cfg.service.init_action = Some(action);
-    }
-    Ok(cfg)
-}
-
-/// The agent steps of the newest checkpoint of `run_dir` (where a resumed run starts).
-fn checkpoint_steps(run_dir: &Path) -> Option<f64> {
-    let dir = learner::retention::latest(&run_dir.join("checkpoints")).ok()??;
-    Some(learner::checkpoint::read_manifest(&dir).ok()?.inserts as f64)
-}
-
-/// Writes the marker of arm `arm`'s finished training `seed` (configuration `cfg`, exported
-/// `policy` in `export`): the stage's result.
-fn write_trained(
-    ctx: &Ctx<'_>,
-    arm: usize,
-    seed: usize,
-    cfg: &TrainConfig,
-    policy: &LearnedPolicy,
-    export: PathBuf,
-) -> anyhow::Result<()> {
-    let src = &policy.card.source;
-    let marker = Trained {
-        arm: ctx.ex.arms[arm].id(),
-        seed_index: seed,
-        td3_seed: cfg.td3.seed,
-        steps: cfg.run.steps,
-        agent_steps: src.inserts,
-        updates: src.updates,
-        export,
-    };
-    write_atomic(
-        &ctx.layout.output(&Stage::Train { arm, seed }),
-        &serde_json::to_vec_pretty(&marker).expect("serializes"),
-    )
-}
-
-/// The trained (or untrained) policy of an export directory, in `space`.
-fn load_policy(dir: &Path, space: ActionSpace) -> anyhow::Result<LearnedPolicy> {
-    match eval::policy::load(dir, Some(space))? {
-        EvalPolicy::Learned(p) => Ok(*p),
-        EvalPolicy::Constant { .. } => bail!("{}: not an export directory", dir.display()),
-    }
-}
-
-/// The run settings of an arm on the test worlds.
-fn test_spec<'a>(ctx: &'a Ctx<'_>, a: &Arm, trace: bool) -> RunSpec<'a> {
-    RunSpec {
-        cfg: &ctx.cfg,
-        worlds: ctx.worlds,
-        planner: a.planner,
-        speed: a.speed,
-        world_ids: &ctx.test_worlds,
-        runs: ctx.ex.eval.runs,
-        pairs: &[],
-        seed: ctx.ex.eval.seed,
-        trace,
-        track: ctx.ex.train.env.observe_tracks > 0,
-    }
-}
-
-/// A record of `ev` for arm `a`.
-fn record(ctx: &Ctx<'_>, a: &Arm, controller: &str, ev: runner::Evaluation) -> EvalRecord {
-    EvalRecord {
-        controller: controller.into(),
-        planner: planner_name(a.planner),
-        space: (controller != "ddp").then(|| space_label(a.space)),
-        speed: a.speed,
-        seed_index: None,
-        action: None,
-        policy: None,
-        runs: ctx.ex.eval.runs,
-        trim: ctx.ex.eval.trim,
-        seed: ctx.ex.eval.seed,
-        per_world: ev.per_world,
-        trace: ev.trace,
-        compute: ev.compute,
-        lidar: None,
-    }
-}
-
-/// Runs an evaluation or search stage and writes its result to `out`.
-fn run_stage(ctx: &Ctx<'_>, stage: &Stage, out: &Path) -> anyhow::Result<()> {
-    let ex = ctx.ex;
-    let points = planner::schedule::DEFAULT_BOUNDARY_POINTS;
-    match *stage {
-        Stage::Train { .. } => unreachable!("training runs outside the pool"),
-        Stage::Search { arm } => search_stage(ctx, arm, out),
-        Stage::EvalDdp { planner, speed } | Stage::EvalVanilla { planner, speed } => {
-            let a = ex
-                .arms
-                .iter()
-                .find(|a| a.planner == planner && a.speed == speed)
-                .expect("a DDP or vanilla stage comes from an arm");
-            let (name, schedule) = match stage {
-                Stage::EvalDdp { .. } => ("ddp", Schedule::ddp_default()),
-                _ => ("vanilla", Schedule::vanilla()),
-            };
-            let ev = evaluate(&test_spec(ctx, a, false), &Controller::Schedule(schedule))?;
-            record(ctx, a, name, ev).save(out)
-        }
-        Stage::Sweep { arm, point, who } => sweep_stage(ctx, arm, point, who, out),
-        Stage::Sensing { arm, condition, who } => sensing_stage(ctx, arm, condition, who, out),
-        Stage::EvalConstant { arm } => {
-            let a = &ex.arms[arm];
-            let action = best_action(ctx, arm)?;
-            let ev = evaluate(
-                &test_spec(ctx, a, false),
-                &Controller::constant(a.space, &action, points, ctx.ex.train.env)?,
-            )?;
-            let mut rec = record(ctx, a, "constant", ev);
-            rec.action = Some(action);
-            rec.save(out)
-        }
-        Stage::EvalUntrained { arm } => {
-            let a = &ex.arms[arm];
-            let dir = ctx.layout.untrained_export(arm);
-            if !dir.join(learner::export::JSON_FILE).exists() {
-                write_untrained_export(&run_train_config(ctx, arm, 0)?, a.space, &dir)?;
-            }
-            let p = load_policy(&dir, a.space)?;
-            let ctrl = Controller::of(&p);
-            let mut rec = record(ctx, a, "untrained", evaluate(&test_spec(ctx, a, false), &ctrl)?);
-            rec.policy = Some(dir.display().to_string());
-            rec.save(out)
-        }
-        Stage::EvalAdp { arm, seed } | Stage::EvalShuffled { arm, seed } => {
-            let a = &ex.arms[arm];
-            let dir = ctx.layout.run_dir(arm, seed).join("export");
-            let p = load_policy(&dir, a.space)?;
-            let policy = Controller::of(&p);
-            let (name, ev) = if matches!(stage, Stage::EvalAdp { .. }) {
-                ("adp", evaluate(&test_spec(ctx, a, true), &policy)?)
-            } else {
-                let pool = shuffle_observations(ctx, a, &p)?;
-                let ctrl = Controller::Shuffled {
-                    net: &p.net,
-                    env: p.env,
-                    space: p.space,
-                    pool: &pool,
-                    seed: ex.shuffle.seed,
-                };
-                ("shuffled", evaluate(&test_spec(ctx, a, false), &ctrl)?)
-            };
-            let mut rec = record(ctx, a, name, ev);
-            rec.seed_index = Some(seed);
-            rec.policy = Some(dir.display().to_string());
-            rec.save(out)
-        }
-    }
-}
-
-/// The constant search of arm `arm`: successive halving of the candidate constant actions
-/// over (world, run) pairs of the constant-search worlds; writes the [`SearchResult`] to
-/// `out`.
-fn search_stage(ctx: &Ctx<'_>, arm: usize, out: &Path) -> anyhow::Result<()> {
-    let ex = ctx.ex;
-    let points = planner::schedule::DEFAULT_BOUNDARY_POINTS;
-    let a = &ex.arms[arm];
-    let s = &ex.search;
-    let mut found = candidates(a.space, s.candidates, s.seed)
-        .into_iter()
-        .map(|action| {
-            Ok(Candidate {
-                params: a.space.to_params(&action)?,
-                action,
-                score: 0.0,
-                success_pct: 0.0,
-                pairs: 0,
-                compute_ms_per_cycle: 0.0,
-                compute: Default::default(),
-            })
-        })
-        .collect::<anyhow::Result<Vec<_>>>()?;
-    // Successive halving over (world, run) pairs shared by every candidate, so the
-    // candidates pair by seed at every rung.
-    let pairs = search_pairs(&ex.search_worlds, s.runs, s.seed);
-    let rungs = halving(found.len(), s.eta, s.first_pairs, pairs.len());
-    let mut sums = vec![(0.0, 0usize); found.len()];
-    let mut alive: Vec<usize> = (0..found.len()).collect();
-    let mut done = 0;
-    for (k, &(keep, upto)) in rungs.iter().enumerate() {
-        alive = keep_best(&found, &alive, keep);
-        for &i in &alive {
-            let spec = RunSpec {
-                cfg: &ctx.cfg,
-                worlds: ctx.worlds,
-                planner: a.planner,
-                speed: a.speed,
-                world_ids: &[],
-                runs: 0,
-                pairs: &pairs[done..upto],
-                seed: s.seed,
-                trace: false,
-                track: ctx.ex.train.env.observe_tracks > 0,
-            };
-            let ctrl = Controller::constant(a.space, &found[i].action, points, ctx.ex.train.env)?;
-            let ev = evaluate(&spec, &ctrl)?;
-            let c = &mut found[i];
-            for r in ev.per_world.iter().flat_map(|w| w.runs.iter()) {
-                sums[i].0 += r.score;
-                sums[i].1 += usize::from(r.status == sim::Status::Succeeded);
-            }
-            c.pairs = upto;
-            c.score = sums[i].0 / upto as f64;
-            c.success_pct = 100.0 * sums[i].1 as f64 / upto as f64;
-            c.compute += ev.compute;
-            c.compute_ms_per_cycle = c.compute.ms_per_cycle();
-        }
-        let top = &found[keep_best(&found, &alive, 1)[0]];
-        tracing::info!(
-            "  rung {k}: {} candidates x {upto} (world, run) pairs; best score {:.4}, success \
-             {:.1} %, {:.1} ms per cycle",
-            alive.len(),
-            top.score,
-            top.success_pct,
-            top.compute_ms_per_cycle
-        );
-        done = upto;
-    }
-    let result = SearchResult {
-        space: a.space,
-        worlds: ex.search_worlds.clone(),
-        runs: s.runs,
-        rungs,
-        best: best_constant(&found),
-        candidates: found,
-    };
-    write_atomic(out, &serde_json::to_vec_pretty(&result).expect("serializes"))
-}
-
-/// One controller (`who`) of arm `arm` at budget-sweep point `point` on the test worlds;
-/// writes its record to `out`.
-fn sweep_stage(ctx: &Ctx<'_>, arm: usize, point: usize, who: SweepWho, out: &Path) -> anyhow::Result<()> {
-    let ex = ctx.ex;
-    let mut cfg = ctx.cfg.clone();
-    cfg.compute = ex.sweep_points()[point];
-    sweep_record(ctx, arm, who, &cfg, (ex.sweep.runs, ex.sweep.trim))?.save(out)
-}
-
-/// One controller (`who`) of arm `arm` under sensing condition `condition` on the test
-/// worlds (the condition replaces the evaluation's lidar, so the planner's costmap and the
-/// policy's observation both see its scans); writes its record, with the lidar, to `out`.
-fn sensing_stage(
-    ctx: &Ctx<'_>,
-    arm: usize,
-    condition: usize,
-    who: SweepWho,
-    out: &Path,
-) -> anyhow::Result<()> {
-    let ex = ctx.ex;
-    let mut cfg = ctx.cfg.clone();
-    cfg.episode.lidar = sensing_lidar(ctx, condition)?;
-    let mut rec = sweep_record(ctx, arm, who, &cfg, (ex.sensing.runs, ex.sensing.trim))?;
-    rec.lidar = Some(cfg.episode.lidar);
-    rec.save(out)
-}
-
-/// The lidar of sensing condition `condition`: the evaluation configuration's with the
-/// condition's values.
-fn sensing_lidar(ctx: &Ctx<'_>, condition: usize) -> anyhow::Result<sim::lidar::LidarConfig> {
-    ctx.ex.sensing_conditions()[condition]
-        .apply(ctx.cfg.episode.lidar)
-        .with_context(|| format!("[sensing_sweep] condition {condition}"))
-}
-
-/// The record of one controller (`who`) of arm `arm` of a sweep on the test worlds, run
-/// with `cfg` and `(runs, trim)`; every controller's run r of world w has the same seed.
-fn sweep_record(
-    ctx: &Ctx<'_>,
-    arm: usize,
-    who: SweepWho,
-    cfg: &EvalConfig,
-    (runs, trim): (usize, usize),
-) -> anyhow::Result<EvalRecord> {
-    let points = planner::schedule::DEFAULT_BOUNDARY_POINTS;
-    let a = &ctx.ex.arms[arm];
-    let spec = RunSpec {
-        cfg,
-        runs,
-        ..test_spec(ctx, a, false)
-    };
-    let (name, ev, action, policy) = match who {
-        SweepWho::Ddp => (
-            "ddp",
-            evaluate(&spec, &Controller::Schedule(Schedule::ddp_default()))?,
-            None,
-            None,
-        ),
-        SweepWho::Constant => {
-            let action = best_action(ctx, arm)?;
-            let ctrl = Controller::constant(a.space, &action, points, ctx.ex.train.env)?;
-            ("constant", evaluate(&spec, &ctrl)?, Some(action), None)
-        }
-        SweepWho::Adp { seed } => {
-            let dir = ctx.layout.run_dir(arm, seed).join("export");
-            let p = load_policy(&dir, a.space)?;
-            let ctrl = Controller::of(&p);
-            (
-                "adp",
-                evaluate(&spec, &ctrl)?,
-                None,
-                Some(dir.display().to_string()),
-            )
-        }
-    };
-    let mut rec = record(ctx, a, name, ev);
-    rec.runs = runs;
-    rec.trim = trim;
-    rec.action = action;
-    rec.policy = policy;
-    if let SweepWho::Adp { seed } = who {
-        rec.seed_index = Some(seed);
-    }
-    Ok(rec)
-}
-
-/// The observation pool of the state-shuffled control: the policy's own observations on the
-/// pool worlds (training worlds, one run each), reservoir-sampled.
-fn shuffle_observations(ctx: &Ctx<'_>, a: &Arm, p: &LearnedPolicy) -> anyhow::Result<Vec<Vec<f32>>> {
-    let spec = RunSpec {
-        cfg: &ctx.cfg,
-        worlds: ctx.worlds,
-        planner: a.planner,
-        speed: a.speed,
-        world_ids: &ctx.ex.pool_worlds,
-        runs: 1,
-        pairs: &[],
-        seed: ctx.ex.shuffle.seed,
-        trace: false,
-        track: ctx.ex.train.env.observe_tracks > 0,
-    };
-    let ctrl = Controller::of(p);
-    let seen = observations(&spec, &ctrl)?.observations;
-    Ok(shuffle_pool(&seen, ctx.ex.shuffle.pool, ctx.ex.shuffle.seed))
-}
-
-/// Reads what the stages of arm `arm` wrote (a missing file is a stage not run yet).
-fn arm_data(ctx: &Ctx<'_>, arm: usize) -> anyhow::Result<ArmData> {
-    let ex = ctx.ex;
-    let a = &ex.arms[arm];
-    let read = |stage: Stage| -> anyhow::Result<Option<EvalRecord>> {
-        let path = ctx.layout.output(&stage);
-        if path.exists() {
-            EvalRecord::load(&path).map(Some)
-        } else {
-            Ok(None)
-        }
-    };
-    let search_file = ctx.layout.output(&Stage::Search { arm });
-    let search = if search_file.exists() {
-        let text = std::fs::read_to_string(&search_file)?;
-        Some(
-            serde_json::from_str(&text)
-                .with_context(|| format!("{}: not a search result", search_file.display()))?,
-        )
-    } else {
-        None
-    };
-    let mut adp = Vec::new();
-    let mut shuffled = Vec::new();
-    for seed in 0..ex.seeds {
-        adp.extend(read(Stage::EvalAdp { arm, seed })?);
-        shuffled.extend(read(Stage::EvalShuffled { arm, seed })?);
-    }
-    let mut sweep = Vec::new();
-    if sweep_plan(ex).is_some_and(|s| s.arm == arm) {
-        for (point, compute) in ex.sweep_points().iter().enumerate() {
-            let at = |who| read(Stage::Sweep { arm, point, who });
-            let mut adp = Vec::new();
-            for seed in 0..ex.seeds {
-                adp.extend(at(SweepWho::Adp { seed })?);
-            }
-            sweep.push(report::SweepPoint {
-                label: eval::compute_label(compute),
-                ddp: at(SweepWho::Ddp)?,
-                constant: at(SweepWho::Constant)?,
-                adp,
-            });
-        }
-    }
-    let mut sensing = Vec::new();
-    if ex.sensing_arms().contains(&arm) {
-        for condition in 0..ex.sensing_conditions().len() {
-            let at = |who| read(Stage::Sensing { arm, condition, who });
-            let mut adp = Vec::new();
-            for seed in 0..ex.seeds {
-                adp.extend(at(SweepWho::Adp { seed })?);
-            }
-            sensing.push(report::SweepPoint {
-                label: eval::lidar_label(&sensing_lidar(ctx, condition)?),
-                ddp: at(SweepWho::Ddp)?,
-                constant: at(SweepWho::Constant)?,
-                adp,
-            });
-        }
-    }
-    Ok(ArmData {
-        arm: a.clone(),
-        ddp: read(Stage::EvalDdp {
-            planner: a.planner,
-            speed: a.speed,
-        })?,
-        vanilla: if ex.eval.vanilla {
-            read(Stage::EvalVanilla {
-                planner: a.planner,
-                speed: a.speed,
-            })?
-        } else {
-            None
-        },
-        constant: read(Stage::EvalConstant { arm })?,
-        search,
-        untrained: read(Stage::EvalUntrained { arm })?,
-        adp,
-        shuffled,
-        sweep,
-        sensing,
-    })
-}
-
-/// The machine-readable summary beside the report (`results.json`).
-#[derive(Serialize)]
-struct ArmResults {
-    arm: String,
-    /// (method, seed index or none, table values).
-    methods: Vec<(String, Option<usize>, Summary)>,
-    comparisons: Vec<Comparison>,
-    /// The sensing sweep, per condition (absent for an arm it does not cover).
-    #[serde(skip_serializing_if = "Vec::is_empty")]
-    sensing: Vec<SensingResult>,
-}
-
-/// Drives `policy` once on `world` (run 0's seed) and records where the robot was and what
-/// schedule it chose at every agent step.
-fn drive(ctx: &Ctx<'_>, a: &Arm, p: &LearnedPolicy, world: usize) -> anyhow::Result<figures::Drive> {
-    let seed = run_seed(ctx.ex.eval.seed, world, 0);
-    let run = eval_run(&ctx.cfg, &ctx.worlds[world], a.planner, a.speed, seed);
-    let chooser = Chooser::Env {
-        space: p.space,
-        env: &p.env.for_evaluation(),
-        act: &mut Greedy::new(&p.net),
-    };
-    let mut steps = Vec::new();
-    let mut end = Default::default();
-    let out = closed_loop::run(run, chooser, |step| {
-        let params = step.env.chosen_params().context("a step without its schedule")?;
-        steps.push((step.position, params));
-        end = step.env.episode().state().pose.position();
-        anyhow::Ok(())
-    })?;
-    if let Some(last) = steps.last().map(|s| s.1.clone()) {
-        steps.push((end, last));
-    }
-    let r = out.episode;
-    Ok(figures::Drive {
-        steps,
-        outcome: format!("world {world}: {:?} after {:.1} s", r.status, r.time_s),
-    })
-}
-
-/// One stage's result as `stages.json` lists it.
-#[derive(Serialize)]
-struct StageEntry {
-    /// The stage in words.
-    stage: String,
-    /// Its recipe's key.
-    key: String,
-    /// Its result in the store.
-    result: PathBuf,
-    /// The experiment that computed it (`None`: not finished).
-    computed_by: Option<String>,
-    /// Wall-clock seconds it took there.
-    seconds: Option<f64>,
-}
-
-/// Writes `stages.json` (every stage, its key, its result in the store and who computed
-/// it) and returns the report's line on where the results came from.
-fn provenance(ctx: &Ctx<'_>) -> anyhow::Result<String> {
-    let ex = ctx.ex;
-    let mut entries = Vec::new();
-    let mut by: std::collections::BTreeMap<String, usize> = Default::default();
-    for s in stages(&ex.arms, ex.seeds, &sweeps(ex)) {
-        let recipe = ctx.layout.recipe(&s);
-        let meta = ctx
-            .layout
-            .done(&s)
-            .then(|| ctx.layout.store.meta(&recipe))
-            .flatten();
-        if ctx.layout.done(&s) {
-            let who = meta
-                .as_ref()
-                .map_or_else(|| "an unrecorded run".to_string(), |m| m.experiment.clone());
-            *by.entry(who).or_default() += 1;
-        }
-        entries.push(StageEntry {
-            stage: describe(&s, &ex.arms),
-            key: recipe.key.0.clone(),
-            result: ctx.layout.store.path(&recipe),
-            computed_by: meta.as_ref().map(|m| m.experiment.clone()),
-            seconds: meta.as_ref().map(|m| m.seconds),
-        });
-    }
-    write_atomic(
-        &ctx.layout.dir.join("stages.json"),
-        &serde_json::to_vec_pretty(&entries).expect("serializes"),
-    )?;
-    let own = by.remove(&ex.section.name).unwrap_or(0);
-    let others: Vec<String> = by.iter().map(|(e, n)| format!("{n} computed by `{e}`")).collect();
-    Ok(format!(
-        "results: {} stage(s), {own} computed by this experiment{}; every result lives in the \
-         store `{}` under the key of what decides it (`stages.json` lists them)",
-        entries.len(),
-        if others.is_empty() {
-            String::new()
-        } else {
-            format!(", reused from the store: {}", others.join(", "))
-        },
-        ctx.layout.store.dir.display()
-    ))
-}
-
-/// Writes the figures, `results.json` and `report.md`; returns the report's path.
-fn write_report(ctx: &Ctx<'_>) -> anyhow::Result<PathBuf> {
-    let ex = ctx.ex;
-    let data: Vec<ArmData> = (0..ex.arms.len())
-        .map(|i| arm_data(ctx, i))
-        .collect::<anyhow::Result<_>>()?;
-    let fig_dir = ctx.layout.dir.join("figures");
-    std::fs::create_dir_all(&fig_dir).with_context(|| format!("cannot create {}", fig_dir.display()))?;
-    let mut figs: Vec<(String, String)> = Vec::new();
-    let mut notes: Vec<String> = Vec::new();
-    let mut rendered = false;
-    for (arm, d) in data.iter().enumerate() {
-        let id = d.arm.id();
-        learning_figure(ctx, arm, d, &fig_dir, &mut figs, &mut notes)?;
-        scatter_figure(d, &fig_dir, &mut figs)?;
-        compute_figure(d, &fig_dir, &mut figs)?;
-        clutter_figure(d, &fig_dir, &mut figs)?;
-        // One rendered episode, of the first arm with a trained policy.
-        if !rendered && !d.adp.is_empty() {
-            episode_figure(ctx, arm, d, &fig_dir, &mut figs)?;
-            rendered = true;
-        }
-        let missing = pending(&stages(&ex.arms, ex.seeds, &sweeps(ex)), |s| ctx.layout.done(s))
-            .into_iter()
-            .filter(|s| stage_arm(s, &ex.arms) == Some(arm))
-            .count();
-        if missing > 0 {
-            notes.push(format!(
-                "{id}: {missing} stage(s) not finished yet; their rows are missing"
-            ));
-        }
-    }
-    notes.push(provenance(ctx)?);
-    let results = arm_results(&data, ex);
-    let mut text = report::render(ex, &data, &figs, &notes);
-    let json = if ex.report.paper_tables {
-        let t = paper::tables(ex, &data, &ex.report.hardest, &ex.hardest_worlds);
-        write_atomic(
-            &ctx.layout.dir.join("table1.md"),
-            paper::summary_table(&t).as_bytes(),
-        )?;
-        // The paper's tables lead; the per-arm report follows under its own title.
-        let (title, rest) = text.split_once('\n').unwrap_or((&text, ""));
-        text = format!("{title}\n\n{}{rest}", paper::render(&t));
-        serde_json::to_vec_pretty(&serde_json::json!({"paper": t, "arms": results}))
-    } else {
-        serde_json::to_vec_pretty(&results)
-    };
-    write_atomic(&ctx.layout.dir.join("results.json"), &json.expect("serializes"))?;
-    // Where the width of the intervals comes from, on the first arm with two seeds or more.
-    if let Some(d) = data.iter().find(|d| d.ddp.is_some() && d.adp.len() > 1) {
-        let st = &ex.stats;
-        let ddp = d.ddp.as_ref().expect("found with DDP");
-        match protocol::study(ddp, &d.adp, st.resamples, st.confidence, st.seed) {
-            Ok(s) => {
-                text += &format!("\n{}", s.markdown(Some(&d.arm.id())));
-            }
-            Err(e) => text += &format!("\nNo protocol study on `{}`: {e:#}\n", d.arm.id()),
-        }
-    }
-    let path = ctx.layout.dir.join("report.md");
-    write_atomic(&path, text.as_bytes())?;
-    Ok(path)
-}
-
-/// The learning-curve figure of `d` (each seed's greedy evaluations during training), or a
-/// note that no finished training wrote them.
-fn learning_figure(
-    ctx: &Ctx<'_>,
-    arm: usize,
-    d: &ArmData,
-    fig_dir: &Path,
-    figs: &mut Vec<(String, String)>,
-    notes: &mut Vec<String>,
-) -> anyhow::Result<()> {
-    let id = d.arm.id();
-    // Finished trainings only: a training still running (or stopped to resume) has a curve
-    // that ends early, and its directory is not committed with the report.
-    let curves: Vec<(String, Vec<figures::GreedyPoint>)> = (0..ctx.ex.seeds)
-        .filter(|&s| ctx.layout.done(&Stage::Train { arm, seed: s }))
-        .filter_map(|s| figures::read_greedy(&ctx.layout.run_dir(arm, s)).map(|g| (format!("seed {s}"), g)))
-        .filter(|(_, g)| !g.is_empty())
-        .collect();
-    if curves.is_empty() {
-        notes.push(format!(
-            "{id}: no finished training wrote greedy_eval.jsonl (the learner's periodic greedy evaluation), so \
-             there is no learning-curve figure"
-        ));
-    } else {
-        let file = format!("learning-{id}.png");
-        figures::learning_curves(
-            &curves,
-            &format!("{id}: greedy evaluation during training"),
-            &fig_dir.join(&file),
-        )?;
-        figs.push((
-            format!("{id}: greedy-evaluation learning curves"),
-            format!("figures/{file}"),
-        ));
-    }
-    Ok(())
-}
-
-/// The figure of `d`'s per-world scores, ADP's (mean over seeds) against DDP's (none without
-/// DDP or ADP records).
-fn scatter_figure(d: &ArmData, fig_dir: &Path, figs: &mut Vec<(String, String)>) -> anyhow::Result<()> {
-    let id = d.arm.id();
-    if let (Some(ddp), false) = (&d.ddp, d.adp.is_empty()) {
-        let base = ddp.per_world_values();
-        let seeds: Vec<Vec<(usize, f64, f64)>> = d.adp.iter().map(EvalRecord::per_world_values).collect();
-        let points: Vec<(usize, f64, f64)> = base
-            .iter()
-            .enumerate()
-            .map(|(i, &(w, _, s))| {
-                (
-                    w,
-                    s,
-                    stats::mean(&seeds.iter().map(|v| v[i].2).collect::<Vec<_>>()),
-                )
-            })
-            .collect();
-        let file = format!("scatter-{id}.png");
-        figures::world_scatter(
-            &points,
-            &format!("{id}: score per test world"),
-            &fig_dir.join(&file),
-        )?;
-        figs.push((
-            format!("{id}: per-world ADP against DDP score"),
-            format!("figures/{file}"),
-        ));
-    }
-    Ok(())
-}
-
-/// The figure of success and score against modelled compute per cycle: `d`'s search
-/// candidates on the training worlds and its controls on the test worlds (none without a
-/// search).
-fn compute_figure(d: &ArmData, fig_dir: &Path, figs: &mut Vec<(String, String)>) -> anyhow::Result<()> {
-    let id = d.arm.id();
-    if let Some(search) = &d.search {
-        let most = search.candidates.iter().map(|c| c.pairs).max().unwrap_or(0);
-        let points: Vec<figures::ComputePoint> = (search.candidates.iter().enumerate())
-            .map(|(i, c)| figures::ComputePoint {
-                label: match i {
-                    0 => "DDP".into(),
-                    _ if i == search.best => "best constant".into(),
-                    _ => String::new(),
-                },
-                ms: c.compute_ms_per_cycle,
-                score: c.score,
-                success_pct: c.success_pct,
-            })
-            .collect();
-        let finalists: Vec<bool> = search.candidates.iter().map(|c| c.pairs == most).collect();
-        let named = |label: String, r: &EvalRecord| {
-            let s = r.summary();
-            figures::ComputePoint {
-                label,
-                ms: s.compute_ms,
-                score: s.score,
-                success_pct: s.success_pct,
-            }
-        };
-        let mut test: Vec<figures::ComputePoint> = Vec::new();
-        test.extend(d.ddp.iter().map(|r| named("DDP".into(), r)));
-        test.extend(d.constant.iter().map(|r| named("best constant".into(), r)));
-        test.extend(d.untrained.iter().map(|r| named("untrained".into(), r)));
-        test.extend(
-            d.adp
-                .iter()
-                .enumerate()
-                .map(|(k, r)| named(format!("ADP seed {k}"), r)),
-        );
-        let file = format!("compute-{id}.png");
-        figures::compute_pareto(
-            &points,
-            &finalists,
-            &test,
-            &format!("{id}: success and score against modelled compute per cycle"),
-            &fig_dir.join(&file),
-        )?;
-        figs.push((
-            format!(
-                "{id}: success and score against modelled compute per planning cycle (left: the {} \
-                 search candidates on the training worlds, finalists dark; right: the controls on \
-                 the test worlds)",
-                search.candidates.len()
-            ),
-            format!("figures/{file}"),
-        ));
-    }
-    Ok(())
-}
-
-/// The figure of the schedules `d`'s ADP seeds chose against local clutter (none without
-/// traces).
-fn clutter_figure(d: &ArmData, fig_dir: &Path, figs: &mut Vec<(String, String)>) -> anyhow::Result<()> {
-    let id = d.arm.id();
-    let trace: Vec<runner::TracePoint> = d.adp.iter().flat_map(|r| r.trace.iter().cloned()).collect();
-    if !trace.is_empty() {
-        let file = format!("clutter-{id}.png");
-        figures::schedule_vs_clutter(
-            &trace,
-            d.arm.space,
-            &format!(
-                "{id}: chosen schedule vs local clutter ({} agent steps)",
-                trace.len()
-            ),
-            &fig_dir.join(&file),
-        )?;
-        figs.push((
-            format!("{id}: the chosen schedule's parameters against local clutter (run 0 of every test world, every seed)"),
-            format!("figures/{file}"),
-        ));
-    }
-    Ok(())
-}
-
-/// The figure of one episode of `d`'s seed 0 on the render world, its path coloured by the
-/// chosen rollout horizon.
-fn episode_figure(
-    ctx: &Ctx<'_>,
-    arm: usize,
-    d: &ArmData,
-    fig_dir: &Path,
-    figs: &mut Vec<(String, String)>,
-) -> anyhow::Result<()> {
-    let ex = ctx.ex;
-    let id = d.arm.id();
-    let p = load_policy(&ctx.layout.run_dir(arm, 0).join("export"), d.arm.space)?;
-    let dr = drive(ctx, &d.arm, &p, ex.render_world)?;
-    let file = format!("episode-{id}.png");
-    figures::episode(
-        &ctx.worlds[ex.render_world],
-        &dr,
-        d.arm.space,
-        &format!("{id} seed 0, world {}", ex.render_world),
-        &fig_dir.join(&file),
-    )?;
-    figs.push((
-        format!(
-            "{id} seed 0 on test world {}: the path coloured by the chosen rollout horizon",
-            ex.render_world
-        ),
-        format!("figures/{file}"),
-    ));
-    Ok(())
-}
-
-/// The machine-readable summary of every arm (`results.json`): its methods' table values and
-/// ADP's comparisons with the controls, and the sensing sweep.
-fn arm_results(data: &[ArmData], ex: &Experiment) -> Vec<ArmResults> {
-    data.iter()
-        .map(|d| {
-            let mut methods = Vec::new();
-            for (name, r) in [
-                ("ddp", &d.ddp),
-                ("constant", &d.constant),
-                ("untrained", &d.untrained),
-            ] {
-                if let Some(r) = r {
-                    methods.push((name.to_string(), None, r.summary()));
-                }
-            }
-            for r in d.adp.iter().chain(&d.shuffled) {
-                methods.push((r.controller.clone(), r.seed_index, r.summary()));
-            }
-            ArmResults {
-                arm: d.arm.id(),
-                methods,
-                comparisons: comparisons(d, ex),
-                sensing: sensing_results(d, ex),
-            }
-        })
-        .collect()
-}
-
 /// The arm a stage belongs to (a DDP stage to the first arm of its planner and speed).
 fn stage_arm(s: &Stage, arms: &[Arm]) -> Option<usize> {
     match *s {
@@ -1603,7 +692,7 @@ fn stage_arm(s: &Stage, arms: &[Arm]) -> Option<usize> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use planner::PlannerKind;
+    use planner::{ActionSpace, PlannerKind};
 
     /// A trainer for tests that train nothing.
     struct NoTraining;
@@ -1679,37 +768,57 @@ mod tests {
 
     /// The paper's file: Table I's 12 cells, then Table II's arms (the incremental and
     /// unconstrained spaces on the system and DWA; 4 training-world selections on the system),
-    /// 20 arms x 3 seeds; the vanilla row per planner and speed; the state-shuffled control on
-    /// the 1.5 m/s arms only; 10 runs per world trimmed by 2; the hardest 50 test worlds.
+    /// then Table I's cells again with this project's recipe (from the best constant): 32 arms
+    /// x 3 seeds; the vanilla row per planner and speed; the state-shuffled control in every
+    /// Table I cell, of both recipes; 10 runs per world trimmed by 2; the hardest 50 test worlds.
     #[test]
     fn the_paper_experiment_plans_its_tables() {
         let ex = shipped("paper.toml");
-        assert_eq!(ex.arms.len(), 20);
+        assert_eq!(ex.arms.len(), 32);
         assert_eq!(
             ex.arms[..12]
                 .iter()
-                .filter(|a| a.space == ActionSpace::Decremental)
+                .filter(|a| a.space == ActionSpace::Decremental && a.recipe.is_none())
                 .count(),
             12
         );
+        let ours = &ex.arms[20..];
+        assert!(ours.iter().all(|a| a.recipe.as_deref() == Some("project")
+            && a.start == config::Start::BestConstant
+            && a.space == ActionSpace::Decremental));
+        for (a, b) in ex.arms[..12].iter().zip(ours) {
+            assert!(a.same_controls(b) && !a.same_untrained(b), "{}", b.id());
+            let (paper, project) = (ex.train_config(a, 0), ex.train_config(b, 0));
+            assert_eq!(paper.run.steps, project.run.steps);
+            assert!(project.greedy.select && !paper.greedy.select);
+        }
         assert_eq!((ex.eval.runs, ex.eval.trim, ex.seeds), (10, 2, 3));
         assert_eq!(ex.hardest_worlds.len(), 50);
         assert!(ex.hardest_worlds.iter().all(|w| ex.test_worlds.contains(w)));
         let all = stages(&ex.arms, ex.seeds, &sweeps(&ex));
         let count = |kind: &str| all.iter().filter(|s| stage_kind(s) == kind).count();
-        assert_eq!(count("train"), 60);
+        assert_eq!(count("train"), 96);
         assert_eq!((count("ddp"), count("vanilla")), (12, 12));
-        // Training-world arms share the system's 1.5 m/s search; the others search their own.
+        // Training-world arms share the system's 1.5 m/s search, and the recipes of a cell
+        // share its search; the others search their own.
         assert_eq!(count("search"), 16);
-        assert_eq!(count("adp"), 60);
-        let shuffled_arms: Vec<f64> = all
+        assert_eq!(count("adp"), 96);
+        let shuffled: Vec<&Arm> = all
             .iter()
             .filter_map(|s| match *s {
-                Stage::EvalShuffled { arm, .. } => Some(ex.arms[arm].speed),
+                Stage::EvalShuffled { arm, .. } => Some(&ex.arms[arm]),
                 _ => None,
             })
             .collect();
-        assert!(!shuffled_arms.is_empty() && shuffled_arms.iter().all(|&v| v == 1.5));
+        // Every Table I cell of both recipes (3 seeds each), and Table II's 1.5 m/s arms.
+        assert_eq!(
+            shuffled
+                .iter()
+                .filter(|a| a.space == ActionSpace::Decremental && a.train_worlds == "fit")
+                .count(),
+            2 * 12 * 3
+        );
+        assert!(shuffled.iter().all(|a| a.speed == 1.5 || a.train_worlds == "fit"));
     }
 
     /// The sensing experiment: 4 layouts x 3 seeds trained, one search and one best constant

@@ -256,8 +256,16 @@ pub struct Cell {
     pub adp_vs_ddp: Option<Comparison>,
     /// ADP against the best constant.
     pub adp_vs_constant: Option<Comparison>,
+    /// ADP against the vanilla schedule (which lies outside the decremental action space).
+    pub adp_vs_vanilla: Option<Comparison>,
+    /// ADP against its state-shuffled twins, seed by seed: above zero, the policy uses what
+    /// it sees; a tie, its gain is a fixed schedule.
+    pub adp_vs_shuffled: Option<Comparison>,
     /// The papers' rows for this cell (method, row).
     pub published: Vec<(String, Published)>,
+    /// Which checkpoint each seed's training exported and why, in words (empty when the
+    /// trainings exported their last policy, as the paper's recipe does).
+    pub exported: Vec<String>,
     /// How ADP's schedule follows clutter, one entry per schedule parameter, over the traced
     /// agent steps (run 0 of every test world, every seed): the same summary as the
     /// training's greedy evaluations ([`eval::greedy::schedule_stats`]).
@@ -286,6 +294,20 @@ pub struct Tables {
     /// The hardest worlds' selection of Table III.
     pub hardest: String,
     /// Table III: Table I's cells on the hardest worlds.
+    pub table3: Vec<Cell>,
+    /// Tables I and III again for each group recipe (`[[experiment.groups]] recipe`), as rows
+    /// of their own beside the experiment's recipe, with the same controls.
+    pub recipes: Vec<RecipeTables>,
+}
+
+/// Tables I and III of one group recipe.
+#[derive(Clone, Debug, Serialize)]
+pub struct RecipeTables {
+    /// The recipe's name.
+    pub name: String,
+    /// Its Table I cells (those of its arms the experiment's Table I has), in Table I's order.
+    pub table1: Vec<Cell>,
+    /// The same cells on the hardest worlds.
     pub table3: Vec<Cell>,
 }
 
@@ -327,6 +349,7 @@ fn clutter_follow(space: ActionSpace, adp: &[EvalRecord]) -> Vec<ParamStats> {
 fn cell(ex: &Experiment, d: &ArmData, keep: Option<&[usize]>) -> Cell {
     let one = |r: &Option<EvalRecord>| restrict(&r.iter().cloned().collect::<Vec<_>>(), keep);
     let (ddp, constant, adp) = (one(&d.ddp), one(&d.constant), restrict(&d.adp, keep));
+    let shuffled = restrict(&d.shuffled, keep);
     let st = &ex.stats;
     let vs = |name: &str, control: &[EvalRecord]| {
         compare(name, &adp, control, st.resamples, st.confidence, st.seed)
@@ -342,26 +365,59 @@ fn cell(ex: &Experiment, d: &ArmData, keep: Option<&[usize]>) -> Cell {
         ddp: Row::of(&ddp),
         constant: Row::of(&constant),
         untrained: Row::of(&one(&d.untrained)),
-        shuffled: Row::of(&restrict(&d.shuffled, keep)),
+        shuffled: Row::of(&shuffled),
         adp: Row::of(&adp),
         adp_vs_ddp: vs("DDP", &ddp),
         adp_vs_constant: vs("best constant", &constant),
+        adp_vs_vanilla: vs("vanilla", &one(&d.vanilla)),
+        // Each shuffled twin pairs with the seed it was made from.
+        adp_vs_shuffled: compare(
+            "state-shuffled",
+            &adp[..adp.len().min(shuffled.len())],
+            &shuffled,
+            st.resamples,
+            st.confidence,
+            st.seed,
+        ),
         published: Vec::new(),
+        exported: d
+            .selections
+            .iter()
+            .enumerate()
+            .map(|(seed, r)| format!("seed {seed}: {}", eval::selection::describe(r)))
+            .collect(),
         clutter: clutter_follow(d.arm.space, &adp),
     }
 }
 
 /// The paper's tables from every arm's data (`data[i]` is arm i's).
+/// The arms of Table I's cells, in `data`'s order (planner-major, then speed): the
+/// decremental arms trained on the experiment's first training-world selection with the
+/// default observation.
+pub fn table1_arms<'a>(ex: &Experiment, data: &'a [ArmData]) -> Vec<&'a ArmData> {
+    cell_arms(ex, data, None)
+}
+
+/// The arms of Table I's cells trained with `recipe` (`None`: the experiment's own recipe and
+/// start; a group recipe's arms may start from anything).
+fn cell_arms<'a>(ex: &Experiment, data: &'a [ArmData], recipe: Option<&str>) -> Vec<&'a ArmData> {
+    let main_worlds = &ex.section.train_worlds[0];
+    data.iter()
+        .filter(|d| {
+            d.arm.space == ActionSpace::Decremental
+                && &d.arm.train_worlds == main_worlds
+                && d.arm.observation.is_none()
+                && d.arm.recipe.as_deref() == recipe
+                && (recipe.is_some() || d.arm.start == ex.section.start)
+        })
+        .collect()
+}
+
 pub fn tables(ex: &Experiment, data: &[ArmData], hardest: &str, hardest_worlds: &[usize]) -> Tables {
     let main_worlds = &ex.section.train_worlds[0];
-    let is_table1 =
-        |d: &ArmData| d.arm.space == ActionSpace::Decremental && &d.arm.train_worlds == main_worlds;
     let mut table1 = Vec::new();
     let mut table3 = Vec::new();
-    for d in data
-        .iter()
-        .filter(|d| is_table1(d) && d.arm.observation.is_none())
-    {
+    for d in table1_arms(ex, data) {
         let mut c = cell(ex, d, None);
         for m in ["vanilla", "ddp", "adp"] {
             if let Some(p) = published_table1(d.arm.planner, d.arm.speed, m) {
@@ -431,6 +487,19 @@ pub fn tables(ex: &Experiment, data: &[ArmData], hardest: &str, hardest_worlds: 
             }
         }
     }
+    let recipes = ex
+        .recipes
+        .iter()
+        .map(|(name, _)| {
+            let arms = cell_arms(ex, data, Some(name));
+            RecipeTables {
+                name: name.clone(),
+                table1: arms.iter().map(|d| cell(ex, d, None)).collect(),
+                table3: arms.iter().map(|d| cell(ex, d, Some(hardest_worlds))).collect(),
+            }
+        })
+        .filter(|r| !r.table1.is_empty())
+        .collect();
     Tables {
         runs: ex.eval.runs,
         trim: ex.eval.trim,
@@ -442,6 +511,7 @@ pub fn tables(ex: &Experiment, data: &[ArmData], hardest: &str, hardest_worlds: 
         table2_worlds,
         hardest: hardest.to_string(),
         table3,
+        recipes,
     }
 }
 
@@ -554,10 +624,18 @@ fn cell_block(out: &mut String, title: &str, c: &Cell) {
     );
     let _ = writeln!(
         out,
-        "\nADP − DDP: {}.\n\nADP − best constant: {}.",
+        "\nADP − DDP: {}.\n\nADP − best constant: {}.\n\nADP − vanilla: {}.\n\nADP − state-shuffled: {}.",
         delta(&c.adp_vs_ddp, "DDP"),
-        delta(&c.adp_vs_constant, "the best constant")
+        delta(&c.adp_vs_constant, "the best constant"),
+        delta(&c.adp_vs_vanilla, "vanilla"),
+        delta(&c.adp_vs_shuffled, "the state-shuffled policy")
     );
+    if let Some(line) = adapts(c) {
+        let _ = writeln!(out, "\n{line}");
+    }
+    if !c.exported.is_empty() {
+        let _ = writeln!(out, "\nExported (held-out selection): {}.", c.exported.join("; "));
+    }
     if let Some(line) = calibration(c) {
         let _ = writeln!(out, "\n{line}");
     }
@@ -576,6 +654,47 @@ fn cell_block(out: &mut String, title: &str, c: &Cell) {
         let _ = writeln!(out, "\nSchedule against clutter: {}.", parts.join("; "));
     }
     let _ = writeln!(out);
+}
+
+/// Whether a cell's policy adapts, in one word for the summary table: `adapts` when ADP
+/// beats its state-shuffled twin in score (interval above zero), `fixed` when it ties it,
+/// `shuffled better` when it is below it; `–` before the control is measured.
+pub fn adapt_word(c: &Cell) -> &'static str {
+    match c.adp_vs_shuffled.as_ref().map(|s| s.d_score_seeds.side()) {
+        None => "–",
+        Some(Side::Above) => "adapts",
+        Some(Side::Holds) => "fixed",
+        Some(Side::Below) => "shuffled better",
+    }
+}
+
+/// What a cell's gain is, in words: a response to what the robot sees (ADP beats its
+/// state-shuffled twin) or a fixed schedule (it does not), said against DDP's and the best
+/// constant's verdicts (`None` before the shuffled control is measured).
+pub fn adapts(c: &Cell) -> Option<String> {
+    let shuffled = c.adp_vs_shuffled.as_ref()?.d_score_seeds.side();
+    let beats = |x: &Option<Comparison>| x.as_ref().map(|x| x.d_score_seeds.side()) == Some(Side::Above);
+    let gain = match (beats(&c.adp_vs_ddp), beats(&c.adp_vs_constant)) {
+        (true, true) => "ADP beats DDP and the best constant",
+        (true, false) => "ADP beats DDP but not the best constant",
+        (false, true) => "ADP beats the best constant but not DDP",
+        (false, false) => "ADP beats neither DDP nor the best constant",
+    };
+    Some(match shuffled {
+        Side::Above => format!(
+            "What adapts: {gain}, and it beats its state-shuffled twin: the policy uses what it \
+             sees."
+        ),
+        Side::Holds => format!(
+            "What adapts: {gain}, and it ties its state-shuffled twin: fed other steps' \
+             observations it scores the same, so what it gains is a better schedule on \
+             average, not a response to what the robot sees."
+        ),
+        Side::Below => format!(
+            "What adapts: {gain}, and its state-shuffled twin scores higher: what it reads from \
+             its observations costs score."
+        ),
+    })
 }
 
 /// Points of success by which our vanilla row may differ from the DDP paper's and still be
@@ -607,8 +726,33 @@ pub fn calibration(c: &Cell) -> Option<String> {
 /// the verdicts), the table README shows. An ADP cell over fewer seeds than the protocol's
 /// says how many it has.
 pub fn summary_table(t: &Tables) -> String {
+    let mut out = summary_rows(&t.table1, t.seeds);
+    for r in &t.recipes {
+        let measured = r.table1.iter().filter(|c| c.adp.is_some()).count();
+        if measured == 0 {
+            let _ = writeln!(
+                out,
+                "\nRecipe `{}`: no cell measured yet (0 of {}).",
+                r.name,
+                r.table1.len()
+            );
+        } else {
+            let _ = write!(
+                out,
+                "\nRecipe `{}` (the same controls; ADP trained with the group's recipe, {measured} of {} cells measured):\n\n{}",
+                r.name,
+                r.table1.len(),
+                summary_rows(&r.table1, t.seeds)
+            );
+        }
+    }
+    out
+}
+
+/// The compact table of `cells`; an ADP cell over fewer than `seeds` seeds says so.
+fn summary_rows(cells: &[Cell], seeds: usize) -> String {
     let mut out = String::from(
-        "| planner | speed (m/s) | vanilla | DDP | best constant | ADP | ADP − DDP score | ADP − constant score |\n|---|---|---|---|---|---|---|---|\n",
+        "| planner | speed (m/s) | vanilla | DDP | best constant | ADP | ADP − DDP score | ADP − constant score | ADP − vanilla score | ADP − shuffled score | adapts? |\n|---|---|---|---|---|---|---|---|---|---|---|\n",
     );
     let both = |r: &Option<Row>| {
         r.as_ref().map_or_else(
@@ -627,30 +771,55 @@ pub fn summary_table(t: &Tables) -> String {
             },
         )
     };
-    for c in &t.table1 {
+    for c in cells {
         let _ = writeln!(
             out,
-            "| {} | {} | {} | {} | {} | {} | {} | {} |",
+            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
             c.planner,
             speed_label(c.speed),
             both(&c.vanilla),
             both(&c.ddp),
             both(&c.constant),
             match &c.adp {
-                Some(r) if r.seeds < t.seeds => {
-                    format!("{} ({} of {} seeds)", both(&c.adp), r.seeds, t.seeds)
+                Some(r) if r.seeds < seeds => {
+                    format!("{} ({} of {seeds} seeds)", both(&c.adp), r.seeds)
                 }
                 _ => both(&c.adp),
             },
             d(&c.adp_vs_ddp),
-            d(&c.adp_vs_constant)
+            d(&c.adp_vs_constant),
+            d(&c.adp_vs_vanilla),
+            d(&c.adp_vs_shuffled),
+            adapt_word(c)
         );
     }
     out
 }
 
-/// The tables as the report's first sections.
-pub fn render(t: &Tables) -> String {
+/// A line naming the cells of recipe `r` with no ADP row yet (none when all have one): their
+/// blocks are left out until they do.
+fn recipe_pending(out: &mut String, r: &RecipeTables) {
+    let missing: Vec<String> = r
+        .table1
+        .iter()
+        .filter(|c| c.adp.is_none())
+        .map(|c| format!("{} at {} m/s", c.planner, speed_label(c.speed)))
+        .collect();
+    if !missing.is_empty() {
+        let _ = writeln!(
+            out,
+            "Recipe `{}`: not measured yet in {} of {} cells ({}).\n",
+            r.name,
+            missing.len(),
+            r.table1.len(),
+            missing.join(", ")
+        );
+    }
+}
+
+/// The tables as the report's first sections; `clutter_figure`, the path of the figure of
+/// every Table I cell's schedule against clutter, is shown after Table I's cells.
+pub fn render(t: &Tables, clutter_figure: Option<&str>) -> String {
     let mut out = String::new();
     let _ = writeln!(
         out,
@@ -674,6 +843,32 @@ pub fn render(t: &Tables) -> String {
             &mut out,
             &format!("{} at {} m/s", c.planner, speed_label(c.speed)),
             c,
+        );
+    }
+    for r in &t.recipes {
+        recipe_pending(&mut out, r);
+        for c in r.table1.iter().filter(|c| c.adp.is_some()) {
+            cell_block(
+                &mut out,
+                &format!(
+                    "{} at {} m/s, recipe `{}`",
+                    c.planner,
+                    speed_label(c.speed),
+                    r.name
+                ),
+                c,
+            );
+        }
+    }
+    if let Some(path) = clutter_figure {
+        let _ = writeln!(
+            out,
+            "![Every Table I cell's chosen schedule against local clutter]({path})\n\n\
+             Every Table I cell's schedule against local clutter (run 0 of every test world, \
+             every seed): per parameter, the binned mean of ADP's choice as a share of the \
+             action space's range. Sloped lines are a policy that reacts to clutter, flat ones \
+             a fixed schedule; the state-shuffled column of the table says whether the \
+             reaction earns score.\n"
         );
     }
     if !t.table2_spaces.is_empty() {
@@ -712,6 +907,20 @@ pub fn render(t: &Tables) -> String {
             &format!("{} at {} m/s, hardest worlds", c.planner, speed_label(c.speed)),
             c,
         );
+    }
+    for r in &t.recipes {
+        for c in r.table3.iter().filter(|c| c.adp.is_some()) {
+            cell_block(
+                &mut out,
+                &format!(
+                    "{} at {} m/s, hardest worlds, recipe `{}`",
+                    c.planner,
+                    speed_label(c.speed),
+                    r.name
+                ),
+                c,
+            );
+        }
     }
     out
 }
@@ -855,6 +1064,7 @@ mod tests {
                 untrained: None,
                 adp: vec![rec("adp", &good), rec("adp", &good)],
                 shuffled: vec![],
+                selections: vec![],
                 sweep: vec![],
                 sensing: vec![],
             })
@@ -883,7 +1093,7 @@ mod tests {
         assert_eq!(verdict(&hard.d_score_seeds), "a tie: the interval holds 0");
         let words = delta(&h.adp_vs_ddp, "DDP");
         assert!(words.contains("no difference shown at 5 %"), "{words}");
-        let md = render(&t);
+        let md = render(&t, None);
         assert!(md.contains("### Table I") && md.contains("### Table III"), "{md}");
         assert!(md.contains("| DDP | 50.00 | 0.250 |"), "{md}");
         // DWA's vanilla at 1.5 m/s succeeds 50 % here against the DDP paper's 81.83 %.
@@ -906,6 +1116,84 @@ mod tests {
         assert!(
             summary_table(&more).contains("| 100.0 % / 0.500 (2 of 3 seeds) |"),
             "a cell with fewer seeds than the protocol says so"
+        );
+    }
+
+    /// A group recipe's arms make a table of their own beside Table I with the same controls;
+    /// every cell sets ADP against vanilla and its state-shuffled twins, and says whether it
+    /// adapts: above its twins "adapts", level with them "fixed"; a recipe cell without ADP
+    /// has no block, only a line naming it.
+    #[test]
+    fn a_recipe_gets_rows_of_its_own_and_each_cell_says_whether_it_adapts() {
+        let text = "[experiment]\nname = \"p\"\nplanners = [\"dwa\"]\nspeeds = [1.0, 1.5]\nseeds = 2\n\
+                    [[experiment.groups]]\nrecipe = \"ours\"\nstart = \"best-constant\"\n\
+                    [experiment.groups.train.td3]\nupdates_per_insert = 0.25\n[stats]\nresamples = 200\n";
+        let ex = Experiment::parse("p.toml", text, &Restrict::default()).unwrap();
+        assert_eq!(ex.arms.len(), 4);
+        let good: Vec<_> = (1..=8).map(|w| (w, true, 0.5)).collect();
+        let bad: Vec<_> = (1..=8)
+            .map(|w| (w, w > 4, if w > 4 { 0.5 } else { 0.0 }))
+            .collect();
+        let data: Vec<ArmData> = ex
+            .arms
+            .iter()
+            .map(|a| {
+                let ours = a.recipe.is_some();
+                // The paper recipe at 1.0 m/s reads its observations (its twins fail half the
+                // worlds); at 1.5 m/s it scores what its twins do. The group's 1.5 m/s cell
+                // is not measured.
+                let twin = if a.speed == 1.0 { &bad } else { &good };
+                let measured = !(ours && a.speed == 1.5);
+                ArmData {
+                    arm: a.clone(),
+                    ddp: Some(rec("ddp", &bad)),
+                    vanilla: Some(rec("vanilla", &bad)),
+                    constant: Some(rec("constant", &good)),
+                    search: None,
+                    untrained: None,
+                    adp: if measured {
+                        vec![rec("adp", &good), rec("adp", &good)]
+                    } else {
+                        vec![]
+                    },
+                    shuffled: if measured {
+                        vec![rec("shuffled", twin), rec("shuffled", twin)]
+                    } else {
+                        vec![]
+                    },
+                    selections: vec![],
+                    sweep: vec![],
+                    sensing: vec![],
+                }
+            })
+            .collect();
+        let t = tables(&ex, &data, "hard", &[5, 6, 7, 8]);
+        assert_eq!(t.table1.len(), 2, "the group's arms are not Table I's");
+        assert_eq!(t.recipes.len(), 1);
+        let r = &t.recipes[0];
+        assert_eq!((r.name.as_str(), r.table1.len(), r.table3.len()), ("ours", 2, 2));
+        let (slow, fast) = (&t.table1[0], &t.table1[1]);
+        assert_eq!(
+            verdict(&slow.adp_vs_vanilla.as_ref().unwrap().d_score_seeds),
+            "ADP better"
+        );
+        assert_eq!((adapt_word(slow), adapt_word(fast)), ("adapts", "fixed"));
+        assert!(adapts(slow).unwrap().contains("beats its state-shuffled twin"));
+        assert!(adapts(fast).unwrap().contains("a better schedule on average"));
+        assert_eq!(adapt_word(&r.table1[1]), "–");
+        assert!(adapts(&r.table1[1]).is_none());
+        let md = render(&t, None);
+        assert!(md.contains("#### dwa at 1.0 m/s, recipe `ours`"), "{md}");
+        assert!(!md.contains("#### dwa at 1.5 m/s, recipe `ours`"), "{md}");
+        assert!(
+            md.contains("not measured yet in 1 of 2 cells (dwa at 1.5 m/s)"),
+            "{md}"
+        );
+        let summary = summary_table(&t);
+        assert!(summary.contains("1 of 2 cells measured"), "{summary}");
+        assert!(
+            summary.contains("| adapts |") && summary.contains("| fixed |"),
+            "{summary}"
         );
     }
 

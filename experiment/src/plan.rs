@@ -273,6 +273,7 @@ mod tests {
             train_worlds: "train".into(),
             observation: None,
             start: Start::Ddp,
+            recipe: None,
         })
         .collect()
     }

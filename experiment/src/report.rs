@@ -34,6 +34,9 @@ pub struct ArmData {
     pub adp: Vec<EvalRecord>,
     /// Their state-shuffled twins.
     pub shuffled: Vec<EvalRecord>,
+    /// Which checkpoint each finished training exported and why (`[greedy] select`), one
+    /// per seed whose run wrote `selection.json`.
+    pub selections: Vec<eval::selection::SelectionReport>,
     /// The budget sweep (the swept arm only): per sweep point, its compute label and the
     /// records of DDP, the best constant and the ADP seeds found.
     pub sweep: Vec<SweepPoint>,
@@ -954,6 +957,7 @@ mod tests {
             untrained: None,
             adp: vec![],
             shuffled: vec![],
+            selections: vec![],
             sweep: vec![],
             sensing: vec![
                 point("clean", Some(rec("ddp", &bad)), &good),
@@ -1007,6 +1011,7 @@ mod tests {
                 untrained: None,
                 adp: vec![rec("adp", &[(3, true, score)])],
                 shuffled: vec![],
+                selections: vec![],
                 sweep: vec![],
                 sensing: vec![],
             })
