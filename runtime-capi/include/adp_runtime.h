@@ -108,8 +108,8 @@ typedef struct AdpCycleOutput {
   // The command to issue now (a stop after an error), inside the configured speed and
   // turn limits.
   struct AdpTwist command;
-  // Whether the planner ran (false: the last cycle's modelled compute still runs and the
-  // command repeats the last one).
+  // Whether the cycle decided a new command: the planner ran, or the run arrived (false:
+  // the last cycle's modelled compute still runs and the command repeats the last one).
   bool planned;
   // Whether `compute_s` holds the cycle's modelled compute time (a compute model is on
   // and the planner ran).
@@ -129,6 +129,9 @@ typedef struct AdpCycleOutput {
   // The cycle's counted work: cost-map cells, samples, random draws, rollout steps,
   // collision-check points.
   uint64_t work[5];
+  // Whether the run has arrived: the robot came within `goal_tolerance_m` of the goal;
+  // the command is a stop until a new goal starts a new run.
+  bool arrived;
 } AdpCycleOutput;
 
 #ifdef __cplusplus

@@ -154,8 +154,8 @@ pub struct AdpCycleOutput {
     /// The command to issue now (a stop after an error), inside the configured speed and
     /// turn limits.
     pub command: AdpTwist,
-    /// Whether the planner ran (false: the last cycle's modelled compute still runs and the
-    /// command repeats the last one).
+    /// Whether the cycle decided a new command: the planner ran, or the run arrived (false:
+    /// the last cycle's modelled compute still runs and the command repeats the last one).
     pub planned: bool,
     /// Whether `compute_s` holds the cycle's modelled compute time (a compute model is on
     /// and the planner ran).
@@ -175,6 +175,9 @@ pub struct AdpCycleOutput {
     /// The cycle's counted work: cost-map cells, samples, random draws, rollout steps,
     /// collision-check points.
     pub work: [u64; 5],
+    /// Whether the run has arrived: the robot came within `goal_tolerance_m` of the goal;
+    /// the command is a stop until a new goal starts a new run.
+    pub arrived: bool,
 }
 
 impl From<&CycleOutput> for AdpCycleOutput {
@@ -194,6 +197,7 @@ impl From<&CycleOutput> for AdpCycleOutput {
             horizon_s: s.map_or(0.0, |s| s.horizon_s),
             first_dt_s: s.map_or(0.0, |s| s.first_dt_s),
             work: o.work.work.as_array(),
+            arrived: o.arrived,
         }
     }
 }

@@ -36,7 +36,7 @@ fn errors_give_a_status_a_message_and_a_stop() {
             adp_navigator_cycle(nav, &input, &mut out, err.as_mut_ptr(), err.len()),
             AdpStatus::Ok
         );
-        assert!(out.command.v > 0.0 && out.planned && out.agent_step && out.has_schedule);
+        assert!(out.command.v > 0.0 && out.planned && out.agent_step && out.has_schedule && !out.arrived);
         let good = input;
         // A short scan: refused with a stop, and the message in a buffer too small for it
         // is cut and terminated.
@@ -342,5 +342,35 @@ fn a_freed_or_foreign_handle_is_a_status_not_undefined_behaviour() {
         assert_eq!((time_s, score), (-1.0, -1.0));
         assert_eq!(adp_sim_free(sim), AdpStatus::Handle);
         assert_eq!(adp_navigator_free(again), AdpStatus::Ok);
+    }
+}
+
+#[test]
+fn an_arrived_run_says_so_and_stops() {
+    let mut err = [0 as c_char; 256];
+    // Wider than BARN's 1 m success radius, so the runtime arrives before the run ends.
+    let config = config_with(
+        "arrival",
+        "planner = \"dwa\"\nmax_speed = 1.5\ngoal_tolerance_m = 2.5",
+    );
+    unsafe {
+        let nav = adp_navigator_from_file(config.as_ptr(), err.as_mut_ptr(), err.len());
+        assert!(!nav.is_null(), "{}", message(&err));
+        let sim = adp_sim_new(nav, 3, 5, err.as_mut_ptr(), err.len());
+        let mut out = AdpCycleOutput::default();
+        let mut periods = 0;
+        while !out.arrived {
+            let mut input = std::mem::zeroed::<AdpCycleInput>();
+            assert!(adp_sim_observe(sim, &mut input));
+            let status = adp_navigator_cycle(nav, &input, &mut out, err.as_mut_ptr(), err.len());
+            assert_eq!(status, AdpStatus::Ok, "{}", message(&err));
+            assert_eq!(adp_sim_step(sim, &out), AdpRunStatus::Running);
+            periods += 1;
+            assert!(periods < 2000, "never arrived");
+        }
+        assert_eq!(out.command, AdpTwist { v: 0.0, w: 0.0 });
+        assert!(out.planned && !out.has_schedule && !out.has_compute);
+        assert_eq!(adp_sim_free(sim), AdpStatus::Ok);
+        assert_eq!(adp_navigator_free(nav), AdpStatus::Ok);
     }
 }

@@ -64,8 +64,8 @@ fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
 struct CycleOutput {
     /// The command (v m/s, w rad/s) to issue now.
     command: (f64, f64),
-    /// Whether the planner ran (False: the last cycle's modelled compute still runs and the
-    /// command repeats the last one).
+    /// Whether the cycle decided a new command: the planner ran, or the run arrived (False:
+    /// the last cycle's modelled compute still runs and the command repeats the last one).
     planned: bool,
     /// The cycle's modelled compute time (s), or None (free model, or no planning).
     compute_s: Option<f64>,
@@ -75,6 +75,9 @@ struct CycleOutput {
     schedule: Option<(usize, f64, f64)>,
     /// The cycle's counted work: (cells, samples, draws, steps, points).
     work: (u64, u64, u64, u64, u64),
+    /// Whether the run has arrived (within `goal_tolerance_m` of the goal): the command is
+    /// a stop until a new goal starts a new run.
+    arrived: bool,
 }
 
 impl From<&Output> for CycleOutput {
@@ -87,6 +90,7 @@ impl From<&Output> for CycleOutput {
             agent_step: o.agent_step,
             schedule: o.schedule.map(|s| (s.steps, s.horizon_s, s.first_dt_s)),
             work: (cells, samples, draws, steps, points),
+            arrived: o.arrived,
         }
     }
 }
@@ -95,8 +99,9 @@ impl From<&Output> for CycleOutput {
 impl CycleOutput {
     fn __repr__(&self) -> String {
         format!(
-            "CycleOutput(command={:?}, planned={}, compute_s={:?}, agent_step={}, schedule={:?})",
-            self.command, self.planned, self.compute_s, self.agent_step, self.schedule
+            "CycleOutput(command={:?}, planned={}, compute_s={:?}, agent_step={}, schedule={:?}, \
+             arrived={})",
+            self.command, self.planned, self.compute_s, self.agent_step, self.schedule, self.arrived
         )
     }
 
@@ -107,6 +112,7 @@ impl CycleOutput {
             && self.agent_step == other.agent_step
             && self.schedule == other.schedule
             && self.work == other.work
+            && self.arrived == other.arrived
     }
 }
 

@@ -65,6 +65,7 @@ def test_the_c_example_and_python_agree():
         (lambda i: i.update(goal=(1e300, 0.0)), "goal", "goal: (1e300, 0e0) is outside the envelope"),
         (lambda i: i.update(pose=(0.0, 0.0, 1e7)), "odometry", "odometry: pose.yaw = 1e7 rad is outside"),
         (lambda i: i.update(odom_stamp_s=i["stamp_s"] - 1.0), "odometry", "odometry: 1.000 s older than the scan"),
+        (lambda i: i.update(odom_stamp_s=i["stamp_s"] + 1.0), "odometry", "odometry: stamped 1.000 s after the scan"),
         (lambda i: i.update(pose=(math.nan, 0.0, 0.0)), "odometry", "odometry: pose.x = NaN is not finite"),
         (lambda i: i.update(goal=(0.0, math.inf)), "goal", "goal: (0, inf) is not finite"),
         (lambda i: i.update(path=[]), "path", "global path: empty"),
@@ -179,3 +180,28 @@ def test_the_example_drives_a_world():
     )
     assert run.returncode == 0, run.stderr
     assert run.stdout.startswith("world 3: succeeded in 6.27 s, score 0.500; 133 cycles, 0 refused")
+
+
+def test_the_runtime_says_when_the_run_has_arrived(tmp_path):
+    # goal_tolerance_m wider than BARN's 1 m success radius, so arrival comes first.
+    config = tmp_path / "runtime.toml"
+    config.write_text('planner = "dwa"\nmax_speed = 1.5\ngoal_tolerance_m = 2.5\n')
+    nav = adp_runtime.Navigator(str(config))
+    sim = adp_runtime.Sim(nav, 3, 5)
+    out = nav.cycle(**sim.observe())
+    assert not out.arrived and out.command != adp_runtime.STOP
+    while not out.arrived:
+        assert sim.step(out) == "running"
+        out = nav.cycle(**sim.observe())
+    assert out.command == adp_runtime.STOP and out.planned and out.schedule is None
+    assert "arrived=true" in repr(out)
+    # Latched until a new goal: the robot is left standing.
+    for _ in range(20):
+        assert sim.step(out) == "running"
+        out = nav.cycle(**sim.observe())
+        assert out.arrived and out.command == adp_runtime.STOP
+    # A new goal 4 m from the robot, beyond the tolerance: a new run, planning again.
+    inputs = sim.observe()
+    x, y, _ = inputs["pose"]
+    out = nav.cycle(**dict(inputs, goal=(x, y + 4.0)))
+    assert not out.arrived and out.schedule is not None

@@ -10,6 +10,7 @@
 //! max_odometry_age_s = 0.1     # odometry older than the scan by more is refused
 //! max_odometry_lead_s = 0.1    # odometry stamped after the scan by more is refused
 //! max_goal_distance_m = 50.0   # a goal farther from the robot is refused (the envelope)
+//! goal_tolerance_m = 0.3       # within this of the goal the run has arrived: stop
 //! nan_as_no_return = true      # NaN and +-inf ranges read as no return; false refuses NaN
 //! allow_policy_mismatch = false # true runs a policy under another planner or speed than
 //!                              # its card records (a transfer experiment)
@@ -73,6 +74,9 @@ pub struct RuntimeOptions {
     /// A goal farther than this from the robot (m) is refused: it bounds the costmap
     /// ([`crate::envelope`]).
     pub max_goal_distance_m: f64,
+    /// Within this distance of the goal (m) the run has arrived: every cycle then commands
+    /// a stop and says so ([`crate::CycleOutput::arrived`]) until a new goal is given.
+    pub goal_tolerance_m: f64,
     /// Whether a NaN or infinite range reads as no return (the lidar's max range), as lidar
     /// drivers publish beams without one. `false` refuses a scan with a NaN range, reads
     /// `+inf` as no return and `-inf` as the lidar's min range.
@@ -86,7 +90,7 @@ pub struct RuntimeOptions {
 
 impl RuntimeOptions {
     /// `planner` at `max_speed` on DDP, seed 0, odometry at most 0.1 s old, goals at most
-    /// 50 m away, NaN and infinite ranges read as no return, a policy trained for another
+    /// 50 m away and reached within 0.3 m, NaN and infinite ranges read as no return, a policy trained for another
     /// planner or speed refused, the laser at the base origin.
     pub fn new(planner: PlannerKind, max_speed: f64) -> Self {
         Self {
@@ -98,6 +102,7 @@ impl RuntimeOptions {
             max_odometry_lead_s: DEFAULT_MAX_ODOMETRY_AGE_S,
             laser_pose: Pose::new(0.0, 0.0, 0.0),
             max_goal_distance_m: DEFAULT_MAX_GOAL_DISTANCE_M,
+            goal_tolerance_m: DEFAULT_GOAL_TOLERANCE_M,
             nan_as_no_return: true,
             allow_policy_mismatch: false,
         }
@@ -118,6 +123,12 @@ impl RuntimeOptions {
             return Err(format!(
                 "max_goal_distance_m = {} must be finite and > 0",
                 self.max_goal_distance_m
+            ));
+        }
+        if !(self.goal_tolerance_m.is_finite() && self.goal_tolerance_m >= 0.0) {
+            return Err(format!(
+                "goal_tolerance_m = {} must be finite and >= 0",
+                self.goal_tolerance_m
             ));
         }
         if self.max_odometry_age_s.is_nan() || self.max_odometry_age_s < 0.0 {
@@ -153,6 +164,14 @@ impl RuntimeOptions {
 /// Two control periods at the default 0.05 s.
 const DEFAULT_MAX_ODOMETRY_AGE_S: f64 = 0.1;
 
+/// About the Jackal's half-length, and ROS 2 Nav2's default `xy_goal_tolerance` (0.25 m)
+/// rounded up. Under BARN's 1 m success radius, so a simulated run ends before it applies.
+const DEFAULT_GOAL_TOLERANCE_M: f64 = 0.3;
+
+fn default_goal_tolerance_m() -> f64 {
+    DEFAULT_GOAL_TOLERANCE_M
+}
+
 fn default_max_odometry_age_s() -> f64 {
     DEFAULT_MAX_ODOMETRY_AGE_S
 }
@@ -182,6 +201,8 @@ struct RuntimeFile {
     max_odometry_lead_s: f64,
     #[serde(default = "default_max_goal_distance_m")]
     max_goal_distance_m: f64,
+    #[serde(default = "default_goal_tolerance_m")]
+    goal_tolerance_m: f64,
     #[serde(default = "default_true")]
     nan_as_no_return: bool,
     #[serde(default)]
@@ -228,6 +249,7 @@ pub fn read(path: &Path) -> Result<(EvalConfig, RuntimeOptions, Option<LearnedPo
         max_odometry_lead_s: file.max_odometry_lead_s,
         laser_pose: Pose::new(file.lidar.x, file.lidar.y, file.lidar.yaw_deg.to_radians()),
         max_goal_distance_m: file.max_goal_distance_m,
+        goal_tolerance_m: file.goal_tolerance_m,
         nan_as_no_return: file.nan_as_no_return,
         allow_policy_mismatch: file.allow_policy_mismatch,
     };

@@ -24,8 +24,10 @@ use crate::laser::Reprojection;
 pub struct CycleOutput {
     /// The velocity command to issue now (robot frame), inside [`Navigator::limits`].
     pub command: Twist,
-    /// Whether the planner ran this cycle. `false`: under a compute model the last cycle's
-    /// modelled compute still runs, and `command` repeats the last command.
+    /// Whether this cycle decided a new command, issued at once (under the free compute
+    /// model) or after `compute_s`: the planner ran, or the run has arrived (`arrived`, a
+    /// stop, issued at once). `false`: under a compute model the last cycle's modelled
+    /// compute still runs, and `command` repeats the last command.
     pub planned: bool,
     /// The planning cycle's modelled compute time (s) under a compute model (`None` under
     /// the free model, and for a cycle that did not plan).
@@ -38,6 +40,11 @@ pub struct CycleOutput {
     pub schedule: Option<ScheduleSummary>,
     /// The work this cycle's planning counted (zero for a cycle that did not plan).
     pub work: CycleWork,
+    /// Whether the run has arrived: the robot came within `goal_tolerance_m` of the goal
+    /// (this cycle or an earlier one of the run). The command is then a stop, issued at once
+    /// (`planned`, no `compute_s`, no work: the planner does not run), and every cycle says
+    /// so until a new goal starts a new run.
+    pub arrived: bool,
 }
 
 /// The shape of a rollout schedule.
@@ -144,6 +151,8 @@ pub struct Navigator {
     mount: Option<(Reprojection, Vec<f64>)>,
     /// What every command is clamped to.
     limits: CommandLimits,
+    /// Whether the current run has arrived at its goal.
+    arrived: bool,
 }
 
 impl Navigator {
@@ -254,6 +263,7 @@ impl Navigator {
             ranges: Vec::new(),
             mount,
             limits: CommandLimits::new(&episode.robot, options.max_speed),
+            arrived: false,
         })
     }
 
@@ -327,6 +337,19 @@ impl Navigator {
             self.start_run(input);
         }
         let odom = input.odom;
+        self.arrived |= odom.pose.position().dist(input.goal) <= self.options.goal_tolerance_m;
+        if self.arrived {
+            self.last = crate::STOP;
+            return Ok(CycleOutput {
+                command: crate::STOP,
+                planned: true,
+                compute_s: None,
+                agent_step: false,
+                schedule: None,
+                work: CycleWork::default(),
+                arrived: true,
+            });
+        }
         let ranges = match &mut self.mount {
             Some((reprojection, base)) => {
                 reprojection.apply(&self.ranges, base);
@@ -400,6 +423,7 @@ impl Navigator {
             agent_step,
             schedule,
             work,
+            arrived: false,
         })
     }
 
@@ -428,5 +452,6 @@ impl Navigator {
         }
         self.periods = 0;
         self.last = Twist::default();
+        self.arrived = false;
     }
 }

@@ -5,7 +5,7 @@ per call.
     nav = adp_runtime.Navigator("runtime.toml")
     try:
         out = nav.cycle(stamp_s, ranges, (x, y, yaw), (v, w), odom_stamp_s, (gx, gy))
-        v, w = out.command
+        v, w = out.command        # a stop once out.arrived (within goal_tolerance_m)
     except adp_runtime.RefusedInput as e:
         message, kind = e.args
         v, w = adp_runtime.STOP
