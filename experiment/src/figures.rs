@@ -4,6 +4,8 @@
 //! * greedy-evaluation learning curves read from each run's `greedy_eval.jsonl`
 //!   ([`GreedyPoint`]; a run without the file is skipped);
 //! * per-world ADP against DDP score (ADP: mean over seeds);
+//! * Table I as a forest plot: per cell, ADP's score difference from DDP and from the best
+//!   constant with its interval;
 //! * the chosen schedule's physical parameters against local clutter (binned means and
 //!   standard deviations over every traced agent step), per arm and for every Table I cell
 //!   in one grid;
@@ -203,6 +205,101 @@ pub fn world_scatter(points: &[(usize, f64, f64)], title: &str, out: &Path) -> a
         (FAMILY, 15),
     ))
     .map_err(err)?;
+    root.present()
+        .with_context(|| format!("cannot write {}", out.display()))
+}
+
+/// One row of [`forest`]: a label and, per series, the difference's mean and interval
+/// `(mean, lo, hi)` (`None`: not measured).
+pub struct ForestRow {
+    /// The row's label (e.g. `dwa 1.5`).
+    pub label: String,
+    /// Per series, in the order of `forest`'s `series`.
+    pub intervals: Vec<Option<(f64, f64, f64)>>,
+}
+
+/// A forest plot: one row per entry of `rows`, top to bottom, each series' mean as a dot
+/// with its interval as a bar, a vertical line at zero. An interval that misses zero is
+/// drawn solid, one that holds it faded.
+pub fn forest(
+    rows: &[ForestRow],
+    series: &[&str],
+    x_desc: &str,
+    title: &str,
+    out: &Path,
+) -> anyhow::Result<()> {
+    fonts();
+    let ends = rows
+        .iter()
+        .flat_map(|r| r.intervals.iter().flatten())
+        .flat_map(|&(_, lo, hi)| [lo, hi]);
+    let (lo, hi) = ends.fold((0.0f64, 0.0f64), |(a, b), v| (a.min(v), b.max(v)));
+    let pad = 0.08 * (hi - lo).max(1e-3);
+    let n = rows.len().max(1) as f64;
+    let root = BitMapBackend::new(out, (820, 80 + 34 * rows.len().max(1) as u32)).into_drawing_area();
+    root.fill(&WHITE).map_err(err)?;
+    let mut chart = ChartBuilder::on(&root)
+        .caption(title, (FAMILY, 18))
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(110)
+        .build_cartesian_2d((lo - pad)..(hi + pad), -0.5..(n - 0.5))
+        .map_err(err)?;
+    chart
+        .configure_mesh()
+        .disable_y_mesh()
+        .y_labels(0)
+        .x_desc(x_desc)
+        .label_style((FAMILY, 12))
+        .draw()
+        .map_err(err)?;
+    chart
+        .draw_series(LineSeries::new([(0.0, -0.5), (0.0, n - 0.5)], BLACK.mix(0.6)))
+        .map_err(err)?;
+    let k = series.len().max(1) as f64;
+    for (s, name) in series.iter().enumerate() {
+        let c = colour(s);
+        // Row i is drawn at y = n - 1 - i (the first row on top), each series a little apart.
+        let y = |i: usize| n - 1.0 - i as f64 + 0.25 - 0.5 * (s as f64 + 0.5) / k;
+        let bars: Vec<(f64, f64, f64, f64)> = rows
+            .iter()
+            .enumerate()
+            .filter_map(|(i, r)| {
+                r.intervals
+                    .get(s)
+                    .copied()
+                    .flatten()
+                    .map(|(m, l, h)| (y(i), m, l, h))
+            })
+            .collect();
+        let faded = |l: f64, h: f64| if l > 0.0 || h < 0.0 { 1.0 } else { 0.45 };
+        chart
+            .draw_series(bars.iter().map(|&(y, _, l, h)| {
+                PathElement::new(vec![(l, y), (h, y)], c.mix(faded(l, h)).stroke_width(3))
+            }))
+            .map_err(err)?
+            .label(*name)
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], c.stroke_width(3)));
+        chart
+            .draw_series(
+                bars.iter()
+                    .map(|&(y, m, l, h)| Circle::new((m, y), 4, c.mix(faded(l, h)).filled())),
+            )
+            .map_err(err)?;
+    }
+    for (i, r) in rows.iter().enumerate() {
+        let (px, py) = chart.backend_coord(&(lo - pad, n - 1.0 - i as f64));
+        root.draw(&Text::new(r.label.clone(), (px - 104, py - 7), (FAMILY, 13)))
+            .map_err(err)?;
+    }
+    chart
+        .configure_series_labels()
+        .position(SeriesLabelPosition::UpperLeft)
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK.mix(0.3))
+        .label_font((FAMILY, 12))
+        .draw()
+        .map_err(err)?;
     root.present()
         .with_context(|| format!("cannot write {}", out.display()))
 }
@@ -497,6 +594,54 @@ pub fn episode(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The forest plot and the clutter grid draw unmeasured rows and cells (no interval, no
+    /// trace) without failing, one row or panel each: the image grows with the rows.
+    #[test]
+    fn table_figures_draw_unmeasured_cells_and_grow_with_their_rows() {
+        let dir = std::env::temp_dir().join(format!("adp-figures-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let size = |p: &Path| {
+            let b = std::fs::read(p).unwrap();
+            assert_eq!(&b[1..4], b"PNG");
+            (
+                u32::from_be_bytes(b[16..20].try_into().unwrap()),
+                u32::from_be_bytes(b[20..24].try_into().unwrap()),
+            )
+        };
+        let row = |label: &str, x: Option<(f64, f64, f64)>| ForestRow {
+            label: label.into(),
+            intervals: vec![x, None],
+        };
+        let (two, three) = (dir.join("two.png"), dir.join("three.png"));
+        let mut rows = vec![row("dwa 1.0", Some((0.01, 0.002, 0.02))), row("dwa 1.5", None)];
+        forest(&rows, &["a", "b"], "x", "t", &two).unwrap();
+        rows.push(row("mppi 1.0", Some((0.0, 0.0, 0.0))));
+        let more = rows;
+        forest(&more, &["a", "b"], "x", "t", &three).unwrap();
+        assert_eq!(size(&two).0, size(&three).0);
+        assert_eq!(size(&three).1 - size(&two).1, 34);
+        let panel = |adp: Vec<TracePoint>| ClutterPanel {
+            title: "p".into(),
+            space: ActionSpace::Decremental,
+            adp,
+        };
+        let point = TracePoint {
+            world: 0,
+            clutter: 0.3,
+            params: vec![1.7, 2.0, 20.0, 0.0],
+        };
+        let grid = dir.join("grid.png");
+        clutter_grid(
+            &[panel(vec![point.clone(), point]), panel(vec![]), panel(vec![])],
+            2,
+            "t",
+            &grid,
+        )
+        .unwrap();
+        assert_eq!(size(&grid), (720, 640));
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 
     #[test]
     fn binned_means_by_hand() {

@@ -817,9 +817,10 @@ fn recipe_pending(out: &mut String, r: &RecipeTables) {
     }
 }
 
-/// The tables as the report's first sections; `clutter_figure`, the path of the figure of
-/// every Table I cell's schedule against clutter, is shown after Table I's cells.
-pub fn render(t: &Tables, clutter_figure: Option<&str>) -> String {
+/// The tables as the report's first sections; `forest_figure`, the path of Table I's forest
+/// plot, is shown under Table I's summary, and `clutter_figure`, the path of the figure of
+/// every Table I cell's schedule against clutter, after Table I's cells.
+pub fn render(t: &Tables, forest_figure: Option<&str>, clutter_figure: Option<&str>) -> String {
     let mut out = String::new();
     let _ = writeln!(
         out,
@@ -838,6 +839,14 @@ pub fn render(t: &Tables, clutter_figure: Option<&str>) -> String {
     let _ = writeln!(out, "### Table I: ADP against DDP, per planner and speed cap\n");
     out += &summary_table(t);
     let _ = writeln!(out);
+    if let Some(path) = forest_figure {
+        let _ = writeln!(
+            out,
+            "![Table I as a forest plot]({path})\n\nPer cell, ADP's score minus DDP's (blue) and \
+             minus the best constant's (red), the dot the mean and the bar the 95 % interval over \
+             seeds and worlds; a bar that misses zero is solid, one that holds it faded.\n"
+        );
+    }
     for c in &t.table1 {
         cell_block(
             &mut out,
@@ -1093,7 +1102,7 @@ mod tests {
         assert_eq!(verdict(&hard.d_score_seeds), "a tie: the interval holds 0");
         let words = delta(&h.adp_vs_ddp, "DDP");
         assert!(words.contains("no difference shown at 5 %"), "{words}");
-        let md = render(&t, None);
+        let md = render(&t, None, None);
         assert!(md.contains("### Table I") && md.contains("### Table III"), "{md}");
         assert!(md.contains("| DDP | 50.00 | 0.250 |"), "{md}");
         // DWA's vanilla at 1.5 m/s succeeds 50 % here against the DDP paper's 81.83 %.
@@ -1182,7 +1191,7 @@ mod tests {
         assert!(adapts(fast).unwrap().contains("a better schedule on average"));
         assert_eq!(adapt_word(&r.table1[1]), "–");
         assert!(adapts(&r.table1[1]).is_none());
-        let md = render(&t, None);
+        let md = render(&t, None, None);
         assert!(md.contains("#### dwa at 1.0 m/s, recipe `ours`"), "{md}");
         assert!(!md.contains("#### dwa at 1.5 m/s, recipe `ours`"), "{md}");
         assert!(

@@ -262,7 +262,11 @@ pub(crate) fn write_report(ctx: &Ctx<'_>) -> anyhow::Result<PathBuf> {
         // The paper's tables lead; the per-arm report follows under its own title.
         let (title, rest) = text.split_once('\n').unwrap_or((&text, ""));
         let clutter = table1_clutter_figure(ex, &data, &fig_dir)?;
-        text = format!("{title}\n\n{}{rest}", paper::render(&t, clutter.as_deref()));
+        let forest = table1_forest_figure(&t, &fig_dir)?;
+        text = format!(
+            "{title}\n\n{}{rest}",
+            paper::render(&t, forest.as_deref(), clutter.as_deref())
+        );
         serde_json::to_vec_pretty(&serde_json::json!({"paper": t, "arms": results}))
     } else {
         serde_json::to_vec_pretty(&results)
@@ -436,6 +440,43 @@ fn clutter_figure(d: &ArmData, fig_dir: &Path, figs: &mut Vec<(String, String)>)
         ));
     }
     Ok(())
+}
+
+/// Table I as a forest plot: per cell (and per cell of each group recipe with ADP
+/// measured), ADP − DDP and ADP − best constant in score with their intervals over seeds and
+/// worlds; its path relative to the report (none while no cell has ADP).
+fn table1_forest_figure(t: &paper::Tables, fig_dir: &Path) -> anyhow::Result<Option<String>> {
+    let row = |c: &paper::Cell, suffix: &str| figures::ForestRow {
+        label: format!("{} {}{suffix}", c.planner, speed_label(c.speed)),
+        intervals: [&c.adp_vs_ddp, &c.adp_vs_constant]
+            .iter()
+            .map(|x| {
+                x.as_ref()
+                    .map(|x| (x.d_score_seeds.mean, x.d_score_seeds.lo, x.d_score_seeds.hi))
+            })
+            .collect(),
+    };
+    let mut rows: Vec<figures::ForestRow> = t.table1.iter().map(|c| row(c, "")).collect();
+    for r in &t.recipes {
+        rows.extend(
+            r.table1
+                .iter()
+                .filter(|c| c.adp.is_some())
+                .map(|c| row(c, &format!(" ({})", r.name))),
+        );
+    }
+    if rows.iter().all(|r| r.intervals.iter().all(Option::is_none)) {
+        return Ok(None);
+    }
+    let file = "table1-forest.png";
+    figures::forest(
+        &rows,
+        &["ADP − DDP", "ADP − best constant"],
+        "score difference (95 % interval over seeds and worlds)",
+        "Table I: ADP's score against DDP and the best constant",
+        &fig_dir.join(file),
+    )?;
+    Ok(Some(format!("figures/{file}")))
 }
 
 /// Every Table I cell's schedule against clutter in one figure, a row per planner and a
