@@ -89,7 +89,13 @@ pub fn run(cmd: Cmd) -> anyhow::Result<()> {
         Cmd::Eval(args) => eval::command(&args),
         Cmd::Calibrate(args) => calibrate::command(&args),
         Cmd::Render(args) => render::command(&args),
-        Cmd::Export(a) => export::run(&a.checkpoint, &a.out, a.action),
+        Cmd::Export(a) => {
+            let trained_for = a
+                .planner
+                .zip(a.max_speed)
+                .map(|(planner, max_speed)| learner::export::TrainedFor { planner, max_speed });
+            export::run(&a.checkpoint, &a.out, a.action, trained_for)
+        }
         Cmd::Experiment(args) => {
             if let Some(report) = experiment::run(&args)? {
                 println!("{}", report.display());

@@ -9,7 +9,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context};
 
-use learner::export::space_name;
+use learner::export::{record_trained_for, space_name, TrainedFor};
 use learner::LearnerDevice;
 use learner_service::{Learner, TrainSummary};
 use proto::auth::{read_or_create_token_file, read_token_file};
@@ -222,8 +222,24 @@ pub fn train(config: Option<&Path>, o: &Overrides, resume: bool) -> anyhow::Resu
     if let Some(c) = chosen {
         export_chosen(&c, &mut summary, &out, cfg.run.action_space);
     }
+    record_run(&summary, &cfg);
     print_summary(&summary, &out, &space_name(cfg.run.action_space), "train");
     Ok(())
+}
+
+/// Records the run's planner and speed cap in its export's card, so the robot runtime can
+/// refuse the policy under another planner or speed. A failure is logged: the export stays
+/// usable by `adp eval`.
+fn record_run(summary: &TrainSummary, cfg: &TrainConfig) {
+    if let Some(dir) = &summary.export {
+        let trained_for = TrainedFor {
+            planner: cfg.run.planner,
+            max_speed: cfg.run.max_speed,
+        };
+        if let Err(e) = record_trained_for(dir, trained_for) {
+            tracing::error!("the export's card does not record the planner and speed: {e}");
+        }
+    }
 }
 
 /// Held-out selection's end: writes the chosen policy over the run's export (with
@@ -283,6 +299,7 @@ pub fn learner(
     };
     let learner = Learner::start(cfg.learner_options(&out, token, resume)?)?;
     let summary = learner.wait()?;
+    record_run(&summary, &cfg);
     print_summary(&summary, &out, &space_name(cfg.run.action_space), "learner");
     Ok(())
 }

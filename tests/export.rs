@@ -118,6 +118,48 @@ fn export_writes_the_policy_files_and_a_reference_for_onnxruntime() {
 }
 
 #[test]
+fn export_records_the_planner_and_speed_it_is_told() {
+    let work = fresh_dir("export-trained-for");
+    let ckpt = work.join("ckpt-2");
+    make_checkpoint(&ckpt);
+    let out = work.join("out");
+    let export = |extra: &[&str]| {
+        let mut args = vec![
+            "export",
+            "--checkpoint",
+            ckpt.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ];
+        args.extend_from_slice(extra);
+        adp(&args)
+    };
+    let o = export(&["--planner", "mppi", "--max-speed", "1.5"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(String::from_utf8_lossy(&o.stdout).contains("trained for mppi at 1.5 m/s"));
+    let card: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("policy.json")).unwrap()).unwrap();
+    assert_eq!(
+        card["trained_for"],
+        serde_json::json!({ "planner": "mppi", "max_speed": 1.5 })
+    );
+    // One without the other, or a speed that is not one, is refused.
+    let o = export(&["--planner", "mppi"]);
+    assert!(
+        !o.status.success() && stderr(&o).contains("--max-speed"),
+        "{}",
+        stderr(&o)
+    );
+    let o = export(&["--planner", "dwa", "--max-speed", "0"]);
+    assert!(
+        stderr(&o).contains("--max-speed 0 must be finite and > 0"),
+        "{}",
+        stderr(&o)
+    );
+    std::fs::remove_dir_all(&work).unwrap();
+}
+
+#[test]
 fn bad_checkpoints_give_one_line_errors_naming_the_file() {
     let work = fresh_dir("export-bad");
     let out = work.join("out");

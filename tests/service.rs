@@ -94,6 +94,21 @@ fn local_training_over_shared_memory_is_lossless_and_resumes() {
     assert_eq!(card["environment"]["agent_period_cycles"], 5, "{card}");
     let laser = card["observation"]["segments"][0]["encoding"].as_str().unwrap();
     assert!(laser.contains("min(r, 2.5) / 2.5"), "{laser}");
+    // And the planner and speed the run trained with, which the robot runtime checks.
+    let run_config = std::fs::read_to_string(run.join("config.toml")).unwrap();
+    let value = |key: &str| {
+        let line = run_config
+            .lines()
+            .find(|l| l.starts_with(&format!("{key} = ")))
+            .unwrap();
+        line.split_once(" = ").unwrap().1.trim_matches('"').to_string()
+    };
+    assert_eq!(card["trained_for"]["planner"], value("planner"), "{card}");
+    assert_eq!(
+        card["trained_for"]["max_speed"].as_f64().unwrap(),
+        value("max_speed").parse::<f64>().unwrap(),
+        "{card}"
+    );
     assert!(!learner::tensorboard::event_files(&run.join("tensorboard"))
         .unwrap()
         .is_empty());
