@@ -1,7 +1,8 @@
 """The ROS 2 node (``python -m adp_runtime.ros2``), started as its own process, drives a
 simulated BARN robot over ROS 2 topics to its goal, hears a lidar on the sensor-data (best
 effort) QoS profile, says when the runtime arrives, publishes a stop for an input the runtime
-refuses, for a goal in another frame, when its inputs go stale and when it is terminated.
+refuses, for a goal in another frame, when its inputs go stale and when it is terminated,
+and follows a remapped scan topic.
 Skipped when rclpy cannot be imported, unless ADP_REQUIRE_ROS2=1 (CI sets it)."""
 
 import math
@@ -43,10 +44,10 @@ class Bridge(Node):
     """The simulated robot's side: publishes its scan (with the QoS `scan_qos`), odometry and
     goal, takes cmd_vel and goal_reached."""
 
-    def __init__(self, nav, scan_qos=10):
+    def __init__(self, nav, scan_qos=10, scan_topic="scan"):
         super().__init__("adp_test_bridge")
         self.beams, self.fov = nav.beams, math.radians(nav.fov_deg)
-        self.scan = self.create_publisher(LaserScan, "scan", scan_qos)
+        self.scan = self.create_publisher(LaserScan, scan_topic, scan_qos)
         self.odom = self.create_publisher(Odometry, "odom", 10)
         self.goal = self.create_publisher(PoseStamped, "goal_pose", 10)
         self.commands = queue.Queue()
@@ -113,19 +114,18 @@ class Bridge(Node):
         self.scan.publish(s)
 
 
-def start_node(config, bridge_qos=10, *params):
-    """Starts the node on `config` (with the extra `params`, "name:=value") and a bridge whose
-    scan publisher has the QoS `bridge_qos`; returns (nav, bridge, proc) once they see each
-    other. The caller ends them with `end`."""
+def start_node(config, bridge_qos=10, ros_args=(), scan_topic="scan"):
+    """Starts the node on `config` (with the extra `ros_args`, e.g. remappings) and a bridge
+    whose scan publisher has the QoS `bridge_qos` and the topic `scan_topic`; returns (nav,
+    bridge, proc) once they see each other. The caller ends them with `end`."""
     env = dict(os.environ, ROS_DOMAIN_ID=str(os.getpid() % 100 + 1), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     os.environ.update(env)
     args = [sys.executable, "-m", "adp_runtime.ros2", "--ros-args", "-p", f"config:={config}"]
-    for p in params:
-        args += ["-p", p]
+    args += list(ros_args)
     proc = subprocess.Popen(args, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     rclpy.init()
     nav = adp_runtime.Navigator(str(config))
-    bridge = Bridge(nav, bridge_qos)
+    bridge = Bridge(nav, bridge_qos, scan_topic)
     bridge.spin_until(
         lambda: proc.poll() is None
         and bridge.scan.get_subscription_count() > 0
@@ -229,8 +229,18 @@ def test_a_best_effort_lidar_is_heard_arrival_is_published_and_other_frames_are_
         end(bridge, proc)
 
 
-def test_stale_inputs_and_a_terminate_end_in_a_stop(ros_node):
-    nav, bridge, proc = ros_node
+@pytest.fixture
+def remapped_node():
+    # The lidar on another topic, remapped on the command line.
+    nav, bridge, proc = start_node(CONFIG, ros_args=["-r", "scan:=front/scan"], scan_topic="front/scan")
+    try:
+        yield nav, bridge, proc
+    finally:
+        end(bridge, proc)
+
+
+def test_stale_inputs_and_a_terminate_end_in_a_stop(remapped_node):
+    nav, bridge, proc = remapped_node
     sim = adp_runtime.Sim(nav, 3, 5)
     gx, gy = sim.observe()["goal"]
     bridge.send_goal(gx, gy)
