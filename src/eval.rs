@@ -2,8 +2,11 @@
 
 use std::path::PathBuf;
 
+use std::fmt::Write as _;
+
 use actor::EnvConfig;
-use eval::{run, table, AdpSetting, EvalPlan, Fidelity, LidarOverride, ObstaclePrediction};
+use eval::{run, summarize, table, AdpSetting, EvalPlan, Fidelity, LidarOverride, ObstaclePrediction, Row};
+use experiment::stats::bootstrap_mean;
 use planner::{ActionSpace, PlannerKind};
 
 use crate::args::EvalRunArgs;
@@ -129,5 +132,161 @@ pub fn command(a: &EvalArgs) -> anyhow::Result<()> {
         eprintln!("{source}");
     }
     print!("{}", table(&rows));
+    if let Some(paired) = paired_table(&rows, a.trim) {
+        print!("\n{paired}");
+    }
     a.run.write_json(&rows)
+}
+
+/// Resamples of the paired bootstrap under `adp eval`'s table.
+const RESAMPLES: usize = 10_000;
+/// The bootstrap's seed, so the printed intervals reproduce.
+const PAIRED_SEED: u64 = 3;
+
+/// Every row after the first against the first, paired over worlds (every row runs the same
+/// worlds with the same run seeds): per world, each row's runs trimmed by `trim` as the table
+/// trims them and averaged, then the differences averaged over the worlds with a 95 %
+/// percentile-bootstrap interval (seeded), and the worlds where the row scores higher, lower
+/// or the same. `None` with fewer than two rows.
+pub fn paired_table(rows: &[Row], trim: usize) -> Option<String> {
+    let (base, others) = rows.split_first()?;
+    if others.is_empty() {
+        return None;
+    }
+    let label = |r: &Row| {
+        let lidar = r
+            .lidar
+            .as_ref()
+            .map_or_else(String::new, |l| format!(" {}", eval::lidar_label(l)));
+        format!(
+            "{} {} {:.1}{lidar}",
+            r.planner.name(),
+            r.fidelity_label,
+            r.max_speed
+        )
+    };
+    // (world, success 0..1, score) per world after trimming.
+    let per_world = |r: &Row| -> Vec<(usize, f64, f64)> {
+        r.per_world
+            .iter()
+            .map(|w| {
+                let (success, _, score, _, _, _) = summarize(std::slice::from_ref(w), trim);
+                (w.world, success / 100.0, score)
+            })
+            .collect()
+    };
+    let b = per_world(base);
+    let mut out = format!(
+        "Paired against the first row ({}), over {} worlds: mean difference and 95 % bootstrap \
+         interval ({RESAMPLES} resamples of the worlds)\n\n\
+         | row | score − first | success − first (points) | worlds higher / lower / equal in score |\n\
+         |---|---|---|---|\n",
+        label(base),
+        b.len()
+    );
+    for r in others {
+        let o = per_world(r);
+        if o.iter().map(|x| x.0).ne(b.iter().map(|x| x.0)) {
+            let _ = writeln!(out, "| {} | – (other worlds) | – | – |", label(r));
+            continue;
+        }
+        let d_score: Vec<f64> = o.iter().zip(&b).map(|(x, y)| x.2 - y.2).collect();
+        let d_success: Vec<f64> = o.iter().zip(&b).map(|(x, y)| 100.0 * (x.1 - y.1)).collect();
+        let s = bootstrap_mean(&d_score, RESAMPLES, 0.95, PAIRED_SEED);
+        let c = bootstrap_mean(&d_success, RESAMPLES, 0.95, PAIRED_SEED ^ 1);
+        let count = |f: fn(f64) -> bool| d_score.iter().filter(|&&d| f(d)).count();
+        let _ = writeln!(
+            out,
+            "| {} | {:+.4} [{:+.4}, {:+.4}] | {:+.2} [{:+.2}, {:+.2}] | {} / {} / {} |",
+            label(r),
+            s.mean,
+            s.lo,
+            s.hi,
+            c.mean,
+            c.lo,
+            c.hi,
+            count(|d| d > 1e-12),
+            count(|d| d < -1e-12),
+            count(|d| d.abs() <= 1e-12)
+        );
+    }
+    Some(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use eval::WorldRuns;
+    use sim::{EpisodeResult, Status};
+
+    fn row(fidelity: &str, worlds: &[(usize, [f64; 3])]) -> Row {
+        let run = |world: usize, score: f64| EpisodeResult {
+            world,
+            status: if score > 0.0 {
+                Status::Succeeded
+            } else {
+                Status::Collided
+            },
+            time_s: 10.0,
+            sim_time_s: 10.0,
+            score,
+            distance_m: 0.0,
+        };
+        let per_world: Vec<WorldRuns> = worlds
+            .iter()
+            .map(|&(w, scores)| WorldRuns {
+                world: w,
+                runs: scores.iter().map(|&s| run(w, s)).collect(),
+            })
+            .collect();
+        Row {
+            planner: PlannerKind::Dwa,
+            fidelity: Fidelity::Ddp,
+            fidelity_label: fidelity.into(),
+            prediction: ObstaclePrediction::Off,
+            max_speed: 1.5,
+            lidar: None,
+            success_pct: 0.0,
+            avg_time_s: 0.0,
+            avg_score: 0.0,
+            collision_pct: 0.0,
+            timeout_pct: 0.0,
+            episodes: 0,
+            check_points_per_cycle: 0.0,
+            plan_ms_per_cycle: 0.0,
+            compute_model: "free".into(),
+            units_per_cycle: eval::UnitsPerCycle::default(),
+            modelled_ms_per_cycle: 0.0,
+            samples_evaluated_pct: 0.0,
+            truncated_cycles_pct: 0.0,
+            late_cycles_pct: 0.0,
+            pressure_modes_pct: None,
+            forecast: None,
+            per_world,
+        }
+    }
+
+    /// The first row is the baseline; the others' differences are per world after trimming
+    /// as the table does (runs sorted by time, a failure charged 50 s, here one dropped from
+    /// each end of three), paired, with the worlds each row scores higher, lower and equal.
+    #[test]
+    fn rows_are_paired_with_the_first_over_worlds_after_trimming() {
+        let base = row(
+            "ddp",
+            &[(1, [0.4, 0.0, 0.5]), (2, [0.3, 0.3, 0.3]), (3, [0.0, 0.2, 0.1])],
+        );
+        let other = row(
+            "adp",
+            &[(1, [0.5, 0.45, 0.0]), (2, [0.3, 0.3, 0.3]), (3, [0.0, 0.0, 0.0])],
+        );
+        assert!(paired_table(std::slice::from_ref(&base), 1).is_none());
+        let t = paired_table(&[base, other], 1).unwrap();
+        // Kept runs: base 0.5, 0.3, 0.1 (its failures sort last); other 0.45, 0.3 and a
+        // failure: differences -0.05, 0, -0.1.
+        assert!(t.contains("over 3 worlds"), "{t}");
+        assert!(t.contains("| dwa adp 1.5 | -0.0500 ["), "{t}");
+        assert!(t.contains("| 0 / 2 / 1 |"), "{t}");
+        // Success: only world 3's kept run fails for the other row (-100 points).
+        assert!(t.contains("| -33.33 ["), "{t}");
+    }
 }

@@ -118,9 +118,14 @@ fn eval_prints_a_table_and_writes_json() {
         json.to_str().unwrap(),
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
-    let table = stdout(&o);
+    let out = stdout(&o);
+    // The table, then every row after the first paired with it over the worlds.
+    let (table, paired) = out.split_once("Paired against the first row").expect("a paired table");
     let rows: Vec<&str> = table.lines().filter(|l| l.starts_with("| dwa")).collect();
     assert_eq!(rows.len(), 4, "{table}");
+    let others: Vec<&str> = paired.lines().filter(|l| l.starts_with("| dwa")).collect();
+    assert_eq!(others.len(), 3, "{paired}");
+    assert!(paired.contains("(dwa vanilla 1.0), over 2 worlds"), "{paired}");
     assert!(rows[0].starts_with("| dwa | vanilla | 1.0 |"), "{table}");
     // Each row counts 2 worlds x (3 runs - 2 trimmed) = 2 episodes, and reports what its
     // fidelity costs: collision-check points and planning time per cycle.

@@ -444,6 +444,11 @@ pub struct ReportSection {
     pub paper_tables: bool,
     /// The hardest test worlds of Table III (a subset of the test worlds).
     pub hardest: String,
+    /// What the reader must know that the protocol does not show, one sentence each (e.g. a
+    /// setting that was chosen on test worlds before this file existed): printed under the
+    /// protocol and above the tables, and the protocol's "the test worlds are used for
+    /// nothing but these numbers" points to them.
+    pub limitations: Vec<String>,
 }
 
 impl Default for ReportSection {
@@ -451,6 +456,7 @@ impl Default for ReportSection {
         Self {
             paper_tables: false,
             hardest: "hardest50".into(),
+            limitations: Vec::new(),
         }
     }
 }

@@ -295,6 +295,8 @@ pub struct Tables {
     pub hardest: String,
     /// Table III: Table I's cells on the hardest worlds.
     pub table3: Vec<Cell>,
+    /// `[report] limitations`, shown under the protocol paragraph.
+    pub limitations: Vec<String>,
     /// Tables I and III again for each group recipe (`[[experiment.groups]] recipe`), as rows
     /// of their own beside the experiment's recipe, with the same controls.
     pub recipes: Vec<RecipeTables>,
@@ -511,6 +513,7 @@ pub fn tables(ex: &Experiment, data: &[ArmData], hardest: &str, hardest_worlds: 
         table2_worlds,
         hardest: hardest.to_string(),
         table3,
+        limitations: ex.report.limitations.clone(),
         recipes,
     }
 }
@@ -796,6 +799,26 @@ fn summary_rows(cells: &[Cell], seeds: usize) -> String {
     out
 }
 
+/// Why ADP cannot choose vanilla's schedule, from the schedule and the space themselves:
+/// vanilla's horizon lies below the decremental space's range of `T`, which the stored
+/// trainings were run in, so the space stays as it is and ADP − vanilla shows what that costs.
+pub fn vanilla_outside() -> String {
+    let vanilla: f64 = planner::Schedule::vanilla().dts().iter().sum();
+    let ranges = ActionSpace::Decremental.ranges();
+    let (_, lo, hi) = ranges
+        .iter()
+        .find(|(name, _, _)| *name == "T")
+        .copied()
+        .unwrap_or(("T", f64::NAN, f64::NAN));
+    format!(
+        "Vanilla lies outside ADP's action space: its horizon is {vanilla:.1} s, and the \
+         decremental space's horizon T spans [{lo:.1}, {hi:.1}] s (the paper's box). The space \
+         stays as every stored training used it, so no recipe here can choose vanilla's \
+         schedule; the ADP − vanilla column shows per cell what that costs (where vanilla \
+         scores higher, a shorter horizon than the box allows pays)."
+    )
+}
+
 /// A line naming the cells of recipe `r` with no ADP row yet (none when all have one): their
 /// blocks are left out until they do.
 fn recipe_pending(out: &mut String, r: &RecipeTables) {
@@ -836,9 +859,13 @@ pub fn render(t: &Tables, forest_figure: Option<&str>, clutter_figure: Option<&s
          decide.\n",
         t.runs, t.test_worlds, t.trim, t.steps
     );
+    for l in &t.limitations {
+        let _ = writeln!(out, "**Limitation.** {l}\n");
+    }
     let _ = writeln!(out, "### Table I: ADP against DDP, per planner and speed cap\n");
     out += &summary_table(t);
     let _ = writeln!(out);
+    let _ = writeln!(out, "{}\n", vanilla_outside());
     if let Some(path) = forest_figure {
         let _ = writeln!(
             out,
@@ -1196,6 +1223,10 @@ mod tests {
         assert!(!md.contains("#### dwa at 1.5 m/s, recipe `ours`"), "{md}");
         assert!(
             md.contains("not measured yet in 1 of 2 cells (dwa at 1.5 m/s)"),
+            "{md}"
+        );
+        assert!(
+            md.contains("its horizon is 1.0 s") && md.contains("[1.6, 2.2] s"),
             "{md}"
         );
         let summary = summary_table(&t);

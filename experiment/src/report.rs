@@ -419,7 +419,7 @@ fn protocol_section(out: &mut String, ex: &Experiment) {
          seeded per (world, run), and run r of world w has the same seed for every controller, so \
          runs pair by seed. Simulator profile `{}`. ADP: {} seed(s) per arm, {} agent steps each \
          (`[td3] seed` {}..), trained on `{}`; the test worlds are used for nothing but these \
-         numbers.\n",
+         numbers{}.\n",
         ex.eval.runs,
         ex.test_worlds.len(),
         sec.test_worlds,
@@ -432,7 +432,15 @@ fn protocol_section(out: &mut String, ex: &Experiment) {
         ex.train.run.steps,
         sec.first_seed,
         sec.train_worlds.join("`, `"),
+        if ex.report.limitations.is_empty() {
+            ""
+        } else {
+            ", except as the limitations below say"
+        },
     );
+    for l in &ex.report.limitations {
+        let _ = writeln!(out, "**Limitation.** {l}\n");
+    }
     let _ = writeln!(
         out,
         "Controls: **DDP** (p = 1.7, T = 2 s, N = 20); the **best constant** action of a successive-halving \
