@@ -4,11 +4,16 @@
     python3 scripts/check_links.py              # README.md and every .md under docs/guide
     python3 scripts/check_links.py target/book  # the same, then every .html of the built book
 
-Every relative link or image must resolve to a file or directory that exists in the
-repository (or, for the built book, under the book's directory). A `#anchor` must name a
+Every relative link or image of the markdown must resolve to a file or directory that exists
+in the repository; every relative link or image of the built book must resolve under the
+book's own directory, so that the book still works copied or hosted elsewhere
+(scripts/build_book.sh copies what the guide links outside docs/guide into the book, or turns
+the link into a URL of the repository). CI checks a copy of the built book moved out of the
+repository. A `#anchor` must name a
 heading of the target markdown file (GitHub-style slug: lowercase, spaces to '-', punctuation
 dropped except '-' and '_', a repeated heading gets -1, -2, ...) or an explicit id in it, or an
-`id`/`name` of the target HTML file. mdBook's `{{#include FILE}}` must name an existing file.
+`id`/`name` of the target HTML file. mdBook's `{{#include FILE}}` and scripts/stage_book.py's `<!-- book-include: FILE -->` must
+name an existing file.
 Links with a scheme (http:, https:, mailto:, ...) are not checked. Links inside code spans and
 fenced code blocks are not links.
 
@@ -39,6 +44,8 @@ INLINE = re.compile(
     r"(!?)\[(?:[^\[\]\\]|\\.|\[[^\[\]]*\])*\]\(\s*(<[^>\n]*>|[^\s()]+(?:\([^\s()]*\)[^\s()]*)*)"
     r"(?:\s+(?:\"[^\"]*\"|'[^']*'|\([^)]*\)))?\s*\)"
 )
+# scripts/stage_book.py's book-only include: `<!-- book-include: PATH -->` on a line of its own.
+BOOK_INCLUDE = re.compile(r"^<!--\s*book-include:\s*(\S+)\s*-->\s*$")
 REFDEF = re.compile(r"^ {0,3}\[([^\]]+)\]:\s*(<[^>]*>|\S+)")
 HTML_ATTR = re.compile(r"<(?:a|img)\b[^>]*?\b(?:href|src)\s*=\s*(\"[^\"]*\"|'[^']*')", re.I)
 HTML_ID = re.compile(r"<[A-Za-z][^>]*?\b(?:id|name)\s*=\s*(\"[^\"]*\"|'[^']*')", re.I)
@@ -251,7 +258,7 @@ def check_target(source, dest, top, roots):
         target = os.path.normpath(os.path.join(os.path.dirname(source), part))
     real = os.path.realpath(target)
     if not any(real == r or real.startswith(r + os.sep) for r in roots):
-        return "leaves the repository"
+        return "leaves the repository" if roots == [ROOT] else "leaves the book"
     if not os.path.exists(target):
         return "no such file"
     if not anchor:
@@ -286,8 +293,12 @@ def check_markdown(path, problems):
             found.append((number, m.group(2)))
         for m in HTML_ATTR.finditer(line):
             found.append((number, m.group(1)[1:-1]))
-        for m in INCLUDE.finditer(line):
-            target = m.group(1).split(":")[0]
+        includes = [m.group(1) for m in INCLUDE.finditer(line)]
+        book_include = BOOK_INCLUDE.match(line)
+        if book_include:
+            includes.append(book_include.group(1))
+        for target in includes:
+            target = target.split(":")[0]
             if not os.path.isfile(os.path.join(os.path.dirname(path), target)):
                 problems.append("%s:%d: %s: included file not found" % (rel(path), number, target))
     found.extend(refs.values())
@@ -314,7 +325,9 @@ def check_html(path, book, problems):
         count += 1
         # Resolve against the page's <base> when it has one (mdBook's 404 page).
         source = os.path.join(base_dir, os.path.basename(path)) if dest[0] != "#" else path
-        why = check_target(source, dest, book, [ROOT, os.path.realpath(book)])
+        # The built book must stand alone: nothing may resolve outside its own directory
+        # (scripts/build_book.sh copies or turns into URLs what the guide links outside it).
+        why = check_target(source, dest, book, [os.path.realpath(book)])
         if why:
             problems.append("%s:%d: %s: %s" % (rel(path), number, dest, why))
     return count
@@ -360,7 +373,7 @@ def main(argv):
             dirnames.sort()
             pages.extend(os.path.join(dirpath, n) for n in sorted(filenames) if n.endswith(".html"))
         if not pages:
-            problems.append("%s: no .html files (build the book first: mdbook build docs)" % argv[1])
+            problems.append("%s: no .html files (build the book first: scripts/build_book.sh)" % argv[1])
         links += sum(check_html(p, book, problems) for p in pages)
         for p in pages:
             check_shown_text(p, book, problems)
