@@ -22,7 +22,9 @@ every page whose target lies outside docs/guide:
   repository's source by URL: `[workspace.package] repository` of Cargo.toml, then
   /tree/main/<path> for a directory or /blob/main/<path> for a file.
 
-Links inside docs/guide, links with a scheme and links in code are left as they are. Nothing
+Links inside docs/guide, links with a scheme and links in code are left as they are. Links
+are found line by line, as scripts/check_links.py finds them: one whose text is split over
+two lines is not rewritten, and check_links.py on the built book then fails on it. Nothing
 is written outside STAGE; the copies are never committed (target/ is ignored). Build the book
 with scripts/build_book.sh, which runs this and then mdBook on STAGE. Python 3 standard
 library only.
