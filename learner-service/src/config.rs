@@ -38,6 +38,21 @@ pub struct ServiceConfig {
     /// itself holds actors up (rate limiter, an unpublished policy). A lease with a refused
     /// step is dropped at once: its episode can never complete.
     pub progress_timeout_ms: u32,
+    /// A cycle does not wait forever for its slowest lease: once a lease finished, a cycle
+    /// ends at the latest one span after its first assignment, the span being this multiple
+    /// of the median episode time of the newest 64 finished leases times
+    /// `episodes_per_assignment` (at least `cycle_deadline_floor_ms`). Leases still open then
+    /// are ended (their worlds dealt again first; their steps stored so far stay stored,
+    /// each counted once, their episodes abandoned: never marked terminal; later steps under
+    /// them are refused); their actors are late: their next assignments are off the cycle
+    /// barrier and end one span after they were assigned, until one finishes. A lease without
+    /// progress for this multiple of the median episode time (at least the floor) ends too, if
+    /// that is shorter than `progress_timeout_ms`. 0 turns both off (the cycle waits for every
+    /// lease, bounded only by `progress_timeout_ms`). Default 4.
+    pub cycle_deadline_multiple: u32,
+    /// No cycle span or no-progress bound of `cycle_deadline_multiple` is shorter than this
+    /// (ms). Default 10000.
+    pub cycle_deadline_floor_ms: u32,
     /// Allow `listen` on an address other than loopback without `[service.tls]` (the token
     /// then travels in clear text). Off by default; `adp learner --allow-insecure-listen`.
     pub allow_insecure_listen: bool,
@@ -104,6 +119,14 @@ pub struct ServiceConfig {
 }
 
 impl ServiceConfig {
+    /// The registry's deadline rule (`cycle_deadline_multiple`, `cycle_deadline_floor_ms`).
+    pub fn deadline_rule(&self) -> scheduler::DeadlineRule {
+        scheduler::DeadlineRule {
+            multiple: self.cycle_deadline_multiple,
+            floor_ms: u64::from(self.cycle_deadline_floor_ms),
+        }
+    }
+
     /// The no-progress bound of a lease in ms (`progress_timeout_ms`, or 4 x `lease_ttl_ms`).
     pub fn progress_timeout(&self) -> u64 {
         match self.progress_timeout_ms {
@@ -215,6 +238,8 @@ impl Default for ServiceConfig {
             heartbeat_ms: 1000,
             lease_ttl_ms: 15_000,
             progress_timeout_ms: 0,
+            cycle_deadline_multiple: 4,
+            cycle_deadline_floor_ms: 10_000,
             allow_insecure_listen: false,
             episodes_per_assignment: 2,
             idle_retry_ms: 100,

@@ -2,6 +2,8 @@
 //! expire, and leases that cannot or do not finish although their actor heartbeats are
 //! dropped; their worlds are dealt again. Dead ranks are forgotten here too.
 
+use scheduler::ExpiryCause;
+
 use crate::shared::Shared;
 use crate::status::ExpiredLease;
 
@@ -12,10 +14,19 @@ impl Shared {
     /// Also drops leases that cannot or do not finish although their actor keeps heartbeating:
     /// a lease with a refused step (its episode can never complete) at once, and a lease whose
     /// episodes made no progress (no step stored, no report accepted) for
-    /// [`Shared::progress_timeout_ms`]. The clock of the latter stands still while the learner
+    /// [`Shared::progress_timeout_ms`], or the registry's shorter stall bound (`[service]
+    /// cycle_deadline_multiple` x the median episode time, at least its floor), which makes the
+    /// actor late. The clock of the latter stands still while the learner
     /// itself holds the actors up (its rate limiter blocks inserts, or the current cycle's
     /// policy is not published yet). A dropped lease's actor learns it on its next heartbeat
     /// (`lease_valid: false`, with the reason).
+    ///
+    /// Leases the registry ended at a cycle's deadline (or a late actor's at its own) are
+    /// counted as cut, logged, and their actors told why the same way. For every lease ended
+    /// here the rule for its data is the same: the steps stored under it stay stored, each
+    /// counted once (`steps_received`); its unfinished episodes are abandoned (never marked
+    /// terminal, their unfinished n-step tail never sampled); steps sent under it later are
+    /// refused, except a resent batch of stored ones, acknowledged as duplicates.
     pub fn expire_leases(&self) {
         self.expire_leases_at(self.now_ms());
     }
@@ -24,10 +35,24 @@ impl Shared {
     pub(crate) fn expire_leases_at(&self, now: u64) {
         let mut core = self.lock();
         let learner_holds = core.rate.inserts_allowed() == 0 || core.policy_version < core.registry.cycle();
-        let drop_now = core.leases.overdue(now, self.progress_timeout_ms, learner_holds);
+        if learner_holds {
+            core.registry.hold_deadlines(now);
+        }
+        let bound = core
+            .registry
+            .stall_bound_ms()
+            .map_or(self.progress_timeout_ms, |stall| {
+                stall.min(self.progress_timeout_ms)
+            });
+        let drop_now = core.leases.overdue(now, bound, learner_holds);
         let mut revoked = Vec::new();
-        for (id, why) in drop_now {
-            if core.registry.revoke(id) {
+        for (id, why, stalled) in drop_now {
+            let ended = if stalled {
+                core.registry.stall(id)
+            } else {
+                core.registry.revoke(id)
+            };
+            if ended {
                 let (actor_id, rank) = core.leases.get(id).map_or((0, u32::MAX), |l| (l.actor, l.rank));
                 tracing::warn!(
                     lease = id,
@@ -52,6 +77,27 @@ impl Shared {
                 continue;
             }
             let rank = core.registry.rank_of(expired.actor).unwrap_or(u32::MAX);
+            if let ExpiryCause::CycleDeadline { span_ms } | ExpiryCause::LeaseDeadline { span_ms } =
+                expired.cause
+            {
+                let why = match expired.cause {
+                    ExpiryCause::CycleDeadline { .. } => {
+                        format!("the cycle's deadline passed ({span_ms} ms after its first assignment)")
+                    }
+                    _ => format!("a late actor's lease ran its span ({span_ms} ms)"),
+                };
+                tracing::warn!(
+                    lease = expired.lease_id,
+                    actor_id = expired.actor,
+                    rank,
+                    world = expired.world,
+                    "lease ended: {why}; its world is dealt again, its stored steps are kept and its actor is late (off the cycle barrier until it finishes one)"
+                );
+                core.totals.leases_cut += 1;
+                core.leases.remember_dropped(expired.lease_id, why);
+                core.drop_lease(expired.lease_id);
+                continue;
+            }
             tracing::warn!(
                 lease = expired.lease_id,
                 actor_id = expired.actor,

@@ -36,6 +36,7 @@ pub fn fixture(td3: Td3Config, progress_timeout_ms: u64) -> Fixture {
             lease_ttl_ms: TTL,
             episodes_per_assignment: 2,
             run_seed: 1,
+            deadline: scheduler::DeadlineRule::default(),
         },
         scheduler::WorldPool::Listed(vec![3, 5]),
     )

@@ -195,24 +195,27 @@ impl Leases {
         }
     }
 
-    /// The leases to drop at `now` although their actors heartbeat, with the reason: the broken
-    /// ones, and those without progress for `timeout_ms`. While `learner_holds` (the learner
-    /// itself keeps actors waiting) every lease counts as making progress.
-    pub fn overdue(&mut self, now: u64, timeout_ms: u64, learner_holds: bool) -> Vec<(u64, String)> {
+    /// The leases to drop at `now` although their actors heartbeat, with the reason and whether
+    /// it is a stall: the broken ones, and those without progress for `timeout_ms` (stalled).
+    /// While `learner_holds` (the learner itself keeps actors waiting) every lease counts as
+    /// making progress.
+    pub fn overdue(&mut self, now: u64, timeout_ms: u64, learner_holds: bool) -> Vec<(u64, String, bool)> {
         let mut due = Vec::new();
         for (&id, lease) in self.leases.iter_mut() {
             if learner_holds {
                 lease.progress_ms = now;
             }
             if let Some(why) = &lease.broken {
-                due.push((id, format!("a step was refused ({why})")));
+                due.push((id, format!("a step was refused ({why})"), false));
             } else if now.saturating_sub(lease.progress_ms) >= timeout_ms {
                 due.push((
                     id,
                     format!(
-                        "no progress for {} ms (progress_timeout_ms {timeout_ms})",
+                        "no progress for {} ms (bound {timeout_ms} ms: progress_timeout_ms, or \
+                         cycle_deadline_multiple x the median episode time if shorter)",
                         now - lease.progress_ms
                     ),
+                    true,
                 ));
             }
         }

@@ -126,6 +126,7 @@ impl Learner {
             lease_ttl_ms: u64::from(svc.lease_ttl_ms),
             episodes_per_assignment: svc.episodes_per_assignment,
             run_seed: opts.td3.seed,
+            deadline: svc.deadline_rule(),
         };
         let (state, resume_warnings, resumed_from) = run.training_state(&opts, &registry_cfg)?;
         let cfg = state.td3.config().clone();

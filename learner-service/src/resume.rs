@@ -133,6 +133,7 @@ mod tests {
             lease_ttl_ms: 1000,
             episodes_per_assignment: 2,
             run_seed: 1,
+            deadline: scheduler::DeadlineRule::default(),
         };
         let registry = Registry::new(registry_cfg, scheduler::WorldPool::Listed(vec![1, 2])).unwrap();
         let mut td3 = Td3::new(config.clone(), &Device::flex()).unwrap();

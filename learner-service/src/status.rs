@@ -214,6 +214,20 @@ pub struct Status {
     pub leases_expired: u64,
     /// Leases dropped although their actor heartbeated (a refused step, or no progress).
     pub leases_dropped: u64,
+    /// Leases ended at a cycle's deadline (or a late actor's at its own).
+    #[serde(default)]
+    pub leases_cut: u64,
+    /// The cycle deadline in force: how long a cycle waits at most after its first assignment
+    /// (ms); `None` before a lease finished in this learner process, or with deadlines off.
+    #[serde(default)]
+    pub cycle_span_ms: Option<u64>,
+    /// The median episode time of the newest finished leases (ms), the deadlines' measure.
+    #[serde(default)]
+    pub median_episode_ms: Option<u64>,
+    /// Ranks off the cycle barrier (their last lease ended at a deadline or stalled) until
+    /// they finish one.
+    #[serde(default)]
+    pub late_ranks: usize,
     /// Success rate of the recent episodes.
     pub success_rate: Option<f64>,
     /// Mean return of the recent episodes.
@@ -291,6 +305,7 @@ impl Status {
             ),
             ("service/leases_expired", self.leases_expired as f64),
             ("service/leases_dropped", self.leases_dropped as f64),
+            ("service/leases_cut", self.leases_cut as f64),
             ("train/exploration_sigma", self.exploration_sigma),
             ("train/updates", self.updates as f64),
         ];

@@ -67,6 +67,10 @@ pub struct Totals {
     /// `[service] progress_timeout_ms`. Their worlds are dealt again.
     #[serde(default)]
     pub leases_dropped: u64,
+    /// Leases ended at a cycle's deadline, or a late actor's lease at its own (`[service]
+    /// cycle_deadline_multiple`). Their worlds are dealt again.
+    #[serde(default)]
+    pub leases_cut: u64,
     /// Recent episodes, oldest first.
     pub recent: VecDeque<EpisodeStat>,
     /// Successes among all reported episodes.

@@ -36,8 +36,40 @@ pub enum Decision {
     Idle,
 }
 
-/// A lease that expired (no heartbeat within the TTL, or its actor re-registered): its world
-/// was returned to the dealer and the caller should abandon the actor's open episodes.
+/// Why a lease ended without finishing.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub enum ExpiryCause {
+    /// No heartbeat within the TTL, or its actor was retired (its rank registered again).
+    #[default]
+    Silent,
+    /// The caller ended it ([`Registry::revoke`](crate::Registry::revoke)).
+    Revoked,
+    /// The caller ended it for want of progress ([`Registry::stall`](crate::Registry::stall)).
+    Stalled,
+    /// The cycle's deadline passed while it was open (one span after the cycle's first
+    /// assignment, see [`deadline`](crate::deadline)).
+    CycleDeadline {
+        /// The span in force (ms).
+        span_ms: u64,
+    },
+    /// A late actor's lease ran its span without finishing.
+    LeaseDeadline {
+        /// The span it was given (ms).
+        span_ms: u64,
+    },
+}
+
+impl ExpiryCause {
+    /// Whether a deadline ended it (its rank is then late, see
+    /// [`Registry`](crate::Registry)'s documentation).
+    pub fn is_deadline(self) -> bool {
+        matches!(self, Self::CycleDeadline { .. } | Self::LeaseDeadline { .. })
+    }
+}
+
+/// A lease that ended without finishing (no heartbeat within the TTL, its actor re-registered,
+/// a deadline, or the caller ended it): its world was returned to the dealer and the caller
+/// should abandon the actor's open episodes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Expired {
     /// The actor that held the lease.
@@ -46,4 +78,6 @@ pub struct Expired {
     pub lease_id: u64,
     /// The world of the lease, now dealt again first.
     pub world: usize,
+    /// Why it ended.
+    pub cause: ExpiryCause,
 }

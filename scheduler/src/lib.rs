@@ -8,7 +8,8 @@
 //! - [`Registry`] tracks actors, leases and cycles: each actor gets one assignment of
 //!   `episodes_per_assignment` episodes (with deterministic seeds, see [`seed`]) per cycle;
 //!   the cycle advances when every actor working in it finished or lost its lease; leases
-//!   expire without heartbeats and their data is refused afterwards. It is pure logic driven
+//!   expire without heartbeats and their data is refused afterwards; a cycle and a late
+//!   actor's lease end at a [`deadline`] derived from measured episode times. It is pure logic driven
 //!   by a caller-supplied millisecond clock and checkpoints through [`RegistrySnapshot`].
 //! - [`Supervisor`] runs the actor processes of one node in a [`Sandbox`] (resource limits,
 //!   no new privileges, death with the parent, own process group, optional bubblewrap),
@@ -20,6 +21,7 @@
 
 pub mod assignment;
 pub mod backoff;
+pub mod deadline;
 pub mod dealer;
 pub mod registry;
 pub mod sandbox;
@@ -28,8 +30,9 @@ pub mod supervisor;
 #[cfg(test)]
 mod test_util;
 
-pub use assignment::{ActorId, Assignment, Decision, Expired};
+pub use assignment::{ActorId, Assignment, Decision, Expired, ExpiryCause};
 pub use backoff::{Backoff, BackoffPolicy};
+pub use deadline::{DeadlineRule, EpisodeTimes};
 pub use dealer::{Dealer, DealerError, WorldCount, WorldPool};
 pub use registry::{
     ActorInfo, RankCounts, Registry, RegistryConfig, RegistryError, RegistrySnapshot, RegistryStatus,

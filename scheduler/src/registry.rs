@@ -10,6 +10,20 @@
 //! assignment of the current cycle at once. Every `&mut` method first expires overdue leases
 //! and then checks the barrier, so the cycle can advance inside any of them.
 //!
+//! # Deadlines
+//! A cycle does not wait forever (see [`crate::deadline`] for the arithmetic): once a lease
+//! finished in this registry, the cycle ends at the latest one *span* (`max(floor, k x median
+//! episode time x episodes)`) after its first assignment. Leases of the cycle still open then
+//! are ended ([`ExpiryCause::CycleDeadline`]) like expired ones: their worlds are dealt again
+//! first, and the caller abandons their open episodes (what was stored of them stays stored
+//! and counted once; later data under them is refused). Their ranks become *late*: a late
+//! actor's next assignments are off the barrier (the cycle does not wait for them; the actor
+//! gets its next one as soon as one ends) and each ends one span after it was assigned
+//! ([`ExpiryCause::LeaseDeadline`]); a late actor that finishes an assignment is on time again
+//! and idles until the next cycle like every other. So a straggler costs at most one span,
+//! once, and the other actors then work at their own pace. [`Registry::stall`] (the caller's
+//! no-progress bound, see [`Registry::stall_bound_ms`]) makes a rank late too.
+//!
 //! # Leases
 //! An assignment opens a lease that is valid while `now_ms < deadline_ms`; the deadline starts
 //! at `now_ms + lease_ttl_ms` and [`Registry::heartbeat`] with the lease id moves it to
@@ -39,7 +53,8 @@ use std::collections::{BTreeMap, VecDeque};
 
 use serde::{Deserialize, Serialize};
 
-use crate::assignment::{ActorId, Assignment, Decision, Expired};
+use crate::assignment::{ActorId, Assignment, Decision, Expired, ExpiryCause};
+use crate::deadline::{DeadlineRule, EpisodeTimes};
 use crate::dealer::{Dealer, DealerError, WorldCount, WorldPool};
 use crate::seed::episode_seed;
 
@@ -61,15 +76,19 @@ pub struct RegistryConfig {
     pub episodes_per_assignment: u32,
     /// The run seed: episode seeds and the dealer's tie-break order derive from it.
     pub run_seed: u64,
+    /// When a cycle and a late actor's lease end (see the module documentation).
+    #[serde(default)]
+    pub deadline: DeadlineRule,
 }
 
 impl Default for RegistryConfig {
-    /// A 30 s lease, 2 episodes per assignment, run seed 0.
+    /// A 30 s lease, 2 episodes per assignment, run seed 0, the default deadlines.
     fn default() -> Self {
         Self {
             lease_ttl_ms: 30_000,
             episodes_per_assignment: 2,
             run_seed: 0,
+            deadline: DeadlineRule::default(),
         }
     }
 }
@@ -179,6 +198,15 @@ pub struct RegistryStatus {
     pub assignments_total: u64,
     /// Episodes reported through [`Registry::episode_done`] since the run started.
     pub episodes_reported_total: u64,
+    /// Leases ended at a cycle's or their own deadline in this registry.
+    pub leases_cut_total: u64,
+    /// The median episode time of the newest finished leases (ms), if one finished here.
+    pub median_episode_ms: Option<u64>,
+    /// The span of an assignment now (ms): how long a cycle waits at most; `None` while
+    /// nothing was measured (or deadlines are off).
+    pub span_ms: Option<u64>,
+    /// Ranks that are late (off the cycle barrier until they finish an assignment).
+    pub late_ranks: usize,
     /// Per-world assignment counts from the dealer.
     pub worlds: Vec<WorldCount>,
 }
@@ -240,12 +268,19 @@ struct RankSlot {
     actors: Vec<ActorId>,
     /// Episodes issued to the rank so far (its seeds' counter).
     issued: u64,
+    /// Its last assignment ended at a deadline or stalled: its next ones are off the barrier.
+    late: bool,
 }
 
 #[derive(Debug, Clone)]
 struct OpenLease {
     assignment: Assignment,
     episodes_reported: u32,
+    /// When it was assigned.
+    assigned_ms: u64,
+    /// A late actor's lease (off the barrier): its span (ms) and when that started counting
+    /// (its assignment, or the last [`Registry::hold_deadlines`]).
+    late: Option<(u64, u64)>,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -289,6 +324,15 @@ pub struct Registry {
     episodes_reported_total: u64,
     /// See [`RegistrySnapshot::episode_floor`].
     episode_floor: u64,
+    /// Episode times of the newest finished leases.
+    times: EpisodeTimes,
+    /// When the current cycle's first on-time assignment was made, and when its deadline
+    /// started counting (then, or the last [`Registry::hold_deadlines`]); `None` before it.
+    cycle_opened: Option<(u64, u64)>,
+    /// When a lease last finished (or the spans were last stretched).
+    measured_ms: u64,
+    /// Leases ended at a deadline.
+    leases_cut_total: u64,
 }
 
 impl Registry {
@@ -345,6 +389,7 @@ impl Registry {
                         RankSlot {
                             actors: Vec::new(),
                             issued,
+                            late: false,
                         },
                     )
                 })
@@ -357,6 +402,10 @@ impl Registry {
             assignments_total: snapshot.assignments_total,
             episodes_reported_total: snapshot.episodes_reported_total,
             episode_floor: snapshot.episode_floor,
+            times: EpisodeTimes::default(),
+            cycle_opened: None,
+            measured_ms: 0,
+            leases_cut_total: 0,
         })
     }
 
@@ -414,6 +463,7 @@ impl Registry {
         let slot = self.ranks.entry(rank).or_insert_with(|| RankSlot {
             actors: Vec::new(),
             issued: floor,
+            late: false,
         });
         let ending: Vec<ActorId> = slot
             .actors
@@ -460,7 +510,8 @@ impl Registry {
 
     /// The actor's next assignment: a new one (in the current cycle, at `policy_version`) if it
     /// has not had one this cycle, [`Decision::Idle`] if it finished or lost it; an actor
-    /// that still holds an open lease gets that assignment again (e.g. the reply was lost).
+    /// that still holds an open lease gets that assignment again (e.g. the reply was lost). A
+    /// late actor (see the module documentation) gets a new one whenever it holds none.
     pub fn next_assignment(
         &mut self,
         actor: ActorId,
@@ -481,11 +532,10 @@ impl Registry {
         let lease_id = self.next_lease_id;
         self.next_lease_id += 1;
         let episodes = self.config.episodes_per_assignment;
-        let issued = &mut self
-            .ranks
-            .get_mut(&rank)
-            .expect("a registered rank has a record")
-            .issued;
+        let span = self.span_ms();
+        let slot = self.ranks.get_mut(&rank).expect("a registered rank has a record");
+        let late = span.filter(|_| slot.late).map(|span| (span, now_ms));
+        let issued = &mut slot.issued;
         let seeds = (*issued..*issued + u64::from(episodes))
             .map(|counter| episode_seed(self.config.run_seed, rank, counter))
             .collect();
@@ -505,10 +555,15 @@ impl Registry {
             OpenLease {
                 assignment: assignment.clone(),
                 episodes_reported: 0,
+                assigned_ms: now_ms,
+                late,
             },
         );
         self.actors.get_mut(&actor).expect("touched above").lease = Some(lease_id);
-        self.turns.insert(actor, Turn::Working);
+        if late.is_none() {
+            self.turns.insert(actor, Turn::Working);
+            self.cycle_opened.get_or_insert((now_ms, now_ms));
+        }
         self.assignments_total += 1;
         Ok(Decision::Assign(assignment))
     }
@@ -554,8 +609,9 @@ impl Registry {
         Ok(())
     }
 
-    /// Closes the lease as finished: its world counts as completed, the actor idles until the
-    /// cycle advances, and no more data is accepted under the lease.
+    /// Closes the lease as finished: its world counts as completed, its time is measured for
+    /// the deadlines, the actor idles until the cycle advances (a late one is on time again),
+    /// and no more data is accepted under the lease.
     pub fn finish(&mut self, actor: ActorId, lease_id: u64, now_ms: u64) -> Result<(), RegistryError> {
         self.settle(now_ms);
         self.touch(actor, now_ms)?;
@@ -564,8 +620,16 @@ impl Registry {
         self.dealer
             .complete(open.assignment.world)
             .expect("an open lease holds an in-flight world");
+        self.times
+            .record(now_ms.saturating_sub(open.assigned_ms), open.assignment.episodes);
+        self.measured_ms = now_ms;
         self.close(lease_id, actor, Closure::Finished);
-        self.actors.get_mut(&actor).expect("touched above").lease = None;
+        let record = self.actors.get_mut(&actor).expect("touched above");
+        record.lease = None;
+        let rank = record.rank;
+        if let Some(slot) = self.ranks.get_mut(&rank) {
+            slot.late = false;
+        }
         self.turns.insert(actor, Turn::Done);
         self.advance_if_done();
         Ok(())
@@ -591,12 +655,53 @@ impl Registry {
     /// [`Registry::tick`] reports it). For leases that cannot finish although their actor is
     /// alive. Returns whether the lease was open.
     pub fn revoke(&mut self, lease_id: u64) -> bool {
+        self.end_now(lease_id, ExpiryCause::Revoked)
+    }
+
+    /// Ends the open lease `lease_id` as [`Registry::revoke`] does, for want of progress (the
+    /// caller's bound, e.g. [`Registry::stall_bound_ms`]): its rank becomes late (see the
+    /// module documentation). Returns whether the lease was open.
+    pub fn stall(&mut self, lease_id: u64) -> bool {
+        self.end_now(lease_id, ExpiryCause::Stalled)
+    }
+
+    fn end_now(&mut self, lease_id: u64, cause: ExpiryCause) -> bool {
         if !self.open.contains_key(&lease_id) {
             return false;
         }
-        self.expire(lease_id);
+        self.expire(lease_id, cause);
         self.advance_if_done();
         true
+    }
+
+    /// The caller holds the actors up at `now_ms` (it cannot take their data yet, or owes them
+    /// the cycle's policy): the deadlines start counting again from `now_ms`, so no lease is
+    /// ended for the caller's delay.
+    pub fn hold_deadlines(&mut self, now_ms: u64) {
+        if let Some((_, from)) = self.cycle_opened.as_mut() {
+            *from = (*from).max(now_ms);
+        }
+        for open in self.open.values_mut() {
+            if let Some((_, from)) = open.late.as_mut() {
+                *from = (*from).max(now_ms);
+            }
+        }
+    }
+
+    /// The span of an assignment now (ms; see [`crate::deadline`]): a cycle ends at the latest
+    /// this long after its first assignment. `None` before a lease finished here, or with
+    /// deadlines off.
+    pub fn span_ms(&self) -> Option<u64> {
+        self.config
+            .deadline
+            .span_ms(self.times.median(), self.config.episodes_per_assignment)
+    }
+
+    /// How long a lease may go without progress before the caller should
+    /// [`stall`](Registry::stall) it (`max(floor, k x median episode time)`); `None` before a
+    /// lease finished here, or with deadlines off.
+    pub fn stall_bound_ms(&self) -> Option<u64> {
+        self.config.deadline.stall_ms(self.times.median())
     }
 
     /// Expires overdue leases, marks silent actors dead, advances the cycle if its barrier is
@@ -692,6 +797,10 @@ impl Registry {
             expired_leases_total: self.expired_leases_total,
             assignments_total: self.assignments_total,
             episodes_reported_total: self.episodes_reported_total,
+            leases_cut_total: self.leases_cut_total,
+            median_episode_ms: self.times.median(),
+            span_ms: self.span_ms(),
+            late_ranks: self.ranks.values().filter(|slot| slot.late).count(),
             worlds: self.dealer.counts(),
         }
     }
@@ -727,8 +836,9 @@ impl Registry {
             .map(|(&lease, _)| lease)
             .collect();
         for lease in overdue {
-            self.expire(lease);
+            self.expire(lease, ExpiryCause::Silent);
         }
+        self.apply_deadlines(now_ms);
         let ttl = self.config.lease_ttl_ms;
         let mut died = Vec::new();
         for (&id, record) in self.actors.iter_mut() {
@@ -756,7 +866,7 @@ impl Registry {
         record.liveness = Liveness::Retired;
         let (lease, rank) = (record.lease, record.rank);
         if let Some(lease) = lease {
-            self.expire(lease);
+            self.expire(lease, ExpiryCause::Silent);
         }
         if let Some(slot) = self.ranks.get_mut(&rank) {
             slot.actors.retain(|&a| a != id);
@@ -770,24 +880,82 @@ impl Registry {
         }
     }
 
-    /// Expires the open lease `lease`.
-    fn expire(&mut self, lease: u64) {
+    /// Ends the leases past a deadline at `now_ms` (see the module documentation): every
+    /// on-time lease once the cycle's span has passed, and late leases past their own. When no
+    /// lease finished during the cycle (or since the late lease was assigned), every actor may
+    /// have slowed down: the spans are stretched.
+    fn apply_deadlines(&mut self, now_ms: u64) {
+        let Some(span_ms) = self.span_ms() else {
+            return;
+        };
+        let cycle_over = self
+            .cycle_opened
+            .filter(|&(_, from)| now_ms >= from.saturating_add(span_ms))
+            .map(|(first, _)| first);
+        let mut starved = false;
+        let due: Vec<(u64, ExpiryCause)> = self
+            .open
+            .iter()
+            .filter_map(|(&id, open)| {
+                let (cause, since) = match (open.late, cycle_over) {
+                    (None, Some(first)) => (ExpiryCause::CycleDeadline { span_ms }, first),
+                    (Some((span_ms, from)), _) if now_ms >= from.saturating_add(span_ms) => {
+                        (ExpiryCause::LeaseDeadline { span_ms }, open.assigned_ms)
+                    }
+                    _ => return None,
+                };
+                starved |= self.measured_ms <= since;
+                Some((id, cause))
+            })
+            .collect();
+        if cycle_over.is_some() {
+            // Every on-time lease ends now, so the barrier is met below (and the next cycle's
+            // deadline counts from its own first assignment).
+            self.cycle_opened = None;
+        }
+        for (lease, cause) in due {
+            self.expire(lease, cause);
+        }
+        if starved {
+            self.times
+                .stretch(&self.config.deadline, self.config.episodes_per_assignment);
+            self.measured_ms = now_ms;
+        }
+    }
+
+    /// Ends the open lease `lease` for `cause`: its world goes back to the dealer, the actor's
+    /// turn is over (a late actor's lease is no turn), and a deadline or stall makes its rank
+    /// late.
+    fn expire(&mut self, lease: u64, cause: ExpiryCause) {
         let open = self.open.remove(&lease).expect("expiring an open lease");
         let Assignment { actor, world, .. } = open.assignment;
         self.dealer
             .release(world)
             .expect("an open lease holds an in-flight world");
         self.close(lease, actor, Closure::Expired);
-        self.actors
+        let record = self
+            .actors
             .get_mut(&actor)
-            .expect("a lease's actor is registered")
-            .lease = None;
-        self.turns.insert(actor, Turn::Done);
+            .expect("a lease's actor is registered");
+        record.lease = None;
+        let rank = record.rank;
+        if open.late.is_none() {
+            self.turns.insert(actor, Turn::Done);
+        }
+        if cause.is_deadline() || cause == ExpiryCause::Stalled {
+            if let Some(slot) = self.ranks.get_mut(&rank) {
+                slot.late = true;
+            }
+        }
+        if cause.is_deadline() {
+            self.leases_cut_total += 1;
+        }
         self.expired_leases_total += 1;
         self.expired_queue.push(Expired {
             actor,
             lease_id: lease,
             world,
+            cause,
         });
     }
 
@@ -803,6 +971,7 @@ impl Registry {
         if !self.turns.is_empty() && self.turns.values().all(|&turn| turn == Turn::Done) {
             self.turns.clear();
             self.cycle += 1;
+            self.cycle_opened = None;
         }
     }
 
@@ -858,6 +1027,7 @@ mod tests {
             lease_ttl_ms: TTL,
             episodes_per_assignment: 2,
             run_seed,
+            deadline: DeadlineRule::default(),
         };
         Registry::new(config, WorldPool::Listed((0..worlds).map(|w| w * 10).collect())).unwrap()
     }
@@ -871,6 +1041,175 @@ mod tests {
 
     fn is_idle(registry: &mut Registry, actor: ActorId, now_ms: u64) -> bool {
         registry.next_assignment(actor, now_ms, 0).unwrap() == Decision::Idle
+    }
+
+    /// A registry of 6 worlds with deadlines k = 3, floor 100 ms, and a lease TTL so long that
+    /// only deadlines end leases.
+    fn with_deadlines() -> Registry {
+        let config = RegistryConfig {
+            lease_ttl_ms: 1_000_000,
+            episodes_per_assignment: 2,
+            run_seed: 4,
+            deadline: DeadlineRule {
+                multiple: 3,
+                floor_ms: 100,
+            },
+        };
+        Registry::new(config, WorldPool::Listed((0..6).collect())).unwrap()
+    }
+
+    #[test]
+    fn a_straggler_costs_one_span_then_works_off_the_barrier() {
+        let mut registry = with_deadlines();
+        let honest = registry.register(0, "h".into(), 1, 0, None);
+        let slow = registry.register(1, "h".into(), 2, 0, None);
+        let first = assign(&mut registry, honest, 0);
+        let held = assign(&mut registry, slow, 0);
+        assert_eq!(registry.span_ms(), None, "nothing measured: the cycle waits");
+        registry.finish(honest, first.lease_id, 100).unwrap();
+        // 50 ms per episode: a span is 3 x 50 x 2 = 300 ms from the cycle's first assignment.
+        assert_eq!(
+            (registry.span_ms(), registry.stall_bound_ms()),
+            (Some(300), Some(150))
+        );
+        assert!(registry.tick(299).is_empty());
+        assert_eq!(registry.cycle(), 0);
+        assert_eq!(
+            registry.tick(300),
+            vec![Expired {
+                actor: slow,
+                lease_id: held.lease_id,
+                world: held.world,
+                cause: ExpiryCause::CycleDeadline { span_ms: 300 },
+            }]
+        );
+        assert_eq!(registry.cycle(), 1, "the deadline ended the cycle");
+        assert_eq!(
+            registry.check_lease(slow, held.lease_id, 300),
+            Err(RegistryError::ExpiredLease {
+                actor: slow,
+                lease: held.lease_id
+            }),
+            "later data under it is refused"
+        );
+        // The straggler is late: its lease is off the barrier and ends one span after it was
+        // assigned; the honest actor's cycles go at its own pace meanwhile.
+        let next = assign(&mut registry, honest, 300);
+        assert_eq!(
+            next.world, held.world,
+            "the cut lease's world is dealt again first"
+        );
+        let late = assign(&mut registry, slow, 300);
+        assert_eq!(late.cycle, 1);
+        registry.finish(honest, next.lease_id, 400).unwrap();
+        assert_eq!(registry.cycle(), 2, "the late lease does not hold the cycle");
+        let third = assign(&mut registry, honest, 400);
+        registry.finish(honest, third.lease_id, 500).unwrap();
+        assert_eq!(registry.cycle(), 3);
+        assert!(registry.tick(599).is_empty());
+        let cut = registry.tick(600);
+        assert_eq!(
+            cut.iter().map(|e| (e.lease_id, e.cause)).collect::<Vec<_>>(),
+            [(late.lease_id, ExpiryCause::LeaseDeadline { span_ms: 300 })]
+        );
+        let status = registry.status();
+        assert_eq!((status.leases_cut_total, status.late_ranks), (2, 1));
+        // A late actor gets work whenever it holds none, and finishing it puts it back on
+        // time: it idles until the next cycle like everyone else.
+        let again = assign(&mut registry, slow, 600);
+        registry.finish(slow, again.lease_id, 700).unwrap();
+        assert_eq!(registry.status().late_ranks, 0);
+        assert_eq!(registry.cycle(), 4, "its turn was the only one of cycle 3");
+        let honest_lease = assign(&mut registry, honest, 701);
+        let on_time = assign(&mut registry, slow, 702);
+        assert_eq!((honest_lease.cycle, on_time.cycle), (4, 4));
+        registry.finish(slow, on_time.lease_id, 720).unwrap();
+        assert!(
+            is_idle(&mut registry, slow, 721),
+            "on time: it waits for the cycle"
+        );
+        registry.finish(honest, honest_lease.lease_id, 750).unwrap();
+        assert_eq!(registry.cycle(), 5, "the barrier waited for both");
+    }
+
+    #[test]
+    fn every_actor_slowing_down_together_stretches_the_spans() {
+        let mut registry = with_deadlines();
+        let a = registry.register(0, "h".into(), 1, 0, None);
+        let first = assign(&mut registry, a, 0);
+        registry.finish(a, first.lease_id, 100).unwrap();
+        // Its episodes now take 1 s: spans of 300, then 900 (no lease finished within a
+        // span), then 2,700 ms, which it meets.
+        let mut now = 100;
+        let mut spans = Vec::new();
+        loop {
+            let lease = assign(&mut registry, a, now);
+            let done_at = now + 2_000;
+            let mut cut = Vec::new();
+            while cut.is_empty() && now < done_at {
+                now += 50;
+                cut = registry.tick(now);
+            }
+            if let [expired] = cut[..] {
+                let (ExpiryCause::CycleDeadline { span_ms } | ExpiryCause::LeaseDeadline { span_ms }) =
+                    expired.cause
+                else {
+                    panic!("{expired:?}");
+                };
+                spans.push(span_ms);
+                assert!(spans.len() < 10, "the spans never grew: {spans:?}");
+                continue;
+            }
+            registry.finish(a, lease.lease_id, now).unwrap();
+            break;
+        }
+        assert_eq!(spans, [300, 900]);
+        assert_eq!(registry.status().late_ranks, 0);
+    }
+
+    #[test]
+    fn deadlines_wait_while_the_caller_holds_the_actors_up() {
+        let mut registry = with_deadlines();
+        let a = registry.register(0, "h".into(), 1, 0, None);
+        let b = registry.register(1, "h".into(), 2, 0, None);
+        let first = assign(&mut registry, a, 0);
+        let held = assign(&mut registry, b, 0);
+        registry.finish(a, first.lease_id, 100).unwrap();
+        // The span is 300 ms from 0; the caller held everyone up until 250.
+        registry.hold_deadlines(250);
+        assert!(registry.tick(549).is_empty());
+        let cut = registry.tick(550);
+        assert_eq!(cut.len(), 1);
+        assert_eq!(cut[0].lease_id, held.lease_id);
+        // A late lease's span restarts the same way.
+        let late = assign(&mut registry, b, 550);
+        registry.hold_deadlines(800);
+        assert!(registry.tick(1_099).is_empty());
+        assert_eq!(
+            registry
+                .tick(1_100)
+                .iter()
+                .map(|e| e.lease_id)
+                .collect::<Vec<_>>(),
+            [late.lease_id]
+        );
+    }
+
+    #[test]
+    fn without_deadlines_the_cycle_waits_for_every_lease() {
+        let config = RegistryConfig {
+            deadline: DeadlineRule::OFF,
+            lease_ttl_ms: 1_000_000,
+            ..RegistryConfig::default()
+        };
+        let mut registry = Registry::new(config, WorldPool::Listed(vec![1, 2])).unwrap();
+        let a = registry.register(0, "h".into(), 1, 0, None);
+        let b = registry.register(1, "h".into(), 2, 0, None);
+        let la = assign(&mut registry, a, 0);
+        assign(&mut registry, b, 0);
+        registry.finish(a, la.lease_id, 10).unwrap();
+        assert!(registry.tick(999_999).is_empty());
+        assert_eq!((registry.cycle(), registry.span_ms()), (0, None));
     }
 
     #[test]
@@ -963,7 +1302,8 @@ mod tests {
             vec![Expired {
                 actor: a,
                 lease_id: lease.lease_id,
-                world: lease.world
+                world: lease.world,
+                cause: ExpiryCause::Silent,
             }]
         );
         let error = registry.check_lease(a, lease.lease_id, TTL + 1).unwrap_err();
@@ -1097,7 +1437,8 @@ mod tests {
             vec![Expired {
                 actor: old,
                 lease_id: lease.lease_id,
-                world: lease.world
+                world: lease.world,
+                cause: ExpiryCause::Silent,
             }]
         );
         assert_eq!(
