@@ -184,14 +184,20 @@ fn silent_connections_are_closed_while_an_honest_actor_is_served() {
     assert_eq!(open, 0, "watchdog: silent connections still open");
 }
 
-/// 500 unread WatchPolicy streams (250 actors x the per-actor cap of 2) cost the learner
-/// little memory, and closing them gives their places and memory back: three rounds of 500
-/// (1,500 streams in all, over the global cap of 1,024 if places were never returned) stay
-/// under the same bound, and so does the learner after the last round closed.
+/// 500 unread WatchPolicy streams (500 actors, one each: a second stream of an actor ends its
+/// first) cost the learner little memory, and closing them gives their places and memory
+/// back: three rounds of 500 (1,500 streams in all, over the global cap of 1,024 if places
+/// were never returned) stay under the same bound, and so does the learner after the last
+/// round closed.
 #[test]
 fn unread_policy_streams_share_one_policy_copy() {
     let dir = fresh_dir("hostile-watch");
-    let (learner, _run, addr, token) = learner(&dir, "");
+    // All from 127.0.0.1, one connection each: the per-address caps are raised above their
+    // number.
+    let (learner, _run, addr, token) = learner(
+        &dir,
+        "policy_streams_per_ip = 1024\nmax_connections_per_ip = 1024",
+    );
     let pid = learner.0.id();
     let rt = tokio::runtime::Runtime::new().unwrap();
     let before = rss_kib(pid);
@@ -199,7 +205,7 @@ fn unread_policy_streams_share_one_policy_copy() {
     for round in 0..3 {
         let streams = rt.block_on(async {
             let mut streams = Vec::new();
-            for rank in 0..250 {
+            for rank in 0..500 {
                 let (_control, mut data, reply) = register(&addr, &token, rank).await;
                 let request = || pb::PolicyRequest {
                     run: reply.run.clone(),
@@ -207,12 +213,15 @@ fn unread_policy_streams_share_one_policy_copy() {
                     have_version: 0,
                     actor_secret: reply.actor_secret.clone(),
                 };
-                for _ in 0..2 {
-                    streams.push(data.watch_policy(request()).await.unwrap());
+                let mut stream = data.watch_policy(request()).await.unwrap().into_inner();
+                if rank == 0 {
+                    // A second stream of the same actor ends its first (after the policy).
+                    let second = data.watch_policy(request()).await.unwrap();
+                    while stream.message().await.unwrap().is_some() {}
+                    streams.push(second.into_inner());
+                } else {
+                    streams.push(stream);
                 }
-                // A third stream of the same actor is over the per-actor cap.
-                let third = data.watch_policy(request()).await.unwrap_err();
-                assert_eq!(third.code(), tonic::Code::ResourceExhausted, "{third}");
             }
             streams
         });
@@ -1385,5 +1394,94 @@ fn honest_throughput_with_and_without_a_straggler() {
     eprintln!(
         "straggler at one step every {every:?}: honest {beside:.2} episodes/s beside it, {alone:.2} alone: {:.1} %",
         100.0 * beside / alone
+    );
+}
+
+/// Issue 71, attack 4: one token holder took every `WatchPolicy` slot (512 registrations x 2
+/// streams filled `max_policy_streams`) and a real actor then looped on RESOURCE_EXHAUSTED.
+/// Now (scaled down: `max_policy_streams = 64`, `policy_streams_per_ip = 16`) 64 registrations
+/// from 127.0.0.1 opening 2 streams each hold at most 16 (a registration's second stream
+/// ends its first; the address's streams beyond 16 are refused), and an honest actor from
+/// 127.0.0.2 gets its stream and the policy. Refusals and replacements are counted in
+/// `status.json` and logged with the peer.
+#[test]
+fn one_token_holder_cannot_take_every_policy_stream() {
+    let dir = fresh_dir("hostile-policy-slots");
+    let (_learner, run, addr, token) = learner(&dir, "max_policy_streams = 64\npolicy_streams_per_ip = 16");
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    let (held, refused) = rt.block_on(async {
+        let mut held = Vec::new();
+        let mut refused = 0;
+        for rank in 0..64 {
+            let (_control, mut data, reply) = register(&addr, &token, rank).await;
+            for _ in 0..2 {
+                let request = pb::PolicyRequest {
+                    run: reply.run.clone(),
+                    actor_id: reply.actor_id,
+                    have_version: 0,
+                    actor_secret: reply.actor_secret.clone(),
+                };
+                match data.watch_policy(request).await {
+                    Ok(stream) => held.push(stream.into_inner()),
+                    Err(e) => {
+                        assert_eq!(e.code(), tonic::Code::ResourceExhausted, "{e}");
+                        refused += 1;
+                    }
+                }
+            }
+        }
+        (held, refused)
+    });
+    assert!(refused >= 64, "{refused} refused");
+    // The honest actor, from another address.
+    rt.block_on(async {
+        let channel = tonic::transport::Endpoint::from_shared(format!("http://{addr}"))
+            .unwrap()
+            .local_address(Some([127, 0, 0, 2].into()))
+            .connect()
+            .await
+            .unwrap();
+        let auth = proto::auth::ClientAuth::new(Some(&token));
+        let mut control = pb::control_client::ControlClient::with_interceptor(channel.clone(), auth.clone());
+        let mut data = pb::data_client::DataClient::with_interceptor(channel, auth);
+        let me = control
+            .register(pb::RegisterRequest {
+                rank: 1000,
+                host: "honest".into(),
+                pid: 1,
+                ..Default::default()
+            })
+            .await
+            .unwrap()
+            .into_inner();
+        let mut stream = data
+            .watch_policy(pb::PolicyRequest {
+                run: me.run.clone(),
+                actor_id: me.actor_id,
+                have_version: 0,
+                actor_secret: me.actor_secret.clone(),
+            })
+            .await
+            .unwrap()
+            .into_inner();
+        // A watchdog, not a timing assertion: the policy arrives.
+        let policy = tokio::time::timeout(Duration::from_secs(300), stream.message())
+            .await
+            .expect("watchdog: no policy on the honest stream")
+            .unwrap()
+            .expect("the honest stream ended without a policy");
+        assert!(!policy.weights.is_empty());
+    });
+    drop(held);
+    poll("the refusals in status.json", || {
+        status(&run).is_some_and(|s| s.connections.policy_streams_refused_per_address >= 64)
+    });
+    let c = status(&run).unwrap().connections;
+    eprintln!("{refused} streams refused; {c:?}");
+    assert!(c.policy_streams_replaced >= 8, "{c:?}");
+    let log = std::fs::read_to_string(dir.join("learner.stderr")).unwrap();
+    assert!(
+        log.contains("policy_streams_per_ip") && log.contains("tcp 127.0.0.1:"),
+        "{log}"
     );
 }

@@ -107,8 +107,15 @@ pub struct ServiceConfig {
     /// RESOURCE_EXHAUSTED). Every stream shares one encoded copy of the newest policy. Default
     /// 1024.
     pub max_policy_streams: u32,
-    /// Most `WatchPolicy` streams open at once per actor (an actor needs one). Default 2.
+    /// Most `WatchPolicy` streams open at once per registration (an actor needs one); one more
+    /// ends the registration's oldest (counted and logged), so an actor that reconnects is
+    /// never refused for its own stale stream. Default 1.
     pub policy_streams_per_actor: u32,
+    /// Most `WatchPolicy` streams open at once from one TCP source address; more are refused
+    /// with RESOURCE_EXHAUSTED (counted and logged), so one host cannot take every slot of
+    /// `max_policy_streams`. Like `max_connections_per_ip`, raise it for a host that runs more
+    /// actors than this over TCP. Default 256.
+    pub policy_streams_per_ip: u32,
     /// Ranks whose actor has been dead (no heartbeat, no lease) for this long (ms) are
     /// forgotten: their records leave `status.json` and checkpoints, their counters are
     /// added to the aggregate of pruned ranks. Default 600000 (10 minutes).
@@ -203,6 +210,7 @@ impl ServiceConfig {
             ("max_connections_per_ip", self.max_connections_per_ip),
             ("handshake_timeout_ms", self.handshake_timeout_ms),
             ("auth_deadline_ms", self.auth_deadline_ms),
+            ("policy_streams_per_ip", self.policy_streams_per_ip),
         ] {
             if value == 0 {
                 return Err(SettingsError::ZeroConnectionLimit { key });
@@ -255,7 +263,8 @@ impl Default for ServiceConfig {
             handshake_timeout_ms: 5000,
             auth_deadline_ms: 10_000,
             max_policy_streams: 1024,
-            policy_streams_per_actor: 2,
+            policy_streams_per_actor: 1,
+            policy_streams_per_ip: 256,
             rank_forget_ms: 600_000,
             dead_ranks_kept: 256,
         }

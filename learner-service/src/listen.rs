@@ -154,6 +154,9 @@ pub struct ConnectionStats {
     closed_unauthenticated: AtomicU64,
     undecodable_requests: AtomicU64,
     oversized_requests: AtomicU64,
+    policy_streams_refused: AtomicU64,
+    policy_streams_refused_per_address: AtomicU64,
+    policy_streams_replaced: AtomicU64,
     authorities_rewritten: Arc<AtomicU64>,
     /// Run tokens refused (counted with the other refusals of records; here for the log only).
     tokens_refused: AtomicU64,
@@ -169,6 +172,9 @@ impl Default for ConnectionStats {
             closed_unauthenticated: AtomicU64::new(0),
             undecodable_requests: AtomicU64::new(0),
             oversized_requests: AtomicU64::new(0),
+            policy_streams_refused: AtomicU64::new(0),
+            policy_streams_refused_per_address: AtomicU64::new(0),
+            policy_streams_replaced: AtomicU64::new(0),
             authorities_rewritten: Arc::new(AtomicU64::new(0)),
             tokens_refused: AtomicU64::new(0),
         }
@@ -188,6 +194,13 @@ pub enum Cause {
     Undecodable,
     /// A request's message was over the size limit.
     Oversized,
+    /// A `WatchPolicy` stream over `max_policy_streams`.
+    PolicyStreamsFull,
+    /// A `WatchPolicy` stream over `policy_streams_per_ip`.
+    PolicyStreamsPerAddress,
+    /// A registration's older `WatchPolicy` stream ended by a newer one (not a refusal of
+    /// the newer one).
+    PolicyStreamReplaced,
 }
 
 impl ConnectionStats {
@@ -205,6 +218,9 @@ impl ConnectionStats {
             Cause::Unauthenticated => &self.closed_unauthenticated,
             Cause::Undecodable => &self.undecodable_requests,
             Cause::Oversized => &self.oversized_requests,
+            Cause::PolicyStreamsFull => &self.policy_streams_refused,
+            Cause::PolicyStreamsPerAddress => &self.policy_streams_refused_per_address,
+            Cause::PolicyStreamReplaced => &self.policy_streams_replaced,
         }
     }
 
@@ -237,6 +253,9 @@ impl ConnectionStats {
             closed_unauthenticated: load(&self.closed_unauthenticated),
             undecodable_requests: load(&self.undecodable_requests),
             oversized_requests: load(&self.oversized_requests),
+            policy_streams_refused: load(&self.policy_streams_refused),
+            policy_streams_refused_per_address: load(&self.policy_streams_refused_per_address),
+            policy_streams_replaced: load(&self.policy_streams_replaced),
             authorities_rewritten: load(&self.authorities_rewritten),
         }
     }

@@ -4,15 +4,21 @@
 //! stream whose client does not read held a private copy of the encoded policy (2.5 MB at the
 //! default network size) in the HTTP/2 send queue. Here the newest policy is encoded once into
 //! a gRPC frame ([`Bytes`], reference-counted) and every stream sends that same frame; an
-//! unread stream holds a reference, not a copy. Streams are capped in total and per actor, and
-//! each one is authenticated with its actor's credential.
+//! unread stream holds a reference, not a copy. Streams are capped in total, per source
+//! address (TCP) and per registration, and each one is authenticated with its actor's
+//! credential. A registration's stream beyond its cap ends its oldest one instead of being
+//! refused (an actor that reconnects is never locked out by its own stale stream), so one
+//! token holder can take at most its address's share of the streams, never every slot. Every
+//! refusal and replacement is counted in `status.json` (`connections`) and logged with the
+//! peer (the first 20 of each cause, then every 1000th).
 //!
 //! [`DataRoutes`] is the `adp.v1.Data` service: `WatchPolicy` is answered here, every other
 //! method by the generated server.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, VecDeque};
 use std::convert::Infallible;
 use std::future::Future;
+use std::net::IpAddr;
 use std::pin::Pin;
 use std::sync::{Arc, Mutex};
 use std::task::{Context, Poll};
@@ -22,7 +28,7 @@ use http_body_util::{BodyExt, Limited, StreamBody};
 use prost::bytes::{BufMut, Bytes, BytesMut};
 use prost::Message;
 use proto::pb;
-use tokio::sync::{watch, OwnedSemaphorePermit, Semaphore};
+use tokio::sync::{oneshot, watch, OwnedSemaphorePermit, Semaphore};
 use tokio_stream::StreamExt;
 use tonic::body::Body;
 use tonic::server::NamedService;
@@ -30,6 +36,7 @@ use tonic::Status;
 
 use crate::control::refusal_status;
 use crate::data::DataService;
+use crate::listen::{Cause, Peer, PeerInfo};
 use crate::shared::Shared;
 
 /// The HTTP/2 path of `WatchPolicy`.
@@ -45,38 +52,61 @@ pub struct PolicyStreams {
     max_total: u32,
     /// `[service] policy_streams_per_actor`.
     per_actor: u32,
-    /// Open streams per actor id.
-    open: Arc<Mutex<HashMap<u64, u32>>>,
+    /// `[service] policy_streams_per_ip`.
+    per_address: u32,
+    /// Open streams per actor and per source address.
+    open: Arc<Mutex<StreamTable>>,
     /// The snapshot encoded last and its gRPC frame.
     frame: Mutex<Option<(Arc<pb::PolicySnapshot>, Bytes)>>,
 }
 
+/// The open streams per actor (oldest first, each with its id and the sender that ends it)
+/// and per TCP source address.
+#[derive(Default)]
+struct StreamTable {
+    by_actor: HashMap<u64, VecDeque<(u64, oneshot::Sender<()>)>>,
+    by_address: HashMap<IpAddr, u32>,
+    next_id: u64,
+}
+
 /// One open stream's place in the caps, given back when the stream is dropped.
 struct StreamSlot {
-    open: Arc<Mutex<HashMap<u64, u32>>>,
+    open: Arc<Mutex<StreamTable>>,
     actor: u64,
+    id: u64,
+    address: Option<IpAddr>,
     _permit: OwnedSemaphorePermit,
 }
 
 impl Drop for StreamSlot {
     fn drop(&mut self) {
         let mut open = self.open.lock().expect("policy stream table");
-        if let Some(n) = open.get_mut(&self.actor) {
-            *n -= 1;
-            if *n == 0 {
-                open.remove(&self.actor);
+        if let Some(streams) = open.by_actor.get_mut(&self.actor) {
+            streams.retain(|(id, _)| *id != self.id);
+            if streams.is_empty() {
+                open.by_actor.remove(&self.actor);
+            }
+        }
+        if let Some(address) = self.address {
+            if let Some(n) = open.by_address.get_mut(&address) {
+                *n -= 1;
+                if *n == 0 {
+                    open.by_address.remove(&address);
+                }
             }
         }
     }
 }
 
 impl PolicyStreams {
-    /// Streams of the policies published on `policy`, at most `max_total` at once and
-    /// `per_actor` per actor.
+    /// Streams of the policies published on `policy`, at most `max_total` at once,
+    /// `per_address` from one TCP source address and `per_actor` per registration (one more
+    /// ends the registration's oldest).
     pub fn new(
         shared: Arc<Shared>,
         policy: watch::Receiver<Arc<pb::PolicySnapshot>>,
         max_total: u32,
+        per_address: u32,
         per_actor: u32,
     ) -> Self {
         Self {
@@ -84,8 +114,9 @@ impl PolicyStreams {
             policy,
             total: Arc::new(Semaphore::new(max_total as usize)),
             max_total,
-            per_actor,
-            open: Arc::new(Mutex::new(HashMap::new())),
+            per_actor: per_actor.max(1),
+            per_address,
+            open: Arc::new(Mutex::new(StreamTable::default())),
             frame: Mutex::new(None),
         }
     }
@@ -111,35 +142,80 @@ impl PolicyStreams {
         frame
     }
 
-    /// Takes a place for a stream of `actor`, or says which cap is reached.
-    fn take_slot(&self, actor: u64) -> Result<StreamSlot, Status> {
+    /// Takes a place for a stream of `actor` from `peer`, ending the actor's oldest stream when
+    /// it has `per_actor` open, or refuses it (counted and logged) when the address's or the
+    /// learner's cap is reached. Returns the place and the receiver that ends the stream when
+    /// a newer one of the actor replaces it.
+    fn take_slot(
+        &self,
+        actor: u64,
+        peer: Option<Peer>,
+    ) -> Result<(StreamSlot, oneshot::Receiver<()>), Status> {
+        let stats = &self.shared.connections;
+        let shown: &dyn std::fmt::Display = match &peer {
+            Some(p) => p,
+            None => &"an unknown peer",
+        };
+        let address = match peer {
+            Some(Peer::Tcp(addr)) => Some(addr.ip()),
+            _ => None,
+        };
         let mut open = self.open.lock().expect("policy stream table");
-        let n = open.entry(actor).or_default();
-        if *n >= self.per_actor {
-            return Err(Status::resource_exhausted(format!(
-                "actor {actor} already has {n} WatchPolicy streams open ([service] \
-                 policy_streams_per_actor = {})",
-                self.per_actor
-            )));
+        if let Some(ip) = address {
+            let n = open.by_address.get(&ip).copied().unwrap_or(0);
+            if n >= self.per_address {
+                let why = format!(
+                    "{ip} already has {n} WatchPolicy streams open ([service] policy_streams_per_ip)"
+                );
+                stats.refuse(Cause::PolicyStreamsPerAddress, shown, &why);
+                return Err(Status::resource_exhausted(why));
+            }
         }
         let permit = self.total.clone().try_acquire_owned().map_err(|_| {
-            Status::resource_exhausted(format!(
+            let why = format!(
                 "{} WatchPolicy streams are open, the most the learner serves ([service] \
                  max_policy_streams)",
                 self.max_total
-            ))
+            );
+            stats.refuse(Cause::PolicyStreamsFull, shown, &why);
+            Status::resource_exhausted(why)
         })?;
-        *n += 1;
-        Ok(StreamSlot {
-            open: self.open.clone(),
-            actor,
-            _permit: permit,
-        })
+        let id = open.next_id;
+        open.next_id += 1;
+        let (end, ended) = oneshot::channel();
+        let streams = open.by_actor.entry(actor).or_default();
+        while streams.len() >= self.per_actor as usize {
+            let Some((_, older)) = streams.pop_front() else {
+                break;
+            };
+            // The older stream ends (with an OK status) and gives its place back when dropped.
+            let _ = older.send(());
+            stats.refuse(
+                Cause::PolicyStreamReplaced,
+                shown,
+                &format!("actor {actor} opened another WatchPolicy stream: its older one ends"),
+            );
+        }
+        streams.push_back((id, end));
+        if let Some(ip) = address {
+            *open.by_address.entry(ip).or_default() += 1;
+        }
+        Ok((
+            StreamSlot {
+                open: self.open.clone(),
+                actor,
+                id,
+                address,
+                _permit: permit,
+            },
+            ended,
+        ))
     }
 
     /// Reads the request, checks run, credential and caps, and opens the stream.
     async fn open_stream(self: Arc<Self>, request: http::Request<Body>) -> Result<Body, Status> {
-        let raw = Limited::new(request.into_body(), proto::grpc::MAX_CONTROL_REQUEST_BYTES)
+        let (parts, body) = request.into_parts();
+        let raw = Limited::new(body, proto::grpc::MAX_CONTROL_REQUEST_BYTES)
             .collect()
             .await
             .map_err(|e| Status::resource_exhausted(format!("WatchPolicy request: {e}")))?
@@ -156,7 +232,8 @@ impl PolicyStreams {
             self.shared.refuse(&why, 1);
             return Err(refusal_status(&why));
         }
-        let slot = self.take_slot(r.actor_id)?;
+        let peer = PeerInfo::of(&parts.extensions).map(PeerInfo::peer);
+        let (slot, replaced) = self.take_slot(r.actor_id, peer)?;
         let have = r.have_version;
         let streams = self.clone();
         // The channel starts with an empty placeholder until the first policy is published:
@@ -168,12 +245,33 @@ impl PolicyStreams {
                 let _open = &slot;
                 Ok::<_, Infallible>(Frame::data(streams.frame(&p)))
             });
+        let frames = UntilReplaced {
+            inner: Box::pin(frames),
+            replaced,
+        };
         // When the policies end (the learner stops), the stream ends as a gRPC stream does: with
         // trailers saying OK.
         let mut trailers = http::HeaderMap::new();
         trailers.insert("grpc-status", http::HeaderValue::from_static("0"));
         let end = tokio_stream::once(Ok(Frame::trailers(trailers)));
         Ok(Body::new(StreamBody::new(frames.chain(end))))
+    }
+}
+
+/// A stream that ends when a newer stream of its actor replaced it (`replaced` fires).
+struct UntilReplaced<S> {
+    inner: Pin<Box<S>>,
+    replaced: oneshot::Receiver<()>,
+}
+
+impl<S: tokio_stream::Stream> tokio_stream::Stream for UntilReplaced<S> {
+    type Item = S::Item;
+
+    fn poll_next(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<Option<S::Item>> {
+        if Pin::new(&mut self.replaced).poll(cx).is_ready() {
+            return Poll::Ready(None);
+        }
+        self.inner.as_mut().poll_next(cx)
     }
 }
 
@@ -246,6 +344,48 @@ impl tower_service::Service<http::Request<Body>> for DataRoutes {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::fixture::{fixture, td3_config};
+
+    #[test]
+    fn a_registration_keeps_one_stream_and_an_address_its_share() {
+        let f = fixture(td3_config(), 60_000);
+        let (_tx, rx) = watch::channel(Arc::new(pb::PolicySnapshot::default()));
+        let streams = PolicyStreams::new(f.shared.clone(), rx, 4, 2, 1);
+        let one: Peer = Peer::Tcp("127.0.0.1:5000".parse().unwrap());
+        let two: Peer = Peer::Tcp("127.0.0.2:5000".parse().unwrap());
+        // A second stream of actor 7 ends its first (which gives its place back when dropped).
+        let (first, mut first_ended) = streams.take_slot(7, Some(one)).unwrap();
+        let (second, mut second_ended) = streams.take_slot(7, Some(one)).unwrap();
+        assert!(first_ended.try_recv().is_ok(), "the older stream is told to end");
+        assert!(second_ended.try_recv().is_err());
+        drop(first);
+        // Address 127.0.0.1 holds 1 of its 2; another actor there takes the second, a third
+        // is refused; 127.0.0.2 and the Unix socket are served.
+        let _b = streams.take_slot(8, Some(one)).unwrap();
+        let Err(refused) = streams.take_slot(9, Some(one)) else {
+            panic!("a third stream from 127.0.0.1 was served");
+        };
+        assert_eq!(refused.code(), tonic::Code::ResourceExhausted);
+        assert!(refused.message().contains("policy_streams_per_ip"), "{refused}");
+        let _c = streams.take_slot(9, Some(two)).unwrap();
+        let _d = streams.take_slot(10, Some(Peer::Unix)).unwrap();
+        // Four open: the learner's cap.
+        let Err(full) = streams.take_slot(11, Some(two)) else {
+            panic!("a fifth stream was served");
+        };
+        assert!(full.message().contains("max_policy_streams"), "{full}");
+        drop(second);
+        let _e = streams.take_slot(11, Some(one)).unwrap();
+        let c = f.shared.connections.snapshot();
+        assert_eq!(
+            (
+                c.policy_streams_replaced,
+                c.policy_streams_refused_per_address,
+                c.policy_streams_refused
+            ),
+            (1, 1, 1)
+        );
+    }
 
     #[test]
     fn requests_are_single_uncompressed_frames() {

@@ -170,6 +170,7 @@ impl ControlPlane {
                         shared.clone(),
                         policy_rx,
                         svc.max_policy_streams,
+                        svc.policy_streams_per_ip,
                         svc.policy_streams_per_actor,
                     )),
                 },

@@ -127,6 +127,17 @@ pub struct ConnectionStatus {
     pub undecodable_requests: u64,
     /// Requests refused for a message over the size limit: RESOURCE_EXHAUSTED.
     pub oversized_requests: u64,
+    /// `WatchPolicy` streams refused because `[service] max_policy_streams` were open.
+    #[serde(default)]
+    pub policy_streams_refused: u64,
+    /// `WatchPolicy` streams refused because their TCP source address had `[service]
+    /// policy_streams_per_ip` open.
+    #[serde(default)]
+    pub policy_streams_refused_per_address: u64,
+    /// `WatchPolicy` streams ended because their registration opened one more than `[service]
+    /// policy_streams_per_actor`.
+    #[serde(default)]
+    pub policy_streams_replaced: u64,
     /// Requests on the Unix socket whose `:authority` was rewritten to one the server accepts
     /// (grpc-core clients send the socket's percent-encoded path).
     pub authorities_rewritten: u64,
