@@ -120,7 +120,9 @@ fn eval_prints_a_table_and_writes_json() {
     assert!(o.status.success(), "{}", stderr(&o));
     let out = stdout(&o);
     // The table, then every row after the first paired with it over the worlds.
-    let (table, paired) = out.split_once("Paired against the first row").expect("a paired table");
+    let (table, paired) = out
+        .split_once("Paired against the first row")
+        .expect("a paired table");
     let rows: Vec<&str> = table.lines().filter(|l| l.starts_with("| dwa")).collect();
     assert_eq!(rows.len(), 4, "{table}");
     let others: Vec<&str> = paired.lines().filter(|l| l.starts_with("| dwa")).collect();
