@@ -722,7 +722,8 @@ async fn honest(mut control: proto::grpc::ControlClient, rank: u32) {
 /// from 127.0.0.1 lock no honest client out. The learner runs with `max_connections = 512` per
 /// listener and `max_connections_per_ip = 128` (scaled down proportionally when the hard
 /// open-file limit is too low; the test prints the sizes):
-/// - 2,000 peers from 127.0.0.1 over TCP: 128 are served, the rest closed at once; with 576
+/// - 2,000 peers from 127.0.0.1 over TCP: 128 are served at once, each one over that closing
+///   the oldest (none has the token; issue 71), so 1,872 are closed at once; with 576
 ///   more filling the Unix socket's budget, an honest client from 127.0.0.2 registers and
 ///   heartbeats over TCP;
 /// - 384 more peers from 127.0.0.3-5 fill the TCP budget; the Unix-socket flood leaves; an
@@ -760,9 +761,11 @@ fn idle_http2_peers_lock_no_honest_actor_out_and_are_closed_after_the_auth_deadl
 
     // Flood 1: from 127.0.0.1, far beyond its address's share.
     let (first, first_closed) = rt.block_on(idle_flood(first_flood, |_| tcp_from([127, 0, 0, 1], to)));
-    poll("the per-address cap to refuse the rest of flood 1", || {
+    // Each connection over the address's cap closes its oldest token-less one (issue 71).
+    poll("the per-address cap to close the rest of flood 1", || {
         let c = connections();
-        c.refused_per_address >= (first_flood - per_ip) as u64 && c.tcp.open >= per_ip as u64
+        c.refused_per_address + c.closed_for_room >= (first_flood - per_ip) as u64
+            && c.tcp.open >= per_ip as u64
     });
     // Flood 2: the Unix socket's whole budget.
     let (unix, _) = rt.block_on(idle_flood(unix_flood, |_| {
@@ -830,7 +833,10 @@ fn idle_http2_peers_lock_no_honest_actor_out_and_are_closed_after_the_auth_deadl
     });
     let c = connections();
     eprintln!("after the deadline: {c:?}");
-    assert!(c.refused_per_address >= (first_flood - per_ip) as u64, "{c:?}");
+    assert!(
+        c.refused_per_address + c.closed_for_room >= (first_flood - per_ip) as u64,
+        "{c:?}"
+    );
     drop((first, third));
     let log = std::fs::read_to_string(dir.join("learner.stderr")).unwrap();
     for needle in [
@@ -1482,6 +1488,55 @@ fn one_token_holder_cannot_take_every_policy_stream() {
     let log = std::fs::read_to_string(dir.join("learner.stderr")).unwrap();
     assert!(
         log.contains("policy_streams_per_ip") && log.contains("tcp 127.0.0.1:"),
+        "{log}"
+    );
+}
+
+/// Issue 71, attack 5: 300 token-less peers on 127.0.0.1 that reconnect whenever closed held
+/// the address's 256 connection places, and a real `adp actor` over TCP from that address got
+/// 0 episodes in 60 s. Now (scaled down: `max_connections_per_ip = 32`, 48 such peers, idle
+/// HTTP/2 connections that reconnect 10 ms after each close) a connection over the address's
+/// cap closes the oldest one that has not made a request with the run token instead of being
+/// refused, so the actor's connection gets in, authenticates with its first request, and is
+/// never closed for room again: the actor reports episodes. Counted in `status.json`
+/// (`closed_for_room`) and logged with the peer.
+#[test]
+fn token_less_peers_that_reconnect_lock_no_honest_actor_out_of_their_address() {
+    let dir = fresh_dir("hostile-reconnect");
+    let (_learner, run, addr, _token) = learner(&dir, "max_connections_per_ip = 32");
+    let to: std::net::SocketAddr = addr.parse().unwrap();
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let closed = std::sync::Arc::new(std::sync::atomic::AtomicUsize::new(0));
+    for _ in 0..48 {
+        let (stop, closed) = (stop.clone(), closed.clone());
+        rt.spawn(async move {
+            while !stop.load(std::sync::atomic::Ordering::Relaxed) {
+                let s = tcp_from([127, 0, 0, 1], to).await;
+                raw::idle_peer(s, closed.clone()).await;
+                tokio::time::sleep(Duration::from_millis(10)).await;
+            }
+        });
+    }
+    poll("the peers to hold the address's places", || {
+        status(&run).is_some_and(|s| s.connections.tcp.open >= 32)
+    });
+    let _actor = ActorProcess(common::spawn_actor(&addr, &run.join("token"), 0, "grpc"));
+    poll(
+        "the honest actor's episodes beside the reconnecting peers",
+        || status(&run).is_some_and(|s| honest_episodes(&s) >= 4),
+    );
+    stop.store(true, std::sync::atomic::Ordering::Relaxed);
+    let c = status(&run).unwrap().connections;
+    eprintln!(
+        "{} peer connections closed; {c:?}",
+        closed.load(std::sync::atomic::Ordering::Relaxed)
+    );
+    drop(rt);
+    assert!(c.closed_for_room >= 1, "{c:?}");
+    let log = std::fs::read_to_string(dir.join("learner.stderr")).unwrap();
+    assert!(
+        log.contains("needed its place") && log.contains("tcp 127.0.0.1:"),
         "{log}"
     );
 }

@@ -6,15 +6,15 @@
 //! files. Every connection closed or refused here is counted ([`ConnectionStats`], in
 //! `status.json`) and logged with the peer and the cause.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, VecDeque};
 use std::fmt;
 use std::future::Future;
 use std::io;
 use std::net::{IpAddr, SocketAddr};
 use std::pin::Pin;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::sync::{Arc, Mutex};
-use std::task::{Context, Poll};
+use std::sync::{Arc, Mutex, Weak};
+use std::task::{Context, Poll, Waker};
 use std::time::Duration;
 
 use tokio::io::{AsyncRead, AsyncWrite, ReadBuf};
@@ -93,6 +93,34 @@ impl fmt::Display for Peer {
 struct ConnState {
     peer: Peer,
     authenticated: AtomicBool,
+    /// Closed to make room at a connection cap (it had not made a request with the token).
+    evicted: AtomicBool,
+    /// The task reading the connection, woken when it is evicted.
+    reader: Mutex<Option<Waker>>,
+}
+
+impl ConnState {
+    fn new(peer: Peer) -> Self {
+        Self {
+            peer,
+            authenticated: AtomicBool::new(false),
+            evicted: AtomicBool::new(false),
+            reader: Mutex::new(None),
+        }
+    }
+
+    /// Whether it can be evicted: open, no request with the token yet, not evicted already.
+    fn evictable(&self) -> bool {
+        !self.authenticated.load(Ordering::Acquire) && !self.evicted.load(Ordering::Acquire)
+    }
+
+    /// Closes the connection (its next read fails) unless it has authenticated by then.
+    fn evict(&self) {
+        self.evicted.store(true, Ordering::Release);
+        if let Some(reader) = self.reader.lock().expect("connection waker").take() {
+            reader.wake();
+        }
+    }
 }
 
 /// The connect info of every learner connection, in each request's extensions: names the peer
@@ -154,6 +182,7 @@ pub struct ConnectionStats {
     closed_unauthenticated: AtomicU64,
     undecodable_requests: AtomicU64,
     oversized_requests: AtomicU64,
+    closed_for_room: AtomicU64,
     policy_streams_refused: AtomicU64,
     policy_streams_refused_per_address: AtomicU64,
     policy_streams_replaced: AtomicU64,
@@ -172,6 +201,7 @@ impl Default for ConnectionStats {
             closed_unauthenticated: AtomicU64::new(0),
             undecodable_requests: AtomicU64::new(0),
             oversized_requests: AtomicU64::new(0),
+            closed_for_room: AtomicU64::new(0),
             policy_streams_refused: AtomicU64::new(0),
             policy_streams_refused_per_address: AtomicU64::new(0),
             policy_streams_replaced: AtomicU64::new(0),
@@ -194,6 +224,8 @@ pub enum Cause {
     Undecodable,
     /// A request's message was over the size limit.
     Oversized,
+    /// Closed without the run token to make room at a connection cap.
+    Evicted,
     /// A `WatchPolicy` stream over `max_policy_streams`.
     PolicyStreamsFull,
     /// A `WatchPolicy` stream over `policy_streams_per_ip`.
@@ -218,6 +250,7 @@ impl ConnectionStats {
             Cause::Unauthenticated => &self.closed_unauthenticated,
             Cause::Undecodable => &self.undecodable_requests,
             Cause::Oversized => &self.oversized_requests,
+            Cause::Evicted => &self.closed_for_room,
             Cause::PolicyStreamsFull => &self.policy_streams_refused,
             Cause::PolicyStreamsPerAddress => &self.policy_streams_refused_per_address,
             Cause::PolicyStreamReplaced => &self.policy_streams_replaced,
@@ -253,6 +286,7 @@ impl ConnectionStats {
             closed_unauthenticated: load(&self.closed_unauthenticated),
             undecodable_requests: load(&self.undecodable_requests),
             oversized_requests: load(&self.oversized_requests),
+            closed_for_room: load(&self.closed_for_room),
             policy_streams_refused: load(&self.policy_streams_refused),
             policy_streams_refused_per_address: load(&self.policy_streams_refused_per_address),
             policy_streams_replaced: load(&self.policy_streams_replaced),
@@ -275,6 +309,8 @@ pub struct ConnectionLimits {
     per_address: usize,
     /// Open connections per source address.
     by_address: ByAddress,
+    /// The connections served, oldest first (closed ones are dropped when met).
+    served: Arc<Mutex<VecDeque<Weak<ConnState>>>>,
     /// How long a connection may take to send its first [`PREFACE_LEN`] bytes.
     handshake: Duration,
     /// How long a connection may take to make its first request with the run token.
@@ -300,15 +336,43 @@ impl ConnectionLimits {
             max,
             per_address: per_address.max(1),
             by_address: Arc::new(Mutex::new(HashMap::new())),
+            served: Arc::new(Mutex::new(VecDeque::new())),
             handshake,
             auth_deadline,
             stats,
         }
     }
 
+    /// Evicts the oldest connection served from address `ip` that has not made a request
+    /// with the run token, to make room for `newcomer` at `max_connections_per_ip`: counted and
+    /// logged with both peers. Returns whether one was evicted.
+    fn evict_for(&self, ip: IpAddr, newcomer: &Peer) -> bool {
+        let mut served = self.served.lock().expect("served connections lock");
+        served.retain(|c| c.strong_count() > 0);
+        let victim = served
+            .iter()
+            .filter_map(Weak::upgrade)
+            .find(|c| c.evictable() && matches!(c.peer, Peer::Tcp(a) if a.ip().to_canonical() == ip));
+        let Some(victim) = victim else {
+            return false;
+        };
+        victim.evict();
+        self.stats.refuse(
+            Cause::Evicted,
+            &victim.peer,
+            &format_args!(
+                "it had made no request with the run token and {newcomer} needed its place \
+                 ([service] max_connections_per_ip); closed"
+            ),
+        );
+        true
+    }
+
     /// A place for a connection from `peer` under the per-address cap, or the number already
-    /// open from its address when it is full. Unix-socket peers have no address.
-    fn take_address(&self, peer: Peer) -> Result<Option<AddressSlot>, usize> {
+    /// open from its address when it is full. Unix-socket peers have no address. With `force`
+    /// the place is taken even over the cap (another connection of the address was evicted
+    /// and gives its place back when it closes).
+    fn take_address(&self, peer: Peer, force: bool) -> Result<Option<AddressSlot>, usize> {
         let Peer::Tcp(addr) = peer else {
             return Ok(None);
         };
@@ -316,7 +380,7 @@ impl ConnectionLimits {
         let ip = addr.ip().to_canonical();
         let mut open = self.by_address.lock().expect("address counts lock");
         let n = open.entry(ip).or_insert(0);
-        if *n >= self.per_address {
+        if *n >= self.per_address && !force {
             return Err(*n);
         }
         *n += 1;
@@ -447,6 +511,14 @@ impl Listener for UnixSocket {
     }
 }
 
+/// The source address of a TCP peer (an IPv4 peer of a dual-stack socket as IPv4).
+fn peer_ip(peer: &Peer) -> Option<IpAddr> {
+    match peer {
+        Peer::Tcp(addr) => Some(addr.ip().to_canonical()),
+        Peer::Unix => None,
+    }
+}
+
 /// Whether an accept error means the process or system is out of a resource (descriptors,
 /// buffers, memory): then accepting again at once would fail again.
 fn out_of_resources(e: &io::Error) -> bool {
@@ -518,8 +590,11 @@ pub fn incoming<L: Listener>(
                 }
             };
             counters.accepted.fetch_add(1, Ordering::Relaxed);
-            let address = match limits.take_address(peer) {
+            let address = match limits.take_address(peer, false) {
                 Ok(address) => address,
+                Err(_) if peer_ip(&peer).is_some_and(|ip| limits.evict_for(ip, &peer)) => limits
+                    .take_address(peer, true)
+                    .expect("a forced place is always given"),
                 Err(open) => {
                     // Closed at once (dropped); its place goes to the next connection.
                     stats.refuse(
@@ -535,14 +610,17 @@ pub fn incoming<L: Listener>(
                 }
             };
             counters.open.fetch_add(1, Ordering::Relaxed);
+            let conn = Arc::new(ConnState::new(peer));
+            limits
+                .served
+                .lock()
+                .expect("served connections lock")
+                .push_back(Arc::downgrade(&conn));
             let guarded = Guarded {
                 io,
                 _slot: slot,
                 _address: address,
-                conn: Arc::new(ConnState {
-                    peer,
-                    authenticated: AtomicBool::new(false),
-                }),
+                conn,
                 kind: L::KIND,
                 stats: stats.clone(),
                 handshake: Some(Box::pin(tokio::time::sleep(limits.handshake))),
@@ -588,6 +666,16 @@ impl<IO> Guarded<IO> {
     fn expired(&mut self, cx: &mut Context<'_>) -> Option<&'static str> {
         if self.closed.is_some() {
             return self.closed;
+        }
+        if self.auth_deadline.is_some() && !self.conn.authenticated.load(Ordering::Acquire) {
+            if self.conn.evicted.load(Ordering::Acquire) {
+                // Counted and logged by the eviction.
+                self.closed = Some("closed to make room at a connection cap, without the run token");
+                self.handshake = None;
+                self.auth_deadline = None;
+                return self.closed;
+            }
+            *self.conn.reader.lock().expect("connection waker") = Some(cx.waker().clone());
         }
         let passed = |deadline: &mut Option<Pin<Box<Sleep>>>, cx: &mut Context<'_>| {
             deadline.as_mut().is_some_and(|d| d.as_mut().poll(cx).is_ready())

@@ -127,6 +127,10 @@ pub struct ConnectionStatus {
     pub undecodable_requests: u64,
     /// Requests refused for a message over the size limit: RESOURCE_EXHAUSTED.
     pub oversized_requests: u64,
+    /// Connections without a request carrying the run token closed to make room for a new
+    /// one at `[service] max_connections_per_ip` or `max_connections` (the oldest first).
+    #[serde(default)]
+    pub closed_for_room: u64,
     /// `WatchPolicy` streams refused because `[service] max_policy_streams` were open.
     #[serde(default)]
     pub policy_streams_refused: u64,
