@@ -22,7 +22,7 @@ use planner::{ActionSpace, PlannerKind};
 
 use super::config::{planner_name, space_label, speed_label, Experiment};
 use super::record::EvalRecord;
-use super::report::{compare, ArmData, Comparison};
+use super::report::{compare, compare_shuffled, ArmData, Comparison};
 use super::stats::{mean, sample_sd, Interval, Side};
 
 /// A published row: success (%), time (s), score, and collision and timeout (%) where the
@@ -372,15 +372,7 @@ fn cell(ex: &Experiment, d: &ArmData, keep: Option<&[usize]>) -> Cell {
         adp_vs_ddp: vs("DDP", &ddp),
         adp_vs_constant: vs("best constant", &constant),
         adp_vs_vanilla: vs("vanilla", &one(&d.vanilla)),
-        // Each shuffled twin pairs with the seed it was made from.
-        adp_vs_shuffled: compare(
-            "state-shuffled",
-            &adp[..adp.len().min(shuffled.len())],
-            &shuffled,
-            st.resamples,
-            st.confidence,
-            st.seed,
-        ),
+        adp_vs_shuffled: compare_shuffled(&adp, &shuffled, st),
         published: Vec::new(),
         exported: d
             .selections

@@ -7,7 +7,7 @@ use std::fmt::Write as _;
 
 use serde::Serialize;
 
-use super::config::{planner_name, space_label, speed_label, Arm, Experiment};
+use super::config::{planner_name, space_label, speed_label, Arm, Experiment, StatsSection};
 use super::controls::SearchResult;
 use super::record::{EvalRecord, Summary};
 use super::stats::{
@@ -264,6 +264,23 @@ pub fn compare(
     })
 }
 
+/// ADP against its state-shuffled twins, seed by seed: each twin is made from one seed's
+/// policy, so only the seeds with a twin are compared (`None` before the first twin).
+pub fn compare_shuffled(
+    adp: &[EvalRecord],
+    shuffled: &[EvalRecord],
+    st: &StatsSection,
+) -> Option<Comparison> {
+    compare(
+        "state-shuffled",
+        &adp[..adp.len().min(shuffled.len())],
+        shuffled,
+        st.resamples,
+        st.confidence,
+        st.seed,
+    )
+}
+
 /// Every comparison of an arm: ADP against DDP, the best constant, the untrained policy and
 /// the state-shuffled policy.
 pub fn comparisons(d: &ArmData, ex: &Experiment) -> Vec<Comparison> {
@@ -273,17 +290,10 @@ pub fn comparisons(d: &ArmData, ex: &Experiment) -> Vec<Comparison> {
         ("DDP", one(&d.ddp)),
         ("best constant", one(&d.constant)),
         ("untrained (DDP init)", one(&d.untrained)),
-        ("state-shuffled", d.shuffled.clone()),
     ]
     .into_iter()
-    .filter_map(|(name, control)| {
-        let adp = if name == "state-shuffled" {
-            &d.adp[..d.adp.len().min(control.len())]
-        } else {
-            &d.adp[..]
-        };
-        compare(name, adp, &control, st.resamples, st.confidence, st.seed)
-    })
+    .filter_map(|(name, control)| compare(name, &d.adp, &control, st.resamples, st.confidence, st.seed))
+    .chain(compare_shuffled(&d.adp, &d.shuffled, st))
     .collect()
 }
 
