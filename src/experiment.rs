@@ -2,87 +2,11 @@
 
 use std::path::{Path, PathBuf};
 
-use experiment::config::Restrict;
 use experiment::record::EvalRecord;
-use experiment::shard::Shard;
 use experiment::{first_runs, protocol, Options, Trainer};
-use planner::{ActionSpace, PlannerKind};
 
-/// What `adp experiment` was asked.
-#[derive(Clone, Debug, clap::Args)]
-pub struct Args {
-    /// The experiment file.
-    #[arg(long)]
-    pub config: PathBuf,
-    /// Experiment directory (default: `runs/experiments/<name>`).
-    #[arg(long)]
-    pub out: Option<PathBuf>,
-    /// Continue the experiment in --out, skipping the stages whose results exist.
-    #[arg(long)]
-    pub resume: bool,
-    /// The store of results shared by experiments (default: `[experiment] store`, else
-    /// `runs/store`). A stage whose result the store holds, whichever experiment computed
-    /// it, is read instead of computed.
-    #[arg(long)]
-    pub store: Option<PathBuf>,
-    /// List the stages still to compute with their estimated core-hours (from the rates the
-    /// store measured), say which the store already holds, and stop.
-    #[arg(long, conflicts_with_all = ["emit_slurm", "shard", "no_eval"])]
-    pub plan: bool,
-    /// Write the report from the results the store holds, computing nothing (a table cell
-    /// whose stages are missing shows "–").
-    #[arg(long, conflicts_with_all = ["emit_slurm", "shard", "no_eval", "plan"])]
-    pub report_only: bool,
-    /// Run only the stages of these kinds (comma-separated: train, search, ddp, vanilla,
-    /// constant, untrained, adp, shuffled, sweep, sensing); the others wait for a later run.
-    #[arg(long, value_delimiter = ',', value_parser = ["train", "search", "ddp", "vanilla", "constant", "untrained", "adp", "shuffled", "sweep", "sensing"])]
-    pub only: Vec<String>,
-    /// Adopt finished `adp train` run directories as this experiment's trainings: a run whose
-    /// resolved `config.toml` is one of the experiment's trainings (the same recipe) and whose
-    /// export holds its steps is copied into the store; the others are named with what differs.
-    /// Computes nothing else.
-    #[arg(long, num_args = 1.., conflicts_with_all = ["emit_slurm", "shard", "no_eval", "plan", "report_only"])]
-    pub adopt: Vec<PathBuf>,
-    /// Command-line restrictions.
-    #[command(flatten)]
-    pub restrict: RestrictArgs,
-    /// Worker threads of the evaluations (default: all cores).
-    #[arg(long)]
-    pub jobs: Option<usize>,
-    /// Evaluate only shard K of N of the test worlds (e.g. 0/8) of every pending
-    /// evaluation, into `<stage file>.shard-K-of-N`; a later run without --shard merges a
-    /// complete set. Training and constant searches must be finished.
-    #[arg(long, conflicts_with_all = ["no_eval", "emit_slurm"])]
-    pub shard: Option<Shard>,
-    /// Run only the training and constant-search stages (no evaluation, no report).
-    #[arg(long, conflicts_with = "emit_slurm")]
-    pub no_eval: bool,
-    /// Print a SLURM job script that runs this experiment (training, evaluation sharded over
-    /// the `[slurm]` tasks, merge and report) and create --out with its experiment.toml.
-    #[arg(long, conflicts_with = "resume")]
-    pub emit_slurm: bool,
-}
-
-impl Args {
-    /// The library's form of these options.
-    fn options(&self) -> Options {
-        Options {
-            config: self.config.clone(),
-            out: self.out.clone(),
-            resume: self.resume,
-            store: self.store.clone(),
-            plan: self.plan,
-            report_only: self.report_only,
-            only: self.only.clone(),
-            adopt: self.adopt.clone(),
-            restrict: self.restrict.restrict(),
-            jobs: self.jobs,
-            shard: self.shard,
-            no_eval: self.no_eval,
-            emit_slurm: self.emit_slurm,
-        }
-    }
-}
+/// What `adp experiment` was asked: the library's options, as command-line arguments.
+pub type Args = Options;
 
 /// Trains an experiment's runs as `adp train` does, in this process with its actor processes.
 struct LocalTrainer;
@@ -111,7 +35,7 @@ impl Trainer for LocalTrainer {
 /// `adp experiment`: runs the experiment; returns the path of its report (`None` when this
 /// process does not write one: `--plan`, `--emit-slurm`, `--shard`, `--no-eval`, `--adopt`).
 pub fn run(args: &Args) -> anyhow::Result<Option<PathBuf>> {
-    experiment::run(&args.options(), &LocalTrainer)
+    experiment::run(args, &LocalTrainer)
 }
 
 /// What `adp protocol` was asked.
@@ -166,39 +90,6 @@ pub fn protocol_command(args: &ProtocolArgs) -> anyhow::Result<()> {
     }
     print!("{text}");
     Ok(())
-}
-
-/// Command-line restrictions of an experiment (each must be a subset of the file's).
-#[derive(Clone, Debug, Default, clap::Args)]
-pub struct RestrictArgs {
-    /// Only these planners (comma-separated; a subset of the file's).
-    #[arg(long, value_enum, value_delimiter = ',')]
-    pub planners: Vec<PlannerKind>,
-    /// Only these action spaces (comma-separated; a subset of the file's).
-    #[arg(long, value_delimiter = ',')]
-    pub spaces: Vec<ActionSpace>,
-    /// Only these speed caps (comma-separated; a subset of the file's).
-    #[arg(long, value_delimiter = ',')]
-    pub speeds: Vec<f64>,
-    /// Only the first this many training seeds of each arm.
-    #[arg(long)]
-    pub seeds: Option<usize>,
-    /// Agent steps per training run (overrides `[train.run]` steps).
-    #[arg(long)]
-    pub steps: Option<u64>,
-}
-
-impl RestrictArgs {
-    /// The library's form.
-    fn restrict(&self) -> Restrict {
-        Restrict {
-            planners: self.planners.clone(),
-            spaces: self.spaces.clone(),
-            speeds: self.speeds.clone(),
-            seeds: self.seeds,
-            steps: self.steps,
-        }
-    }
 }
 
 /// What `adp compact-records` was asked.

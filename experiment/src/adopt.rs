@@ -19,7 +19,7 @@ use super::execute::{load_policy, write_trained};
 use super::plan::Stage;
 use super::recipe::train_inputs;
 use super::store::StageMeta;
-use super::{describe, Ctx};
+use super::Ctx;
 
 /// Where two JSON values differ: up to `max` paths (`run.steps: 120000 against 40000`).
 pub fn differences(a: &Value, b: &Value, max: usize) -> Vec<String> {
@@ -63,11 +63,7 @@ pub(super) fn adopt(ctx: &Ctx<'_>, dirs: &[PathBuf], cores: u32) -> anyhow::Resu
         match adopt_one(ctx, dir, cores) {
             Ok(Some(stage)) => {
                 adopted += 1;
-                tracing::info!(
-                    "{}: adopted as `{}`",
-                    dir.display(),
-                    describe(&stage, &ctx.ex.arms)
-                );
+                tracing::info!("{}: adopted as `{}`", dir.display(), stage.describe(&ctx.ex.arms));
             }
             Ok(None) => {}
             Err(e) => tracing::warn!("{}: not adopted: {e:#}", dir.display()),
@@ -107,7 +103,7 @@ fn adopt_one(ctx: &Ctx<'_>, dir: &Path, cores: u32) -> anyhow::Result<Option<Sta
             |s| {
                 format!(
                     "it differs from `{}` in {}",
-                    describe(s, &ex.arms),
+                    s.describe(&ex.arms),
                     differences(&inputs, &ctx.layout.recipe(s).inputs, 5).join("; ")
                 )
             },
@@ -118,7 +114,7 @@ fn adopt_one(ctx: &Ctx<'_>, dir: &Path, cores: u32) -> anyhow::Result<Option<Sta
         tracing::info!(
             "{}: the store already holds `{}`",
             dir.display(),
-            describe(&stage, &ex.arms)
+            stage.describe(&ex.arms)
         );
         return Ok(None);
     }
@@ -147,7 +143,7 @@ fn adopt_one(ctx: &Ctx<'_>, dir: &Path, cores: u32) -> anyhow::Result<Option<Sta
     ctx.layout.store.write_meta(
         &recipe,
         &StageMeta {
-            description: describe(&stage, &ex.arms),
+            description: stage.describe(&ex.arms),
             experiment: format!("adopted from {}", short(dir)),
             class: super::estimate::units(ex, &stage).1,
             units: cfg.run.steps as f64,

@@ -614,16 +614,22 @@ pub fn speed_label(v: f64) -> String {
 
 /// Restrictions of an experiment, e.g. from the command line (each must be a subset of the file's).
 #[derive(Clone, Debug, Default)]
+#[cfg_attr(feature = "clap", derive(clap::Args))]
 pub struct Restrict {
     /// Only these planners (comma-separated; a subset of the file's).
+    #[cfg_attr(feature = "clap", arg(long, value_enum, value_delimiter = ','))]
     pub planners: Vec<PlannerKind>,
     /// Only these action spaces (comma-separated; a subset of the file's).
+    #[cfg_attr(feature = "clap", arg(long, value_delimiter = ','))]
     pub spaces: Vec<ActionSpace>,
     /// Only these speed caps (comma-separated; a subset of the file's).
+    #[cfg_attr(feature = "clap", arg(long, value_delimiter = ','))]
     pub speeds: Vec<f64>,
     /// Only the first this many training seeds of each arm.
+    #[cfg_attr(feature = "clap", arg(long))]
     pub seeds: Option<usize>,
     /// Agent steps per training run (overrides `[train.run]` steps).
+    #[cfg_attr(feature = "clap", arg(long))]
     pub steps: Option<u64>,
 }
 

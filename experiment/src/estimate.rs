@@ -4,12 +4,13 @@
 //! Pure: the measured records come in as [`StageMeta`] values.
 
 use std::collections::BTreeMap;
+use std::path::Path;
 
 use super::config::{planner_name, space_label, Experiment};
 use super::controls::halving;
-use super::plan::{Stage, SweepWho};
+use super::plan::{stages, Stage, SweepWho, Sweeps};
 use super::recipe::Kind;
-use super::store::{class_of, cost_class, train_class, StageMeta};
+use super::store::{class_of, cost_class, train_class, Layout, StageMeta};
 
 /// The kind of a stage's result.
 pub fn kind(stage: &Stage) -> Kind {
@@ -187,6 +188,75 @@ pub fn progress_line(
         (done_est + left_est) / 3600.0,
         wall_left / 3600.0
     )
+}
+
+/// `--plan`: every stage still to compute with its estimated core-hours, and what the store
+/// already holds.
+pub(crate) fn print_plan(ex: &Experiment, layout: &Layout, config: &Path, only: &[String], cores: u32) {
+    let all: Vec<Stage> = stages(&ex.arms, ex.seeds, &Sweeps::of(ex))
+        .into_iter()
+        .filter(|s| only.is_empty() || only.iter().any(|k| k == s.kind_name()))
+        .collect();
+    let rates = Rates::measured(&layout.store.all_meta());
+    let mut held: std::collections::BTreeMap<String, usize> = Default::default();
+    let mut todo = Vec::new();
+    for s in &all {
+        if layout.done(s) {
+            let by = layout
+                .store
+                .meta(&layout.recipe(s))
+                .map_or_else(|| "an unrecorded run".to_string(), |m| m.experiment);
+            *held.entry(by).or_default() += 1;
+        } else {
+            todo.push(s.clone());
+        }
+    }
+    println!(
+        "adp experiment --config {}: {} arm(s) x {} seed(s), {} stage(s); store {}",
+        config.display(),
+        ex.arms.len(),
+        ex.seeds,
+        all.len(),
+        layout.store.dir.display()
+    );
+    let in_store = all.len() - todo.len();
+    if in_store > 0 {
+        let by: Vec<String> = held.iter().map(|(e, n)| format!("{n} by {e}")).collect();
+        println!("already in the store: {in_store} stage(s) ({})", by.join(", "));
+    }
+    if todo.is_empty() {
+        println!("nothing left to compute");
+        return;
+    }
+    println!("\nto compute: {} stage(s)", todo.len());
+    println!("| stage | units | core-s per unit | est. core-h |");
+    println!("|---|---:|---:|---:|");
+    let mut total = 0.0;
+    let mut defaults = 0;
+    for s in &todo {
+        let (units, class) = units(ex, s);
+        let (rate, measured) = rates.rate(&class);
+        defaults += usize::from(!measured);
+        total += units * rate;
+        println!(
+            "| {} | {units:.0} | {rate:.3}{} | {:.2} |",
+            s.describe(&ex.arms),
+            if measured { "" } else { " (default)" },
+            units * rate / 3600.0
+        );
+    }
+    let cores = cores.max(1) as f64;
+    println!(
+        "\ntotal: {:.1} core-h, about {:.1} h on this machine's {cores:.0} core(s)",
+        total / 3600.0,
+        total / 3600.0 / cores
+    );
+    if defaults > 0 {
+        println!(
+            "{defaults} estimate(s) use a default rate: the store has measured no stage of their \
+             class yet (units: agent steps of a training, episodes otherwise)"
+        );
+    }
 }
 
 #[cfg(test)]

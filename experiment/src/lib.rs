@@ -42,9 +42,9 @@ use sim::World;
 
 use eval::EvalConfig;
 
-use config::{planner_name, speed_label, Arm, Experiment, Restrict};
+use config::{Experiment, Restrict};
 use estimate::{progress_line, Rates};
-use plan::{pending, stages, write_atomic, SensingPlan, Stage, SweepPlan, SweepWho, Sweeps};
+use plan::{pending, stages, write_atomic, Stage, Sweeps};
 use record::EvalRecord;
 use shard::Shard;
 use store::{Layout, StageMeta, Store};
@@ -57,43 +57,57 @@ const CONFIG_COPY: &str = "experiment.toml";
 
 /// What an experiment run is asked: the options of `adp experiment`.
 #[derive(Clone, Debug, Default)]
+#[cfg_attr(feature = "clap", derive(clap::Args))]
 pub struct Options {
     /// The experiment file.
+    #[cfg_attr(feature = "clap", arg(long))]
     pub config: PathBuf,
     /// Experiment directory (default: `runs/experiments/<name>`).
+    #[cfg_attr(feature = "clap", arg(long))]
     pub out: Option<PathBuf>,
     /// Continue the experiment in --out, skipping the stages whose results exist.
+    #[cfg_attr(feature = "clap", arg(long))]
     pub resume: bool,
     /// The store of results shared by experiments (default: `[experiment] store`, else
     /// `runs/store`). A stage whose result the store holds, whichever experiment computed
     /// it, is read instead of computed.
+    #[cfg_attr(feature = "clap", arg(long))]
     pub store: Option<PathBuf>,
     /// List the stages still to compute with their estimated core-hours (from the rates the
     /// store measured), say which the store already holds, and stop.
+    #[cfg_attr(feature = "clap", arg(long, conflicts_with_all = ["emit_slurm", "shard", "no_eval"]))]
     pub plan: bool,
     /// Write the report from the results the store holds, computing nothing (a table cell
     /// whose stages are missing shows "–").
+    #[cfg_attr(feature = "clap", arg(long, conflicts_with_all = ["emit_slurm", "shard", "no_eval", "plan"]))]
     pub report_only: bool,
     /// Run only the stages of these kinds (comma-separated: train, search, ddp, vanilla,
     /// constant, untrained, adp, shuffled, sweep, sensing); the others wait for a later run.
+    #[cfg_attr(feature = "clap", arg(long, value_delimiter = ',', value_parser = ["train", "search", "ddp", "vanilla", "constant", "untrained", "adp", "shuffled", "sweep", "sensing"]))]
     pub only: Vec<String>,
     /// Adopt finished `adp train` run directories as this experiment's trainings: a run whose
     /// resolved `config.toml` is one of the experiment's trainings (the same recipe) and whose
     /// export holds its steps is copied into the store; the others are named with what differs.
     /// Computes nothing else.
+    #[cfg_attr(feature = "clap", arg(long, num_args = 1.., conflicts_with_all = ["emit_slurm", "shard", "no_eval", "plan", "report_only"]))]
     pub adopt: Vec<PathBuf>,
     /// Command-line restrictions.
+    #[cfg_attr(feature = "clap", command(flatten))]
     pub restrict: Restrict,
     /// Worker threads of the evaluations (default: all cores).
+    #[cfg_attr(feature = "clap", arg(long))]
     pub jobs: Option<usize>,
     /// Evaluate only shard K of N of the test worlds (e.g. 0/8) of every pending
     /// evaluation, into `<stage file>.shard-K-of-N`; a later run without --shard merges a
     /// complete set. Training and constant searches must be finished.
+    #[cfg_attr(feature = "clap", arg(long, conflicts_with_all = ["no_eval", "emit_slurm"]))]
     pub shard: Option<Shard>,
     /// Run only the training and constant-search stages (no evaluation, no report).
+    #[cfg_attr(feature = "clap", arg(long, conflicts_with = "emit_slurm"))]
     pub no_eval: bool,
     /// Print a SLURM job script that runs this experiment (training, evaluation sharded over
     /// the `[slurm]` tasks, merge and report) and create --out with its experiment.toml.
+    #[cfg_attr(feature = "clap", arg(long, conflicts_with = "resume"))]
     pub emit_slurm: bool,
 }
 
@@ -211,7 +225,7 @@ pub fn run(args: &Options, trainer: &dyn Trainer) -> anyhow::Result<Option<PathB
     let cfg = eval_config(&ex)?;
     let layout = Layout::new(dir.clone(), store, &ex, &cfg, trainer.actors());
     if args.plan {
-        print_plan(&ex, &layout, &args.config, &args.only, trainer.actors());
+        estimate::print_plan(&ex, &layout, &args.config, &args.only, trainer.actors());
         return Ok(None);
     }
     if args.report_only || !args.adopt.is_empty() {
@@ -243,10 +257,10 @@ pub fn run(args: &Options, trainer: &dyn Trainer) -> anyhow::Result<Option<PathB
         tracing::info!("report: {}", report.display());
         return Ok(Some(report));
     }
-    let all = stages(&ex.arms, ex.seeds, &sweeps(&ex));
+    let all = stages(&ex.arms, ex.seeds, &Sweeps::of(&ex));
     let todo: Vec<Stage> = pending(&all, |s| ctx.layout.done(s))
         .into_iter()
-        .filter(|s| args.only.is_empty() || args.only.iter().any(|k| k == stage_kind(s)))
+        .filter(|s| args.only.is_empty() || args.only.iter().any(|k| k == s.kind_name()))
         .collect();
     tracing::info!(
         "adp experiment {}: {} arm(s) x {} seed(s), {} stage(s), {} in the store, {} to run; \
@@ -265,7 +279,7 @@ pub fn run(args: &Options, trainer: &dyn Trainer) -> anyhow::Result<Option<PathB
             "--shard {}/{}: `{}` has not run yet; run the experiment with --no-eval first",
             sh.index,
             sh.count,
-            describe(first, &ex.arms)
+            first.describe(&ex.arms)
         );
     }
     run_stages(&ctx, args, &pool, &todo)?;
@@ -361,16 +375,16 @@ fn run_stages(ctx: &Ctx<'_>, args: &Options, pool: &rayon::ThreadPool, todo: &[S
         }
         if out.exists() {
             // Another experiment sharing the store finished it meanwhile.
-            tracing::info!("{step} {}: in the store", describe(stage, &ex.arms));
+            tracing::info!("{step} {}: in the store", stage.describe(&ex.arms));
             continue;
         }
-        if let Some((arm, seed)) = policy_of(stage) {
+        if let Some((arm, seed)) = stage.policy() {
             if !ctx.layout.done(&Stage::Train { arm, seed }) {
                 // Only with --only or a training that failed: the policy is not there yet.
                 tracing::warn!(
                     "{step} {}: waits for `{}`",
-                    describe(stage, &ex.arms),
-                    describe(&Stage::Train { arm, seed }, &ex.arms)
+                    stage.describe(&ex.arms),
+                    (Stage::Train { arm, seed }).describe(&ex.arms)
                 );
                 continue;
             }
@@ -386,13 +400,13 @@ fn run_stages(ctx: &Ctx<'_>, args: &Options, pool: &rayon::ThreadPool, todo: &[S
                         "{step} shard {}/{} of `{}` exists",
                         sh.index,
                         sh.count,
-                        describe(stage, &ex.arms)
+                        stage.describe(&ex.arms)
                     );
                     continue;
                 }
                 tracing::info!(
                     "{step} {} (shard {}/{})",
-                    describe(stage, &ex.arms),
+                    stage.describe(&ex.arms),
                     sh.index,
                     sh.count
                 );
@@ -413,13 +427,13 @@ fn run_stages(ctx: &Ctx<'_>, args: &Options, pool: &rayon::ThreadPool, todo: &[S
                 record_meta(ctx, stage, (0.0, None, None), threads)?;
                 tracing::info!(
                     "{step} {}: merged {} shards",
-                    describe(stage, &ex.arms),
+                    stage.describe(&ex.arms),
                     files.len()
                 );
                 continue;
             }
         }
-        tracing::info!("{step} {}", describe(stage, &ex.arms));
+        tracing::info!("{step} {}", stage.describe(&ex.arms));
         let cpu0 = cpu_seconds();
         let (used, trained) = match stage {
             Stage::Train { arm, seed } => (ctx.trainer.actors() as usize, Some(train(ctx, *arm, *seed)?)),
@@ -481,7 +495,7 @@ fn record_meta(
     let recipe = ctx.layout.recipe(stage);
     let (units, class) = estimate::units(ctx.ex, stage);
     let meta = StageMeta {
-        description: describe(stage, &ctx.ex.arms),
+        description: stage.describe(&ctx.ex.arms),
         experiment: ctx.ex.section.name.clone(),
         class,
         units,
@@ -497,201 +511,11 @@ fn record_meta(
     ctx.layout.store.write_meta(&recipe, &meta)
 }
 
-/// `--plan`: every stage still to compute with its estimated core-hours, and what the store
-/// already holds.
-fn print_plan(ex: &Experiment, layout: &Layout, config: &Path, only: &[String], cores: u32) {
-    let all: Vec<Stage> = stages(&ex.arms, ex.seeds, &sweeps(ex))
-        .into_iter()
-        .filter(|s| only.is_empty() || only.iter().any(|k| k == stage_kind(s)))
-        .collect();
-    let rates = Rates::measured(&layout.store.all_meta());
-    let mut held: std::collections::BTreeMap<String, usize> = Default::default();
-    let mut todo = Vec::new();
-    for s in &all {
-        if layout.done(s) {
-            let by = layout
-                .store
-                .meta(&layout.recipe(s))
-                .map_or_else(|| "an unrecorded run".to_string(), |m| m.experiment);
-            *held.entry(by).or_default() += 1;
-        } else {
-            todo.push(s.clone());
-        }
-    }
-    println!(
-        "adp experiment --config {}: {} arm(s) x {} seed(s), {} stage(s); store {}",
-        config.display(),
-        ex.arms.len(),
-        ex.seeds,
-        all.len(),
-        layout.store.dir.display()
-    );
-    let in_store = all.len() - todo.len();
-    if in_store > 0 {
-        let by: Vec<String> = held.iter().map(|(e, n)| format!("{n} by {e}")).collect();
-        println!("already in the store: {in_store} stage(s) ({})", by.join(", "));
-    }
-    if todo.is_empty() {
-        println!("nothing left to compute");
-        return;
-    }
-    println!("\nto compute: {} stage(s)", todo.len());
-    println!("| stage | units | core-s per unit | est. core-h |");
-    println!("|---|---:|---:|---:|");
-    let mut total = 0.0;
-    let mut defaults = 0;
-    for s in &todo {
-        let (units, class) = estimate::units(ex, s);
-        let (rate, measured) = rates.rate(&class);
-        defaults += usize::from(!measured);
-        total += units * rate;
-        println!(
-            "| {} | {units:.0} | {rate:.3}{} | {:.2} |",
-            describe(s, &ex.arms),
-            if measured { "" } else { " (default)" },
-            units * rate / 3600.0
-        );
-    }
-    let cores = cores.max(1) as f64;
-    println!(
-        "\ntotal: {:.1} core-h, about {:.1} h on this machine's {cores:.0} core(s)",
-        total / 3600.0,
-        total / 3600.0 / cores
-    );
-    if defaults > 0 {
-        println!(
-            "{defaults} estimate(s) use a default rate: the store has measured no stage of their \
-             class yet (units: agent steps of a training, episodes otherwise)"
-        );
-    }
-}
-
-/// The trained policy (arm, seed) a stage evaluates, if any.
-fn policy_of(stage: &Stage) -> Option<(usize, usize)> {
-    match *stage {
-        Stage::EvalAdp { arm, seed }
-        | Stage::EvalShuffled { arm, seed }
-        | Stage::Sweep {
-            arm,
-            who: SweepWho::Adp { seed },
-            ..
-        }
-        | Stage::Sensing {
-            arm,
-            who: SweepWho::Adp { seed },
-            ..
-        } => Some((arm, seed)),
-        _ => None,
-    }
-}
-
-/// A stage's kind, as `--only` names it.
-fn stage_kind(stage: &Stage) -> &'static str {
-    match stage {
-        Stage::Train { .. } => "train",
-        Stage::Search { .. } => "search",
-        Stage::EvalDdp { .. } => "ddp",
-        Stage::EvalVanilla { .. } => "vanilla",
-        Stage::EvalConstant { .. } => "constant",
-        Stage::EvalUntrained { .. } => "untrained",
-        Stage::EvalAdp { .. } => "adp",
-        Stage::EvalShuffled { .. } => "shuffled",
-        Stage::Sweep { .. } => "sweep",
-        Stage::Sensing { .. } => "sensing",
-    }
-}
-
-/// A stage in words.
-fn describe(stage: &Stage, arms: &[Arm]) -> String {
-    match *stage {
-        Stage::Train { arm, seed } => format!("train {} seed {seed}", arms[arm].id()),
-        Stage::Search { arm } => format!(
-            "search the best constant of {} on the training worlds",
-            arms[arm].id()
-        ),
-        Stage::EvalDdp { planner, speed } => {
-            format!(
-                "evaluate DDP ({} at {} m/s)",
-                planner_name(planner),
-                speed_label(speed)
-            )
-        }
-        Stage::EvalVanilla { planner, speed } => format!(
-            "evaluate vanilla ({} at {} m/s)",
-            planner_name(planner),
-            speed_label(speed)
-        ),
-        Stage::EvalConstant { arm } => format!("evaluate the best constant of {}", arms[arm].id()),
-        Stage::EvalUntrained { arm } => format!("evaluate the untrained policy of {}", arms[arm].id()),
-        Stage::EvalAdp { arm, seed } => format!("evaluate {} seed {seed}", arms[arm].id()),
-        Stage::EvalShuffled { arm, seed } => {
-            format!("evaluate the state-shuffled {} seed {seed}", arms[arm].id())
-        }
-        Stage::Sweep { arm, point, who } => {
-            format!("budget sweep point {point} of {}: {who:?}", arms[arm].id())
-        }
-        Stage::Sensing { arm, condition, who } => {
-            format!("sensing condition {condition} of {}: {who:?}", arms[arm].id())
-        }
-    }
-}
-
-/// The budget sweep of `ex`, if it has one.
-fn sweep_plan(ex: &Experiment) -> Option<SweepPlan> {
-    let points = ex.sweep_points().len();
-    (points > 0).then_some(SweepPlan {
-        arm: ex.sweep.arm,
-        points,
-    })
-}
-
-/// The sensing sweep of `ex`, if it has one.
-fn sensing_plan(ex: &Experiment) -> Option<SensingPlan> {
-    let conditions = ex.sensing_conditions().len();
-    (conditions > 0).then(|| SensingPlan {
-        arms: ex.sensing_arms(),
-        conditions,
-    })
-}
-
-/// The sweeps of `ex`.
-fn sweeps(ex: &Experiment) -> Sweeps {
-    let shuffled_speeds = &ex.shuffle.speeds;
-    Sweeps {
-        vanilla: ex.eval.vanilla,
-        unshuffled: (0..ex.arms.len())
-            .filter(|&i| {
-                !shuffled_speeds.is_empty()
-                    && !shuffled_speeds
-                        .iter()
-                        .any(|v| (v - ex.arms[i].speed).abs() < 1e-9)
-            })
-            .collect(),
-        budget: sweep_plan(ex),
-        sensing: sensing_plan(ex),
-    }
-}
-
-/// The arm a stage belongs to (a DDP stage to the first arm of its planner and speed).
-fn stage_arm(s: &Stage, arms: &[Arm]) -> Option<usize> {
-    match *s {
-        Stage::Train { arm, .. }
-        | Stage::Search { arm }
-        | Stage::EvalConstant { arm }
-        | Stage::EvalUntrained { arm }
-        | Stage::EvalAdp { arm, .. }
-        | Stage::EvalShuffled { arm, .. }
-        | Stage::Sweep { arm, .. }
-        | Stage::Sensing { arm, .. } => Some(arm),
-        Stage::EvalDdp { planner, speed } | Stage::EvalVanilla { planner, speed } => {
-            arms.iter().position(|a| a.planner == planner && a.speed == speed)
-        }
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use config::Arm;
+    use plan::SweepWho;
     use planner::{ActionSpace, PlannerKind};
 
     /// A trainer for tests that train nothing.
@@ -734,8 +558,8 @@ mod tests {
                 "system-decremental-2.0-fit"
             ]
         );
-        assert_eq!(sweeps(&ex).sensing, None);
-        let all = stages(&ex.arms, ex.seeds, &sweeps(&ex));
+        assert_eq!(Sweeps::of(&ex).sensing, None);
+        let all = stages(&ex.arms, ex.seeds, &Sweeps::of(&ex));
         // Training 27, searches 9, DDP 9, per arm constant, untrained, 3 ADP and 3 shuffled
         // (72), the budget sweep 4 x (DDP, constant, 3 seeds).
         assert_eq!(all.len(), 27 + 9 + 9 + 72 + 20);
@@ -757,8 +581,8 @@ mod tests {
             })
         );
         let ex = shipped("rl-dwa.toml");
-        assert_eq!(sweeps(&ex), Sweeps::default());
-        let all = stages(&ex.arms, ex.seeds, &sweeps(&ex));
+        assert_eq!(Sweeps::of(&ex), Sweeps::default());
+        let all = stages(&ex.arms, ex.seeds, &Sweeps::of(&ex));
         assert_eq!(all.len(), 12 + 4 + 1 + 4 * 8);
         assert_eq!(
             all.iter().filter(|s| matches!(s, Stage::Search { .. })).count(),
@@ -795,8 +619,8 @@ mod tests {
         assert_eq!((ex.eval.runs, ex.eval.trim, ex.seeds), (10, 2, 3));
         assert_eq!(ex.hardest_worlds.len(), 50);
         assert!(ex.hardest_worlds.iter().all(|w| ex.test_worlds.contains(w)));
-        let all = stages(&ex.arms, ex.seeds, &sweeps(&ex));
-        let count = |kind: &str| all.iter().filter(|s| stage_kind(s) == kind).count();
+        let all = stages(&ex.arms, ex.seeds, &Sweeps::of(&ex));
+        let count = |kind: &str| all.iter().filter(|s| s.kind_name() == kind).count();
         assert_eq!(count("train"), 96);
         assert_eq!((count("ddp"), count("vanilla")), (12, 12));
         // Training-world arms share the system's 1.5 m/s search, and the recipes of a cell
@@ -826,7 +650,7 @@ mod tests {
     #[test]
     fn the_sensing_experiment_plans_its_sweep() {
         let ex = shipped("sensing.toml");
-        let all = stages(&ex.arms, ex.seeds, &sweeps(&ex));
+        let all = stages(&ex.arms, ex.seeds, &Sweeps::of(&ex));
         let main = 12 + 1 + 1 + 1 + 4 * (1 + 3 + 3);
         assert_eq!(all.len(), main + 4 * (1 + 1 + 12));
         assert!(all[main..].iter().all(|s| matches!(s, Stage::Sensing { .. })));
@@ -839,7 +663,7 @@ mod tests {
     fn the_worlds_experiment_shares_its_controls() {
         let ex = shipped("worlds.toml");
         assert_eq!(ex.arms.len(), 5);
-        let all = stages(&ex.arms, ex.seeds, &sweeps(&ex));
+        let all = stages(&ex.arms, ex.seeds, &Sweeps::of(&ex));
         assert_eq!(all.len(), 15 + 1 + 1 + 1 + 1 + 5 * (3 + 3));
         let cfg = eval_config(&ex).unwrap();
         let layout = Layout::new("/e".into(), Store { dir: "/s".into() }, &ex, &cfg, 2);

@@ -15,7 +15,7 @@ use std::path::Path;
 
 use planner::PlannerKind;
 
-use super::config::{Arm, Start};
+use super::config::{planner_name, speed_label, Arm, Experiment, Start};
 
 /// One unit of work.
 #[derive(Clone, Debug, PartialEq)]
@@ -252,6 +252,133 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
     std::fs::write(&tmp, bytes).with_context(|| format!("cannot write {}", tmp.display()))?;
     std::fs::rename(&tmp, path)
         .with_context(|| format!("cannot rename {} to {}", tmp.display(), path.display()))
+}
+
+impl Stage {
+    /// The trained policy (arm, seed) a stage evaluates, if any.
+    pub fn policy(&self) -> Option<(usize, usize)> {
+        match *self {
+            Stage::EvalAdp { arm, seed }
+            | Stage::EvalShuffled { arm, seed }
+            | Stage::Sweep {
+                arm,
+                who: SweepWho::Adp { seed },
+                ..
+            }
+            | Stage::Sensing {
+                arm,
+                who: SweepWho::Adp { seed },
+                ..
+            } => Some((arm, seed)),
+            _ => None,
+        }
+    }
+
+    /// A stage's kind, as `--only` names it.
+    pub fn kind_name(&self) -> &'static str {
+        match self {
+            Stage::Train { .. } => "train",
+            Stage::Search { .. } => "search",
+            Stage::EvalDdp { .. } => "ddp",
+            Stage::EvalVanilla { .. } => "vanilla",
+            Stage::EvalConstant { .. } => "constant",
+            Stage::EvalUntrained { .. } => "untrained",
+            Stage::EvalAdp { .. } => "adp",
+            Stage::EvalShuffled { .. } => "shuffled",
+            Stage::Sweep { .. } => "sweep",
+            Stage::Sensing { .. } => "sensing",
+        }
+    }
+
+    /// A stage in words.
+    pub fn describe(&self, arms: &[Arm]) -> String {
+        match *self {
+            Stage::Train { arm, seed } => format!("train {} seed {seed}", arms[arm].id()),
+            Stage::Search { arm } => format!(
+                "search the best constant of {} on the training worlds",
+                arms[arm].id()
+            ),
+            Stage::EvalDdp { planner, speed } => {
+                format!(
+                    "evaluate DDP ({} at {} m/s)",
+                    planner_name(planner),
+                    speed_label(speed)
+                )
+            }
+            Stage::EvalVanilla { planner, speed } => format!(
+                "evaluate vanilla ({} at {} m/s)",
+                planner_name(planner),
+                speed_label(speed)
+            ),
+            Stage::EvalConstant { arm } => format!("evaluate the best constant of {}", arms[arm].id()),
+            Stage::EvalUntrained { arm } => format!("evaluate the untrained policy of {}", arms[arm].id()),
+            Stage::EvalAdp { arm, seed } => format!("evaluate {} seed {seed}", arms[arm].id()),
+            Stage::EvalShuffled { arm, seed } => {
+                format!("evaluate the state-shuffled {} seed {seed}", arms[arm].id())
+            }
+            Stage::Sweep { arm, point, who } => {
+                format!("budget sweep point {point} of {}: {who:?}", arms[arm].id())
+            }
+            Stage::Sensing { arm, condition, who } => {
+                format!("sensing condition {condition} of {}: {who:?}", arms[arm].id())
+            }
+        }
+    }
+
+    /// The arm a stage belongs to (a DDP stage to the first arm of its planner and speed).
+    pub fn arm(&self, arms: &[Arm]) -> Option<usize> {
+        match *self {
+            Stage::Train { arm, .. }
+            | Stage::Search { arm }
+            | Stage::EvalConstant { arm }
+            | Stage::EvalUntrained { arm }
+            | Stage::EvalAdp { arm, .. }
+            | Stage::EvalShuffled { arm, .. }
+            | Stage::Sweep { arm, .. }
+            | Stage::Sensing { arm, .. } => Some(arm),
+            Stage::EvalDdp { planner, speed } | Stage::EvalVanilla { planner, speed } => {
+                arms.iter().position(|a| a.planner == planner && a.speed == speed)
+            }
+        }
+    }
+}
+
+impl Sweeps {
+    /// The budget sweep of `ex`, if it has one.
+    pub fn budget(ex: &Experiment) -> Option<SweepPlan> {
+        let points = ex.sweep_points().len();
+        (points > 0).then_some(SweepPlan {
+            arm: ex.sweep.arm,
+            points,
+        })
+    }
+
+    /// The sensing sweep of `ex`, if it has one.
+    fn sensing(ex: &Experiment) -> Option<SensingPlan> {
+        let conditions = ex.sensing_conditions().len();
+        (conditions > 0).then(|| SensingPlan {
+            arms: ex.sensing_arms(),
+            conditions,
+        })
+    }
+
+    /// The sweeps of `ex`.
+    pub fn of(ex: &Experiment) -> Sweeps {
+        let shuffled_speeds = &ex.shuffle.speeds;
+        Sweeps {
+            vanilla: ex.eval.vanilla,
+            unshuffled: (0..ex.arms.len())
+                .filter(|&i| {
+                    !shuffled_speeds.is_empty()
+                        && !shuffled_speeds
+                            .iter()
+                            .any(|v| (v - ex.arms[i].speed).abs() < 1e-9)
+                })
+                .collect(),
+            budget: Self::budget(ex),
+            sensing: Self::sensing(ex),
+        }
+    }
 }
 
 #[cfg(test)]

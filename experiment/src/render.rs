@@ -12,10 +12,10 @@ use eval::{eval_run, run_seed};
 
 use super::config::{planner_name, speed_label, Arm, Experiment};
 use super::execute::{load_policy, sensing_lidar};
-use super::plan::{pending, stages, write_atomic, Stage, SweepWho};
+use super::plan::{pending, stages, write_atomic, Stage, SweepWho, Sweeps};
 use super::record::{EvalRecord, Summary};
 use super::report::{comparisons, sensing_results, ArmData, Comparison, SensingResult};
-use super::{describe, figures, paper, protocol, report, runner, stage_arm, stats, sweep_plan, sweeps, Ctx};
+use super::{figures, paper, protocol, report, runner, stats, Ctx};
 
 /// Reads what the stages of arm `arm` wrote (a missing file is a stage not run yet).
 fn arm_data(ctx: &Ctx<'_>, arm: usize) -> anyhow::Result<ArmData> {
@@ -58,7 +58,7 @@ fn arm_data(ctx: &Ctx<'_>, arm: usize) -> anyhow::Result<ArmData> {
         }
     }
     let mut sweep = Vec::new();
-    if sweep_plan(ex).is_some_and(|s| s.arm == arm) {
+    if Sweeps::budget(ex).is_some_and(|s| s.arm == arm) {
         for (point, compute) in ex.sweep_points().iter().enumerate() {
             let at = |who| read(Stage::Sweep { arm, point, who });
             let mut adp = Vec::new();
@@ -175,7 +175,7 @@ fn provenance(ctx: &Ctx<'_>) -> anyhow::Result<String> {
     let ex = ctx.ex;
     let mut entries = Vec::new();
     let mut by: std::collections::BTreeMap<String, usize> = Default::default();
-    for s in stages(&ex.arms, ex.seeds, &sweeps(ex)) {
+    for s in stages(&ex.arms, ex.seeds, &Sweeps::of(ex)) {
         let recipe = ctx.layout.recipe(&s);
         let meta = ctx
             .layout
@@ -189,7 +189,7 @@ fn provenance(ctx: &Ctx<'_>) -> anyhow::Result<String> {
             *by.entry(who).or_default() += 1;
         }
         entries.push(StageEntry {
-            stage: describe(&s, &ex.arms),
+            stage: s.describe(&ex.arms),
             key: recipe.key.0.clone(),
             result: ctx.layout.store.path(&recipe),
             computed_by: meta.as_ref().map(|m| m.experiment.clone()),
@@ -240,10 +240,12 @@ pub(crate) fn write_report(ctx: &Ctx<'_>) -> anyhow::Result<PathBuf> {
             episode_figure(ctx, arm, d, &fig_dir, &mut figs)?;
             rendered = true;
         }
-        let missing = pending(&stages(&ex.arms, ex.seeds, &sweeps(ex)), |s| ctx.layout.done(s))
-            .into_iter()
-            .filter(|s| stage_arm(s, &ex.arms) == Some(arm))
-            .count();
+        let missing = pending(&stages(&ex.arms, ex.seeds, &Sweeps::of(ex)), |s| {
+            ctx.layout.done(s)
+        })
+        .into_iter()
+        .filter(|s| s.arm(&ex.arms) == Some(arm))
+        .count();
         if missing > 0 {
             notes.push(format!(
                 "{id}: {missing} stage(s) not finished yet; their rows are missing"
