@@ -9,12 +9,15 @@
 //!   sector, resampled from any lidar; the previous action, velocity, local and global goal):
 //!   the layout the exported policy card documents.
 //! * [`agent_action`] turns the policy's output into the planner's schedule (or gains, or
-//!   the velocity command) and keeps the previous action the observation shows: shared with
-//!   a robot's runtime.
+//!   the velocity command) and keeps the previous action the observation shows.
 //! * [`reward`] holds the scan-dependent reward term as pure functions.
-//! * [`policy::MlpPolicy`] evaluates the actor network (ReLU hidden layers, tanh output) from
-//!   the flat weight vector the learner publishes, without allocating per call;
+//! * [`MlpPolicy`] ([`policy`]) evaluates the actor network (ReLU hidden layers, tanh output)
+//!   from the flat weight vector the learner publishes, without allocating per call;
 //!   [`exploration::Exploration`] adds seeded Gaussian noise for data collection.
+//!
+//! [`observation`], [`agent_action`] and [`policy`] are the `adp-policy` crate's (its `mlp`
+//! module is [`policy`] here), re-exported under these paths: a robot's runtime shares them
+//! without linking this crate's async runtime and network stack.
 //!
 //! * [`closed_loop`] runs one episode whatever chooses its schedule (a fixed schedule, a
 //!   constant action, a network greedily or with exploration noise): the one closed loop
@@ -35,18 +38,19 @@
 
 #![warn(missing_docs)]
 
-pub mod agent_action;
 pub mod closed_loop;
 pub mod env;
 pub mod exploration;
-pub mod observation;
-pub mod policy;
 pub mod reward;
 pub mod run;
 pub mod spec;
 pub mod stuck;
 
+/// The actor network's CPU inference: the `adp-policy` crate's `mlp`.
+pub use ::policy::mlp as policy;
+pub use ::policy::{agent_action, observation};
+pub use ::policy::{
+    obs_dim, param_count, LaserLayout, LaserResampler, MlpPolicy, PolicyError, Scratch, LASER_BEAMS,
+};
 pub use env::{AdpEnv, End, EnvConfig, EnvError, EnvResult, StepOutcome};
 pub use exploration::Exploration;
-pub use observation::{obs_dim, LaserLayout, LaserResampler, LASER_BEAMS};
-pub use policy::{param_count, MlpPolicy, PolicyError, Scratch};

@@ -110,6 +110,24 @@ impl Error {
     }
 }
 
+impl From<eval_config::ConfigError> for Error {
+    fn from(e: eval_config::ConfigError) -> Self {
+        match e {
+            eval_config::ConfigError::Read { path, source } => Self::io("read config", path, source),
+            eval_config::ConfigError::Invalid { origin, message } => Self::Config { origin, message },
+        }
+    }
+}
+
+impl From<policy::LoadError> for Error {
+    fn from(e: policy::LoadError) -> Self {
+        Self::Policy {
+            path: e.path,
+            message: e.message,
+        }
+    }
+}
+
 impl From<actor::EnvError> for Error {
     fn from(e: actor::EnvError) -> Self {
         Self::component("the RL environment", e)

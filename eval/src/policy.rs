@@ -2,24 +2,20 @@
 //!
 //! * a trained policy: an export directory written by `adp export` or at the end of
 //!   `adp train` (`policy.json` and `policy.safetensors`; `PATH` may also name the
-//!   `policy.json` itself). The card's action space, observation layout and layer sizes are
-//!   checked against this build's environment, the weights are read by the learner's reader
-//!   next to its writer (`learner::export::read_actor_safetensors`: PyTorch's `[out, in]`
-//!   layout transposed into the flat `[in][out]` layout of [`MlpPolicy`], every value
-//!   finite);
+//!   `policy.json` itself), loaded and checked by the `adp-policy` crate ([`policy::load`]:
+//!   the card's action space, observation layout and layer sizes against this build's
+//!   environment; the weights by the reader next to the learner's writer), which a robot's
+//!   runtime shares;
 //! * a constant normalized action read from a small TOML file (see [`load_constant_action`]).
 //!
 //! Every error is one line naming the file and the problem.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use serde::Deserialize;
 
-use actor::observation;
-use actor::policy::MlpPolicy;
-use actor::EnvConfig;
-use learner::export::{read_actor_safetensors, space_name, PolicyCard, JSON_FILE};
 use planner::ActionSpace;
+pub use policy::LearnedPolicy;
 
 use crate::error::{Error, Result};
 
@@ -50,49 +46,18 @@ pub enum EvalPolicy {
     Learned(Box<LearnedPolicy>),
 }
 
-/// A trained policy read from an export directory.
-#[derive(Debug)]
-pub struct LearnedPolicy {
-    /// The action space it was trained in (`action.space` of the card).
-    pub space: ActionSpace,
-    /// The actor network, ready for [`MlpPolicy::act`].
-    pub net: MlpPolicy,
-    /// The environment settings it was trained with (the card's `environment`; the defaults
-    /// for a card that does not record them): its agent period and laser clip shape what it
-    /// sees, so it is evaluated with them.
-    pub env: EnvConfig,
-    /// The card as read (source run, step counters).
-    pub card: PolicyCard,
-    /// The card's path.
-    pub card_path: PathBuf,
-}
-
 /// Loads `--policy path` for `adp eval`: a trained policy when `path` is a directory or a
 /// `.json` file (its `policy.json`), else a constant-action TOML file. `requested` is
 /// `--action` when it was given: the policy's action space must then be the same; without
 /// it the space is the policy's own (the card's `action.space`, the TOML's `space`, else
 /// decremental).
 pub fn load(path: &Path, requested: Option<ActionSpace>) -> Result<EvalPolicy> {
-    if path.is_dir() {
-        let card = path.join(JSON_FILE);
-        return Ok(EvalPolicy::Learned(Box::new(load_learned(&card, requested)?)));
-    }
-    if path.extension().is_some_and(|e| e == "json") {
-        return Ok(EvalPolicy::Learned(Box::new(load_learned(path, requested)?)));
-    }
-    if path
-        .extension()
-        .is_some_and(|e| e == "onnx" || e == "safetensors")
-    {
-        return Err(Error::policy(
-            path,
-            format!("give the export directory (or its {JSON_FILE}), which describes the weights"),
-        ));
+    if let Some(card) = policy::card_path(path)? {
+        return Ok(EvalPolicy::Learned(Box::new(policy::load(&card, requested)?)));
     }
     let (space, action) = load_constant(path, requested)?;
     Ok(EvalPolicy::Constant { space, action })
 }
-
 /// Reads a constant action for `space` from `path`, checking that it makes a schedule.
 pub fn load_constant_action(path: &Path, space: ActionSpace) -> Result<Vec<f64>> {
     if path.is_dir() {
@@ -123,132 +88,14 @@ fn load_constant(path: &Path, requested: Option<ActionSpace>) -> Result<(ActionS
     Ok((space, f.action))
 }
 
-/// Reads and checks the card `card_path` and the weights it names (see the module docs).
-fn load_learned(card_path: &Path, requested: Option<ActionSpace>) -> Result<LearnedPolicy> {
-    let dir = card_path.parent().unwrap_or(Path::new("."));
-    let text = std::fs::read_to_string(card_path).map_err(|e| match e.kind() {
-        std::io::ErrorKind::NotFound => Error::policy(
-            card_path,
-            format!(
-                "not found (an export directory of `adp export` or `adp train` holds {JSON_FILE} \
-                 and the weights)"
-            ),
-        ),
-        _ => Error::policy(card_path, format!("cannot read: {e}")),
-    })?;
-    let bad = |what: String| Error::policy(card_path, what);
-    let card = PolicyCard::parse(&text).map_err(|e| bad(e.to_string()))?;
-    let space = card.action.space;
-    if let Some(r) = requested.filter(|&r| r != space) {
-        return Err(bad(format!(
-            "the policy was trained in the {} action space but --action is {} (leave --action \
-             out to use the policy's)",
-            space_name(space),
-            space_name(r)
-        )));
-    }
-    if card.action.dim != space.dim() {
-        return Err(bad(format!(
-            "action.dim = {} but the {} action space has {} values",
-            card.action.dim,
-            space_name(space),
-            space.dim()
-        )));
-    }
-    // Cards written before simulator profiles existed were trained on what is now `ideal`;
-    // before the action map and reward scale existed, on the affine box and raw rewards.
-    let mut recorded = match &card.environment {
-        serde_json::Value::Null => serde_json::json!({}),
-        other => other.clone(),
-    };
-    if let Some(map) = recorded.as_object_mut() {
-        map.entry("profile").or_insert_with(|| "ideal".into());
-        map.entry("action_map").or_insert_with(|| "affine".into());
-        map.entry("reward_scale").or_insert_with(|| 1.0.into());
-    }
-    let env = serde_json::from_value::<EnvConfig>(recorded)
-        .map_err(|e| e.to_string())
-        .and_then(|env| env.validate().map(|()| env).map_err(|e| e.to_string()))
-        .map_err(|e| bad(format!("environment: {e}")))?;
-    let laser = env.observation;
-    let want = observation::segments(laser, space, env.observe_tracks);
-    let layout_fits = card.observation.dim == observation::obs_dim(laser, space, env.observe_tracks)
-        && card.observation.segments.len() == want.len()
-        && card
-            .observation
-            .segments
-            .iter()
-            .zip(&want)
-            .all(|(got, w)| got.name == w.name && got.offset == w.offset && got.size == w.size);
-    if !layout_fits {
-        let sizes: Vec<String> = card
-            .observation
-            .segments
-            .iter()
-            .map(|s| format!("{} {}", s.name, s.size))
-            .collect();
-        return Err(bad(format!(
-            "observation of {} values ({}) does not fit the {} action space's observation of {} \
-             values ({} laser: environment observation = \"{laser}\"; {} previous action, v, w, \
-             local goal, global goal, {} tracks: environment observe_tracks = {})",
-            card.observation.dim,
-            sizes.join(", "),
-            space_name(space),
-            observation::obs_dim(laser, space, env.observe_tracks),
-            laser.size(),
-            space.dim(),
-            observation::TRACK_FLOATS * env.observe_tracks,
-            env.observe_tracks
-        )));
-    }
-    let dims = &card.network.layer_sizes;
-    if dims.len() < 2
-        || dims.contains(&0)
-        || dims[0] != card.observation.dim
-        || dims[dims.len() - 1] != card.action.dim
-    {
-        return Err(bad(format!(
-            "network.layer_sizes {dims:?} must run from observation.dim = {} to action.dim = {}, \
-             all sizes > 0",
-            card.observation.dim, card.action.dim
-        )));
-    }
-    let activations = (
-        card.network.hidden_activation.as_str(),
-        card.network.output_activation.as_str(),
-    );
-    if activations != ("relu", "tanh") {
-        return Err(bad(format!(
-            "activations {activations:?}: this build runs relu hidden layers and a tanh output"
-        )));
-    }
-    let weights_path = dir.join(&card.network.safetensors_file);
-    let flat = read_weights(&weights_path, dims)?;
-    let net = MlpPolicy::from_flat(dims, flat).map_err(|e| Error::policy(&weights_path, e.to_string()))?;
-    Ok(LearnedPolicy {
-        space,
-        net,
-        env,
-        card,
-        card_path: card_path.to_path_buf(),
-    })
-}
-
-/// Reads the weights file `path` for the layer sizes `dims` in [`MlpPolicy`]'s flat layout
-/// (see [`read_actor_safetensors`]).
-fn read_weights(path: &Path, dims: &[usize]) -> Result<Vec<f32>> {
-    let bad = |what: String| Error::policy(path, what);
-    let bytes = std::fs::read(path).map_err(|e| bad(format!("cannot read: {e}")))?;
-    read_actor_safetensors(&bytes, dims).map_err(|e| bad(e.to_string()))
-}
-
 #[cfg(test)]
 mod tests {
     use std::collections::{BTreeMap, HashMap};
 
+    use actor::policy::MlpPolicy;
     use actor::{AdpEnv, End, EnvConfig};
     use learner::checkpoint::{self, Manifest};
-    use learner::export::actor_safetensors;
+    use learner::export::{actor_safetensors, PolicyCard, JSON_FILE};
     use learner::{seeded_rng, Actor, Device, FitOptions, Td3, Td3Config};
     use planner::Schedule;
     use testkit::fresh_dir;

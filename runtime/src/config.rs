@@ -29,9 +29,9 @@
 
 use std::path::{Path, PathBuf};
 
-use eval::policy::{self, EvalPolicy, LearnedPolicy};
-use eval::EvalConfig;
+use eval_config::EvalConfig;
 use planner::PlannerKind;
+use policy::LearnedPolicy;
 use serde::Deserialize;
 use sim::geometry::Pose;
 
@@ -239,7 +239,7 @@ pub fn read(path: &Path) -> Result<(EvalConfig, RuntimeOptions, Option<LearnedPo
     };
     let text = std::fs::read_to_string(path).map_err(|e| config(format!("cannot read: {e}")))?;
     let file: RuntimeFile =
-        toml::from_str(&text).map_err(|e| config(eval::config::one_line(&e.to_string())))?;
+        toml::from_str(&text).map_err(|e| config(eval_config::one_line(&e.to_string())))?;
     let options = RuntimeOptions {
         planner: file.planner,
         max_speed: file.max_speed,
@@ -272,10 +272,12 @@ pub fn read(path: &Path) -> Result<(EvalConfig, RuntimeOptions, Option<LearnedPo
 /// Loads the trained policy of the export directory (or `policy.json`) at `path`, checked as
 /// `adp eval --policy` checks it.
 pub fn load_policy(path: &Path) -> Result<LearnedPolicy, RuntimeError> {
-    match policy::load(path, None).map_err(|e| RuntimeError::Policy(e.to_string()))? {
-        EvalPolicy::Learned(p) => Ok(*p),
-        EvalPolicy::Constant { .. } => Err(RuntimeError::Policy(format!(
-            "policy {}: a constant-action file; give an export directory of `adp export`",
+    let refused = |e: policy::LoadError| RuntimeError::Policy(e.to_string());
+    match policy::card_path(path).map_err(refused)? {
+        Some(card) => policy::load(&card, None).map_err(refused),
+        None => Err(RuntimeError::Policy(format!(
+            "policy {}: not an export directory or its policy.json; give an export directory \
+             of `adp export`",
             path.display()
         ))),
     }

@@ -22,7 +22,7 @@
 //!
 //! * [`Navigator`] holds one robot's planner, costmap, global path and policy; each
 //!   [`Navigator::cycle`] runs the simulator's closed loop on real inputs (the same code:
-//!   `sim::nav_stack`, `planner::run::CycleDriver`, `actor::agent_action`), so a world
+//!   `sim::nav_stack`, `planner::run::CycleDriver`, `policy::agent_action`), so a world
 //!   driven through it repeats `adp eval`'s episode bit for bit.
 //! * [`input`] states the inputs' units and frames and checks them.
 //! * [`envelope`] states the inputs and settings accepted (so no input aborts the process or

@@ -1,13 +1,12 @@
 //! [`Navigator`]: one robot's planner, navigation state and (optionally) trained policy,
 //! stepped one control cycle per call.
 
-use actor::agent_action::{AgentAction, Applied};
-use actor::observation::{self, LaserResampler};
-use actor::policy::{MlpPolicy, Scratch};
-use eval::policy::LearnedPolicy;
-use eval::EvalConfig;
+use eval_config::EvalConfig;
 use planner::run::CycleDriver;
 use planner::{ActionSpace, CycleWork, Planner, PlannerKind, Prediction, Schedule};
+use policy::agent_action::{AgentAction, Applied};
+use policy::observation::{self, LaserResampler};
+use policy::{LearnedPolicy, MlpPolicy, Scratch};
 use sim::episode::EpisodeConfig;
 use sim::lidar::Lidar;
 use sim::nav_stack::{NavStack, Scan};

@@ -14,11 +14,11 @@
 //!   ranges and how an action becomes a rollout schedule, the software version and the checkpoint
 //!   (run id, step counters) the weights come from.
 //!
-//! Files: `onnx` (the ONNX graph), `weights` (the safetensors writer and its reader),
-//! `card` (the JSON card and its reader); the observation layout the card documents is
-//! the shared one of the [`layout`] crate.
+//! Files: `onnx` (the ONNX graph), `weights` (the safetensors writer); the card, the
+//! safetensors reader and the file names are the [`policy_file`] crate's (re-exported here),
+//! which a runtime reads policies with without linking the learner; the observation layout
+//! the card documents is the shared one of the [`layout`] crate.
 
-mod card;
 mod onnx;
 mod weights;
 
@@ -28,25 +28,33 @@ use burn::tensor::Device;
 use settings::ActionSpace;
 use thiserror::Error;
 
-pub use card::{
-    observation_layout, space_name, ActionCard, ActionDimension, CardError, CardMismatch, NetworkCard,
-    ObservationLayout, ObservationSegment, PolicyCard, Software, Source, TrainedFor,
-};
 pub use onnx::{actor_onnx, BATCH_DIM, INPUT_NAME, IR_VERSION, OPSET, OUTPUT_NAME};
-pub use weights::{actor_safetensors, read_actor_safetensors, WeightsError};
+pub use policy_file::{
+    observation_layout, read_actor_safetensors, space_name, ActionCard, ActionDimension, CardError,
+    CardMismatch, NetworkCard, ObservationLayout, ObservationSegment, PolicyCard, Software, Source,
+    TrainedFor, WeightsError, CARD_FORMAT, CARD_FORMAT_VERSION, JSON_FILE, ONNX_FILE, SAFETENSORS_FILE,
+};
+pub use weights::actor_safetensors;
 
-use crate::checkpoint::{self, CheckpointError};
+use crate::checkpoint::{self, CheckpointError, Manifest};
 
-/// Name of the ONNX file in an export directory.
-pub const ONNX_FILE: &str = "policy.onnx";
-/// Name of the safetensors file in an export directory.
-pub const SAFETENSORS_FILE: &str = "policy.safetensors";
-/// Name of the JSON card in an export directory.
-pub const JSON_FILE: &str = "policy.json";
-/// The `format` field of every [`PolicyCard`].
-pub const CARD_FORMAT: &str = "adp-policy";
-/// The card format version this build writes.
-pub const CARD_FORMAT_VERSION: u32 = 1;
+/// A checkpoint's manifest is what a card records of the checkpoint ([`PolicyCard::new`]).
+impl From<&Manifest> for policy_file::Checkpoint {
+    fn from(manifest: &Manifest) -> Self {
+        Self {
+            source: Source {
+                run_id: manifest.run_id.clone(),
+                updates: manifest.updates,
+                inserts: manifest.inserts,
+                policy_version: manifest.policy_version,
+            },
+            obs_dim: manifest.config.obs_dim,
+            laser_dim: manifest.config.laser_dim,
+            act_dim: manifest.config.act_dim,
+            actor_hidden: manifest.config.actor_hidden.clone(),
+        }
+    }
+}
 
 /// Why an export failed. Every variant names the file involved.
 #[derive(Debug, Error)]

@@ -2,7 +2,10 @@
 
 use prost::Message;
 
-use super::weights::{bias_name, dense_layers, le_bytes, weight_name};
+use policy_file::{bias_name, weight_name};
+pub use policy_file::{INPUT_NAME, OPSET, OUTPUT_NAME};
+
+use super::weights::{dense_layers, le_bytes};
 use crate::nets::Actor;
 
 /// The ONNX types generated from the official schema `proto/onnx.proto` (ONNX 1.17.0) by
@@ -12,14 +15,8 @@ pub(crate) mod proto {
     include!(concat!(env!("OUT_DIR"), "/onnx.rs"));
 }
 
-/// Default-domain operator set of the ONNX graph (Gemm, Relu and Tanh are unchanged since 13).
-pub const OPSET: i64 = 13;
 /// ONNX IR version of the graph: 7, the IR version that goes with opset 13 (ONNX 1.8).
 pub const IR_VERSION: i64 = 7;
-/// Name of the ONNX graph's input.
-pub const INPUT_NAME: &str = "obs";
-/// Name of the ONNX graph's output.
-pub const OUTPUT_NAME: &str = "action";
 /// Name of the symbolic batch dimension of the ONNX input and output.
 pub const BATCH_DIM: &str = "batch";
 

@@ -1,5 +1,5 @@
 """The observation a policy reads, built from a robot's own scan and state (a Python port of
-actor/src/observation.rs, for wrappers around real robots and other simulators).
+policy/src/observation.rs, for wrappers around real robots and other simulators).
 
 One observation is, in this order: the laser segment (`scan`: 720 values, beam k at
 -135 + 270 k / 719 degrees, each the sensor beam nearest that angle; `sectors:N`: the least

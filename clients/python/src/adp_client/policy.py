@@ -1,6 +1,6 @@
 """The actor MLP in numpy, from the flat weights of a policy snapshot.
 
-Layout (as actor/src/policy.rs): for each linear layer in order, with `n = dims[l]` inputs
+Layout (as policy/src/mlp.rs): for each linear layer in order, with `n = dims[l]` inputs
 and `m = dims[l + 1]` outputs, the weight matrix `[n][m]` row-major (y = x W + b), then the
 bias `[m]`. Hidden layers use ReLU, the output layer tanh, so actions lie in [-1, 1].
 """

@@ -2,7 +2,7 @@
 //! schedule (and, in the objective-weight spaces, the planner's gain factors) or, in the
 //! velocity space, the command itself; and the previous action the next observation shows.
 //!
-//! The RL environment ([`crate::AdpEnv`]) and a robot's runtime (the `adp-runtime` crate) both
+//! The RL environment (the `adp-actor` crate's `AdpEnv`) and a robot's runtime (the `adp-runtime` crate) both
 //! apply actions through [`AgentAction`], so a policy drives a planner the same way in
 //! training, evaluation and on a robot.
 

@@ -5,11 +5,9 @@ use serde::{Deserialize, Serialize};
 use settings::{ActionSpace, PlannerKind};
 use thiserror::Error;
 
-use super::onnx::{INPUT_NAME, OPSET, OUTPUT_NAME};
-use super::{CARD_FORMAT, CARD_FORMAT_VERSION, ONNX_FILE, SAFETENSORS_FILE};
-use crate::checkpoint::Manifest;
+use crate::{CARD_FORMAT, CARD_FORMAT_VERSION, INPUT_NAME, ONNX_FILE, OPSET, OUTPUT_NAME, SAFETENSORS_FILE};
 
-/// The JSON card of an exported policy ([`super::JSON_FILE`]).
+/// The JSON card of an exported policy ([`crate::JSON_FILE`]).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct PolicyCard {
@@ -49,6 +47,22 @@ pub struct TrainedFor {
     pub planner: PlannerKind,
     /// The speed cap of the training runs (m/s): the `[run] max_speed` of its configuration.
     pub max_speed: f64,
+}
+
+/// What a card records of the checkpoint its weights come from ([`PolicyCard::new`]): the
+/// learner makes it from its checkpoint's manifest.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Checkpoint {
+    /// The run and its counters when the checkpoint was written.
+    pub source: Source,
+    /// The actor's input size.
+    pub obs_dim: usize,
+    /// How many of its inputs are the laser segment.
+    pub laser_dim: usize,
+    /// The actor's output size.
+    pub act_dim: usize,
+    /// The actor's hidden layer widths, input side first.
+    pub actor_hidden: Vec<usize>,
 }
 
 /// Name and version of the exporting software.
@@ -306,7 +320,7 @@ pub enum CardMismatch {
 }
 
 impl PolicyCard {
-    /// Reads a card ([`super::JSON_FILE`]) written by [`PolicyCard::new`], refusing other
+    /// Reads a card ([`crate::JSON_FILE`]) written by [`PolicyCard::new`], refusing other
     /// formats and format versions.
     pub fn parse(text: &str) -> Result<Self, CardError> {
         let card: Self = serde_json::from_str(text)?;
@@ -320,16 +334,16 @@ impl PolicyCard {
     }
 
     /// The card for an actor trained in `space` with the environment settings `environment`
-    /// (see [`crate::checkpoint::RunState::environment`]), from the checkpoint whose manifest is `manifest`. Fails
-    /// when the checkpoint's observation or action size does not fit `space` and the recorded
-    /// laser layout (`observation`, `scan` when absent), or the settings are not a table with a
-    /// positive `laser_clip_m`.
+    /// (the run's `[env]` table as recorded, `null` when not), from `checkpoint` (the learner's
+    /// `&Manifest` converts). Fails when the checkpoint's observation or action size does not
+    /// fit `space` and the recorded laser layout (`observation`, `scan` when absent), or the
+    /// settings are not a table with a positive `laser_clip_m`.
     pub fn new(
         space: ActionSpace,
-        manifest: &Manifest,
+        checkpoint: impl Into<Checkpoint>,
         environment: &serde_json::Value,
     ) -> Result<Self, CardMismatch> {
-        let config = &manifest.config;
+        let config = checkpoint.into();
         let laser = laser_layout(environment)?;
         let layout = observation_layout(
             laser,
@@ -369,12 +383,7 @@ impl PolicyCard {
                 name: "adp".into(),
                 version: env!("CARGO_PKG_VERSION").into(),
             },
-            source: Source {
-                run_id: manifest.run_id.clone(),
-                updates: manifest.updates,
-                inserts: manifest.inserts,
-                policy_version: manifest.policy_version,
-            },
+            source: config.source,
             network: NetworkCard {
                 layer_sizes,
                 hidden_activation: "relu".into(),
