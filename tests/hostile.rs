@@ -1540,3 +1540,405 @@ fn token_less_peers_that_reconnect_lock_no_honest_actor_out_of_their_address() {
         "{log}"
     );
 }
+
+/// One connection from 127.0.0.1 of a token holder that opens `streams` `PushSteps` requests,
+/// each declaring a message of `len` bytes and sending all of it but the last byte (DATA
+/// frames as the learner's flow-control windows allow), then answers SETTINGS and PINGs and
+/// never sends that byte. Adds to `settled` each stream once its bytes all went out or the
+/// learner ended it, and to `ended` each the learner ended (RST_STREAM or a response with
+/// END_STREAM); returns `hold` after every stream settled, or when the connection closes.
+async fn half_sender(
+    to: std::net::SocketAddr,
+    token: String,
+    streams: u32,
+    len: usize,
+    hold: Duration,
+    settled: std::sync::Arc<std::sync::atomic::AtomicUsize>,
+    ended: std::sync::Arc<std::sync::atomic::AtomicUsize>,
+) {
+    use std::sync::atomic::Ordering;
+    use tokio::io::AsyncWriteExt;
+    const WINDOW_UPDATE: u8 = 0x8;
+    const GOAWAY: u8 = 0x7;
+    let mut s = tcp_from([127, 0, 0, 1], to).await;
+    let mut block = vec![0x83, 0x86, 0x04];
+    block.extend(raw::string(b"/adp.v1.Data/PushSteps"));
+    block.extend(raw::literal(":authority", "localhost"));
+    block.extend(raw::literal("content-type", "application/grpc"));
+    block.extend(raw::literal("te", "trailers"));
+    block.extend(raw::literal("authorization", &format!("Bearer {token}")));
+    let mut out = raw::PREFACE.to_vec();
+    out.extend(raw::frame(raw::SETTINGS, 0, 0, &[]));
+    let ids: Vec<u32> = (0..streams).map(|k| 2 * k + 1).collect();
+    for &id in &ids {
+        out.extend(raw::frame(raw::HEADERS, raw::END_HEADERS, id, &block));
+    }
+    if s.write_all(&out).await.is_err() {
+        return;
+    }
+    // The message: its head declares `len` bytes; all but the last are sent.
+    let mut head = vec![0u8];
+    head.extend((len as u32).to_be_bytes());
+    let total = 5 + len - 1;
+    // Per stream: bytes sent, window left, whether it settled, whether the learner ended it.
+    let mut done = vec![0usize; ids.len()];
+    let mut windows = vec![65_535i64; ids.len()];
+    let mut over = vec![false; ids.len()];
+    let mut gone = vec![false; ids.len()];
+    let mut connection = 65_535i64;
+    let mut initial = 65_535i64;
+    let mut finished_at: Option<tokio::time::Instant> = None;
+    loop {
+        for (k, &id) in ids.iter().enumerate() {
+            while !over[k] && done[k] < total && connection > 0 && windows[k] > 0 {
+                let n = (total - done[k])
+                    .min(16 * 1024)
+                    .min(connection as usize)
+                    .min(windows[k] as usize);
+                let mut payload = vec![0u8; n];
+                for (j, byte) in payload
+                    .iter_mut()
+                    .enumerate()
+                    .take(5usize.saturating_sub(done[k]))
+                {
+                    *byte = head[done[k] + j];
+                }
+                if s.write_all(&raw::frame(raw::DATA, 0, id, &payload))
+                    .await
+                    .is_err()
+                {
+                    return;
+                }
+                done[k] += n;
+                connection -= n as i64;
+                windows[k] -= n as i64;
+                if done[k] == total {
+                    over[k] = true;
+                    settled.fetch_add(1, Ordering::Relaxed);
+                }
+            }
+        }
+        let all_over = over.iter().all(|&o| o);
+        if all_over && finished_at.is_none() {
+            finished_at = Some(tokio::time::Instant::now());
+        }
+        if finished_at.is_some_and(|t| t.elapsed() >= hold) {
+            return;
+        }
+        let frame = match tokio::time::timeout(Duration::from_millis(100), raw::read_frame(&mut s)).await {
+            Err(_) => continue,
+            Ok(Err(_)) => return,
+            Ok(Ok(frame)) => frame,
+        };
+        let (kind, flags, stream, payload) = frame;
+        let k = ids.iter().position(|&id| id == stream);
+        let reply = match kind {
+            raw::SETTINGS if flags & raw::ACK == 0 => {
+                for setting in payload.chunks_exact(6) {
+                    if u16::from_be_bytes([setting[0], setting[1]]) == 0x4 {
+                        let value = i64::from(u32::from_be_bytes(setting[2..6].try_into().unwrap()));
+                        for w in &mut windows {
+                            *w += value - initial;
+                        }
+                        initial = value;
+                    }
+                }
+                Some(raw::frame(raw::SETTINGS, raw::ACK, 0, &[]))
+            }
+            raw::PING if flags & raw::ACK == 0 => Some(raw::frame(raw::PING, raw::ACK, 0, &payload)),
+            WINDOW_UPDATE => {
+                let n = i64::from(u32::from_be_bytes(payload[..4].try_into().unwrap()) & 0x7fff_ffff);
+                match k {
+                    Some(k) => windows[k] += n,
+                    None if stream == 0 => connection += n,
+                    None => {}
+                }
+                None
+            }
+            raw::RST_STREAM | raw::HEADERS | raw::DATA
+                if kind == raw::RST_STREAM || flags & raw::END_STREAM != 0 =>
+            {
+                if let Some(k) = k.filter(|&k| !gone[k]) {
+                    gone[k] = true;
+                    ended.fetch_add(1, Ordering::Relaxed);
+                    if !over[k] {
+                        over[k] = true;
+                        settled.fetch_add(1, Ordering::Relaxed);
+                    }
+                }
+                None
+            }
+            GOAWAY => return,
+            _ => None,
+        };
+        if let Some(reply) = reply {
+            if s.write_all(&reply).await.is_err() {
+                return;
+            }
+        }
+    }
+}
+
+/// Issue 71, attack 2: 64 connections x 16 streams, each declaring a 1 MiB `PushSteps`
+/// message and sending all but one byte, took the learner from 59 to 1,096 MiB in 5 s. Now
+/// (scaled down to 32 connections x 16 streams from 127.0.0.1, a token holder's, 512 MiB
+/// declared; default budgets) the bytes of incomplete messages are capped per connection
+/// (4 MiB) and in all (64 MiB): each message over a cap ends the oldest incomplete one. The
+/// learner's resident memory stays under 256 MiB above its start while the attack holds, and
+/// a real `adp actor` from the same address reports episodes beside it. The endings are
+/// counted in `status.json` and logged with the peer.
+#[test]
+fn half_sent_messages_hold_bounded_memory_and_an_honest_actor_is_served() {
+    use std::sync::atomic::{AtomicUsize, Ordering};
+    let dir = fresh_dir("hostile-half-sent");
+    let (learner, run, addr, token) = learner(&dir, "[td3]\nwarmup_steps = 1000000");
+    let pid = learner.0.id();
+    let to: std::net::SocketAddr = addr.parse().unwrap();
+    let before = rss_kib(pid);
+    let bound = before + 256 * 1024;
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    let settled = std::sync::Arc::new(AtomicUsize::new(0));
+    let ended = std::sync::Arc::new(AtomicUsize::new(0));
+    let (connections, streams) = (32, 16);
+    let attack: Vec<_> = (0..connections)
+        .map(|_| {
+            rt.spawn(half_sender(
+                to,
+                token.clone(),
+                streams,
+                1 << 20,
+                Duration::from_secs(600),
+                settled.clone(),
+                ended.clone(),
+            ))
+        })
+        .collect();
+    let mut peak = before;
+    let sample = |peak: &mut u64| *peak = (*peak).max(rss_kib(pid));
+    poll("every half-sent message out or ended", || {
+        sample(&mut peak);
+        settled.load(Ordering::Relaxed) >= connections * streams as usize
+    });
+    let attacked = peak;
+    // The honest actor, from the same address, while the attackers hold their streams.
+    let _actor = ActorProcess(common::spawn_actor(&addr, &run.join("token"), 0, "grpc"));
+    poll(
+        "the honest actor's episodes beside the half-sent messages",
+        || {
+            sample(&mut peak);
+            status(&run).is_some_and(|s| honest_episodes(&s) >= 4)
+        },
+    );
+    sample(&mut peak);
+    let c = status(&run).unwrap().connections;
+    eprintln!(
+        "learner RSS {before} KiB before, peak {attacked} KiB during the attack, {peak} KiB with the honest actor; {} half-sent messages, {} ended by the learner; {c:?}",
+        connections * streams as usize,
+        ended.load(Ordering::Relaxed)
+    );
+    for task in attack {
+        task.abort();
+    }
+    drop(rt);
+    assert!(peak < bound, "RSS peaked at {peak} KiB, {before} KiB before");
+    assert!(c.messages_ended_for_room >= 1, "{c:?}");
+    let log = std::fs::read_to_string(dir.join("learner.stderr")).unwrap();
+    assert!(
+        log.contains("max_incomplete_bytes") && log.contains("tcp 127.0.0.1:"),
+        "{log}"
+    );
+}
+
+/// A token holder that makes the cycles turn as fast as the learner lets it (one-step
+/// episodes, policy version 0) while reading every policy version from its own `WatchPolicy`
+/// stream: an honest reader. Stores the newest version it has received in `newest`; runs until
+/// `stop`.
+async fn cycle_driver(
+    addr: String,
+    token: String,
+    stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
+    newest: std::sync::Arc<std::sync::atomic::AtomicU64>,
+) {
+    use std::sync::atomic::Ordering;
+    let (mut control, mut data, me) = register(&addr, &token, 500).await;
+    let spec = me.spec.clone().unwrap();
+    let mut policies = data
+        .watch_policy(pb::PolicyRequest {
+            run: me.run.clone(),
+            actor_id: me.actor_id,
+            have_version: 0,
+            actor_secret: me.actor_secret.clone(),
+        })
+        .await
+        .unwrap()
+        .into_inner();
+    let seen = newest.clone();
+    tokio::spawn(async move {
+        while let Ok(Some(p)) = policies.message().await {
+            assert!(!p.weights.is_empty());
+            seen.store(p.version, Ordering::Relaxed);
+        }
+    });
+    let obs = vec![0.25f32; spec.obs_dim as usize];
+    let action = vec![0.1f32; spec.act_dim as usize];
+    while !stop.load(Ordering::Relaxed) {
+        let reply = control
+            .next_assignment(pb::AssignmentRequest {
+                run: me.run.clone(),
+                actor_id: me.actor_id,
+                actor_secret: me.actor_secret.clone(),
+            })
+            .await
+            .unwrap()
+            .into_inner();
+        let Some(pb::assignment_reply::Decision::Assign(a)) = reply.decision else {
+            tokio::time::sleep(Duration::from_millis(20)).await;
+            continue;
+        };
+        for i in 0..u64::from(a.episodes) {
+            let episode_id = a.first_episode_id + i;
+            let sum = proto::checksum::step_checksum(&proto::StepView {
+                episode_id,
+                step_index: 0,
+                policy_version: 0,
+                obs: &obs,
+                action: &action,
+                reward: -0.5,
+                terminal: true,
+                truncated: false,
+                final_obs: &[],
+            });
+            let step = pb::StepRecord {
+                episode_id,
+                obs: proto::floats::encode(&obs).into(),
+                action: proto::floats::encode(&action).into(),
+                reward: -0.5,
+                terminal: true,
+                ..Default::default()
+            };
+            data.push_steps(tokio_stream::iter([pb::StepBatch {
+                run: me.run.clone(),
+                actor_id: me.actor_id,
+                lease_id: a.lease_id,
+                actor_secret: me.actor_secret.clone(),
+                steps: vec![step],
+            }]))
+            .await
+            .unwrap();
+            control
+                .report_episode(pb::EpisodeReport {
+                    run: me.run.clone(),
+                    actor_id: me.actor_id,
+                    lease_id: a.lease_id,
+                    episode_id,
+                    world: a.world,
+                    outcome: pb::Outcome::Collision as i32,
+                    time_s: 1.0,
+                    episode_return: -0.5,
+                    steps: 1,
+                    last_of_assignment: i + 1 == u64::from(a.episodes),
+                    steps_checksum: sum,
+                    actor_secret: me.actor_secret.clone(),
+                    ..Default::default()
+                })
+                .await
+                .unwrap();
+        }
+    }
+}
+
+/// Issue 71, attack 3: 40 `WatchPolicy` readers, each opened at a new policy version and never
+/// read, held about 2.9 MB each (91 -> 209 MB): every stream kept the version it had begun to
+/// send. Now a stream copies its version into the send queue in 16 KiB pieces and holds only
+/// a weak reference to it; the learner keeps the newest version and at most two superseded
+/// ones. 100 readers (one registration and connection each, a 64 KiB flow-control window,
+/// each opened once the version has moved on) leave the learner's resident memory under
+/// 128 MiB above what it was at the first reader, while an honest reader receives every
+/// newer version.
+#[test]
+fn unread_policy_streams_opened_at_each_version_pin_no_versions() {
+    use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+    let dir = fresh_dir("hostile-slow-readers");
+    let (learner, _run, addr, token) = learner(&dir, "[td3]\nwarmup_steps = 1000000");
+    let pid = learner.0.id();
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    let stop = std::sync::Arc::new(AtomicBool::new(false));
+    let newest = std::sync::Arc::new(AtomicU64::new(0));
+    rt.spawn(cycle_driver(
+        addr.clone(),
+        token.clone(),
+        stop.clone(),
+        newest.clone(),
+    ));
+    poll("the first policy versions", || {
+        newest.load(Ordering::Relaxed) >= 2
+    });
+    let before = rss_kib(pid);
+    let bound = before + 128 * 1024;
+    let mut peak = before;
+    let readers = rt.block_on(async {
+        let mut readers = Vec::new();
+        for rank in 0..100 {
+            let channel = tonic::transport::Endpoint::from_shared(format!("http://{addr}"))
+                .unwrap()
+                .initial_stream_window_size(65_535)
+                .initial_connection_window_size(65_535)
+                .connect()
+                .await
+                .unwrap();
+            let auth = proto::auth::ClientAuth::new(Some(&token));
+            let mut control =
+                pb::control_client::ControlClient::with_interceptor(channel.clone(), auth.clone());
+            let mut data = pb::data_client::DataClient::with_interceptor(channel, auth);
+            let me = control
+                .register(pb::RegisterRequest {
+                    rank,
+                    host: "reader".into(),
+                    pid: 1,
+                    ..Default::default()
+                })
+                .await
+                .unwrap()
+                .into_inner();
+            let at = newest.load(Ordering::Relaxed);
+            let stream = data
+                .watch_policy(pb::PolicyRequest {
+                    run: me.run.clone(),
+                    actor_id: me.actor_id,
+                    have_version: 0,
+                    actor_secret: me.actor_secret.clone(),
+                })
+                .await
+                .unwrap()
+                .into_inner();
+            readers.push((control, stream));
+            // The next reader opens at a newer version (a watchdog bounds the wait).
+            let mut waits = 0;
+            while newest.load(Ordering::Relaxed) <= at {
+                waits += 1;
+                assert!(waits < 30_000, "watchdog: the policy version stayed at {at}");
+                tokio::time::sleep(Duration::from_millis(10)).await;
+            }
+            peak = peak.max(rss_kib(pid));
+        }
+        readers
+    });
+    // The honest reader still gets newer versions with every reader stalled.
+    let stalled_at = newest.load(Ordering::Relaxed);
+    poll("newer versions for the honest reader", || {
+        peak = peak.max(rss_kib(pid));
+        newest.load(Ordering::Relaxed) >= stalled_at + 5
+    });
+    eprintln!(
+        "learner RSS {before} KiB at the first reader, peak {peak} KiB with {} unread streams; versions {stalled_at} -> {}",
+        readers.len(),
+        newest.load(Ordering::Relaxed)
+    );
+    stop.store(true, Ordering::Relaxed);
+    drop(readers);
+    drop(rt);
+    assert!(
+        peak < bound,
+        "RSS peaked at {peak} KiB, {before} KiB at the first reader"
+    );
+}

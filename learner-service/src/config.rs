@@ -116,6 +116,22 @@ pub struct ServiceConfig {
     /// `max_policy_streams`. Like `max_connections_per_ip`, raise it for a host that runs more
     /// actors than this over TCP. Default 256.
     pub policy_streams_per_ip: u32,
+    /// A policy version still being sent on a `WatchPolicy` stream is kept this long (ms) after
+    /// a newer one is published (at most two superseded versions are kept); a stream that has
+    /// not sent it by then ends (the actor opens a new one and gets the newest). Streams send
+    /// copies of 16 KiB pieces, so a reader that never reads holds a piece, not a version.
+    /// Default 10000.
+    pub policy_send_grace_ms: u32,
+    /// Most bytes held at once in request messages that have begun to arrive but are not
+    /// complete, over all connections; one more ends the oldest such message (its request
+    /// fails with RESOURCE_EXHAUSTED). Default 67108864 (64 MiB).
+    pub max_incomplete_bytes: u64,
+    /// The same for one connection (at least one largest request, 1 MiB). Default 4194304
+    /// (4 MiB).
+    pub max_incomplete_bytes_per_connection: u64,
+    /// A request message not complete within this long (ms) of its first byte fails its
+    /// request with DEADLINE_EXCEEDED. Default 10000.
+    pub message_deadline_ms: u32,
     /// Ranks whose actor has been dead (no heartbeat, no lease) for this long (ms) are
     /// forgotten: their records leave `status.json` and checkpoints, their counters are
     /// added to the aggregate of pruned ranks. Default 600000 (10 minutes).
@@ -211,10 +227,22 @@ impl ServiceConfig {
             ("handshake_timeout_ms", self.handshake_timeout_ms),
             ("auth_deadline_ms", self.auth_deadline_ms),
             ("policy_streams_per_ip", self.policy_streams_per_ip),
+            ("policy_send_grace_ms", self.policy_send_grace_ms),
+            ("message_deadline_ms", self.message_deadline_ms),
         ] {
             if value == 0 {
                 return Err(SettingsError::ZeroConnectionLimit { key });
             }
+        }
+        let least = proto::grpc::MAX_REQUEST_BYTES as u64 + 5;
+        if self.max_incomplete_bytes_per_connection < least
+            || self.max_incomplete_bytes < self.max_incomplete_bytes_per_connection
+        {
+            return Err(SettingsError::IncompleteBytes {
+                per_connection: self.max_incomplete_bytes_per_connection,
+                total: self.max_incomplete_bytes,
+                least,
+            });
         }
         if self.tls.is_none() && !self.allow_insecure_listen && !is_loopback_listen(&self.listen) {
             return Err(SettingsError::InsecureListen {
@@ -265,6 +293,10 @@ impl Default for ServiceConfig {
             max_policy_streams: 1024,
             policy_streams_per_actor: 1,
             policy_streams_per_ip: 256,
+            policy_send_grace_ms: 10_000,
+            max_incomplete_bytes: 64 << 20,
+            max_incomplete_bytes_per_connection: 4 << 20,
+            message_deadline_ms: 10_000,
             rank_forget_ms: 600_000,
             dead_ranks_kept: 256,
         }

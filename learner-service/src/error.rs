@@ -81,6 +81,20 @@ pub enum SettingsError {
         /// `auth_deadline_ms`).
         key: &'static str,
     },
+    /// A budget of incomplete request bytes that a largest request cannot fit.
+    #[error(
+        "[service] max_incomplete_bytes_per_connection ({per_connection}) must be at least \
+         {least} (a largest request with its head) and max_incomplete_bytes ({total}) at least \
+         max_incomplete_bytes_per_connection"
+    )]
+    IncompleteBytes {
+        /// `max_incomplete_bytes_per_connection`.
+        per_connection: u64,
+        /// `max_incomplete_bytes`.
+        total: u64,
+        /// The least per-connection budget.
+        least: u64,
+    },
     /// A network address other than loopback without TLS, and insecure listening not allowed.
     #[error(
         "refusing to listen on {listen} without TLS (the run's token would cross the network in clear \

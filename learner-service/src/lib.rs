@@ -22,6 +22,7 @@
 //!   checkpoint continues.
 
 mod authority;
+mod budget;
 mod config;
 mod control;
 mod data;

@@ -139,6 +139,11 @@ impl PeerInfo {
         self.0.peer
     }
 
+    /// A key for the connection, the same for every request it carries while it is open.
+    pub fn key(&self) -> usize {
+        Arc::as_ptr(&self.0) as usize
+    }
+
     /// Records that the connection made a request with the run token: the deadline of
     /// `[service] auth_deadline_ms` no longer applies to it.
     pub fn mark_authenticated(&self) {
@@ -186,6 +191,9 @@ pub struct ConnectionStats {
     policy_streams_refused: AtomicU64,
     policy_streams_refused_per_address: AtomicU64,
     policy_streams_replaced: AtomicU64,
+    policy_streams_unfinished: AtomicU64,
+    messages_ended_for_room: AtomicU64,
+    messages_past_deadline: AtomicU64,
     authorities_rewritten: Arc<AtomicU64>,
     /// Run tokens refused (counted with the other refusals of records; here for the log only).
     tokens_refused: AtomicU64,
@@ -205,6 +213,9 @@ impl Default for ConnectionStats {
             policy_streams_refused: AtomicU64::new(0),
             policy_streams_refused_per_address: AtomicU64::new(0),
             policy_streams_replaced: AtomicU64::new(0),
+            policy_streams_unfinished: AtomicU64::new(0),
+            messages_ended_for_room: AtomicU64::new(0),
+            messages_past_deadline: AtomicU64::new(0),
             authorities_rewritten: Arc::new(AtomicU64::new(0)),
             tokens_refused: AtomicU64::new(0),
         }
@@ -233,6 +244,14 @@ pub enum Cause {
     /// A registration's older `WatchPolicy` stream ended by a newer one (not a refusal of
     /// the newer one).
     PolicyStreamReplaced,
+    /// A `WatchPolicy` stream that had not sent its version when `[service]
+    /// policy_send_grace_ms` had passed since a newer one was published.
+    PolicyStreamUnfinished,
+    /// An incomplete request message ended to keep `[service] max_incomplete_bytes` or
+    /// `max_incomplete_bytes_per_connection`.
+    MessageEnded,
+    /// A request message not complete within `[service] message_deadline_ms`.
+    MessageDeadline,
 }
 
 impl ConnectionStats {
@@ -254,6 +273,9 @@ impl ConnectionStats {
             Cause::PolicyStreamsFull => &self.policy_streams_refused,
             Cause::PolicyStreamsPerAddress => &self.policy_streams_refused_per_address,
             Cause::PolicyStreamReplaced => &self.policy_streams_replaced,
+            Cause::PolicyStreamUnfinished => &self.policy_streams_unfinished,
+            Cause::MessageEnded => &self.messages_ended_for_room,
+            Cause::MessageDeadline => &self.messages_past_deadline,
         }
     }
 
@@ -290,6 +312,9 @@ impl ConnectionStats {
             policy_streams_refused: load(&self.policy_streams_refused),
             policy_streams_refused_per_address: load(&self.policy_streams_refused_per_address),
             policy_streams_replaced: load(&self.policy_streams_replaced),
+            policy_streams_unfinished: load(&self.policy_streams_unfinished),
+            messages_ended_for_room: load(&self.messages_ended_for_room),
+            messages_past_deadline: load(&self.messages_past_deadline),
             authorities_rewritten: load(&self.authorities_rewritten),
         }
     }

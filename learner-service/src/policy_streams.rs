@@ -1,10 +1,16 @@
-//! `WatchPolicy` without a copy of the policy per stream.
+//! `WatchPolicy` without a copy of the policy per stream, and no version held for a reader
+//! that does not read.
 //!
 //! tonic encodes every streamed message into a buffer of its own, so each `WatchPolicy`
 //! stream whose client does not read held a private copy of the encoded policy (2.5 MB at the
-//! default network size) in the HTTP/2 send queue. Here the newest policy is encoded once into
-//! a gRPC frame ([`Bytes`], reference-counted) and every stream sends that same frame; an
-//! unread stream holds a reference, not a copy. Streams are capped in total, per source
+//! default network size) in the HTTP/2 send queue. Here each published policy is encoded once
+//! into a gRPC frame that the learner holds ([`Frames`]); a stream copies it into the HTTP/2
+//! send queue in [`PIECE`]-byte pieces as the peer's flow-control window lets it, holding
+//! only a weak reference to the version it is sending. A reader that never reads holds a piece
+//! or two in the send queue, not a version: the learner keeps the newest version, and a
+//! superseded one for `[service] policy_send_grace_ms` (at most [`SUPERSEDED_KEPT`] of them) so
+//! that a stream in the middle of it can finish; a stream that has not finished by then ends
+//! (counted and logged) and its actor opens a new one. Streams are capped in total, per source
 //! address (TCP) and per registration, and each one is authenticated with its actor's
 //! credential. A registration's stream beyond its cap ends its oldest one instead of being
 //! refused (an actor that reconnects is never locked out by its own stale stream), so one
@@ -20,11 +26,12 @@ use std::convert::Infallible;
 use std::future::Future;
 use std::net::IpAddr;
 use std::pin::Pin;
-use std::sync::{Arc, Mutex};
+use std::sync::{Arc, Mutex, Weak};
 use std::task::{Context, Poll};
+use std::time::{Duration, Instant};
 
-use http_body::Frame;
-use http_body_util::{BodyExt, Limited, StreamBody};
+use http_body::{Body as HttpBody, Frame};
+use http_body_util::{BodyExt, Limited};
 use prost::bytes::{BufMut, Bytes, BytesMut};
 use prost::Message;
 use proto::pb;
@@ -42,6 +49,36 @@ use crate::shared::Shared;
 /// The HTTP/2 path of `WatchPolicy`.
 const WATCH_PATH: &str = "/adp.v1.Data/WatchPolicy";
 
+/// Bytes of a policy frame a stream copies into the HTTP/2 send queue at a time (HTTP/2's
+/// default frame size).
+const PIECE: usize = 16 * 1024;
+
+/// Superseded policy versions kept for the streams still sending them.
+const SUPERSEDED_KEPT: usize = 2;
+
+/// The encoded frames of the newest policy and of the versions it superseded lately.
+#[derive(Default)]
+struct Frames {
+    /// The newest snapshot encoded and its gRPC frame.
+    newest: Option<(Arc<pb::PolicySnapshot>, Arc<Bytes>)>,
+    /// Superseded frames, oldest first, each with when it was superseded.
+    superseded: VecDeque<(Arc<Bytes>, Instant)>,
+}
+
+impl Frames {
+    /// Drops the superseded frames older than `grace` (and beyond [`SUPERSEDED_KEPT`]).
+    fn prune(&mut self, grace: Duration) {
+        while self.superseded.len() > SUPERSEDED_KEPT
+            || self
+                .superseded
+                .front()
+                .is_some_and(|(_, at)| at.elapsed() >= grace)
+        {
+            self.superseded.pop_front();
+        }
+    }
+}
+
 /// The open `WatchPolicy` streams and the newest policy's encoded frame they share.
 pub struct PolicyStreams {
     shared: Arc<Shared>,
@@ -56,8 +93,10 @@ pub struct PolicyStreams {
     per_address: u32,
     /// Open streams per actor and per source address.
     open: Arc<Mutex<StreamTable>>,
-    /// The snapshot encoded last and its gRPC frame.
-    frame: Mutex<Option<(Arc<pb::PolicySnapshot>, Bytes)>>,
+    /// The frames streams send from.
+    frames: Mutex<Frames>,
+    /// `[service] policy_send_grace_ms`.
+    grace: Duration,
 }
 
 /// The open streams per actor (oldest first, each with its id and the sender that ends it)
@@ -101,13 +140,15 @@ impl Drop for StreamSlot {
 impl PolicyStreams {
     /// Streams of the policies published on `policy`, at most `max_total` at once,
     /// `per_address` from one TCP source address and `per_actor` per registration (one more
-    /// ends the registration's oldest).
+    /// ends the registration's oldest); a superseded version is kept `grace` for the streams
+    /// still sending it.
     pub fn new(
         shared: Arc<Shared>,
         policy: watch::Receiver<Arc<pb::PolicySnapshot>>,
         max_total: u32,
         per_address: u32,
         per_actor: u32,
+        grace: Duration,
     ) -> Self {
         Self {
             shared,
@@ -117,17 +158,20 @@ impl PolicyStreams {
             per_actor: per_actor.max(1),
             per_address,
             open: Arc::new(Mutex::new(StreamTable::default())),
-            frame: Mutex::new(None),
+            frames: Mutex::new(Frames::default()),
+            grace,
         }
     }
 
     /// The gRPC frame (compression flag, length, message) of `snapshot`, encoded once per
-    /// published snapshot and shared by every stream.
-    fn frame(&self, snapshot: &Arc<pb::PolicySnapshot>) -> Bytes {
-        let mut cached = self.frame.lock().expect("policy frame");
-        if let Some((s, frame)) = cached.as_ref() {
+    /// published snapshot and held by the learner while it is the newest (and `grace` after);
+    /// streams hold a weak reference.
+    fn frame(&self, snapshot: &Arc<pb::PolicySnapshot>) -> Weak<Bytes> {
+        let mut frames = self.frames.lock().expect("policy frames");
+        frames.prune(self.grace);
+        if let Some((s, frame)) = &frames.newest {
             if Arc::ptr_eq(s, snapshot) {
-                return frame.clone();
+                return Arc::downgrade(frame);
             }
         }
         let len = snapshot.encoded_len();
@@ -137,9 +181,18 @@ impl PolicyStreams {
         snapshot
             .encode(&mut buf)
             .expect("the buffer has the message's length");
-        let frame = buf.freeze();
-        *cached = Some((snapshot.clone(), frame.clone()));
-        frame
+        let frame = Arc::new(buf.freeze());
+        let weak = Arc::downgrade(&frame);
+        if let Some((_, older)) = frames.newest.replace((snapshot.clone(), frame)) {
+            frames.superseded.push_back((older, Instant::now()));
+            frames.prune(self.grace);
+        }
+        weak
+    }
+
+    /// Drops the superseded frames past their grace.
+    fn prune(&self) {
+        self.frames.lock().expect("policy frames").prune(self.grace);
     }
 
     /// Takes a place for a stream of `actor` from `peer`, ending the actor's oldest stream when
@@ -235,43 +288,116 @@ impl PolicyStreams {
         let peer = PeerInfo::of(&parts.extensions).map(PeerInfo::peer);
         let (slot, replaced) = self.take_slot(r.actor_id, peer)?;
         let have = r.have_version;
-        let streams = self.clone();
         // The channel starts with an empty placeholder until the first policy is published:
         // never send it (an actor would take it for a policy without weights). A reader that
         // falls behind gets the newest version only (the watch channel keeps one).
-        let frames = tokio_stream::wrappers::WatchStream::new(self.policy.clone())
-            .filter(move |p| !p.weights.is_empty() && (p.version > have || have == 0))
-            .map(move |p| {
-                let _open = &slot;
-                Ok::<_, Infallible>(Frame::data(streams.frame(&p)))
-            });
-        let frames = UntilReplaced {
-            inner: Box::pin(frames),
+        let versions = tokio_stream::wrappers::WatchStream::new(self.policy.clone())
+            .filter(move |p| !p.weights.is_empty() && (p.version > have || have == 0));
+        Ok(Body::new(PolicyBody {
+            streams: self,
+            versions: Box::pin(versions),
             replaced,
-        };
-        // When the policies end (the learner stops), the stream ends as a gRPC stream does: with
-        // trailers saying OK.
-        let mut trailers = http::HeaderMap::new();
-        trailers.insert("grpc-status", http::HeaderValue::from_static("0"));
-        let end = tokio_stream::once(Ok(Frame::trailers(trailers)));
-        Ok(Body::new(StreamBody::new(frames.chain(end))))
+            sending: None,
+            ended: false,
+            peer,
+            _slot: slot,
+        }))
     }
 }
 
-/// A stream that ends when a newer stream of its actor replaced it (`replaced` fires).
-struct UntilReplaced<S> {
-    inner: Pin<Box<S>>,
-    replaced: oneshot::Receiver<()>,
+/// The version a [`PolicyBody`] is sending: a weak reference to its frame and how far it got.
+struct Sending {
+    version: u64,
+    frame: Weak<Bytes>,
+    sent: usize,
 }
 
-impl<S: tokio_stream::Stream> tokio_stream::Stream for UntilReplaced<S> {
-    type Item = S::Item;
+/// A `WatchPolicy` response body: each new version's frame, copied in [`PIECE`]-byte pieces,
+/// then (when the policies end, i.e. the learner stops) trailers saying OK. It ends when a
+/// newer stream of its actor replaced it (between versions), and fails (the stream is reset)
+/// when the frame it is in the middle of was dropped: superseded longer than the grace.
+struct PolicyBody {
+    streams: Arc<PolicyStreams>,
+    versions: Pin<Box<dyn tokio_stream::Stream<Item = Arc<pb::PolicySnapshot>> + Send>>,
+    replaced: oneshot::Receiver<()>,
+    sending: Option<Sending>,
+    ended: bool,
+    peer: Option<Peer>,
+    _slot: StreamSlot,
+}
 
-    fn poll_next(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<Option<S::Item>> {
-        if Pin::new(&mut self.replaced).poll(cx).is_ready() {
+impl PolicyBody {
+    /// The trailers of a stream that ends well.
+    fn trailers() -> Frame<Bytes> {
+        let mut trailers = http::HeaderMap::new();
+        trailers.insert("grpc-status", http::HeaderValue::from_static("0"));
+        Frame::trailers(trailers)
+    }
+}
+
+impl HttpBody for PolicyBody {
+    type Data = Bytes;
+    type Error = Status;
+
+    fn poll_frame(
+        mut self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+    ) -> Poll<Option<Result<Frame<Bytes>, Status>>> {
+        let this = &mut *self;
+        if this.ended {
             return Poll::Ready(None);
         }
-        self.inner.as_mut().poll_next(cx)
+        loop {
+            if let Some(s) = &mut this.sending {
+                let Some(frame) = s.frame.upgrade() else {
+                    let version = s.version;
+                    this.ended = true;
+                    this.sending = None;
+                    let why = format!(
+                        "its WatchPolicy stream had not sent policy version {version} within \
+                         [service] policy_send_grace_ms ({} ms) of a newer one; the stream ends",
+                        this.streams.grace.as_millis()
+                    );
+                    let shown: &dyn std::fmt::Display = match &this.peer {
+                        Some(p) => p,
+                        None => &"an unknown peer",
+                    };
+                    this.streams
+                        .shared
+                        .connections
+                        .refuse(Cause::PolicyStreamUnfinished, shown, &why);
+                    return Poll::Ready(Some(Err(Status::resource_exhausted(why))));
+                };
+                let end = (s.sent + PIECE).min(frame.len());
+                let piece = Bytes::copy_from_slice(&frame[s.sent..end]);
+                s.sent = end;
+                if end == frame.len() {
+                    this.sending = None;
+                }
+                return Poll::Ready(Some(Ok(Frame::data(piece))));
+            }
+            if Pin::new(&mut this.replaced).poll(cx).is_ready() {
+                this.ended = true;
+                return Poll::Ready(Some(Ok(Self::trailers())));
+            }
+            match this.versions.as_mut().poll_next(cx) {
+                Poll::Ready(Some(p)) => {
+                    this.sending = Some(Sending {
+                        version: p.version,
+                        frame: this.streams.frame(&p),
+                        sent: 0,
+                    });
+                }
+                Poll::Ready(None) => {
+                    this.ended = true;
+                    return Poll::Ready(Some(Ok(Self::trailers())));
+                }
+                Poll::Pending => {
+                    this.streams.prune();
+                    return Poll::Pending;
+                }
+            }
+        }
     }
 }
 
@@ -350,7 +476,7 @@ mod tests {
     fn a_registration_keeps_one_stream_and_an_address_its_share() {
         let f = fixture(td3_config(), 60_000);
         let (_tx, rx) = watch::channel(Arc::new(pb::PolicySnapshot::default()));
-        let streams = PolicyStreams::new(f.shared.clone(), rx, 4, 2, 1);
+        let streams = PolicyStreams::new(f.shared.clone(), rx, 4, 2, 1, Duration::from_secs(10));
         let one: Peer = Peer::Tcp("127.0.0.1:5000".parse().unwrap());
         let two: Peer = Peer::Tcp("127.0.0.2:5000".parse().unwrap());
         // A second stream of actor 7 ends its first (which gives its place back when dropped).

@@ -15,7 +15,7 @@ use crate::config::LearnerOptions;
 use crate::error::{FileError, StartError};
 use crate::run_dir::{write_atomic, ADDR_FILE, OPERATOR_TOKEN_FILE, SOCKET_FILE};
 use crate::shared::Shared;
-use crate::{control, data, listen, policy_streams, wire_status};
+use crate::{budget, control, data, listen, policy_streams, wire_status};
 
 /// HTTP/2 pings every this long on an idle connection; a peer that does not answer within
 /// [`KEEPALIVE_TIMEOUT`] is dropped with its streams (a dead host, a cut network).
@@ -25,6 +25,12 @@ const KEEPALIVE_TIMEOUT: Duration = Duration::from_secs(20);
 /// Concurrent requests one connection may have in flight (an actor needs four: heartbeat,
 /// assignment or report, the step stream and the policy stream); more wait.
 const REQUESTS_PER_CONNECTION: usize = 16;
+/// HTTP/2 flow-control window of each request stream: what a peer may send that the learner
+/// has not read yet (tonic reads as data arrives; what it holds of incomplete messages is
+/// budgeted by [`budget::MessageBudget`]). A step batch (about 190 KB) fits.
+const STREAM_WINDOW: u32 = 256 * 1024;
+/// The same for a whole connection.
+const CONNECTION_WINDOW: u32 = 1024 * 1024;
 
 /// The run-token check ([`proto::auth::ServerAuth`], which counts refusals) that also marks the
 /// request's connection as authenticated, lifting its `[service] auth_deadline_ms`, and logs a
@@ -62,6 +68,8 @@ fn server_builder() -> tonic::transport::Server {
         .tcp_keepalive(Some(KEEPALIVE_INTERVAL))
         .concurrency_limit_per_connection(REQUESTS_PER_CONNECTION)
         .max_concurrent_streams(REQUESTS_PER_CONNECTION as u32)
+        .initial_stream_window_size(STREAM_WINDOW)
+        .initial_connection_window_size(CONNECTION_WINDOW)
 }
 
 /// Binds a Unix socket at `path` (replacing a stale one from an earlier learner of the run),
@@ -144,6 +152,16 @@ impl ControlPlane {
                 .tls_config(tls.server_config()?)
                 .map_err(StartError::Tls)?;
         }
+        // Incomplete request messages are budgeted over both listeners and both services.
+        let budget = Arc::new(budget::MessageBudget::new(
+            budget::BudgetLimits {
+                total: usize::try_from(svc.max_incomplete_bytes).unwrap_or(usize::MAX),
+                per_connection: usize::try_from(svc.max_incomplete_bytes_per_connection)
+                    .unwrap_or(usize::MAX),
+                deadline: Duration::from_millis(u64::from(svc.message_deadline_ms)),
+            },
+            stats.clone(),
+        ));
         let control = tonic::service::interceptor::InterceptedService::new(
             // Oversized requests are refused with RESOURCE_EXHAUSTED, undecodable ones with
             // INVALID_ARGUMENT.
@@ -172,12 +190,18 @@ impl ControlPlane {
                         svc.max_policy_streams,
                         svc.policy_streams_per_ip,
                         svc.policy_streams_per_actor,
+                        Duration::from_millis(u64::from(svc.policy_send_grace_ms)),
                     )),
                 },
                 stats: stats.clone(),
             },
             auth,
         );
+        let control = budget::Budgeted {
+            inner: control,
+            budget: budget.clone(),
+        };
+        let data = budget::Budgeted { inner: data, budget };
         // A budget per listener, so that a flood of one cannot lock the other out, each fitted
         // to the open-file limit so that connections can never take the descriptors a
         // checkpoint needs.

@@ -142,6 +142,19 @@ pub struct ConnectionStatus {
     /// policy_streams_per_actor`.
     #[serde(default)]
     pub policy_streams_replaced: u64,
+    /// `WatchPolicy` streams ended in the middle of a policy version that a newer one had
+    /// superseded `[service] policy_send_grace_ms` before (a reader too slow to take it).
+    #[serde(default)]
+    pub policy_streams_unfinished: u64,
+    /// Requests whose incomplete message was ended (RESOURCE_EXHAUSTED) to keep the bytes of
+    /// incomplete messages under `[service] max_incomplete_bytes` or
+    /// `max_incomplete_bytes_per_connection` (the oldest first).
+    #[serde(default)]
+    pub messages_ended_for_room: u64,
+    /// Requests whose message was not complete within `[service] message_deadline_ms` of its
+    /// first byte (DEADLINE_EXCEEDED).
+    #[serde(default)]
+    pub messages_past_deadline: u64,
     /// Requests on the Unix socket whose `:authority` was rewritten to one the server accepts
     /// (grpc-core clients send the socket's percent-encoded path).
     pub authorities_rewritten: u64,
