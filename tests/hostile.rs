@@ -1942,3 +1942,52 @@ fn unread_policy_streams_opened_at_each_version_pin_no_versions() {
         "RSS peaked at {peak} KiB, {before} KiB at the first reader"
     );
 }
+
+/// Issue 71, item 3: at the global connection cap, token-less peers could hold every place of
+/// a listener (new connections waited until one closed: `auth_deadline_ms` later at best).
+/// Now (scaled down: `max_connections = 32`, the authentication deadline 10 minutes, 48 idle
+/// HTTP/2 peers from 127.0.0.2-4 that reconnect 10 ms after each close, none over the
+/// per-address cap) a connection over the cap closes the listener's oldest connection without
+/// the run token, so a real `adp actor` over TCP gets in, authenticates with its first request
+/// and reports episodes. Counted in `status.json` (`closed_for_room`) and logged with the peer
+/// and the cap.
+#[test]
+fn token_less_peers_at_the_connection_cap_lock_no_honest_actor_out() {
+    let dir = fresh_dir("hostile-global-cap");
+    let (_learner, run, addr, _token) = learner(&dir, "max_connections = 32\nauth_deadline_ms = 600000");
+    let to: std::net::SocketAddr = addr.parse().unwrap();
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let closed = std::sync::Arc::new(std::sync::atomic::AtomicUsize::new(0));
+    for i in 0..48u8 {
+        let (stop, closed) = (stop.clone(), closed.clone());
+        rt.spawn(async move {
+            while !stop.load(std::sync::atomic::Ordering::Relaxed) {
+                let s = tcp_from([127, 0, 0, 2 + i % 3], to).await;
+                raw::idle_peer(s, closed.clone()).await;
+                tokio::time::sleep(Duration::from_millis(10)).await;
+            }
+        });
+    }
+    poll("the peers to hold the listener's places", || {
+        status(&run).is_some_and(|s| s.connections.tcp.open >= 32)
+    });
+    let _actor = ActorProcess(common::spawn_actor(&addr, &run.join("token"), 0, "grpc"));
+    poll("the honest actor's episodes beside the peers at the cap", || {
+        status(&run).is_some_and(|s| honest_episodes(&s) >= 4)
+    });
+    stop.store(true, std::sync::atomic::Ordering::Relaxed);
+    let c = status(&run).unwrap().connections;
+    eprintln!(
+        "{} peer connections closed; {c:?}",
+        closed.load(std::sync::atomic::Ordering::Relaxed)
+    );
+    drop(rt);
+    assert!(c.closed_for_room >= 1 && c.tcp.cap_reached >= 1, "{c:?}");
+    assert_eq!(c.refused_per_address, 0, "{c:?}");
+    let log = std::fs::read_to_string(dir.join("learner.stderr")).unwrap();
+    assert!(
+        log.contains("needed its place ([service] max_connections)") && log.contains("tcp 127.0.0."),
+        "{log}"
+    );
+}

@@ -85,8 +85,10 @@ pub struct ServiceConfig {
     /// TLS for the gRPC server (`cert` and `key`; with `ca`, clients must present certificates).
     pub tls: Option<TlsFiles>,
     /// Most connections served at once by each listener: the TCP one and the Unix socket have
-    /// a budget each, so that a flood of one cannot lock the other out. Further ones wait in
-    /// the kernel's backlog until one closes (logged when reached). The learner also lowers it
+    /// a budget each, so that a flood of one cannot lock the other out. One more closes the
+    /// listener's oldest connection that has not made a request with the run token (counted
+    /// and logged); when every one has, it waits until one closes (logged). The learner also
+    /// lowers it
     /// to what its open-file limit leaves after the files it needs for itself (checkpoints,
     /// status), shared by the two. Default 1024.
     pub max_connections: u32,

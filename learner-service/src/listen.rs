@@ -368,16 +368,15 @@ impl ConnectionLimits {
         }
     }
 
-    /// Evicts the oldest connection served from address `ip` that has not made a request
-    /// with the run token, to make room for `newcomer` at `max_connections_per_ip`: counted and
+    /// Evicts the oldest connection served (from address `ip`, when given) that has not made a
+    /// request with the run token, to make room for `newcomer` at the cap `key`: counted and
     /// logged with both peers. Returns whether one was evicted.
-    fn evict_for(&self, ip: IpAddr, newcomer: &Peer) -> bool {
+    fn evict_for(&self, ip: Option<IpAddr>, newcomer: &Peer, key: &str) -> bool {
         let mut served = self.served.lock().expect("served connections lock");
         served.retain(|c| c.strong_count() > 0);
-        let victim = served
-            .iter()
-            .filter_map(Weak::upgrade)
-            .find(|c| c.evictable() && matches!(c.peer, Peer::Tcp(a) if a.ip().to_canonical() == ip));
+        let victim = served.iter().filter_map(Weak::upgrade).find(|c| {
+            c.evictable() && ip.is_none_or(|ip| matches!(c.peer, Peer::Tcp(a) if a.ip().to_canonical() == ip))
+        });
         let Some(victim) = victim else {
             return false;
         };
@@ -387,7 +386,7 @@ impl ConnectionLimits {
             &victim.peer,
             &format_args!(
                 "it had made no request with the run token and {newcomer} needed its place \
-                 ([service] max_connections_per_ip); closed"
+                 ([service] {key}); closed"
             ),
         );
         true
@@ -575,27 +574,6 @@ pub fn incoming<L: Listener>(
         let mut reported: Option<tokio::time::Instant> = None;
         let mut reached = 0u64;
         loop {
-            let slot = match limits.slots.clone().try_acquire_owned() {
-                Ok(slot) => slot,
-                Err(_) => {
-                    reached += 1;
-                    counters.cap_reached.fetch_add(1, Ordering::Relaxed);
-                    if reported.is_none_or(|t| t.elapsed() >= CAP_REPORT_EVERY) {
-                        tracing::warn!(
-                            listener = label,
-                            max_connections = limits.max,
-                            times = reached,
-                            "connection limit reached; new connections wait until one closes"
-                        );
-                        reported = Some(tokio::time::Instant::now());
-                        reached = 0;
-                    }
-                    match limits.slots.clone().acquire_owned().await {
-                        Ok(slot) => slot,
-                        Err(_) => return,
-                    }
-                }
-            };
             let (io, peer) = loop {
                 match std::future::poll_fn(|cx| listener.poll_accept(cx)).await {
                     Ok(accepted) => {
@@ -615,11 +593,43 @@ pub fn incoming<L: Listener>(
                 }
             };
             counters.accepted.fetch_add(1, Ordering::Relaxed);
+            // At the cap, the oldest connection without the run token makes room (token-less
+            // peers never hold places an actor needs); when every one has the token, the new
+            // connection waits until one closes.
+            let slot = match limits.slots.clone().try_acquire_owned() {
+                Ok(slot) => slot,
+                Err(_) => {
+                    reached += 1;
+                    counters.cap_reached.fetch_add(1, Ordering::Relaxed);
+                    if !limits.evict_for(None, &peer, "max_connections")
+                        && reported.is_none_or(|t| t.elapsed() >= CAP_REPORT_EVERY)
+                    {
+                        tracing::warn!(
+                            listener = label,
+                            max_connections = limits.max,
+                            times = reached,
+                            "connection limit reached and every connection has made a request \
+                             with the run token; new connections wait until one closes"
+                        );
+                        reported = Some(tokio::time::Instant::now());
+                        reached = 0;
+                    }
+                    match limits.slots.clone().acquire_owned().await {
+                        Ok(slot) => slot,
+                        Err(_) => return,
+                    }
+                }
+            };
             let address = match limits.take_address(peer, false) {
                 Ok(address) => address,
-                Err(_) if peer_ip(&peer).is_some_and(|ip| limits.evict_for(ip, &peer)) => limits
-                    .take_address(peer, true)
-                    .expect("a forced place is always given"),
+                Err(_)
+                    if peer_ip(&peer)
+                        .is_some_and(|ip| limits.evict_for(Some(ip), &peer, "max_connections_per_ip")) =>
+                {
+                    limits
+                        .take_address(peer, true)
+                        .expect("a forced place is always given")
+                }
                 Err(open) => {
                     // Closed at once (dropped); its place goes to the next connection.
                     stats.refuse(
