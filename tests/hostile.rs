@@ -196,7 +196,7 @@ fn unread_policy_streams_share_one_policy_copy() {
     // number.
     let (learner, _run, addr, token) = learner(
         &dir,
-        "policy_streams_per_ip = 1024\nmax_connections_per_ip = 1024",
+        "policy_streams_per_ip = 1024\nmax_connections_per_ip = 1024\nregistrations_per_ip = 1024",
     );
     let pid = learner.0.id();
     let rt = tokio::runtime::Runtime::new().unwrap();
@@ -271,7 +271,10 @@ fn register_ranks(addr: &str, token: &str, n: u32) {
 #[test]
 fn ten_thousand_distinct_ranks_leave_a_small_status() {
     let dir = fresh_dir("hostile-ranks");
-    let (_learner, run, addr, token) = learner(&dir, "rank_forget_ms = 2000\ndead_ranks_kept = 64");
+    let (_learner, run, addr, token) = learner(
+        &dir,
+        "rank_forget_ms = 2000\ndead_ranks_kept = 64\nregistrations_per_ip = 100000",
+    );
     register_ranks(&addr, &token, 10_000);
     poll("a small status.json", || {
         let size = std::fs::metadata(run.join("status.json")).map_or(u64::MAX, |m| m.len());
@@ -991,7 +994,10 @@ fn registering_a_live_rank_again_leaves_its_actor_and_lease_alone() {
 #[test]
 fn four_thousand_live_ranks_leave_a_small_status() {
     let dir = fresh_dir("hostile-live-ranks");
-    let (_learner, run, addr, token) = learner(&dir, "heartbeat_ms = 1000\nlease_ttl_ms = 600000");
+    let (_learner, run, addr, token) = learner(
+        &dir,
+        "heartbeat_ms = 1000\nlease_ttl_ms = 600000\nregistrations_per_ip = 100000",
+    );
     register_ranks(&addr, &token, 4_000);
     poll("4,000 live ranks in status.json", || {
         status(&run).is_some_and(|s| s.rank_states.live == 4_000)
@@ -1988,6 +1994,65 @@ fn token_less_peers_at_the_connection_cap_lock_no_honest_actor_out() {
     let log = std::fs::read_to_string(dir.join("learner.stderr")).unwrap();
     assert!(
         log.contains("needed its place ([service] max_connections)") && log.contains("tcp 127.0.0."),
+        "{log}"
+    );
+}
+
+/// Issue 71, item 3: one address could register without bound. Now (`registrations_per_ip =
+/// 8`) the ninth live registration from 127.0.0.1 is refused with RESOURCE_EXHAUSTED, counted
+/// in `status.json` and logged with the peer, while 127.0.0.2 registers; once the address's
+/// registrations stop heartbeating (dead after the lease TTL) it registers again.
+#[test]
+fn registrations_per_source_address_are_capped() {
+    let dir = fresh_dir("hostile-registrations");
+    let (_learner, run, addr, token) = learner(&dir, "registrations_per_ip = 8");
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    let register_from = |from: [u8; 4], rank: u32| {
+        let (addr, token) = (addr.clone(), token.clone());
+        rt.block_on(async move {
+            let channel = tonic::transport::Endpoint::from_shared(format!("http://{addr}"))
+                .unwrap()
+                .local_address(Some(from.into()))
+                .connect()
+                .await
+                .unwrap();
+            let mut control = pb::control_client::ControlClient::with_interceptor(
+                channel,
+                proto::auth::ClientAuth::new(Some(&token)),
+            );
+            control
+                .register(pb::RegisterRequest {
+                    rank,
+                    host: "test".into(),
+                    pid: 1,
+                    ..Default::default()
+                })
+                .await
+        })
+    };
+    for rank in 0..8 {
+        register_from([127, 0, 0, 1], rank).unwrap();
+    }
+    let refused = register_from([127, 0, 0, 1], 8).unwrap_err();
+    assert_eq!(refused.code(), tonic::Code::ResourceExhausted, "{refused}");
+    assert!(refused.message().contains("registrations_per_ip"), "{refused}");
+    register_from([127, 0, 0, 2], 9).unwrap();
+    // The eight stop heartbeating: dead after the lease TTL (1 s), they no longer count.
+    let mut again = register_from([127, 0, 0, 1], 10);
+    for _ in 0..PATIENCE {
+        if again.is_ok() {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(100));
+        again = register_from([127, 0, 0, 1], 10);
+    }
+    again.expect("watchdog: 127.0.0.1 never registered again");
+    poll("the refusal in status.json", || {
+        status(&run).is_some_and(|s| s.connections.registrations_refused_per_address >= 1)
+    });
+    let log = std::fs::read_to_string(dir.join("learner.stderr")).unwrap();
+    assert!(
+        log.contains("registrations_per_ip") && log.contains("tcp 127.0.0.1:"),
         "{log}"
     );
 }

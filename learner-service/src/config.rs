@@ -118,6 +118,13 @@ pub struct ServiceConfig {
     /// `max_policy_streams`. Like `max_connections_per_ip`, raise it for a host that runs more
     /// actors than this over TCP. Default 256.
     pub policy_streams_per_ip: u32,
+    /// Most live registrations (actors heartbeating within the lease TTL) made from one TCP
+    /// source address; one more `Register` is refused with RESOURCE_EXHAUSTED (counted and
+    /// logged), so one host cannot fill the registry. A registration that proves to replace
+    /// one of the address's (`previous_actor_id` with its secret) does not count twice. Like
+    /// `max_connections_per_ip`, raise it for a host that runs more actors than this over TCP.
+    /// Default 256.
+    pub registrations_per_ip: u32,
     /// A policy version still being sent on a `WatchPolicy` stream is kept this long (ms) after
     /// a newer one is published (at most two superseded versions are kept); a stream that has
     /// not sent it by then ends (the actor opens a new one and gets the newest). Streams send
@@ -230,6 +237,7 @@ impl ServiceConfig {
             ("auth_deadline_ms", self.auth_deadline_ms),
             ("policy_streams_per_ip", self.policy_streams_per_ip),
             ("policy_send_grace_ms", self.policy_send_grace_ms),
+            ("registrations_per_ip", self.registrations_per_ip),
             ("message_deadline_ms", self.message_deadline_ms),
         ] {
             if value == 0 {
@@ -295,6 +303,7 @@ impl Default for ServiceConfig {
             max_policy_streams: 1024,
             policy_streams_per_actor: 1,
             policy_streams_per_ip: 256,
+            registrations_per_ip: 256,
             policy_send_grace_ms: 10_000,
             max_incomplete_bytes: 64 << 20,
             max_incomplete_bytes_per_connection: 4 << 20,

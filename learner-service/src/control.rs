@@ -8,7 +8,7 @@ use proto::validate::Refusal;
 use scheduler::{Decision, RegistryError};
 use tonic::{Request, Response, Status};
 
-use crate::listen::peer_name;
+use crate::listen::{peer_name, Cause, Peer, PeerInfo};
 use crate::shared::Shared;
 use crate::state::Core;
 
@@ -95,6 +95,10 @@ impl Control for ControlService {
         request: Request<pb::RegisterRequest>,
     ) -> Result<Response<pb::RegisterReply>, Status> {
         let peer = peer_name(request.extensions());
+        let address = match PeerInfo::of(request.extensions()).map(PeerInfo::peer) {
+            Some(Peer::Tcp(addr)) => Some(addr.ip().to_canonical()),
+            _ => None,
+        };
         let r = request.into_inner();
         if !r.run_id.is_empty() && r.run_id != self.shared.validator.run_id {
             let why = Refusal::WrongRun {
@@ -119,10 +123,40 @@ impl Control for ControlService {
         let (actor_id, replaced, kept) = {
             let mut core = self.shared.lock();
             let replaced = Self::replaced(&core, &r);
+            if let Some(ip) = address {
+                let mut by_address = self
+                    .shared
+                    .registrations_by_address
+                    .lock()
+                    .expect("registrations per address");
+                let ids = by_address.entry(ip).or_default();
+                ids.retain(|&id| Some(id) != replaced && core.registry.is_live(id));
+                if ids.len() >= self.shared.registrations_per_address {
+                    let why = format!(
+                        "{ip} already has {} live registrations ([service] registrations_per_ip)",
+                        ids.len()
+                    );
+                    self.shared.connections.refuse(
+                        Cause::RegistrationsPerAddress,
+                        &peer,
+                        &format_args!("Register refused: {why}"),
+                    );
+                    return Err(Status::resource_exhausted(why));
+                }
+            }
             let id = core
                 .registry
                 .register(r.rank, r.host.clone(), r.pid, now, replaced);
             core.registered(id, r.rank, kind, secret);
+            if let Some(ip) = address {
+                self.shared
+                    .registrations_by_address
+                    .lock()
+                    .expect("registrations per address")
+                    .entry(ip)
+                    .or_default()
+                    .push(id);
+            }
             // The rank's live registrations this request could not prove to be: they keep their
             // leases, and the new registration works beside them.
             let kept: Vec<(u64, u64)> = core

@@ -377,6 +377,7 @@ fn shared_state(
     );
     shared.rank_forget_ms = opts.service.rank_forget_ms;
     shared.dead_ranks_kept = opts.service.dead_ranks_kept as usize;
+    shared.registrations_per_address = opts.service.registrations_per_ip as usize;
     shared.max_episode_steps = opts.env.max_agent_steps;
     // Refusal counters continue across a resume like every other counter.
     let restored = std::mem::take(&mut shared.core.get_mut().expect("core lock").totals.refusals);

@@ -192,6 +192,7 @@ pub struct ConnectionStats {
     policy_streams_refused_per_address: AtomicU64,
     policy_streams_replaced: AtomicU64,
     policy_streams_unfinished: AtomicU64,
+    registrations_refused_per_address: AtomicU64,
     messages_ended_for_room: AtomicU64,
     messages_past_deadline: AtomicU64,
     authorities_rewritten: Arc<AtomicU64>,
@@ -214,6 +215,7 @@ impl Default for ConnectionStats {
             policy_streams_refused_per_address: AtomicU64::new(0),
             policy_streams_replaced: AtomicU64::new(0),
             policy_streams_unfinished: AtomicU64::new(0),
+            registrations_refused_per_address: AtomicU64::new(0),
             messages_ended_for_room: AtomicU64::new(0),
             messages_past_deadline: AtomicU64::new(0),
             authorities_rewritten: Arc::new(AtomicU64::new(0)),
@@ -247,6 +249,8 @@ pub enum Cause {
     /// A `WatchPolicy` stream that had not sent its version when `[service]
     /// policy_send_grace_ms` had passed since a newer one was published.
     PolicyStreamUnfinished,
+    /// A `Register` over `[service] registrations_per_ip`.
+    RegistrationsPerAddress,
     /// An incomplete request message ended to keep `[service] max_incomplete_bytes` or
     /// `max_incomplete_bytes_per_connection`.
     MessageEnded,
@@ -274,6 +278,7 @@ impl ConnectionStats {
             Cause::PolicyStreamsPerAddress => &self.policy_streams_refused_per_address,
             Cause::PolicyStreamReplaced => &self.policy_streams_replaced,
             Cause::PolicyStreamUnfinished => &self.policy_streams_unfinished,
+            Cause::RegistrationsPerAddress => &self.registrations_refused_per_address,
             Cause::MessageEnded => &self.messages_ended_for_room,
             Cause::MessageDeadline => &self.messages_past_deadline,
         }
@@ -313,6 +318,7 @@ impl ConnectionStats {
             policy_streams_refused_per_address: load(&self.policy_streams_refused_per_address),
             policy_streams_replaced: load(&self.policy_streams_replaced),
             policy_streams_unfinished: load(&self.policy_streams_unfinished),
+            registrations_refused_per_address: load(&self.registrations_refused_per_address),
             messages_ended_for_room: load(&self.messages_ended_for_room),
             messages_past_deadline: load(&self.messages_past_deadline),
             authorities_rewritten: load(&self.authorities_rewritten),

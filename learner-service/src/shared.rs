@@ -7,7 +7,8 @@
 //! condition variable [`Shared::wake`] is notified after every insert, update, cycle change and
 //! stop request.
 
-use std::collections::VecDeque;
+use std::collections::{HashMap, VecDeque};
+use std::net::IpAddr;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Condvar, Mutex, MutexGuard};
 use std::time::Instant;
@@ -70,6 +71,11 @@ pub struct Shared {
     /// Registrations that found their rank held by a live registration whose secret they did
     /// not carry (shown in `status.json`).
     pub registrations_beside_live: AtomicU64,
+    /// `[service] registrations_per_ip`.
+    pub registrations_per_address: usize,
+    /// The registrations made from each TCP source address (pruned to the live ones when the
+    /// address registers again).
+    pub registrations_by_address: Mutex<HashMap<IpAddr, Vec<u64>>>,
 }
 
 /// What the training thread measured since its last status (see [`Shared::status`]).
@@ -116,6 +122,8 @@ impl Shared {
             log_budget: Mutex::new(50),
             connections: Arc::new(ConnectionStats::default()),
             registrations_beside_live: AtomicU64::new(0),
+            registrations_per_address: usize::MAX,
+            registrations_by_address: Mutex::new(HashMap::new()),
         }
     }
 

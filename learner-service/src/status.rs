@@ -146,6 +146,10 @@ pub struct ConnectionStatus {
     /// superseded `[service] policy_send_grace_ms` before (a reader too slow to take it).
     #[serde(default)]
     pub policy_streams_unfinished: u64,
+    /// `Register` calls refused because their TCP source address had `[service]
+    /// registrations_per_ip` live registrations.
+    #[serde(default)]
+    pub registrations_refused_per_address: u64,
     /// Requests whose incomplete message was ended (RESOURCE_EXHAUSTED) to keep the bytes of
     /// incomplete messages under `[service] max_incomplete_bytes` or
     /// `max_incomplete_bytes_per_connection` (the oldest first).

@@ -502,6 +502,13 @@ impl Registry {
         })
     }
 
+    /// Whether `actor` is a live registration (heartbeating within the TTL, not retired).
+    pub fn is_live(&self, actor: ActorId) -> bool {
+        self.actors
+            .get(&actor)
+            .is_some_and(|record| record.liveness == Liveness::Live)
+    }
+
     /// The ids retired since the last call (their rank registered again, or they died beside a
     /// newer registration of their rank), for the caller to drop what it keeps per actor.
     pub fn drain_retired(&mut self) -> Vec<ActorId> {
