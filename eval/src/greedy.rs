@@ -78,6 +78,10 @@ pub struct GreedyResult {
     /// The chosen schedules, per physical parameter (empty in a record without them).
     #[serde(default)]
     pub schedule: Vec<ParamStats>,
+    /// The mean score per world, in the order of `[greedy] worlds` (empty in a record
+    /// without them).
+    #[serde(default)]
+    pub world_scores: Vec<f64>,
 }
 
 /// One agent step of an evaluation: the scene's clutter and the chosen physical parameters.
@@ -164,8 +168,9 @@ struct Setup {
     seed: u64,
 }
 
-/// Success %, mean score, and the per-step (clutter, params) records of the policy.
-type Outcome = (f64, f64, Vec<StepRecord>);
+/// Success %, mean score, the mean score per world (in the worlds' order), and the per-step
+/// (clutter, params) records of the policy.
+type Outcome = (f64, f64, Vec<f64>, Vec<StepRecord>);
 
 impl Setup {
     /// World `w` for either side of the comparison. A world that cannot be loaded fails the
@@ -190,7 +195,8 @@ impl Setup {
         let env = self.env.for_evaluation();
         let (mut wins, mut score, mut n) = (0usize, 0.0, 0usize);
         let mut records = Vec::new();
-        for (w, seed) in self.seeds() {
+        let mut world_scores = vec![0.0; self.worlds.len()];
+        for (i, (w, seed)) in self.seeds().enumerate() {
             let world = Self::world(w)?;
             let run = eval_run(&self.eval, &world, self.planner, self.max_speed, seed);
             let chooser = Chooser::Env {
@@ -209,11 +215,13 @@ impl Setup {
             .episode;
             wins += usize::from(r.status == Status::Succeeded);
             score += r.score;
+            world_scores[i / self.runs] += r.score / self.runs as f64;
             n += 1;
         }
         Ok((
             100.0 * wins as f64 / n.max(1) as f64,
             score / n.max(1) as f64,
+            world_scores,
             records,
         ))
     }
@@ -294,7 +302,7 @@ impl Selector {
             worlds: worlds.to_vec(),
             runs: section.runs,
             dims: Vec::new(),
-            selection: Selection::default(),
+            selection: Selection::gated(section.select_confidence),
             best_weights: None,
         };
         let mut me = Self {
@@ -333,6 +341,8 @@ impl Selector {
             me.start = Some(read_weights(&start, count)?);
         }
         me.state = state;
+        // The gate is the configuration's, also for a run resumed with another one.
+        me.state.selection.confidence = section.select_confidence;
         Ok(me)
     }
 
@@ -385,6 +395,7 @@ impl Selector {
             updates: taken.updates,
             score: r.score,
             success: r.success,
+            world_scores: r.world_scores.clone(),
         };
         let old = self.state.best_weights.clone();
         // Taken over only once its weights are on disk.
@@ -603,7 +614,7 @@ impl GreedyMonitor {
                 Some(d) => d,
                 None => setup.ddp()?,
             };
-            let (success, score, records) = setup.policy(&net)?;
+            let (success, score, world_scores, records) = setup.policy(&net)?;
             let names: Vec<&str> = setup.space.ranges().iter().map(|r| r.0).collect();
             let clutter_mean = records.iter().map(|r| r.0).sum::<f64>() / records.len().max(1) as f64;
             Ok((
@@ -616,6 +627,7 @@ impl GreedyMonitor {
                     ddp_score: ddp.1,
                     clutter_mean,
                     schedule: schedule_stats(&records, &names),
+                    world_scores,
                 },
                 ddp,
             ))
@@ -767,6 +779,7 @@ mod tests {
             ddp_score: 0.5,
             clutter_mean: 0.0,
             schedule: s,
+            world_scores: vec![0.25, 0.5],
         };
         let line = serde_json::to_string(&r).unwrap();
         assert!(line.contains("\"cluttered\":null"), "{line}");
@@ -815,6 +828,7 @@ mod tests {
             worlds: "1".into(),
             runs: 1,
             select: false,
+            select_confidence: 0.0,
         };
         let env = EnvConfig::default();
         let mut m = GreedyMonitor::new(
@@ -871,6 +885,7 @@ mod tests {
             worlds: "156".into(),
             runs: 1,
             select: true,
+            select_confidence: 0.0,
         };
         let monitor = |section: &GreedySection, at: u64| {
             GreedyMonitor::new(

@@ -28,6 +28,18 @@ pub struct GreedySection {
     /// an experiment's training recipe) only when true.
     #[serde(skip_serializing_if = "std::ops::Not::not")]
     pub select: bool,
+    /// The selection's gate (default 0: none). With a confidence in (0, 1), e.g. 0.95, a
+    /// later policy is exported only when, besides the best mean score, the lower bound of its
+    /// paired gain over the start (per world, a one-sided percentile bootstrap over the
+    /// `worlds`) is above zero at this confidence: a policy that beats its start only by the
+    /// worlds' noise is not shipped. Needs `select`. Written to a configuration only when set.
+    #[serde(skip_serializing_if = "is_zero")]
+    pub select_confidence: f64,
+}
+
+/// Whether `x` is zero (serde's `skip_serializing_if`).
+fn is_zero(x: &f64) -> bool {
+    *x == 0.0
 }
 
 impl Default for GreedySection {
@@ -37,6 +49,7 @@ impl Default for GreedySection {
             worlds: "val".into(),
             runs: 1,
             select: false,
+            select_confidence: 0.0,
         }
     }
 }
@@ -47,7 +60,18 @@ impl GreedySection {
     /// with a test split (`sim::splits::held_out_worlds`: the test worlds decide nothing but
     /// the reported numbers). Without `select`, nothing is checked here.
     pub fn check_selection(&self) -> Result<()> {
+        if !(0.0..1.0).contains(&self.select_confidence) {
+            return Err(Error::Refused(format!(
+                "[greedy] select_confidence = {}: a confidence in [0, 1) (0 = no gate)",
+                self.select_confidence
+            )));
+        }
         if !self.select {
+            if self.select_confidence > 0.0 {
+                return Err(Error::Refused(
+                    "[greedy] select_confidence is the selection's gate: it needs select = true".into(),
+                ));
+            }
             return Ok(());
         }
         if self.every_steps == 0 {
@@ -81,6 +105,25 @@ mod tests {
             select: true,
             ..GreedySection::default()
         }
+    }
+
+    /// The gate is refused without selection and outside [0, 1), accepted inside it.
+    #[test]
+    fn a_gate_needs_selection_and_a_confidence_below_one() {
+        let gate = |select: bool, c: f64| GreedySection {
+            worlds: "train".into(),
+            select,
+            select_confidence: c,
+            ..GreedySection::default()
+        };
+        let e = gate(false, 0.95).check_selection().unwrap_err().to_string();
+        assert!(e.contains("needs select = true"), "{e}");
+        for c in [1.0, -0.1, f64::NAN] {
+            let e = gate(true, c).check_selection().unwrap_err().to_string();
+            assert!(e.contains("select_confidence"), "{c}: {e}");
+        }
+        gate(true, 0.95).check_selection().unwrap();
+        gate(false, 0.0).check_selection().unwrap();
     }
 
     /// Selection on worlds that meet the test split is refused, naming the world; on `val`

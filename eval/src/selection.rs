@@ -3,7 +3,10 @@
 //! best mean score on the greedy worlds instead of its last policy.
 //!
 //! [`Selection`] is the pure choice: the best mean score wins, and on a tie the earliest
-//! agent step, so a run whose policy never beats its start exports its start. The
+//! agent step, so a run whose policy never beats its start exports its start. With a gate
+//! (`[greedy] select_confidence`), a later policy must also beat the start on the greedy
+//! worlds by more than their noise: the lower bound of its paired gain over the start (a
+//! percentile bootstrap over the worlds, [`gain_lower_bound`]) must be above zero. The
 //! [`GreedyMonitor`](crate::greedy::GreedyMonitor) keeps one and persists it in the run
 //! directory's [`SELECTION_DIR`] (its candidates in [`STATE_FILE`], the best policy's weights
 //! and the start's as little-endian `f32` files), so a resumed run still knows its best
@@ -41,6 +44,10 @@ pub struct Candidate {
     pub score: f64,
     /// Success rate there (%).
     pub success: f64,
+    /// Its mean score per greedy world, in the worlds' order (what the gate pairs with the
+    /// start's; empty in a state written before they were kept).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub world_scores: Vec<f64>,
 }
 
 /// The candidates of a run and the index of the best: pure bookkeeping.
@@ -50,17 +57,63 @@ pub struct Selection {
     pub candidates: Vec<Candidate>,
     /// Index of the best in `candidates` (`None` before the first).
     pub best: Option<usize>,
+    /// The gate's confidence in (0, 1) (0: no gate, the best mean wins).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub confidence: f64,
+}
+
+/// Whether `x` is zero (serde's `skip_serializing_if`).
+fn is_zero(x: &f64) -> bool {
+    *x == 0.0
+}
+
+/// Bootstrap resamples of [`gain_lower_bound`].
+const RESAMPLES: usize = 10_000;
+
+/// The lower end of the `confidence` percentile-bootstrap interval (one-sided) of the mean of
+/// `gains` (one paired gain per world), resampling the worlds with a fixed seed, so the same
+/// gains always give the same bound. `-inf` for no gains. Pure.
+pub fn gain_lower_bound(gains: &[f64], confidence: f64) -> f64 {
+    let n = gains.len();
+    if n == 0 {
+        return f64::NEG_INFINITY;
+    }
+    // splitmix64: a small seeded stream, enough to draw world indices.
+    let mut state: u64 = 0x5e1e_c710_0000_0001;
+    let mut next = move || {
+        state = state.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        let mut z = state;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        z ^ (z >> 31)
+    };
+    let mut means: Vec<f64> = (0..RESAMPLES)
+        .map(|_| (0..n).map(|_| gains[(next() % n as u64) as usize]).sum::<f64>() / n as f64)
+        .collect();
+    means.sort_by(f64::total_cmp);
+    let k = (((1.0 - confidence) * RESAMPLES as f64).floor() as usize).min(RESAMPLES - 1);
+    means[k]
 }
 
 impl Selection {
+    /// A selection whose later policies must clear the gate at `confidence` (0: none).
+    pub fn gated(confidence: f64) -> Self {
+        Self {
+            confidence,
+            ..Self::default()
+        }
+    }
+
     /// Adds `c` and returns whether it is the new best: a higher mean score than the best
     /// so far, or an equal one at an earlier agent step (the earliest wins ties, whatever
-    /// order the candidates come in).
+    /// order the candidates come in). With a gate, a candidate after the start must also
+    /// clear it ([`Selection::clears_gate`]).
     pub fn offer(&mut self, c: Candidate) -> bool {
-        let better = match self.best() {
-            None => true,
-            Some(b) => c.score > b.score || (c.score == b.score && c.agent_steps < b.agent_steps),
-        };
+        let better = self.clears_gate(&c)
+            && match self.best() {
+                None => true,
+                Some(b) => c.score > b.score || (c.score == b.score && c.agent_steps < b.agent_steps),
+            };
         self.candidates.push(c);
         if better {
             self.best = Some(self.candidates.len() - 1);
@@ -71,6 +124,26 @@ impl Selection {
     /// The best candidate so far.
     pub fn best(&self) -> Option<&Candidate> {
         self.best.map(|i| &self.candidates[i])
+    }
+
+    /// Whether `c` may be exported: always without a gate and for the start; with one, only
+    /// when the start was evaluated on the same worlds first and the lower bound of `c`'s
+    /// paired gain over it is above zero. A candidate offered before the start (a resumed
+    /// run's) never clears it: its weights are not kept for a later verdict.
+    pub fn clears_gate(&self, c: &Candidate) -> bool {
+        if self.confidence <= 0.0 || c.agent_steps == 0 {
+            return true;
+        }
+        let Some(start) = self.start() else {
+            return false;
+        };
+        if start.world_scores.len() != c.world_scores.len() || c.world_scores.is_empty() {
+            return false;
+        }
+        let gains: Vec<f64> = (c.world_scores.iter().zip(&start.world_scores))
+            .map(|(a, b)| a - b)
+            .collect();
+        gain_lower_bound(&gains, self.confidence) > 0.0
     }
 
     /// The start policy's candidate (agent step 0), once evaluated.
@@ -98,6 +171,7 @@ impl Selection {
             start_score: self.start().map(|c| c.score),
             last_step: last.agent_steps,
             last_score: last.score,
+            confidence: self.confidence,
             candidates: self
                 .candidates
                 .iter()
@@ -139,6 +213,9 @@ pub struct SelectionReport {
     pub last_step: u64,
     /// The last policy's mean score.
     pub last_score: f64,
+    /// The gate's confidence (`[greedy] select_confidence`; absent: no gate).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub confidence: f64,
     /// Every candidate, in the order evaluated.
     pub candidates: Vec<CandidateScore>,
 }
@@ -147,8 +224,17 @@ pub struct SelectionReport {
 pub fn describe(r: &SelectionReport) -> String {
     let against = match r.start_score {
         Some(s) if r.exported_step == 0 => format!(
-            "the start itself: no later policy beat its {s:.4} (last policy, step {}: {:.4})",
-            r.last_step, r.last_score
+            "the start itself: no later policy beat its {s:.4}{} (last policy, step {}: {:.4})",
+            if r.confidence > 0.0 {
+                format!(
+                    " with a paired lower bound above zero at {:.0} %",
+                    100.0 * r.confidence
+                )
+            } else {
+                String::new()
+            },
+            r.last_step,
+            r.last_score
         ),
         Some(s) => format!(
             "{:+.4} over the start's {s:.4} (last policy, step {}: {:.4})",
@@ -272,9 +358,78 @@ mod tests {
                 updates: step,
                 score,
                 success: 100.0 * score,
+                world_scores: Vec::new(),
             });
         }
         s
+    }
+
+    fn candidate(step: u64, world_scores: Vec<f64>) -> Candidate {
+        Candidate {
+            agent_steps: step,
+            policy_version: step / 100,
+            updates: step,
+            score: world_scores.iter().sum::<f64>() / world_scores.len() as f64,
+            success: 100.0,
+            world_scores,
+        }
+    }
+
+    /// With the gate, a later policy whose higher mean is within the worlds' noise keeps the
+    /// start exported; one that beats the start on nearly every world is exported; without
+    /// it the higher mean wins whatever its noise.
+    #[test]
+    fn the_gate_exports_only_gains_above_the_noise() {
+        let start: Vec<f64> = (0..15).map(|w| 0.40 + 0.01 * (w % 5) as f64).collect();
+        // +0.01 on average: +0.15 on one world, -0.01 or 0 on the others.
+        let noisy: Vec<f64> = (start.iter().enumerate())
+            .map(|(w, s)| {
+                s + if w == 0 {
+                    0.15
+                } else if w % 2 == 0 {
+                    -0.01
+                } else {
+                    0.0
+                }
+            })
+            .collect();
+        // +0.02 on every world but one.
+        let steady: Vec<f64> = (start.iter().enumerate())
+            .map(|(w, s)| s + if w == 3 { -0.005 } else { 0.02 })
+            .collect();
+        let mut gated = Selection::gated(0.95);
+        assert!(gated.offer(candidate(0, start.clone())));
+        assert!(!gated.offer(candidate(20_000, noisy.clone())));
+        assert_eq!(gated.best().unwrap().agent_steps, 0);
+        let r = gated.report("train", 10).unwrap();
+        assert!(
+            describe(&r).contains("paired lower bound above zero at 95 %"),
+            "{}",
+            describe(&r)
+        );
+        assert!(gated.offer(candidate(40_000, steady)));
+        assert_eq!(gated.best().unwrap().agent_steps, 40_000);
+        let mut plain = Selection::default();
+        plain.offer(candidate(0, start));
+        assert!(plain.offer(candidate(20_000, noisy)));
+        // Before its start was evaluated (a resumed run), no later policy clears the gate.
+        let mut early = Selection::gated(0.95);
+        assert!(!early.offer(candidate(20_000, vec![0.9; 15])));
+        assert!(early.best().is_none());
+    }
+
+    /// The bound is a percentile of resampled means: below the mean, above zero only for
+    /// gains that are steadily positive, and the same on every call.
+    #[test]
+    fn the_gain_bound_is_a_seeded_percentile() {
+        let steady = [0.02; 10];
+        assert!((gain_lower_bound(&steady, 0.95) - 0.02).abs() < 1e-12);
+        let mixed = [0.1, -0.1, 0.05, -0.05, 0.0, 0.02];
+        let b = gain_lower_bound(&mixed, 0.95);
+        assert!(b < 0.0 && b > -0.1, "{b}");
+        assert_eq!(b, gain_lower_bound(&mixed, 0.95));
+        assert!(gain_lower_bound(&mixed, 0.5) > b);
+        assert_eq!(gain_lower_bound(&[], 0.95), f64::NEG_INFINITY);
     }
 
     /// A training whose policy only gets worse on the selection worlds exports its start.
@@ -321,6 +476,7 @@ mod tests {
             updates: 0,
             score: 0.45,
             success: 90.0,
+            world_scores: Vec::new(),
         }));
         assert_eq!(s.best().unwrap().agent_steps, 0);
         assert_eq!(s.last().unwrap().agent_steps, 10000);
