@@ -14,6 +14,9 @@ comments, with the word "superseded" that is not "not superseded"; the guide's c
 quote at the top: "> **Superseded by [the paper's tables](paper.md)** ..., and why the numbers
 differ").
 
+A table whose caption begins "Recipe `NAME`" (the paper's rows of another training recipe,
+"paper" -> "recipes") is checked against that recipe's Table I.
+
 docs/experiments/*/report.md are not checked: `adp experiment` writes each as the record of
 its own protocol, and the guide's results page that presents it carries the note.
 
@@ -48,6 +51,8 @@ HEADING = re.compile(r"^ {0,3}#{1,6}\s+(.*)$")
 PLANNER = re.compile(r"(?<![\w-])(log-mppi|mppi|dwa|system)(?![\w])", re.I)
 SPEED = re.compile(r"(?<![\d.])([0-9]\.[0-9])\s*m/s")
 SUPERSEDED = re.compile(r"(?<!not )\bsuperseded\b", re.I)
+# A table of another training recipe's rows: its caption names the recipe.
+RECIPE = re.compile(r"\s*Recipe `([\w-]+)`")
 NUMBER = re.compile(r"(?<![\w.])([+\-−]?)(\d+(?:\.\d+)?)")
 CELL_PAIR = re.compile(r"^\**\s*(\d{1,3}(?:\.\d+)?)\s*%\s*/\s*(\d\.\d+)")
 DIFF = re.compile(r"(ADP\s*[−–-]\s*(DDP|(?:best\s+)?constant|vanilla)|Δ)", re.I)
@@ -119,8 +124,14 @@ def matches(quoted, current):
 class Paper:
     def __init__(self, path=RESULTS):
         with open(path, encoding="utf-8") as f:
-            table1 = json.load(f)["paper"]["table1"]
-        self.cells = {}
+            paper = json.load(f)["paper"]
+        self.cells = self.read(paper["table1"])
+        self.recipes = {r["name"]: self.read(r["table1"]) for r in paper.get("recipes", [])}
+
+    @staticmethod
+    def read(table1):
+        """(planner, speed) -> {(arm, metric): value} of one Table I."""
+        cells = {}
         for cell in table1:
             values = {}
             for arm in ("vanilla", "ddp", "constant", "adp"):
@@ -133,10 +144,12 @@ class Paper:
                 if isinstance(diff, dict):
                     values[("diff:" + control, "score")] = diff["d_score"]["mean"]
                     values[("diff:" + control, "success")] = 100.0 * diff["d_success"]["mean"]
-            self.cells[(cell["planner"], round(float(cell["speed"]), 1))] = values
+            cells[(cell["planner"], round(float(cell["speed"]), 1))] = values
+        return cells
 
-    def value(self, planner, speed, arm, metric):
-        return self.cells.get((planner, speed), {}).get((arm, metric))
+    def value(self, planner, speed, arm, metric, recipe=None):
+        cells = self.cells if recipe is None else self.recipes.get(recipe, {})
+        return cells.get((planner, speed), {}).get((arm, metric))
 
 
 def strip_code(line):
@@ -163,6 +176,7 @@ class Page:
         self.path = path
         with open(path, encoding="utf-8") as f:
             raw = f.read().split("\n")
+        self.raw = raw  # the lines as written (line number n at n - 1)
         self.lines = []  # (number, text) with code spans blanked; fenced lines are ""
         fence = None
         comment = False
@@ -211,6 +225,17 @@ class Page:
             hi += 1
         return " ".join(t for _, t in self.lines[lo : hi + 1]), lo
 
+    def recipe(self, table_start):
+        """The training recipe a table's caption names ("Recipe `NAME`"), if any."""
+        i = table_start - 1
+        while i >= 0 and not self.lines[i][1].strip():
+            i -= 1
+        if i < 0:
+            return None
+        _, lo = self.paragraph(i)
+        m = RECIPE.match(self.raw[self.lines[lo][0] - 1])
+        return m.group(1) if m else None
+
     def caption(self, table_start):
         """The paragraph just before a table (its caption), if any."""
         i = table_start - 1
@@ -245,7 +270,7 @@ def resolve(levels):
 
 def check_page(path, paper, problems, listing=None):
     page = Page(path)
-    quotes = []  # (line number, planner, speed, arm, metric, quoted text)
+    quotes = []  # (line number, planner, speed, arm, metric, quoted text, recipe or None)
     lines = page.lines
     i = 0
     while i < len(lines):
@@ -261,6 +286,7 @@ def check_page(path, paper, problems, listing=None):
                 i += 1
             h_index, heading = page.heading_before(start)
             context = [page.caption(start), heading, page.title]
+            recipe = page.recipe(start)
             planner_col = next((k for k, h in enumerate(header) if "planner" in h.lower()), None)
             speed_col = next((k for k, h in enumerate(header) if "speed" in h.lower()), None)
             for number, cells in rows:
@@ -301,8 +327,8 @@ def check_page(path, paper, problems, listing=None):
                     pair = CELL_PAIR.match(cell)
                     metric = metric_of(head)
                     if pair and metric is None and not arm.startswith("diff:"):
-                        quotes.append((number, planner, speed, arm, "success", pair.group(1)))
-                        quotes.append((number, planner, speed, arm, "score", pair.group(2)))
+                        quotes.append((number, planner, speed, arm, "success", pair.group(1), recipe))
+                        quotes.append((number, planner, speed, arm, "score", pair.group(2), recipe))
                         continue
                     if metric is None and arm.startswith("diff:"):
                         metric = "success" if "pp" in head.lower() or "success" in head.lower() else "score"
@@ -310,7 +336,7 @@ def check_page(path, paper, problems, listing=None):
                         continue
                     m = NUMBER.search(cell.replace("*", ""))
                     if m:
-                        quotes.append((number, planner, speed, arm, metric, m.group(1) + m.group(2)))
+                        quotes.append((number, planner, speed, arm, metric, m.group(1) + m.group(2), recipe))
             continue
         if text.strip() and not text.lstrip().startswith("|") and not HEADING.match(text):
             for m in PROSE.finditer(text):
@@ -323,12 +349,12 @@ def check_page(path, paper, problems, listing=None):
                 planner, speed = resolve([text, paragraph, section, heading, page.title])
                 if planner is None:
                     continue
-                quotes.append((lines[i][0], planner, speed, arm, "success", m.group(3)))
+                quotes.append((lines[i][0], planner, speed, arm, "success", m.group(3), None))
                 if m.group(4):
-                    quotes.append((lines[i][0], planner, speed, arm, "score", m.group(4)))
+                    quotes.append((lines[i][0], planner, speed, arm, "score", m.group(4), None))
         i += 1
-    for number, planner, speed, arm, metric, quoted in quotes:
-        current = paper.value(planner, speed, arm, metric)
+    for number, planner, speed, arm, metric, quoted, recipe in quotes:
+        current = paper.value(planner, speed, arm, metric, recipe)
         name = {"ddp": "DDP", "adp": "ADP", "constant": "best constant", "vanilla": "vanilla",
                 "diff:ddp": "ADP − DDP", "diff:constant": "ADP − best constant"}[arm]
         if listing is not None:
