@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
-"""Check that README and the user guide quote the paper's arms with the paper's numbers.
+"""Check that README, the user guide and the experiments' reports quote the paper's arms with the
+paper's numbers.
 
-    python3 scripts/check_numbers.py            # README.md and docs/guide (not reference/)
+    python3 scripts/check_numbers.py            # README.md, docs/guide (not reference/), docs/experiments
     python3 scripts/check_numbers.py FILE...    # those markdown files only
     python3 scripts/check_numbers.py --list [FILE...]   # also every quote found, with its verdict
 
@@ -12,13 +13,18 @@ of these for a planner and speed with another value says something the paper no 
 supports, unless the page says visibly that it is superseded (a line, outside code and HTML
 comments, with the word "superseded" that is not "not superseded"; the guide's convention is a
 quote at the top: "> **Superseded by [the paper's tables](paper.md)** ..., and why the numbers
-differ").
+differ"). A page whose rows look like the paper's arms but measure something else (other
+test worlds, an ADP trained with another learner setting) says so the same way: a quote that
+opens with "> **Not the paper's ...**" and names the paper's numbers.
 
 A table whose caption begins "Recipe `NAME`" (the paper's rows of another training recipe,
 "paper" -> "recipes") is checked against that recipe's Table I.
 
-docs/experiments/*/report.md are not checked: `adp experiment` writes each as the record of
-its own protocol, and the guide's results page that presents it carries the note.
+The experiments' reports under docs/experiments are checked too: `adp experiment` writes each
+as the record of its own protocol, and one whose numbers the paper has since replaced carries
+the same kind of note at its top, under its title (the numbers themselves are left as
+measured). In their tables the speed is the bare number that ends a column header ("success
+(%) ↑ 1.5").
 
 What counts as a quote, kept narrow so that the check does not guess:
 
@@ -50,14 +56,25 @@ FENCE = re.compile(r"^ {0,3}(`{3,}|~{3,})")
 HEADING = re.compile(r"^ {0,3}#{1,6}\s+(.*)$")
 PLANNER = re.compile(r"(?<![\w-])(log-mppi|mppi|dwa|system)(?![\w])", re.I)
 SPEED = re.compile(r"(?<![\d.])([0-9]\.[0-9])\s*m/s")
+# An experiment report's column header ends with the speed cap alone: "success (%) ↑ 1.5".
+HEADER_SPEED = re.compile(r"(?<![\d.])([0-9]\.[0-9])\s*$")
 SUPERSEDED = re.compile(r"(?<!not )\bsuperseded\b", re.I)
+# The note of a page whose rows look like the paper's arms but are not (other worlds, another
+# learner setting): a quote that opens with it in bold.
+NOT_PAPERS = re.compile(r"^\s*>\s*\*\*Not the paper's\b")
 # A table of another training recipe's rows: its caption names the recipe.
 RECIPE = re.compile(r"\s*Recipe `([\w-]+)`")
 NUMBER = re.compile(r"(?<![\w.])([+\-−]?)(\d+(?:\.\d+)?)")
 CELL_PAIR = re.compile(r"^\**\s*(\d{1,3}(?:\.\d+)?)\s*%\s*/\s*(\d\.\d+)")
 DIFF = re.compile(r"(ADP\s*[−–-]\s*(DDP|(?:best\s+)?constant|vanilla)|Δ)", re.I)
-# Labels that name an arm but mean another thing: a control derived from it, a single seed.
-NOT_ARM = re.compile(r"shuffled|untrained|initiali[sz]ed|PADP|KFRes|random|\bseeds? \d", re.I)
+# Labels that name an arm but mean another thing: a control derived from it, a single seed, an
+# action space other than the paper's decremental one ("ADP-velocity", "best constant
+# (weights:dwa)").
+NOT_ARM = re.compile(r"shuffled|untrained|initiali[sz]ed|PADP|KFRes|random|\bseeds? \d"
+                     r"|velocity|weights|incremental|unconstrained", re.I)
+# An experiment's arm id as its report names it: planner-space-speed-worlds
+# ("dwa-decremental-1.5-fit"); only the decremental space is the paper's.
+ARM_ID = re.compile(r"(?<![\w-])(log-mppi|mppi|dwa|system)-([\w:+]+)-([0-9]\.[0-9])-\S+")
 # A prose quote: an arm, a few words, then a success in % (and perhaps its score).
 PROSE = re.compile(
     r"(?<![\w−–-])(?<![−–-] )(best constant|vanilla|DDP|ADP)(?:'s)?\b"
@@ -207,7 +224,7 @@ class Page:
                 comment = True
             self.lines.append((number, strip_code(text)))
         self.title = next((HEADING.match(t).group(1) for _, t in self.lines if HEADING.match(t)), "")
-        self.superseded = any(SUPERSEDED.search(t) for _, t in self.lines)
+        self.superseded = any(SUPERSEDED.search(t) or NOT_PAPERS.match(t) for _, t in self.lines)
 
     def heading_before(self, index):
         for i in range(index, -1, -1):
@@ -285,12 +302,23 @@ def check_page(path, paper, problems, listing=None):
                 rows.append((lines[i][0], split_row(lines[i][1])))
                 i += 1
             h_index, heading = page.heading_before(start)
+            arm_id = ARM_ID.search(heading)
+            if arm_id:
+                if arm_id.group(2) != "decremental":
+                    continue  # another action space's comparisons: not the paper's arm
+                heading = "%s %s m/s" % (arm_id.group(1), arm_id.group(3))
             context = [page.caption(start), heading, page.title]
+            # A comparison over fewer worlds than the paper's 225 test worlds (a band, the
+            # hardest 50) is another quantity than the cell's.
+            worlds_col = next((k for k, h in enumerate(header) if h.strip().lower() == "worlds"), None)
             recipe = page.recipe(start)
             planner_col = next((k for k, h in enumerate(header) if "planner" in h.lower()), None)
             speed_col = next((k for k, h in enumerate(header) if "speed" in h.lower()), None)
             for number, cells in rows:
                 label = cells[0] if cells else ""
+                if (worlds_col is not None and worlds_col < len(cells)
+                        and cells[worlds_col].strip() not in ("225", "test")):
+                    continue
                 row_planner = cells[planner_col].lower() if planner_col is not None and planner_col < len(cells) else None
                 row_speed = None
                 if speed_col is not None and speed_col < len(cells):
@@ -320,10 +348,12 @@ def check_page(path, paper, problems, listing=None):
                             continue
                     planner, speed = resolve(
                         [(row_planner or "") + " " + ("%s m/s" % row_speed if row_speed else ""),
-                         label + " " + head] + context)
+                         label + " " + HEADER_SPEED.sub(r"\1 m/s", head)] + context)
                     if planner is None:
                         continue
                     cell = cells[k]
+                    if cell.lstrip("* ").startswith("["):
+                        continue  # an interval alone (a second interval column), not a value
                     pair = CELL_PAIR.match(cell)
                     metric = metric_of(head)
                     if pair and metric is None and not arm.startswith("diff:"):
@@ -383,6 +413,10 @@ def pages():
         dirnames.sort()
         if os.path.relpath(dirpath, guide).split(os.sep)[0] == "reference":
             continue  # generated from the code: no results
+        out.extend(os.path.join(dirpath, n) for n in sorted(filenames) if n.endswith(".md"))
+    experiments = os.path.join(ROOT, "docs", "experiments")
+    for dirpath, dirnames, filenames in os.walk(experiments):
+        dirnames.sort()
         out.extend(os.path.join(dirpath, n) for n in sorted(filenames) if n.endswith(".md"))
     return out
 
