@@ -18,6 +18,7 @@ use adp_runtime::{sim_robot, CycleInput, CycleOutput as Output, Navigator as Inn
 use pyo3::create_exception;
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
+use pyo3::types::PyDict;
 use sim::episode::{Episode, Status};
 use sim::geometry::{Pose, Vec2};
 use sim::robot::Twist;
@@ -155,6 +156,40 @@ impl Navigator {
         lock(&self.0).planner().name()
     }
 
+    /// The episode rules and the robot this navigator was configured for, as a dict, so a
+    /// simulator outside the project runs episodes by the same rules: `physics_dt`,
+    /// `control_dt`, `timeout_s` (on the run clock), `clock_start_distance` (m of motion
+    /// before the run clock starts), `lidar` (a dict: `beams`, `fov_deg`, `min_range`,
+    /// `max_range`, `noise_sigma`, `noise_fraction`, `dropout`), `footprint` (`half_length`,
+    /// `half_width`, m) and the robot's `max_v`, `max_reverse_v`, `max_w`.
+    #[getter]
+    fn episode<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let cfg = *lock(&self.0).episode();
+        let d = PyDict::new(py);
+        d.set_item("physics_dt", cfg.physics_dt)?;
+        d.set_item("control_dt", cfg.control_dt)?;
+        d.set_item("timeout_s", cfg.timeout_s)?;
+        d.set_item("clock_start_distance", cfg.clock_start_distance)?;
+        let l = cfg.lidar;
+        let lidar = PyDict::new(py);
+        lidar.set_item("beams", l.beams)?;
+        lidar.set_item("fov_deg", l.fov_deg)?;
+        lidar.set_item("min_range", l.min_range)?;
+        lidar.set_item("max_range", l.max_range)?;
+        lidar.set_item("noise_sigma", l.noise_sigma)?;
+        lidar.set_item("noise_fraction", l.noise_fraction)?;
+        lidar.set_item("dropout", l.dropout)?;
+        d.set_item("lidar", lidar)?;
+        let fp = PyDict::new(py);
+        fp.set_item("half_length", cfg.robot.footprint.half_length)?;
+        fp.set_item("half_width", cfg.robot.footprint.half_width)?;
+        d.set_item("footprint", fp)?;
+        d.set_item("max_v", cfg.robot.max_v)?;
+        d.set_item("max_reverse_v", cfg.robot.max_reverse_v)?;
+        d.set_item("max_w", cfg.robot.max_w)?;
+        Ok(d)
+    }
+
     /// Runs one control cycle. `ranges`: one range per beam (m; NaN and inf read as no return
     /// unless `nan_as_no_return = false`);
     /// `pose`: (x, y, yaw) in the fixed frame; `vel`: (v, w); `goal`: (x, y); `path`: an
@@ -254,6 +289,43 @@ impl Sim {
     }
 }
 
+/// A world of the project's catalog as plain data, for a simulator outside the project to
+/// build the same world: a dict with `id`, `cylinders` [(x, y, r)], `walls` [(min_x, min_y,
+/// max_x, max_y)] (static boxes), `moving` (the number of moving cylinders; their motion is
+/// not exported), `start` (x, y, yaw), `goal` (x, y), `goal_radius`, `path_length_m`,
+/// `optimal_time_s` and `reference_path` [(x, y)]. All in metres, radians and seconds, in the
+/// world frame. Ids as everywhere in the project: BARN 0-299, DynaBARN 300-359, generated
+/// worlds from 1,000,000. Raises ValueError for an id no world has.
+#[pyfunction]
+fn world(py: Python<'_>, id: usize) -> PyResult<Bound<'_, PyDict>> {
+    let w = sim::catalog::load(id).map_err(|e| PyValueError::new_err(e.to_string()))?;
+    let d = PyDict::new(py);
+    d.set_item("id", w.id)?;
+    let cylinders: Vec<(f64, f64, f64)> = w.cylinders.iter().map(|c| (c.c.x, c.c.y, c.r)).collect();
+    d.set_item("cylinders", cylinders)?;
+    let walls: Vec<(f64, f64, f64, f64)> = (w.walls.iter())
+        .map(|r| (r.min.x, r.min.y, r.max.x, r.max.y))
+        .collect();
+    d.set_item("walls", walls)?;
+    d.set_item("moving", w.moving.len())?;
+    d.set_item("start", (w.start.x, w.start.y, w.start.yaw))?;
+    d.set_item("goal", (w.goal.x, w.goal.y))?;
+    d.set_item("goal_radius", w.goal_radius)?;
+    d.set_item("path_length_m", w.path_length_m)?;
+    d.set_item("optimal_time_s", w.optimal_time_s)?;
+    let path: Vec<(f64, f64)> = w.reference_path.iter().map(|p| (p.x, p.y)).collect();
+    d.set_item("reference_path", path)?;
+    Ok(d)
+}
+
+/// The world ids of a selection, as `adp eval --worlds` reads it: a split name of the
+/// embedded split files (`test`, `train`, `hardest50`, ...), `all`, ids and ranges (`a..b`,
+/// end exclusive), joined by commas. Sorted, without duplicates. Raises ValueError naming the entry at fault.
+#[pyfunction]
+fn select_worlds(spec: &str) -> PyResult<Vec<usize>> {
+    sim::splits::select(spec).map_err(|e| PyValueError::new_err(e.to_string()))
+}
+
 fn status_name(s: Status) -> &'static str {
     match s {
         Status::Running => "running",
@@ -269,6 +341,8 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<Navigator>()?;
     m.add_class::<CycleOutput>()?;
     m.add_class::<Sim>()?;
+    m.add_function(wrap_pyfunction!(world, m)?)?;
+    m.add_function(wrap_pyfunction!(select_worlds, m)?)?;
     m.add("RefusedInput", m.py().get_type::<RefusedInput>())?;
     m.add("ConfigError", m.py().get_type::<ConfigError>())?;
     m.add("InternalError", m.py().get_type::<InternalError>())?;

@@ -16,7 +16,9 @@ Units are SI; poses, goals and paths are in one fixed frame (the one the robot's
 localization reports), yaw counter-clockwise from its x axis; velocities are in the robot's
 frame; ranges are in the configured lidar's beam order (increasing angle, centred on the
 heading). The command is always inside the configured speed and turn limits. `Sim` runs a
-BARN world in place of a robot.
+BARN world in place of a robot; `world(id)` hands a world of the project's catalog (obstacles,
+start, goal, reference path) to a simulator outside the project, `select_worlds(spec)` names
+the worlds of a split, and `Navigator.episode` gives the episode rules and the robot.
 """
 
 from adp_runtime._native import (
@@ -27,6 +29,8 @@ from adp_runtime._native import (
     Navigator,
     RefusedInput,
     Sim,
+    select_worlds,
+    world,
 )
 
-__all__ = ["STOP", "ConfigError", "CycleOutput", "InternalError", "Navigator", "RefusedInput", "Sim"]
+__all__ = ["STOP", "ConfigError", "CycleOutput", "InternalError", "Navigator", "RefusedInput", "Sim", "select_worlds", "world"]

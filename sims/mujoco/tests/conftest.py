@@ -1,0 +1,21 @@
+"""Shared worlds for the tests: small hand-made worlds in the world-dict format, so physics
+and sensing are checked against geometry worked out by hand."""
+
+import pytest
+
+
+def open_world(goal=(6.0, 0.0), cylinders=(), walls=(), start=(0.0, 0.0, 0.0)):
+    return {
+        "id": "test",
+        "cylinders": list(cylinders),
+        "walls": list(walls),
+        "start": start,
+        "goal": goal,
+        "goal_radius": 1.0,
+        "optimal_time_s": 3.0,
+    }
+
+
+@pytest.fixture
+def empty():
+    return open_world()
