@@ -1,7 +1,13 @@
 """Shared worlds for the tests: small hand-made worlds in the world-dict format, so physics
 and sensing are checked against geometry worked out by hand."""
 
+import os
+
 import pytest
+
+if os.environ.get("ADP_REQUIRE_RUNTIME") == "1":
+    # CI: the tests that drive episodes with the runtime must run, not skip.
+    import adp_runtime  # noqa: F401
 
 
 def open_world(goal=(6.0, 0.0), cylinders=(), walls=(), start=(0.0, 0.0, 0.0)):

@@ -1,0 +1,194 @@
+"""`adp-mujoco` (also `python -m adp_mujoco`): evaluate the project's planners in MuJoCo.
+
+    adp-mujoco eval --planner dwa --fidelity ddp --max-speed 1.5 --worlds 0..5 --out rows.json
+
+runs every (planner, fidelity, speed) row on every world, `--runs` runs a world (each with
+its own seed and, with `--jitter-m`/`--jitter-yaw`, its own start), trims the `--trim` fastest
+and slowest runs of each world, prints the table and writes the rows as JSON in `adp eval
+--out`'s format (eval/src/evaluate.rs, `Row`), with `"simulator": "mujoco"` added. A run the
+simulator could not finish (a SimError) is kept in `per_world` with status "error" and
+counted as a failure."""
+
+import argparse
+import json
+import math
+import random
+import sys
+import time
+from typing import Any, Dict, List
+
+from . import __name__ as _pkg  # noqa: F401
+from .episode import PLANNERS, navigator, run_episode
+from .jackal import JackalParams
+from .world import load_world
+from .errors import SimError
+
+FAILED_RUN_TIME = 50.0
+"""Time charged to a failed run in `avg_time_s` (eval/src/evaluate.rs FAILED_RUN_TIME)."""
+
+MASK = (1 << 64) - 1
+
+
+def run_seed(base: int, world: int, run: int) -> int:
+    """The project's seed of one run (eval/src/evaluate.rs `run_seed`, SplitMix64)."""
+    z = (base ^ ((world * 0x9E3779B97F4A7C15) & MASK) ^ ((run * 0xD1B54A32D192ED03) & MASK)) & MASK
+    z = ((z ^ (z >> 30)) * 0xBF58476D1CE4E5B9) & MASK
+    z = ((z ^ (z >> 27)) * 0x94D049BB133111EB) & MASK
+    return z ^ (z >> 31)
+
+
+def charged_time(r: Dict[str, Any]) -> float:
+    return r["time_s"] if r["status"] == "succeeded" else FAILED_RUN_TIME
+
+
+def summarize(per_world: List[Dict[str, Any]], trim: int):
+    """Per world: sort by charged time, drop `trim` best and worst, average over the rest
+    (eval/src/evaluate.rs `summarize`)."""
+    kept = []
+    for w in per_world:
+        runs = sorted(w["runs"], key=charged_time)
+        kept.extend(runs[trim:len(runs) - trim])
+    n = max(len(kept), 1)
+    pct = lambda s: 100.0 * sum(r["status"] == s for r in kept) / n  # noqa: E731
+    return {
+        "success_pct": pct("succeeded"),
+        "avg_time_s": sum(charged_time(r) for r in kept) / n,
+        "avg_score": sum(r["score"] for r in kept) / n,
+        "collision_pct": pct("collided"),
+        "timeout_pct": pct("timed_out"),
+        "error_pct": pct("error"),
+        "episodes": len(kept),
+    }
+
+
+def jittered(world: Dict[str, Any], seed: int, jitter_m: float, jitter_yaw: float) -> Dict[str, Any]:
+    if jitter_m == 0 and jitter_yaw == 0:
+        return world
+    rng = random.Random(seed)
+    x, y, yaw = world["start"]
+    w = dict(world)
+    w["start"] = (x + rng.uniform(-jitter_m, jitter_m), y + rng.uniform(-jitter_m, jitter_m),
+                  yaw + rng.uniform(-jitter_yaw, jitter_yaw))
+    return w
+
+
+def evaluate(args) -> List[Dict[str, Any]]:
+    import adp_runtime
+
+    ids = adp_runtime.select_worlds(args.worlds)
+    worlds = {i: load_world(i) for i in ids}
+    params = JackalParams(track_multiplier=args.track_multiplier)
+    rows = []
+    for planner in args.planner:
+        for fidelity in args.fidelity:
+            for speed in args.max_speed:
+                per_world, cycles, work, modelled, late, plan_s = [], 0, [0] * 5, 0.0, 0, 0.0
+                t0 = time.perf_counter()
+                for wid in ids:
+                    runs = []
+                    for k in range(args.runs):
+                        seed = run_seed(args.seed, wid, k)
+                        nav = navigator(planner, speed, fixed=fidelity, seed=seed & 0xFFFF_FFFF,
+                                        policy=args.policy)
+                        tally = _Tally(nav)
+                        world = jittered(worlds[wid], seed, args.jitter_m, args.jitter_yaw)
+                        r = run_episode(world, tally, seed=seed & 0xFFFF_FFFF, params=params)
+                        r["world"] = wid
+                        cycles += tally.cycles
+                        work = [a + b for a, b in zip(work, tally.work)]
+                        modelled += tally.modelled
+                        late += tally.late
+                        plan_s += tally.plan_s
+                        runs.append({k2: r[k2] for k2 in ("world", "status", "time_s", "sim_time_s", "score", "distance_m")}
+                                    | ({"error": r["error"]} if r["error"] else {}))
+                        if not args.quiet:
+                            print(f"{planner} {fidelity} {speed} world {wid} run {k}: {r['status']} "
+                                  f"{r['time_s']:.2f} s score {r['score']:.3f} "
+                                  f"({r['physics_steps_per_s']:.0f} physics steps/s)", file=sys.stderr)
+                    per_world.append({"world": wid, "runs": runs})
+                n = max(cycles, 1)
+                row = {"simulator": "mujoco", "planner": planner, "fidelity": fidelity,
+                       "fidelity_label": fidelity, "prediction": "off", "max_speed": speed}
+                row.update(summarize(per_world, args.trim))
+                row.update({
+                    "check_points_per_cycle": work[4] / n,
+                    "plan_ms_per_cycle": 1000.0 * plan_s / n,
+                    "compute_model": "runtime" if modelled else "free",
+                    "units_per_cycle": dict(zip(("cells", "samples", "draws", "steps", "points"), (u / n for u in work))),
+                    "modelled_ms_per_cycle": 1000.0 * modelled / n,
+                    "late_cycles_pct": 100.0 * late / n,
+                    "wall_s": time.perf_counter() - t0,
+                    "per_world": per_world,
+                })
+                rows.append(row)
+    return rows
+
+
+class _Tally:
+    """A navigator wrapper that counts what its planning cycles did."""
+
+    def __init__(self, nav):
+        self.nav, self.cycles, self.work, self.modelled, self.late, self.plan_s = nav, 0, [0] * 5, 0.0, 0, 0.0
+
+    @property
+    def episode(self):
+        return self.nav.episode
+
+    def cycle(self, **kw):
+        t = time.perf_counter()
+        out = self.nav.cycle(**kw)
+        self.plan_s += time.perf_counter() - t
+        if out.planned:
+            self.cycles += 1
+            self.work = [a + b for a, b in zip(self.work, out.work)]
+            if out.compute_s is not None:
+                self.modelled += out.compute_s
+                self.late += out.compute_s > self.nav.control_dt
+        return out
+
+
+def table(rows) -> str:
+    head = "| planner | fidelity | max speed (m/s) | success (%) | avg time (s) | avg score | collision (%) | timeout (%) | error (%) | episodes |"
+    lines = [head, "|" + "---|" * 10]
+    for r in rows:
+        lines.append(f"| {r['planner']} | {r['fidelity_label']} | {r['max_speed']} | {r['success_pct']:.2f} | "
+                     f"{r['avg_time_s']:.2f} | {r['avg_score']:.3f} | {r['collision_pct']:.2f} | "
+                     f"{r['timeout_pct']:.2f} | {r['error_pct']:.2f} | {r['episodes']} |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="adp-mujoco", description=__doc__.split("\n\n")[0])
+    sub = ap.add_subparsers(dest="command", required=True)
+    ev = sub.add_parser("eval", help="run planners on worlds in MuJoCo; print the table, write JSON rows")
+    ev.add_argument("--planner", nargs="+", default=["dwa"], choices=PLANNERS)
+    ev.add_argument("--fidelity", nargs="+", default=["ddp"], choices=["ddp", "vanilla"])
+    ev.add_argument("--max-speed", nargs="+", type=float, default=[1.5])
+    ev.add_argument("--worlds", default="3", help="a selection as adp eval --worlds reads it: test, 0..10, 3,7")
+    ev.add_argument("--runs", type=int, default=1)
+    ev.add_argument("--trim", type=int, default=0)
+    ev.add_argument("--seed", type=int, default=0)
+    ev.add_argument("--jitter-m", type=float, default=0.0, help="start moved by U(-j, j) in x and y (m)")
+    ev.add_argument("--jitter-yaw", type=float, default=0.0, help="start heading moved by U(-j, j) (rad)")
+    ev.add_argument("--policy", help="an adp export directory: the policy chooses the schedule")
+    ev.add_argument("--track-multiplier", type=float, default=JackalParams().track_multiplier,
+                    help="the base controller's wheel_separation_multiplier (default: the Jackal's 1.5)")
+    ev.add_argument("--out", help="write the rows as JSON here")
+    ev.add_argument("--quiet", action="store_true")
+    args = ap.parse_args(argv)
+    if args.runs < 1 or not (0 <= 2 * args.trim < args.runs):
+        ap.error("--runs must be >= 1 and --trim less than half of --runs")
+    try:
+        rows = evaluate(args)
+    except (SimError, ValueError) as e:
+        print(f"adp-mujoco: {e}", file=sys.stderr)
+        return 2
+    print(table(rows), end="")
+    if args.out:
+        with open(args.out, "w", encoding="utf-8") as f:
+            json.dump(rows, f, indent=2)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
