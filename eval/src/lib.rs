@@ -52,6 +52,7 @@ mod error;
 pub mod evaluate;
 pub mod greedy;
 mod greedy_section;
+pub mod heldout;
 pub mod policy;
 pub mod render;
 pub mod selection;

@@ -270,6 +270,10 @@ pub struct Cell {
     /// agent steps (run 0 of every test world, every seed): the same summary as the
     /// training's greedy evaluations ([`eval::greedy::schedule_stats`]).
     pub clutter: Vec<ParamStats>,
+    /// The held-out learning curve of a held-out-selection recipe: per evaluation interval,
+    /// the mean over seeds of the selection score's gain over each seed's start (empty when
+    /// the trainings ran no selection).
+    pub heldout: Vec<eval::heldout::CurvePoint>,
 }
 
 /// Every table.
@@ -381,6 +385,7 @@ fn cell(ex: &Experiment, d: &ArmData, keep: Option<&[usize]>) -> Cell {
             .map(|(seed, r)| format!("seed {seed}: {}", eval::selection::describe(r)))
             .collect(),
         clutter: clutter_follow(d.arm.space, &adp),
+        heldout: eval::heldout::curve(&d.selections),
     }
 }
 
@@ -631,6 +636,9 @@ fn cell_block(out: &mut String, title: &str, c: &Cell) {
     if !c.exported.is_empty() {
         let _ = writeln!(out, "\nExported (held-out selection): {}.", c.exported.join("; "));
     }
+    if let Some(line) = heldout_line(c) {
+        let _ = writeln!(out, "\n{line}");
+    }
     if let Some(line) = calibration(c) {
         let _ = writeln!(out, "\n{line}");
     }
@@ -649,6 +657,28 @@ fn cell_block(out: &mut String, title: &str, c: &Cell) {
         let _ = writeln!(out, "\nSchedule against clutter: {}.", parts.join("; "));
     }
     let _ = writeln!(out);
+}
+
+/// The held-out curve of a cell in one line (none without one).
+fn heldout_line(c: &Cell) -> Option<String> {
+    let best = c.heldout.iter().max_by(|a, b| a.gain.total_cmp(&b.gain))?;
+    let points: Vec<String> = c
+        .heldout
+        .iter()
+        .map(|p| format!("{}k {:+.3}", p.step / 1000, p.gain))
+        .collect();
+    Some(format!(
+        "Held-out curve (the selection worlds; per evaluation interval, the mean over seeds of \
+         the policy's score minus its start's): {}. Highest at {}k ({:+.3}){}.",
+        points.join(", "),
+        best.step / 1000,
+        best.gain,
+        if best.gain <= 0.0 {
+            ": no interval beats the start on average"
+        } else {
+            ""
+        }
+    ))
 }
 
 /// Whether a cell's policy adapts, in one word for the summary table: `adapts` when ADP
@@ -832,6 +862,57 @@ fn recipe_pending(out: &mut String, r: &RecipeTables) {
     }
 }
 
+/// Recipe `r`'s held-out curves, one row per measured Table I cell (nothing when no cell has
+/// one): what its training length and learner settings are read from.
+fn heldout_table(out: &mut String, r: &RecipeTables) {
+    let cells: Vec<&Cell> = r.table1.iter().filter(|c| !c.heldout.is_empty()).collect();
+    let mut steps: Vec<u64> = cells
+        .iter()
+        .flat_map(|c| c.heldout.iter().map(|p| p.step))
+        .collect();
+    steps.sort_unstable();
+    steps.dedup();
+    if steps.is_empty() {
+        return;
+    }
+    let _ = writeln!(
+        out,
+        "#### Held-out curves of recipe `{}`\n\nPer cell and evaluation interval, the mean over \
+         seeds of the policy's score on the selection worlds minus its start's (the start is \
+         the best constant schedule). One seed's difference there has a paired interval of \
+         about ±0.025 (`protocol.md`), so a single entry decides little; a row that still rises \
+         at its last interval asks for longer training, one that stays near or below zero says \
+         the training adds little to its start.\n",
+        r.name
+    );
+    let head: Vec<String> = steps.iter().map(|s| format!("{}k", s / 1000)).collect();
+    let _ = writeln!(
+        out,
+        "| cell | {} |\n|---|{}",
+        head.join(" | "),
+        "---|".repeat(steps.len())
+    );
+    for c in cells {
+        let row: Vec<String> = steps
+            .iter()
+            .map(|s| {
+                c.heldout
+                    .iter()
+                    .find(|p| p.step == *s)
+                    .map_or("–".to_string(), |p| format!("{:+.3}", p.gain))
+            })
+            .collect();
+        let _ = writeln!(
+            out,
+            "| {} {} m/s | {} |",
+            c.planner,
+            speed_label(c.speed),
+            row.join(" | ")
+        );
+    }
+    let _ = writeln!(out);
+}
+
 /// The tables as the report's first sections; `forest_figure`, the path of Table I's forest
 /// plot, is shown under Table I's summary, and `clutter_figure`, the path of the figure of
 /// every Table I cell's schedule against clutter, after Table I's cells.
@@ -887,6 +968,9 @@ pub fn render(t: &Tables, forest_figure: Option<&str>, clutter_figure: Option<&s
                 c,
             );
         }
+    }
+    for r in &t.recipes {
+        heldout_table(&mut out, r);
     }
     if let Some(path) = clutter_figure {
         let _ = writeln!(
@@ -1189,7 +1273,14 @@ mod tests {
                     } else {
                         vec![]
                     },
-                    selections: vec![],
+                    // The group's trainings selected on held-out worlds: one seed gains
+                    // 0.04 at 20k, the other loses 0.02 there; both are back at their start
+                    // at 40k.
+                    selections: if ours && measured {
+                        vec![selection(0.3, &[0.34, 0.30]), selection(0.5, &[0.48, 0.50])]
+                    } else {
+                        vec![]
+                    },
                     sweep: vec![],
                     sensing: vec![],
                 }
@@ -1197,6 +1288,10 @@ mod tests {
             .collect();
         let t = tables(&ex, &data, "hard", &[5, 6, 7, 8]);
         assert_eq!(t.table1.len(), 2, "the group's arms are not Table I's");
+        let curve = &t.recipes[0].table1[0].heldout;
+        assert_eq!(curve.iter().map(|p| p.step).collect::<Vec<_>>(), [20_000, 40_000]);
+        assert!((curve[0].gain - 0.01).abs() < 1e-9 && curve[1].gain.abs() < 1e-9);
+        assert!(t.table1.iter().all(|c| c.heldout.is_empty()));
         assert_eq!(t.recipes.len(), 1);
         let r = &t.recipes[0];
         assert_eq!((r.name.as_str(), r.table1.len(), r.table3.len()), ("ours", 2, 2));
@@ -1221,12 +1316,44 @@ mod tests {
             md.contains("its horizon is 1.0 s") && md.contains("[1.6, 2.2] s"),
             "{md}"
         );
+        assert!(
+            md.contains("#### Held-out curves of recipe `ours`")
+                && md.contains("| cell | 20k | 40k |")
+                && md.contains("| dwa 1.0 m/s | +0.010 | +0.000 |"),
+            "{md}"
+        );
+        assert!(md.contains("Highest at 20k (+0.010)."), "{md}");
         let summary = summary_table(&t);
         assert!(summary.contains("1 of 2 cells measured"), "{summary}");
         assert!(
             summary.contains("| adapts |") && summary.contains("| fixed |"),
             "{summary}"
         );
+    }
+
+    /// A held-out selection's report: the start scoring `start`, then one candidate every
+    /// 20,000 agent steps scoring `later`.
+    fn selection(start: f64, later: &[f64]) -> eval::selection::SelectionReport {
+        let candidates: Vec<_> = std::iter::once(start)
+            .chain(later.iter().copied())
+            .enumerate()
+            .map(|(i, score)| eval::selection::CandidateScore {
+                step: 20_000 * i as u64,
+                score,
+            })
+            .collect();
+        eval::selection::SelectionReport {
+            worlds: "val".into(),
+            runs: 10,
+            exported_step: 0,
+            exported_version: 0,
+            exported_score: start,
+            start_score: Some(start),
+            last_step: candidates.last().unwrap().step,
+            last_score: candidates.last().unwrap().score,
+            confidence: 0.0,
+            candidates,
+        }
     }
 
     /// README's results table is the one the paper's report generated.
