@@ -3,7 +3,13 @@ and sensing are checked against geometry worked out by hand."""
 
 import os
 
+import mujoco
 import pytest
+
+# MuJoCo's default warning handler prints and appends to MUJOCO_LOG.TXT in the working
+# directory (the repository root under CI); the package reports what matters as PhysicsError.
+WARNINGS = []
+mujoco.set_mju_user_warning(WARNINGS.append)
 
 if os.environ.get("ADP_REQUIRE_RUNTIME") == "1":
     # CI: the tests that drive episodes with the runtime must run, not skip.

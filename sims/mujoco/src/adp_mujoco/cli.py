@@ -17,7 +17,6 @@ import sys
 import time
 from typing import Any, Dict, List
 
-from . import __name__ as _pkg  # noqa: F401
 from .episode import PLANNERS, navigator, run_episode
 from .jackal import JackalParams
 from .world import load_world
@@ -176,6 +175,11 @@ def main(argv=None) -> int:
     ev.add_argument("--out", help="write the rows as JSON here")
     ev.add_argument("--quiet", action="store_true")
     args = ap.parse_args(argv)
+    # MuJoCo's warnings to stderr, not to MUJOCO_LOG.TXT in the working directory (a
+    # diverged state also ends its episode as a PhysicsError, recorded in its run).
+    import mujoco
+
+    mujoco.set_mju_user_warning(lambda msg: print(f"mujoco: {msg}", file=sys.stderr))
     if args.runs < 1 or not (0 <= 2 * args.trim < args.runs):
         ap.error("--runs must be >= 1 and --trim less than half of --runs")
     try:
