@@ -752,6 +752,7 @@ pub fn calibration(c: &Cell) -> Option<String> {
 /// says how many it has.
 pub fn summary_table(t: &Tables) -> String {
     let mut out = summary_rows(&t.table1, t.seeds);
+    out += &goal_line(&t.table1);
     for r in &t.recipes {
         let measured = r.table1.iter().filter(|c| c.adp.is_some()).count();
         if measured == 0 {
@@ -769,9 +770,37 @@ pub fn summary_table(t: &Tables) -> String {
                 r.table1.len(),
                 summary_rows(&r.table1, t.seeds)
             );
+            out += &goal_line(&r.table1);
         }
     }
     out
+}
+
+/// The project's goal for a set of Table I cells, counted over the measured ones: ADP's score
+/// above DDP's (interval above zero) in at least 9 of the 12 cells, and below the best
+/// constant's (interval below zero) in none.
+fn goal_line(cells: &[Cell]) -> String {
+    let measured: Vec<&Cell> = cells.iter().filter(|c| c.adp.is_some()).collect();
+    let side = |x: &Option<Comparison>, s: Side| x.as_ref().is_some_and(|x| x.d_score_seeds.side() == s);
+    let above_ddp = measured
+        .iter()
+        .filter(|c| side(&c.adp_vs_ddp, Side::Above))
+        .count();
+    let below_constant: Vec<String> = measured
+        .iter()
+        .filter(|c| side(&c.adp_vs_constant, Side::Below))
+        .map(|c| format!("{} {}", c.planner, speed_label(c.speed)))
+        .collect();
+    format!(
+        "\nGoal (ADP above DDP in at least 9 of 12 cells, below the best constant in none), over \
+         the {} measured cells: above DDP in {above_ddp}; below the best constant in {}.\n",
+        measured.len(),
+        if below_constant.is_empty() {
+            "none".to_string()
+        } else {
+            format!("{} ({})", below_constant.len(), below_constant.join(", "))
+        }
+    )
 }
 
 /// The compact table of `cells`; an ADP cell over fewer than `seeds` seeds says so.
@@ -1325,6 +1354,11 @@ mod tests {
         assert!(md.contains("Highest at 20k (+0.010)."), "{md}");
         let summary = summary_table(&t);
         assert!(summary.contains("1 of 2 cells measured"), "{summary}");
+        assert!(
+            summary.contains("over the 2 measured cells: above DDP in 2; below the best constant in none.")
+                && summary.contains("over the 1 measured cells: above DDP in 1;"),
+            "{summary}"
+        );
         assert!(
             summary.contains("| adapts |") && summary.contains("| fixed |"),
             "{summary}"
