@@ -465,3 +465,93 @@ fn shuffle_observations(ctx: &Ctx<'_>, a: &Arm, p: &LearnedPolicy) -> anyhow::Re
     let seen = observations(&spec, &ctrl)?.observations;
     Ok(shuffle_pool(&seen, ctx.ex.shuffle.pool, ctx.ex.shuffle.seed))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::{Experiment, Restrict};
+    use crate::eval_config;
+    use crate::store::{Layout, Store};
+    use crate::Trainer;
+    use planner::PlannerKind;
+
+    /// A trainer for tests that train nothing.
+    struct NoTraining;
+
+    impl Trainer for NoTraining {
+        fn train(&self, _: &Path, _: &Path, _: bool) -> anyhow::Result<()> {
+            anyhow::bail!("this test trains nothing")
+        }
+
+        fn actors(&self) -> u32 {
+            2
+        }
+    }
+
+    /// A sensing-sweep evaluation runs under its condition's lidar: on two worlds, a
+    /// noiseless condition over a noiseless configuration reproduces the main DDP evaluation
+    /// bit for bit, run by run; heavy noise drives other episodes. Both record their lidar.
+    #[test]
+    fn a_sensing_evaluation_applies_its_lidar_condition() {
+        let dir = std::env::temp_dir().join(format!("adp-sensing-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let eval_toml = dir.join("eval.toml");
+        let base = include_str!("../../configs/eval.toml");
+        assert!(base.contains("noise_sigma = 0.001 "));
+        std::fs::write(
+            &eval_toml,
+            base.replace("noise_sigma = 0.001 ", "noise_sigma = 0.0 "),
+        )
+        .unwrap();
+        let text = format!(
+            "[experiment]\nname = \"t\"\nplanners = [\"dwa\"]\nspeeds = [1.5]\ntest_worlds = \
+             \"0,1\"\n[eval]\nruns = 2\ntrim = 0\nconfig = {:?}\n[sensing_sweep]\n\
+             noise_fractions = [0.0, 0.5]\nruns = 2\ntrim = 0\n",
+            eval_toml.display().to_string()
+        );
+        let ex = Experiment::parse("t.toml", &text, &Restrict::default()).unwrap();
+        let cfg = eval_config(&ex).unwrap();
+        let ctx = Ctx {
+            ex: &ex,
+            trainer: &NoTraining,
+            layout: Layout::new(
+                dir.clone(),
+                Store {
+                    dir: dir.join("store"),
+                },
+                &ex,
+                &cfg,
+                2,
+            ),
+            cfg,
+            worlds: sim::catalog::worlds(),
+            test_worlds: ex.test_worlds.clone(),
+        };
+        let run = |stage: Stage| {
+            let out = ctx.layout.output(&stage);
+            run_stage(&ctx, &stage, &out).unwrap();
+            EvalRecord::load(&out).unwrap()
+        };
+        let main = run(Stage::EvalDdp {
+            planner: PlannerKind::Dwa,
+            speed: 1.5,
+        });
+        let sensing = |condition| {
+            run(Stage::Sensing {
+                arm: 0,
+                condition,
+                who: SweepWho::Ddp,
+            })
+        };
+        let (clean, noisy) = (sensing(0), sensing(1));
+        assert_eq!(main.lidar, None);
+        assert_eq!(clean.per_world, main.per_world);
+        assert_eq!(clean.lidar, Some(ctx.cfg.episode.lidar));
+        assert_eq!(noisy.lidar.unwrap().noise_fraction, 0.5);
+        assert_eq!(noisy.per_world.len(), 2);
+        assert!(noisy.per_world.iter().all(|w| w.runs.len() == 2));
+        assert_ne!(noisy.per_world, main.per_world);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}

@@ -384,6 +384,9 @@ impl Sweeps {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::config::Restrict;
+    use crate::eval_config;
+    use crate::store::{Layout, Store};
     use actor::LaserLayout;
     use planner::ActionSpace;
 
@@ -702,5 +705,153 @@ mod tests {
         assert_eq!(std::fs::read(dir.join("a/b.json")).unwrap(), b"{}");
         assert_eq!(std::fs::read_dir(dir.join("a")).unwrap().count(), 1);
         std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    fn shipped(file: &str) -> Experiment {
+        let path = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/.."))
+            .join("configs/experiments")
+            .join(file);
+        Experiment::load(&path, &Restrict::default()).unwrap()
+    }
+
+    /// The shipped experiments keep their arms and stages: table1 (9 arms x 3 seeds, the
+    /// budget sweep of arm 0 at 4 points) and rl-dwa (4 arms x 3 seeds, no sweep).
+    #[test]
+    fn existing_experiments_keep_their_stages_and_ids() {
+        let ex = shipped("table1.toml");
+        let ids: Vec<String> = ex.arms.iter().map(Arm::id).collect();
+        assert_eq!(
+            ids,
+            [
+                "dwa-decremental-1.0-fit",
+                "dwa-decremental-1.5-fit",
+                "dwa-decremental-2.0-fit",
+                "mppi-decremental-1.0-fit",
+                "mppi-decremental-1.5-fit",
+                "mppi-decremental-2.0-fit",
+                "system-decremental-1.0-fit",
+                "system-decremental-1.5-fit",
+                "system-decremental-2.0-fit"
+            ]
+        );
+        assert_eq!(Sweeps::of(&ex).sensing, None);
+        let all = stages(&ex.arms, ex.seeds, &Sweeps::of(&ex));
+        // Training 27, searches 9, DDP 9, per arm constant, untrained, 3 ADP and 3 shuffled
+        // (72), the budget sweep 4 x (DDP, constant, 3 seeds).
+        assert_eq!(all.len(), 27 + 9 + 9 + 72 + 20);
+        assert_eq!(all[27], Stage::Search { arm: 0 });
+        assert_eq!(
+            all[36],
+            Stage::EvalDdp {
+                planner: PlannerKind::Dwa,
+                speed: 1.0
+            }
+        );
+        assert_eq!(all[45], Stage::EvalConstant { arm: 0 });
+        assert_eq!(
+            all.last(),
+            Some(&Stage::Sweep {
+                arm: 0,
+                point: 3,
+                who: SweepWho::Adp { seed: 2 }
+            })
+        );
+        let ex = shipped("rl-dwa.toml");
+        assert_eq!(Sweeps::of(&ex), Sweeps::default());
+        let all = stages(&ex.arms, ex.seeds, &Sweeps::of(&ex));
+        assert_eq!(all.len(), 12 + 4 + 1 + 4 * 8);
+        assert_eq!(
+            all.iter().filter(|s| matches!(s, Stage::Search { .. })).count(),
+            4
+        );
+    }
+
+    /// The paper's file: Table I's 12 cells, then Table II's arms (the incremental and
+    /// unconstrained spaces on the system and DWA; 4 training-world selections on the system),
+    /// then Table I's cells again with this project's recipe (from the best constant): 32 arms
+    /// x 3 seeds; the vanilla row per planner and speed; the state-shuffled control in every
+    /// Table I cell, of both recipes; 10 runs per world trimmed by 2; the hardest 50 test worlds.
+    #[test]
+    fn the_paper_experiment_plans_its_tables() {
+        let ex = shipped("paper.toml");
+        assert_eq!(ex.arms.len(), 32);
+        assert_eq!(
+            ex.arms[..12]
+                .iter()
+                .filter(|a| a.space == ActionSpace::Decremental && a.recipe.is_none())
+                .count(),
+            12
+        );
+        let ours = &ex.arms[20..];
+        assert!(ours.iter().all(|a| a.recipe.as_deref() == Some("project")
+            && a.start == Start::BestConstant
+            && a.space == ActionSpace::Decremental));
+        for (a, b) in ex.arms[..12].iter().zip(ours) {
+            assert!(a.same_controls(b) && !a.same_untrained(b), "{}", b.id());
+            let (paper, project) = (ex.train_config(a, 0), ex.train_config(b, 0));
+            assert_eq!(paper.run.steps, project.run.steps);
+            assert!(project.greedy.select && !paper.greedy.select);
+        }
+        assert_eq!((ex.eval.runs, ex.eval.trim, ex.seeds), (10, 2, 3));
+        assert_eq!(ex.hardest_worlds.len(), 50);
+        assert!(ex.hardest_worlds.iter().all(|w| ex.test_worlds.contains(w)));
+        let all = stages(&ex.arms, ex.seeds, &Sweeps::of(&ex));
+        let count = |kind: &str| all.iter().filter(|s| s.kind_name() == kind).count();
+        assert_eq!(count("train"), 96);
+        assert_eq!((count("ddp"), count("vanilla")), (12, 12));
+        // Training-world arms share the system's 1.5 m/s search, and the recipes of a cell
+        // share its search; the others search their own.
+        assert_eq!(count("search"), 16);
+        assert_eq!(count("adp"), 96);
+        let shuffled: Vec<&Arm> = all
+            .iter()
+            .filter_map(|s| match *s {
+                Stage::EvalShuffled { arm, .. } => Some(&ex.arms[arm]),
+                _ => None,
+            })
+            .collect();
+        // Every Table I cell of both recipes (3 seeds each), and Table II's 1.5 m/s arms.
+        assert_eq!(
+            shuffled
+                .iter()
+                .filter(|a| a.space == ActionSpace::Decremental && a.train_worlds == "fit")
+                .count(),
+            2 * 12 * 3
+        );
+        assert!(shuffled.iter().all(|a| a.speed == 1.5 || a.train_worlds == "fit"));
+    }
+
+    /// The sensing experiment: 4 layouts x 3 seeds trained, one search and one best constant
+    /// shared by the layouts, and per condition DDP, the constant and 12 policies.
+    #[test]
+    fn the_sensing_experiment_plans_its_sweep() {
+        let ex = shipped("sensing.toml");
+        let all = stages(&ex.arms, ex.seeds, &Sweeps::of(&ex));
+        let main = 12 + 1 + 1 + 1 + 4 * (1 + 3 + 3);
+        assert_eq!(all.len(), main + 4 * (1 + 1 + 12));
+        assert!(all[main..].iter().all(|s| matches!(s, Stage::Sensing { .. })));
+    }
+
+    /// The training-worlds experiment: 5 selections x 3 seeds trained; the arms differ only in
+    /// training worlds, so one search, one DDP, one best constant and one untrained policy
+    /// (the first arm's) serve them all.
+    #[test]
+    fn the_worlds_experiment_shares_its_controls() {
+        let ex = shipped("worlds.toml");
+        assert_eq!(ex.arms.len(), 5);
+        let all = stages(&ex.arms, ex.seeds, &Sweeps::of(&ex));
+        assert_eq!(all.len(), 15 + 1 + 1 + 1 + 1 + 5 * (3 + 3));
+        let cfg = eval_config(&ex).unwrap();
+        let layout = Layout::new("/e".into(), Store { dir: "/s".into() }, &ex, &cfg, 2);
+        for arm in 1..5 {
+            for stage in [Stage::EvalConstant { arm }, Stage::EvalUntrained { arm }] {
+                let first = match stage {
+                    Stage::EvalConstant { .. } => Stage::EvalConstant { arm: 0 },
+                    _ => Stage::EvalUntrained { arm: 0 },
+                };
+                assert_eq!(layout.output(&stage), layout.output(&first), "{stage:?}");
+            }
+            assert_ne!(layout.run_dir(arm, 0), layout.run_dir(0, 0));
+        }
     }
 }
