@@ -190,6 +190,27 @@ impl Navigator {
         Ok(d)
     }
 
+    /// The current run's local goal (x, y) in the fixed frame, the point of the global path
+    /// the planner steers to; None before the first cycle.
+    #[getter]
+    fn local_goal(&self) -> Option<(f64, f64)> {
+        lock(&self.0).local_goal().map(|g| (g.x, g.y))
+    }
+
+    /// Plans on the schedule (`dts`: step lengths in s; `checks`: footprint boundary points
+    /// checked after each step, capped at `boundary_points`) from the next cycle on, until the
+    /// next call: for a training actor whose learner's policy chose it (e.g. `adp_client`'s
+    /// `RunInfo.schedule(action)`). Raises ConfigError when the navigator's own policy
+    /// chooses the schedules or the schedule is outside the envelope (at most 64 steps and
+    /// 5 s), ValueError for a schedule that cannot be (no steps, a step <= 0 s, counts that
+    /// do not match).
+    #[pyo3(signature = (dts, checks, boundary_points=planner::schedule::DEFAULT_BOUNDARY_POINTS))]
+    fn set_schedule(&self, dts: Vec<f64>, checks: Vec<u16>, boundary_points: usize) -> PyResult<()> {
+        let schedule = planner::Schedule::from_parts(dts, checks, boundary_points)
+            .map_err(|e| PyValueError::new_err(format!("schedule: {e}")))?;
+        lock(&self.0).set_schedule(schedule).map_err(to_py)
+    }
+
     /// Runs one control cycle. `ranges`: one range per beam (m; NaN and inf read as no return
     /// unless `nan_as_no_return = false`);
     /// `pose`: (x, y, yaw) in the fixed frame; `vel`: (v, w); `goal`: (x, y); `path`: an

@@ -53,6 +53,14 @@ pub const MAX_TURN_RATE_RADPS: f64 = 10.0;
 /// Most lidar beams.
 pub const MAX_BEAMS: usize = 20_000;
 
+/// Most steps of a schedule given from outside ([`crate::Navigator::set_schedule`]): three
+/// times the ADP action spaces' largest (22), so a rollout's work stays bounded.
+pub const MAX_SCHEDULE_STEPS: usize = 64;
+
+/// Longest horizon of a schedule given from outside (s): over twice the ADP action spaces'
+/// longest (2.2 s).
+pub const MAX_SCHEDULE_HORIZON_S: f64 = 5.0;
+
 /// Largest |x| or |y| of the laser's mount on the base (m).
 pub const MAX_LASER_OFFSET_M: f64 = 5.0;
 

@@ -8,6 +8,7 @@ use policy::agent_action::{AgentAction, Applied};
 use policy::observation::{self, LaserResampler};
 use policy::{LearnedPolicy, MlpPolicy, Scratch};
 use sim::episode::EpisodeConfig;
+use sim::geometry::Vec2;
 use sim::lidar::Lidar;
 use sim::nav_stack::{NavStack, Scan};
 use sim::robot::Twist;
@@ -305,6 +306,49 @@ impl Navigator {
     /// before the first cycle.
     pub fn nav(&self) -> Option<&NavStack> {
         self.nav.as_ref()
+    }
+
+    /// The current run's local goal in the fixed frame: the point of the global path the
+    /// planner steers to (what a policy's observation reads, in the robot frame); `None`
+    /// before the first cycle.
+    pub fn local_goal(&self) -> Option<Vec2> {
+        self.nav.as_ref().map(NavStack::local_goal_world)
+    }
+
+    /// Plans on `schedule` from the next cycle on, in place of the fixed schedule, until the
+    /// next call (across runs too): for a training actor, whose learner's policy chooses a
+    /// schedule every agent step outside the runtime (from its action with the run's action
+    /// space and map). A cycle whose modelled compute still runs keeps the last command, as
+    /// ever. Refused when the navigator's own policy chooses the schedules, and for a
+    /// schedule outside the envelope ([`envelope::MAX_SCHEDULE_STEPS`] steps,
+    /// [`envelope::MAX_SCHEDULE_HORIZON_S`] seconds); a refusal changes nothing.
+    pub fn set_schedule(&mut self, schedule: Schedule) -> Result<(), RuntimeError> {
+        let refuse = |message: String| RuntimeError::Config {
+            origin: "set_schedule".into(),
+            message,
+        };
+        if self.agent.is_some() {
+            return Err(refuse(
+                "the navigator's policy chooses the schedules; configure it without `policy` to \
+                 give them from outside"
+                    .into(),
+            ));
+        }
+        let (steps, horizon) = (schedule.len(), schedule.horizon());
+        if steps > envelope::MAX_SCHEDULE_STEPS {
+            return Err(refuse(format!(
+                "{steps} steps: at most {} (the envelope)",
+                envelope::MAX_SCHEDULE_STEPS
+            )));
+        }
+        if !(horizon.is_finite() && horizon <= envelope::MAX_SCHEDULE_HORIZON_S) {
+            return Err(refuse(format!(
+                "a {horizon} s horizon: at most {} s (the envelope)",
+                envelope::MAX_SCHEDULE_HORIZON_S
+            )));
+        }
+        self.applied = Applied::Schedule(schedule);
+        Ok(())
     }
 
     /// Runs one control cycle on `input`: checks it (a refused input changes nothing and

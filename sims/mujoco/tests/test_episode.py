@@ -8,7 +8,7 @@ import pytest
 
 adp_runtime = pytest.importorskip("adp_runtime")
 
-from adp_mujoco import DEFAULT_EPISODE, JackalSim, navigator, run_episode  # noqa: E402
+from adp_mujoco import DEFAULT_EPISODE, JackalSim, decremental_schedule, navigator, run_episode  # noqa: E402
 from conftest import open_world  # noqa: E402
 
 
@@ -79,3 +79,31 @@ def test_a_world_file_gives_the_same_world(tmp_path):
     a, b = JackalSim(str(path), seed=1), JackalSim(3, seed=1)
     assert a.model.ngeom == b.model.ngeom
     assert (a.ranges == b.ranges).all()
+
+
+def test_ddp_as_a_given_schedule_matches_the_fixed_one():
+    dts, checks = decremental_schedule()
+    assert sum(dts) == pytest.approx(2.0) and len(dts) == 20 and checks[-1] == 0
+    assert dts[0] < dts[-1]
+
+
+@pytest.mark.skipif(not hasattr(adp_runtime.Navigator, "set_schedule"), reason="runtime without set_schedule")
+def test_a_schedule_chosen_outside_drives_the_planner():
+    # A training actor's loop: every agent step (5 cycles) something outside the runtime (the
+    # learner's policy) chooses the schedule; here p alternates between DDP's 1.7 and 1.0.
+    chosen = []
+
+    def policy(sim, k):
+        p = 1.7 if k % 2 == 0 else 1.0
+        chosen.append(p)
+        return decremental_schedule(p=p)
+
+    world = open_world(goal=(5.0, 0.0))
+    r = run_episode(world, navigator("dwa", 1.5), seed=0, schedule=policy)
+    assert r["status"] == "succeeded", r
+    assert len(chosen) == (r["cycles"] + 4) // 5
+    # The same given DDP schedule every step plans exactly as the fixed DDP navigator.
+    fixed = run_episode(world, navigator("dwa", 1.5), seed=0)
+    given = run_episode(world, navigator("dwa", 1.5, fixed="vanilla"), seed=0,
+                        schedule=lambda sim, k: decremental_schedule())
+    assert (given["status"], given["time_s"], given["distance_m"]) == (fixed["status"], fixed["time_s"], fixed["distance_m"])

@@ -11,7 +11,7 @@ its subclasses end one episode with a clear message and leave the caller free to
 next.
 """
 
-from .episode import navigator, run_episode, runtime_config
+from .episode import decremental_schedule, navigator, run_episode, runtime_config
 from .errors import LidarError, PhysicsError, SimError, WorldError
 from .jackal import JackalParams, SkidSteer
 from .lidar import Lidar
@@ -21,5 +21,6 @@ from .world import check_world, load_world, scene_xml
 __all__ = [
     "DEFAULT_EPISODE", "PHYSICS_DT", "JackalParams", "JackalSim", "Lidar", "LidarError",
     "PhysicsError", "SimError", "SkidSteer", "WorldError", "barn_score", "check_world",
+    "decremental_schedule",
     "load_world", "navigator", "run_episode", "runtime_config", "scene_xml",
 ]
