@@ -156,6 +156,27 @@ def table(rows) -> str:
     return "\n".join(lines) + "\n"
 
 
+def actor(args) -> int:
+    """`adp-mujoco actor`: serves the learner until its run is over."""
+    try:
+        import adp_client
+
+        from .training import MujocoEnvironment
+    except ImportError as e:
+        print(f"adp-mujoco actor: {e} (install clients/python)", file=sys.stderr)
+        return 2
+    env = MujocoEnvironment(JackalParams(track_multiplier=args.track_multiplier))
+    try:
+        adp_client.Actor(args.learner, env, rank=args.rank, token_file=args.token_file, tls_ca=args.tls_ca,
+                         tls_cert=args.tls_cert, tls_key=args.tls_key, tls_domain=args.tls_domain,
+                         give_up_after=args.give_up_after).run()
+    except adp_client.AdpError as e:
+        print(f"adp-mujoco actor: {e}", file=sys.stderr)
+        return 1
+    print(f"adp-mujoco actor {args.rank}: {env.errors} episodes ended by a simulator error", file=sys.stderr)
+    return 0
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="adp-mujoco", description=__doc__.split("\n\n")[0])
     sub = ap.add_subparsers(dest="command", required=True)
@@ -174,12 +195,24 @@ def main(argv=None) -> int:
                     help="the base controller's wheel_separation_multiplier (default: the Jackal's 1.5)")
     ev.add_argument("--out", help="write the rows as JSON here")
     ev.add_argument("--quiet", action="store_true")
+    ac = sub.add_parser("actor", help="a MuJoCo actor of an `adp learner` run (needs adp_client)")
+    ac.add_argument("--learner", required=True, help="the learner's address: host:port or unix:PATH")
+    ac.add_argument("--token-file", help="the run's token file")
+    ac.add_argument("--rank", type=int, default=0)
+    ac.add_argument("--tls-ca")
+    ac.add_argument("--tls-cert")
+    ac.add_argument("--tls-key")
+    ac.add_argument("--tls-domain")
+    ac.add_argument("--give-up-after", type=float, default=60.0)
+    ac.add_argument("--track-multiplier", type=float, default=JackalParams().track_multiplier)
     args = ap.parse_args(argv)
     # MuJoCo's warnings to stderr, not to MUJOCO_LOG.TXT in the working directory (a
     # diverged state also ends its episode as a PhysicsError, recorded in its run).
     import mujoco
 
     mujoco.set_mju_user_warning(lambda msg: print(f"mujoco: {msg}", file=sys.stderr))
+    if args.command == "actor":
+        return actor(args)
     if args.runs < 1 or not (0 <= 2 * args.trim < args.runs):
         ap.error("--runs must be >= 1 and --trim less than half of --runs")
     try:
