@@ -44,3 +44,15 @@ def test_eval_refuses_bad_arguments(capsys):
         main(["eval", "--runs", "2", "--trim", "1"])
     assert main(["eval", "--worlds", "nosuchsplit", "--quiet"]) == 2
     assert "nosuchsplit" in capsys.readouterr().err
+
+
+def test_a_constant_action_at_ddps_parameters_runs_as_ddp(tmp_path):
+    out = tmp_path / "rows.json"
+    args = ["eval", "--worlds", "3", "--fidelity", "ddp", "constant", "--constant", "1.7,2.0,20,0",
+            "--out", str(out), "--quiet"]
+    assert main(args) == 0
+    ddp, constant = json.loads(out.read_text())
+    assert constant["fidelity"] == "constant" and constant["fidelity_label"].startswith("constant p=1.7")
+    assert constant["per_world"] == ddp["per_world"]
+    assert main(["eval", "--worlds", "3", "--fidelity", "constant", "--quiet"]) == 2
+    assert main(["eval", "--worlds", "3", "--fidelity", "constant", "--constant", "3,2,20,0", "--quiet"]) == 2

@@ -17,7 +17,7 @@ import sys
 import time
 from typing import Any, Dict, List
 
-from .episode import PLANNERS, navigator, run_episode
+from .episode import PLANNERS, decremental_schedule, navigator, run_episode
 from .jackal import JackalParams
 from .world import load_world
 from .errors import SimError
@@ -75,6 +75,12 @@ def evaluate(args) -> List[Dict[str, Any]]:
     import adp_runtime
 
     ids = adp_runtime.select_worlds(args.worlds)
+    constant, label = None, {}
+    if "constant" in args.fidelity:
+        p, horizon, steps, alpha = parse_constant(args.constant)
+        dts_checks = decremental_schedule(p, horizon, steps, alpha)
+        constant = lambda sim, k: dts_checks  # noqa: E731
+        label["constant"] = f"constant p={p:g} T={horizon:g} N={steps} alpha={alpha:g}"
     worlds = {i: load_world(i) for i in ids}
     params = JackalParams(track_multiplier=args.track_multiplier)
     rows = []
@@ -87,11 +93,13 @@ def evaluate(args) -> List[Dict[str, Any]]:
                     runs = []
                     for k in range(args.runs):
                         seed = run_seed(args.seed, wid, k)
-                        nav = navigator(planner, speed, fixed=fidelity, seed=seed & 0xFFFF_FFFF,
+                        fixed = "ddp" if fidelity == "constant" else fidelity
+                        nav = navigator(planner, speed, fixed=fixed, seed=seed & 0xFFFF_FFFF,
                                         policy=args.policy)
                         tally = _Tally(nav)
                         world = jittered(worlds[wid], seed, args.jitter_m, args.jitter_yaw)
-                        r = run_episode(world, tally, seed=seed & 0xFFFF_FFFF, params=params)
+                        r = run_episode(world, tally, seed=seed & 0xFFFF_FFFF, params=params,
+                                        schedule=constant if fidelity == "constant" else None)
                         r["world"] = wid
                         cycles += tally.cycles
                         work = [a + b for a, b in zip(work, tally.work)]
@@ -107,7 +115,7 @@ def evaluate(args) -> List[Dict[str, Any]]:
                     per_world.append({"world": wid, "runs": runs})
                 n = max(cycles, 1)
                 row = {"simulator": "mujoco", "planner": planner, "fidelity": fidelity,
-                       "fidelity_label": fidelity, "prediction": "off", "max_speed": speed}
+                       "fidelity_label": label.get(fidelity, fidelity), "prediction": "off", "max_speed": speed}
                 row.update(summarize(per_world, args.trim))
                 row.update({
                     "check_points_per_cycle": work[4] / n,
@@ -123,6 +131,22 @@ def evaluate(args) -> List[Dict[str, Any]]:
     return rows
 
 
+def parse_constant(text):
+    """`--constant P,T,N,ALPHA`: a decremental schedule's parameters, each in the ADP action
+    space's range (p 1.0..1.7, T 1.6..2.2 s, N 15..22, alpha 0..0.6)."""
+    if not text:
+        raise ValueError("--fidelity constant needs --constant P,T,N,ALPHA (e.g. 1.7,2.0,20,0 for DDP)")
+    try:
+        p, horizon, steps, alpha = (float(v) for v in text.split(","))
+    except ValueError:
+        raise ValueError(f"--constant {text}: expected four numbers P,T,N,ALPHA") from None
+    ok = 1.0 <= p <= 1.7 and 1.6 <= horizon <= 2.2 and 15 <= steps <= 22 and 0.0 <= alpha <= 0.6
+    if not ok:
+        raise ValueError(f"--constant {text}: outside the decremental space (p 1.0..1.7, T 1.6..2.2, "
+                         "N 15..22, alpha 0..0.6)")
+    return p, horizon, int(round(steps)), alpha
+
+
 class _Tally:
     """A navigator wrapper that counts what its planning cycles did."""
 
@@ -132,6 +156,9 @@ class _Tally:
     @property
     def episode(self):
         return self.nav.episode
+
+    def set_schedule(self, *args):
+        self.nav.set_schedule(*args)
 
     def cycle(self, **kw):
         t = time.perf_counter()
@@ -182,7 +209,9 @@ def main(argv=None) -> int:
     sub = ap.add_subparsers(dest="command", required=True)
     ev = sub.add_parser("eval", help="run planners on worlds in MuJoCo; print the table, write JSON rows")
     ev.add_argument("--planner", nargs="+", default=["dwa"], choices=PLANNERS)
-    ev.add_argument("--fidelity", nargs="+", default=["ddp"], choices=["ddp", "vanilla"])
+    ev.add_argument("--fidelity", nargs="+", default=["ddp"], choices=["ddp", "vanilla", "constant"],
+                    help="the schedule: DDP's, vanilla, or the constant ADP action of --constant")
+    ev.add_argument("--constant", help="P,T,N,ALPHA: the decremental schedule of --fidelity constant")
     ev.add_argument("--max-speed", nargs="+", type=float, default=[1.5])
     ev.add_argument("--worlds", default="3", help="a selection as adp eval --worlds reads it: test, 0..10, 3,7")
     ev.add_argument("--runs", type=int, default=1)

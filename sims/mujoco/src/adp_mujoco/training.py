@@ -156,7 +156,7 @@ class MujocoEnvironment(adp_client.Environment):
             reward, terminal = env.collision_reward, True
         elif status == "succeeded":
             reward, terminal = shaping() + env.success_reward, True
-        elif status in ("timed_out", "error") or self.steps >= env.max_agent_steps:
+        elif status in ("timed_out", "error") or 0 < env.max_agent_steps <= self.steps:
             reward, truncated = (shaping() if status != "error" else 0.0) + env.timeout_reward, True
             if status == "running":
                 self.sim._finish("timed_out")
