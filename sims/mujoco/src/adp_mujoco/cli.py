@@ -11,7 +11,6 @@ counted as a failure."""
 
 import argparse
 import json
-import math
 import random
 import sys
 import time

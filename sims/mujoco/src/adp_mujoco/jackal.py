@@ -10,7 +10,7 @@ publishes nothing (the motors' torque, the wheel actuators' velocity-loop gain) 
 is an assumption and says so.
 """
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import List, Tuple
 
 import math

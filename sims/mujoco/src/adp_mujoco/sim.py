@@ -166,7 +166,7 @@ class JackalSim:
         PhysicsError (the status is then "error")."""
         if self.status != "running":
             return self.status
-        if isinstance(out, tuple):
+        if isinstance(out, (tuple, list)):
             command, planned, compute_s = out, True, None
         else:
             command, planned, compute_s = out.command, out.planned, out.compute_s
@@ -199,7 +199,7 @@ class JackalSim:
         return bool(np.any(c.geom1[:n] == self._footprint) or np.any(c.geom2[:n] == self._footprint))
 
     def _advance(self) -> None:
-        m, d, p = self.model, self.data, self.params
+        m, d = self.model, self.data
         dt = m.opt.timestep
         goal = self.world["goal"]
         for _ in range(self.substeps):
