@@ -4,6 +4,7 @@
 use std::path::PathBuf;
 
 use anyhow::Context;
+use bench::load::{LoadOptions, LoadPlane};
 use bench::{Options, Part};
 
 /// What `adp bench` runs and how long.
@@ -43,6 +44,24 @@ pub struct BenchArgs {
     /// The policy export the runtime part runs (default: the runtime's example export).
     #[arg(long)]
     pub runtime_policy: Option<PathBuf>,
+    /// Light actors, each a thread with its own connection, registration, heartbeats, policy
+    /// source and step sink (load).
+    #[arg(long, default_value_t = 1024)]
+    pub load_actors: u32,
+    /// The light actors' data plane: grpc (TCP to 127.0.0.1) or shm (shared memory, control
+    /// over the learner's Unix socket) (load).
+    #[arg(long, value_enum, default_value_t = LoadPlane::Grpc)]
+    pub load_plane: LoadPlane,
+    /// Seconds of the measured window, after the registrations and a 10 s warm-up (load).
+    #[arg(long, default_value_t = 150)]
+    pub load_seconds: u64,
+    /// Steps per synthetic episode, at most the run's max_agent_steps (load).
+    #[arg(long, default_value_t = 100)]
+    pub load_episode_steps: u32,
+    /// Keep the learner's default connection, registration, policy-stream and shared-memory
+    /// caps instead of raising them to the actor count (load).
+    #[arg(long)]
+    pub load_default_limits: bool,
     /// Also write the figures as JSON to this file.
     #[arg(long)]
     pub json: Option<PathBuf>,
@@ -62,6 +81,13 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         train_actors: args.train_actors,
         compute_worlds: args.compute_worlds,
         runtime_policy: args.runtime_policy,
+        load: LoadOptions {
+            actors: args.load_actors,
+            plane: args.load_plane,
+            seconds: args.load_seconds,
+            episode_steps: args.load_episode_steps,
+            default_limits: args.load_default_limits,
+        },
         json: args.json,
     };
     let adp = std::env::current_exe().context("cannot find this executable")?;

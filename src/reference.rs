@@ -580,6 +580,52 @@ mod tests {
         );
     }
 
+    /// Every key `adp train` knows (the code's defaults, serialized) stands in the file the
+    /// configuration reference takes its description from: `[slurm]` in `configs/slurm.toml`,
+    /// every other table in `configs/local.toml`. A key added to the code and not to the
+    /// file fails here.
+    #[test]
+    fn every_training_key_is_described_in_its_file() {
+        fn walk(table: &toml::Table, section: &str, out: &mut Vec<(String, String)>) {
+            for (key, value) in table {
+                match value.as_table() {
+                    Some(t) if section.is_empty() => walk(t, key, out),
+                    Some(t) => walk(t, &format!("{section}.{key}"), out),
+                    None => out.push((section.to_string(), key.clone())),
+                }
+            }
+        }
+        // Derived from [run] and [env] unless given: described in the [td3] comment.
+        let derived = ["obs_dim", "act_dim", "laser_dim"].map(|k| ("td3".to_string(), k.to_string()));
+        let text = toml::to_string(&train_config::TrainConfig::default()).unwrap();
+        let mut keys = Vec::new();
+        walk(&toml::from_str(&text).unwrap(), "", &mut keys);
+        // A file's keys, and the keys of its commented-out example tables (`# key = ...`).
+        let documented = |file: &str| -> (Vec<(String, String)>, &str) {
+            let (_, _, text) = CONFIG_FILES.iter().find(|f| f.0 == file).unwrap();
+            (
+                parse(text).1.into_iter().map(|k| (k.section, k.key)).collect(),
+                text,
+            )
+        };
+        let (local, slurm) = (documented("configs/local.toml"), documented("configs/slurm.toml"));
+        let missing: Vec<String> = keys
+            .iter()
+            .filter(|k| !derived.contains(k))
+            .filter(|k| {
+                let (keys, text) = if k.0 == "slurm" { &slurm } else { &local };
+                !keys.contains(k) && !text.contains(&format!("# {} =", k.1))
+            })
+            .map(|(section, key)| format!("[{section}] {key}"))
+            .collect();
+        assert!(keys.len() > 100, "the defaults serialize every table: {keys:?}");
+        assert!(
+            missing.is_empty(),
+            "keys the code knows that the documented configuration file does not describe \
+             (add them, commented, with their defaults): {missing:?}"
+        );
+    }
+
     #[test]
     fn keys_take_the_comments_above_and_after_them() {
         let (head, keys) = parse(

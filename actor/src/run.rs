@@ -223,13 +223,19 @@ fn log_tally(tally: Option<SinkTally>) {
     }
 }
 
-/// Flags the heartbeat task shares with the episode loop.
+/// Flags the heartbeat task ([`heartbeats`]) shares with the episode loop.
 #[derive(Default)]
-struct Flags {
-    lease: AtomicU64,
-    lease_lost: AtomicBool,
-    shutdown: AtomicBool,
-    gone: AtomicBool,
+pub struct Flags {
+    /// The lease being worked (0: none); the heartbeats renew it and set it to 0 when the
+    /// learner says it is no longer valid.
+    pub lease: AtomicU64,
+    /// The learner ended the lease (finished, expired, dropped or cut).
+    pub lease_lost: AtomicBool,
+    /// The learner said the run is over.
+    pub shutdown: AtomicBool,
+    /// The learner no longer knows this session, or has not answered for a lease TTL: register
+    /// again.
+    pub gone: AtomicBool,
 }
 
 struct Planes {
@@ -773,8 +779,8 @@ fn wait_for_lease_end(flags: &Flags, limit: Duration) {
     }
 }
 
-/// Aborts a tokio task when dropped.
-struct AbortOnDrop(tokio::task::JoinHandle<()>);
+/// Aborts a tokio task when dropped (the heartbeat task of a session).
+pub struct AbortOnDrop(pub tokio::task::JoinHandle<()>);
 
 impl Drop for AbortOnDrop {
     fn drop(&mut self) {
@@ -787,8 +793,8 @@ impl Drop for AbortOnDrop {
 /// Each call gets `every` (at least one second) to answer. When no heartbeat has succeeded for
 /// longer than `ttl` the learner has expired the lease (or is gone): the session is marked gone
 /// so that an actor waiting on the learner (for a policy, or to drain its last lease) leaves and
-/// reconnects rather than waiting forever.
-async fn heartbeats(
+/// reconnects rather than waiting forever. Runs until aborted.
+pub async fn heartbeats(
     mut control: ControlClient,
     run: pb::RunRef,
     actor_id: u64,

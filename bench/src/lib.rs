@@ -24,12 +24,16 @@
 //!   model's budget; the policy's inference share.
 //! - `compute` ([`compute`], not in the default set): the unit costs of planner work on this
 //!   machine and the `jackal-onboard-v2` compute platform derived from them.
+//! - `load` ([`load`], not in the default set): many light actors (synthetic steps) against
+//!   one `adp learner` for minutes, over gRPC or shared memory: steps stored per second,
+//!   acknowledgement latency, the learner's memory, registrations per second, nothing lost.
 //!
 //! Timing is wall clock in a release build; nothing here is a test.
 
 pub mod collect;
 pub mod compute;
 pub mod cycle;
+pub mod load;
 pub mod pytorch;
 pub mod runtime;
 pub mod td3;
@@ -59,6 +63,8 @@ pub enum Part {
     Cycle,
     /// The robot runtime's control cycle against the compute budget (not run by default).
     Runtime,
+    /// Many light actors against one learner (not run by default).
+    Load,
 }
 
 impl Part {
@@ -92,6 +98,8 @@ pub struct Options {
     pub compute_worlds: usize,
     /// The policy export the runtime part runs (its example export when `None`).
     pub runtime_policy: Option<PathBuf>,
+    /// What the load part runs (load).
+    pub load: load::LoadOptions,
     /// Also write the figures as JSON to this file.
     pub json: Option<PathBuf>,
 }
@@ -135,11 +143,19 @@ impl Figure {
         self.met = Some(self.value <= bound);
         self
     }
+
+    /// Sets an exact value as the target.
+    fn exactly(mut self, value: f64) -> Self {
+        self.target = format!("= {value}");
+        self.met = Some(self.value == value);
+        self
+    }
 }
 
 /// `adp bench`: runs the parts of `options`, printing each figure to stderr as it comes and a
 /// table of them to stdout at the end (and the JSON file `options.json` names), and returns
-/// them. `adp` is the `adp` executable the `train` part starts as `adp train`.
+/// them. `adp` is the `adp` executable the `train` part starts as `adp train` and the `load`
+/// part as `adp learner`.
 pub fn run(options: &Options, adp: &Path) -> anyhow::Result<Vec<Figure>> {
     let parts = if options.parts.is_empty() {
         Part::DEFAULT.to_vec()
@@ -160,6 +176,7 @@ pub fn run(options: &Options, adp: &Path) -> anyhow::Result<Vec<Figure>> {
             Part::Train => train::run(adp, options.train_steps, options.train_actors),
             Part::Compute => compute::run(options.compute_worlds),
             Part::Cycle => cycle::run(options.compute_worlds),
+            Part::Load => load::run(adp, &options.load),
             Part::Runtime => runtime::run(
                 options.compute_worlds,
                 options
