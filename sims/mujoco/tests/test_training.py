@@ -57,6 +57,48 @@ def test_clearance_and_penalty_are_the_rust_actors():
     assert obstacle_penalty(0.5, 0.4, -1.0) == 0.0
 
 
+def run_info(max_agent_steps=400):
+    from adp_client._proto import adp_pb2 as pb
+
+    env = pb.EnvConfig(agent_period_cycles=5, max_agent_steps=max_agent_steps, laser_clip_m=2.5,
+                       progress_scale=1.0, step_penalty=-0.01, obstacle_threshold_m=0.3, obstacle_scale=-0.1,
+                       collision_reward=-10.0, timeout_reward=0.0, success_reward=10.0, reward_scale=0.1)
+    space = adp_client.ActionSpace("decremental")
+    return adp_client.RunInfo(run_id="test", incarnation=1, actor_id=1, obs_dim=720 + space.dim + 6,
+                              act_dim=space.dim, action_space=space, planner="dwa", max_speed=1.5, run_seed=0,
+                              policy_dims=[], heartbeat_ms=200, lease_ttl_ms=2000, env=env,
+                              action_map=adp_client.ActionMap(), laser_layout="scan")
+
+
+def test_an_episode_by_hand_and_a_bad_world_keeps_the_actor_serving():
+    env = MujocoEnvironment()
+    info = run_info()
+    env.configure(info)
+    # A world id no world has: the episode ends at its first step, as a timeout with the
+    # error, and the next episode runs.
+    obs = env.reset(400, 1)
+    assert obs.shape == (info.obs_dim,) and not obs.any()
+    _, reward, terminal, truncated, out = env.step(np.zeros(info.act_dim, dtype=np.float32))
+    assert (reward, terminal, truncated) == (0.0, False, True)
+    assert out["outcome"] == "timeout" and "world 400 does not exist" in out["error"] and env.errors == 1
+    obs = env.reset(3, 1)
+    assert obs.shape == (info.obs_dim,) and np.all(np.isfinite(obs)) and np.all(np.abs(obs[:720]) <= 1.0)
+    # The DDP-centred action map's zero action is DDP's schedule: world 3 is reached.
+    total, steps, out = 0.0, 0, {}
+    while not out:
+        obs, reward, terminal, truncated, out = env.step(np.zeros(info.act_dim, dtype=np.float32))
+        total += reward
+        steps += 1
+    assert out["outcome"] == "success" and terminal and not truncated, out
+    assert out["score"] > 0 and reward > 0.9 and 10 < steps < 60
+    # The agent step cap truncates.
+    env = MujocoEnvironment()
+    env.configure(run_info(max_agent_steps=3))
+    env.reset(3, 1)
+    ends = [env.step(np.zeros(4, dtype=np.float32))[2:4] for _ in range(3)]
+    assert ends == [(False, False), (False, False), (False, True)]
+
+
 def wait_for(what, pred, limit=300.0):
     end = time.monotonic() + limit
     while time.monotonic() < end:

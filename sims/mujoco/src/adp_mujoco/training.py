@@ -29,7 +29,7 @@ import adp_client
 from adp_client.observation import LaserResampler, observation
 
 from .episode import navigator
-from .errors import SimError, WorldError
+from .errors import SimError
 from .jackal import JackalParams
 from .sim import JackalSim
 
@@ -95,13 +95,17 @@ class MujocoEnvironment(adp_client.Environment):
         self.footprint = (ep["footprint"]["half_length"], ep["footprint"]["half_width"])
         try:
             self.sim = JackalSim(world, episode=ep, seed=seed & 0xFFFF_FFFF, params=self.params, **self.sim_options)
-        except WorldError as e:
-            # An episode that cannot start: an observation of zeros, and the first step ends it.
+        except SimError as e:
+            # An episode that cannot start (a world the model cannot be built from, a lidar
+            # that fails at once): an observation of zeros, and the first step ends it.
             self.sim, self.error = None, str(e)
             self.errors += 1
             return np.zeros(info.obs_dim, dtype=np.float32)
         self.laser = LaserResampler(info.laser_layout, self.sim.lidar.angles)
-        self.nav.cycle(**self.sim.observe())  # the local goal of the first observation
+        try:
+            self.nav.cycle(**self.sim.observe())  # the local goal of the first observation
+        except ValueError:
+            pass  # refused: the observation takes the goal for the local goal
         self.distance = self._goal_distance()
         return self._observation()
 
