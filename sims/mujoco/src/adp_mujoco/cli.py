@@ -17,7 +17,7 @@ import time
 from typing import Any, Dict, List
 
 from .episode import PLANNERS, decremental_schedule, navigator, run_episode
-from .jackal import JackalParams
+from .jackal import BASES, JackalParams, base_params
 from .world import load_world
 from .errors import SimError
 
@@ -81,7 +81,7 @@ def evaluate(args) -> List[Dict[str, Any]]:
         constant = lambda sim, k: dts_checks  # noqa: E731
         label["constant"] = f"constant p={p:g} T={horizon:g} N={steps} alpha={alpha:g}"
     worlds = {i: load_world(i) for i in ids}
-    params = JackalParams(track_multiplier=args.track_multiplier)
+    params = _params(args)
     rows = []
     for planner in args.planner:
         for fidelity in args.fidelity:
@@ -114,7 +114,9 @@ def evaluate(args) -> List[Dict[str, Any]]:
                     per_world.append({"world": wid, "runs": runs})
                 n = max(cycles, 1)
                 row = {"simulator": "mujoco", "planner": planner, "fidelity": fidelity,
-                       "fidelity_label": label.get(fidelity, fidelity), "prediction": "off", "max_speed": speed}
+                       "fidelity_label": label.get(fidelity, fidelity), "prediction": "off", "max_speed": speed,
+                       "base": {"name": args.base, "track_multiplier": params.track_multiplier,
+                                "yaw_kp": params.yaw_kp, "yaw_ki": params.yaw_ki, "yaw_i_max": params.yaw_i_max}}
                 row.update(summarize(per_world, args.trim))
                 row.update({
                     "check_points_per_cycle": work[4] / n,
@@ -182,6 +184,22 @@ def table(rows) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _base_options(p) -> None:
+    p.add_argument("--base", choices=BASES, default="calibrated",
+                   help="the base controller: 'calibrated' (default: the Jackal controller plus a "
+                   "gyro yaw-rate PI loop fitted so the robot turns at the commanded rate, "
+                   "calibrated to the project's simulator's unicycle response, not to the real "
+                   "robot) or 'published' (Clearpath's controller, no yaw loop)")
+    p.add_argument("--track-multiplier", type=float, default=None,
+                   help="override the base's wheel_separation_multiplier (both bases: the "
+                   "Jackal's 1.5)")
+
+
+def _params(args) -> JackalParams:
+    kw = {} if args.track_multiplier is None else {"track_multiplier": args.track_multiplier}
+    return base_params(args.base, **kw)
+
+
 def actor(args) -> int:
     """`adp-mujoco actor`: serves the learner until its run is over."""
     try:
@@ -191,7 +209,7 @@ def actor(args) -> int:
     except ImportError as e:
         print(f"adp-mujoco actor: {e} (install clients/python)", file=sys.stderr)
         return 2
-    env = MujocoEnvironment(JackalParams(track_multiplier=args.track_multiplier))
+    env = MujocoEnvironment(_params(args))
     try:
         adp_client.Actor(args.learner, env, rank=args.rank, token_file=args.token_file, tls_ca=args.tls_ca,
                          tls_cert=args.tls_cert, tls_key=args.tls_key, tls_domain=args.tls_domain,
@@ -219,8 +237,7 @@ def main(argv=None) -> int:
     ev.add_argument("--jitter-m", type=float, default=0.0, help="start moved by U(-j, j) in x and y (m)")
     ev.add_argument("--jitter-yaw", type=float, default=0.0, help="start heading moved by U(-j, j) (rad)")
     ev.add_argument("--policy", help="an adp export directory: the policy chooses the schedule")
-    ev.add_argument("--track-multiplier", type=float, default=JackalParams().track_multiplier,
-                    help="the base controller's wheel_separation_multiplier (default: the Jackal's 1.5)")
+    _base_options(ev)
     ev.add_argument("--out", help="write the rows as JSON here")
     ev.add_argument("--quiet", action="store_true")
     ac = sub.add_parser("actor", help="a MuJoCo actor of an `adp learner` run (needs adp_client)")
@@ -232,7 +249,10 @@ def main(argv=None) -> int:
     ac.add_argument("--tls-key")
     ac.add_argument("--tls-domain")
     ac.add_argument("--give-up-after", type=float, default=60.0)
-    ac.add_argument("--track-multiplier", type=float, default=JackalParams().track_multiplier)
+    _base_options(ac)
+    ca = sub.add_parser("calibrate", help="step and turn responses of the published and calibrated "
+                        "bases beside the project's gazebo-jackal profile; the figure with --out")
+    ca.add_argument("--out", help="write the figure (PNG) here (needs matplotlib)")
     args = ap.parse_args(argv)
     # MuJoCo's warnings to stderr, not to MUJOCO_LOG.TXT in the working directory (a
     # diverged state also ends its episode as a PhysicsError, recorded in its run).
@@ -241,6 +261,11 @@ def main(argv=None) -> int:
     mujoco.set_mju_user_warning(lambda msg: print(f"mujoco: {msg}", file=sys.stderr))
     if args.command == "actor":
         return actor(args)
+    if args.command == "calibrate":
+        from .calibrate import run
+
+        run(args.out)
+        return 0
     if args.runs < 1 or not (0 <= 2 * args.trim < args.runs):
         ap.error("--runs must be >= 1 and --trim less than half of --runs")
     try:

@@ -11,7 +11,7 @@ is an assumption and says so.
 """
 
 from dataclasses import dataclass
-from typing import List, Tuple
+from typing import List, Optional, Tuple
 
 import math
 
@@ -48,6 +48,17 @@ class JackalParams:
     # to wheel speeds with an effective track 1.5 x the geometric one, the usual skid-steer
     # correction for the wheels' lateral scrub; its wheel odometry uses the same.
     track_multiplier: float = 1.5
+    # Yaw-rate feedback from the gyro. The controller adds a PI correction of the gyro's yaw
+    # rate error to the turn it asks of the wheels: d = w_ref + yaw_kp (w_ref - w_gyro) + I,
+    # dI/dt = yaw_ki (w_ref - w_gyro), |I| <= yaw_i_max (rad/s). The defaults are the
+    # calibrated gains (`CALIBRATED_YAW_LOOP`), fitted in this package (`adp-mujoco
+    # calibrate`) so that the MuJoCo robot turns at the commanded rate, as the unicycle the
+    # project's planners predict: CALIBRATED TO THE PROJECT'S SIMULATOR'S UNICYCLE RESPONSE,
+    # NOT TO THE REAL ROBOT (Clearpath's controller has no such loop). Zero gains, as in
+    # `JackalParams.published()`, give the published open-loop controller.
+    yaw_kp: float = 3.0
+    yaw_ki: float = 30.0
+    yaw_i_max: float = 3.0
     # control.yaml: linear.x max_velocity 2.0 m/s, max_acceleration 20 m/s^2;
     # angular.z max_velocity 4.0 rad/s, max_acceleration 25 rad/s^2 (the spec sheet's top
     # speed is the same 2.0 m/s).
@@ -76,6 +87,21 @@ class JackalParams:
     # the project's simulator and the runtime's default laser pose put it.
     lidar_height: float = 0.0635 + 0.184 + 0.024
 
+    @classmethod
+    def published(cls, **kw) -> "JackalParams":
+        """The Jackal controller as Clearpath publishes it: wheel-separation multiplier 1.5,
+        no yaw-rate feedback. Under MuJoCo's contacts it turns at about a third of the
+        commanded rate (docs/guide/results/mujoco.md)."""
+        return cls(**{"track_multiplier": 1.5, "yaw_kp": 0.0, "yaw_ki": 0.0, "yaw_i_max": 0.0, **kw})
+
+    @classmethod
+    def calibrated(cls, **kw) -> "JackalParams":
+        """The published controller plus a PI loop on the gyro's yaw rate, its gains fitted by
+        `adp-mujoco calibrate` so that the commanded and achieved yaw rates agree over the
+        commands the planners use (|w| <= 2 rad/s, v <= 1.5 m/s): calibrated to the project's
+        simulator's unicycle response, not to the real robot."""
+        return cls(**{**CALIBRATED_YAW_LOOP, **kw})
+
     @property
     def ride_height(self) -> float:
         """Height of the chassis origin above flat ground, wheels touching (m)."""
@@ -89,6 +115,22 @@ class JackalParams:
     @property
     def total_mass(self) -> float:
         return self.chassis_mass + 4 * self.wheel_mass
+
+
+CALIBRATED_YAW_LOOP = {"track_multiplier": 1.5, "yaw_kp": 3.0, "yaw_ki": 30.0, "yaw_i_max": 3.0}
+"""The calibrated base's settings (see `JackalParams.calibrated`)."""
+
+BASES = ("calibrated", "published")
+"""The named base controllers (`base_params`)."""
+
+
+def base_params(base: str, **kw) -> JackalParams:
+    """`JackalParams.calibrated()` or `.published()` by name, with `kw` overriding fields."""
+    if base == "calibrated":
+        return JackalParams.calibrated(**kw)
+    if base == "published":
+        return JackalParams.published(**kw)
+    raise ValueError(f"base {base!r}: expected one of {', '.join(BASES)}")
 
 
 WHEELS: List[str] = ["front_left", "rear_left", "front_right", "rear_right"]
@@ -159,22 +201,30 @@ class SkidSteer:
     v: float = 0.0
     w: float = 0.0
     target: Tuple[float, float] = (0.0, 0.0)
+    yaw_i: float = 0.0
 
     def command(self, v: float, w: float) -> None:
         p = self.params
         self.target = (min(max(v, -p.max_v), p.max_v), min(max(w, -p.max_w), p.max_w))
 
-    def step(self, dt: float) -> List[float]:
+    def step(self, dt: float, yaw_rate: Optional[float] = None) -> List[float]:
         """Advances the rate limiter by `dt`; returns the wheel speeds (rad/s) in `WHEELS`
-        order."""
+        order. `yaw_rate`: the gyro's measured yaw rate (rad/s), which the yaw-rate loop
+        (`JackalParams.yaw_kp`, `yaw_ki`) corrects the turn with; None or zero gains: the
+        published open-loop mapping."""
         p = self.params
         tv, tw = self.target
         dv, dw = p.accel_v * dt, p.accel_w * dt
         self.v += min(max(tv - self.v, -dv), dv)
         self.w += min(max(tw - self.w, -dw), dw)
+        turn = self.w
+        if yaw_rate is not None and (p.yaw_kp > 0.0 or p.yaw_ki > 0.0):
+            err = self.w - yaw_rate
+            self.yaw_i = min(max(self.yaw_i + p.yaw_ki * err * dt, -p.yaw_i_max), p.yaw_i_max)
+            turn = self.w + p.yaw_kp * err + self.yaw_i
         half = p.effective_track / 2
-        left = (self.v - self.w * half) / p.wheel_radius
-        right = (self.v + self.w * half) / p.wheel_radius
+        left = (self.v - turn * half) / p.wheel_radius
+        right = (self.v + turn * half) / p.wheel_radius
         worst = max(abs(left), abs(right))
         if worst > p.max_wheel_speed:
             s = p.max_wheel_speed / worst
@@ -182,4 +232,5 @@ class SkidSteer:
         return [left, left, right, right]
 
 
-__all__ = ["JackalParams", "SkidSteer", "WHEELS", "robot_xml", "actuators_xml"]
+__all__ = ["BASES", "CALIBRATED_YAW_LOOP", "JackalParams", "SkidSteer", "WHEELS", "actuators_xml",
+           "base_params", "robot_xml"]

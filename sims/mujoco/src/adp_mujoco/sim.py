@@ -103,6 +103,7 @@ class JackalSim:
         self.controller = SkidSteer(params)
         self.lidar = Lidar(m, ep["lidar"], seed)
         self._gyro_rng = np.random.default_rng(seed ^ 0x6779_726F)
+        self._gyro = 0.0
         mujoco.mj_forward(m, self.data)
         if self._touching():
             raise WorldError(f"world {self.world['id']}: the robot's start {self.world['start']} is inside an obstacle")
@@ -205,7 +206,7 @@ class JackalSim:
         for _ in range(self.substeps):
             while self._pending and self._pending[0][0] <= d.time:
                 self.controller.command(*self._pending.popleft()[1])
-            d.ctrl[self._act] = self.controller.step(dt)
+            d.ctrl[self._act] = self.controller.step(dt, self._gyro)
             before = d.qpos[self._free_q:self._free_q + 2].copy()
             mujoco.mj_step(m, d)
             self._check_physics()
@@ -237,10 +238,12 @@ class JackalSim:
         wheel = self.data.qvel[self._wheel_v]
         left, right = (wheel[0] + wheel[1]) / 2, (wheel[2] + wheel[3]) / 2
         v = p.wheel_radius * (left + right) / 2
+        # The gyro (yaw rate with noise) feeds the base's yaw-rate loop in every mode.
+        self._gyro = float(self.data.qvel[self._free_v + 5]) + self._gyro_rng.normal(0.0, GYRO_NOISE)
         if self.odometry == "wheels":
             w = p.wheel_radius * (right - left) / p.effective_track
         else:
-            w = float(self.data.qvel[self._free_v + 5]) + self._gyro_rng.normal(0.0, GYRO_NOISE)
+            w = self._gyro
         x, y, yaw = self.odom_pose
         mid = yaw + 0.5 * w * dt
         self.odom_pose = [x + v * math.cos(mid) * dt, y + v * math.sin(mid) * dt, _wrap(yaw + w * dt)]
