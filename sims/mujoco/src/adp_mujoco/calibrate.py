@@ -110,13 +110,38 @@ def steady_yaw(r: Optional[Dict[str, np.ndarray]]) -> float:
     return float(np.mean(r["w"][sel]))
 
 
-def turn_table(params: JackalParams, vs=TURN_V, ws=TURN_W) -> List[Tuple[float, float, float]]:
-    """(v, w, steady yaw rate) of the MuJoCo Jackal for every command of the grid."""
-    return [(v, w, steady_yaw(mujoco_response(params, v, w))) for v in vs for w in ws]
+def steady_speed(r: Optional[Dict[str, np.ndarray]]) -> float:
+    """The mean forward speed over the same window as `steady_yaw`."""
+    if r is None:
+        return float("nan")
+    sel = r["t"] > STEADY_FROM_S + 1e-9
+    return float(np.mean(r["v"][sel]))
 
 
-def project_turn_table(vs=TURN_V, ws=TURN_W) -> List[Tuple[float, float, float]]:
-    return [(v, w, steady_yaw(project_response(v, w))) for v in vs for w in ws]
+def turn_table(params: JackalParams, vs=TURN_V, ws=TURN_W, speeds: Optional[list] = None
+               ) -> List[Tuple[float, float, float]]:
+    """(v, w, steady yaw rate) of the MuJoCo Jackal for every command of the grid; with
+    `speeds` a list, (v, w, steady forward speed) are appended to it."""
+    rows = []
+    for v in vs:
+        for w in ws:
+            r = mujoco_response(params, v, w)
+            rows.append((v, w, steady_yaw(r)))
+            if speeds is not None:
+                speeds.append((v, w, steady_speed(r)))
+    return rows
+
+
+def project_turn_table(vs=TURN_V, ws=TURN_W, speeds: Optional[list] = None
+                       ) -> List[Tuple[float, float, float]]:
+    rows = []
+    for v in vs:
+        for w in ws:
+            r = project_response(v, w)
+            rows.append((v, w, steady_yaw(r)))
+            if speeds is not None:
+                speeds.append((v, w, steady_speed(r)))
+    return rows
 
 
 def _print_table(title: str, rows) -> None:
@@ -128,15 +153,33 @@ def _print_table(title: str, rows) -> None:
         print(f"  {v:5.2f}  " + " ".join(f"{cells[w]:6.3f}" for w in ws))
 
 
+def _t90(r: Optional[Dict[str, np.ndarray]], v: float) -> float:
+    """The first sample time at which the forward speed reaches 90 % of `v`."""
+    if r is None or not np.any(r["v"] >= 0.9 * v):
+        return float("nan")
+    return float(r["t"][np.argmax(r["v"] >= 0.9 * v)])
+
+
 def run(out: Optional[str] = None) -> Dict[str, List]:
     """Prints the steady yaw rates of the published and calibrated MuJoCo bases and of the
     project's simulator over the grid, and draws the figure into `out` (a PNG)."""
     bases = {"MuJoCo, published (multiplier 1.5)": JackalParams.published(),
              "MuJoCo, calibrated (gyro PI loop)": JackalParams.calibrated()}
-    tables = {name: turn_table(p) for name, p in bases.items()}
-    tables["project's simulator (gazebo-jackal)"] = project_turn_table()
+    speeds = {name: [] for name in bases}
+    tables = {name: turn_table(p, speeds=speeds[name]) for name, p in bases.items()}
+    name = "project's simulator (gazebo-jackal)"
+    speeds[name] = []
+    tables[name] = project_turn_table(speeds=speeds[name])
     for name, rows in tables.items():
         _print_table(f"steady yaw rate (rad/s), {name}", rows)
+    for name, rows in speeds.items():
+        _print_table(f"steady forward speed (m/s), {name}", rows)
+    for name, p in bases.items():
+        r = mujoco_response(p, 1.0, 0.0)
+        print(f"step to 1.0 m/s, {name}: 90 % at {_t90(r, 1.0):.2f} s after the command")
+    r = project_response(1.0, 0.0)
+    print(f"step to 1.0 m/s, project's simulator (gazebo-jackal): 90 % at {_t90(r, 1.0):.2f} s "
+          f"after the command (world {r['world'] if r else None})")
     if out:
         _figure(bases, tables, out)
     return tables
