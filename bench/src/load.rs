@@ -883,3 +883,64 @@ fn figures(
     }
     f
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The learner configuration the bench writes is a valid run configuration, raises every
+    /// cap a fleet of that size reaches (and none below its default), and leaves them alone
+    /// with `default_limits`.
+    #[test]
+    fn the_learner_config_raises_every_cap_to_the_actor_count() {
+        let o = LoadOptions {
+            actors: 1024,
+            plane: LoadPlane::Shm,
+            seconds: 1,
+            episode_steps: 100,
+            default_limits: false,
+        };
+        let cfg = train_config::TrainConfig::parse("load", &learner_config(&o)).unwrap();
+        let s = cfg.service;
+        assert!(s.shared_memory && !s.ddp_init);
+        assert_eq!(
+            (
+                s.max_connections_per_ip,
+                s.registrations_per_ip,
+                s.policy_streams_per_ip
+            ),
+            (1024, 1024, 1024)
+        );
+        assert_eq!(
+            (s.max_connections, s.max_policy_streams, s.shm_max_actors),
+            (1024, 1024, 1024)
+        );
+        assert!(cfg.td3.warmup_steps > 1 << 29, "no TD3 updates");
+        let few = train_config::TrainConfig::parse(
+            "load",
+            &learner_config(&LoadOptions {
+                actors: 8,
+                ..o.clone()
+            }),
+        )
+        .unwrap()
+        .service;
+        assert_eq!((few.max_connections, few.registrations_per_ip), (1024, 256));
+        let defaults = LoadOptions {
+            default_limits: true,
+            plane: LoadPlane::Grpc,
+            ..o
+        };
+        let s = train_config::TrainConfig::parse("load", &learner_config(&defaults))
+            .unwrap()
+            .service;
+        assert!(!s.shared_memory);
+        assert_eq!(
+            (s.max_connections_per_ip, s.registrations_per_ip),
+            (
+                ServiceConfig::default().max_connections_per_ip,
+                ServiceConfig::default().registrations_per_ip
+            )
+        );
+    }
+}
