@@ -55,6 +55,8 @@ def test_the_default_is_the_calibrated_base_and_the_published_one_is_named():
     assert (pub.track_multiplier, pub.yaw_kp, pub.yaw_ki) == (1.5, 0.0, 0.0)
     with pytest.raises(ValueError):
         base_params("gazebo")
+    assert base_params("calibrated-slip").yaw_slip == (0.08, 0.06, 0.4)
+    assert JackalParams().yaw_slip == (0.0, 0.0, 0.0)
 
 
 def test_the_cli_names_the_base():
@@ -92,3 +94,13 @@ def test_the_project_simulator_is_measured_through_the_runtime():
         assert r is not None
         assert steady_yaw(r) == pytest.approx(w * (1 - min(0.08 * v + 0.06 * w, 0.4)), rel=1e-3)
         assert steady_speed(r) == pytest.approx(v, abs=1e-3)
+
+
+def test_the_slip_base_turns_as_the_project_simulator_does():
+    # `calibrated-slip` (an experiment): the loop's reference is gazebo-jackal's slipped yaw
+    # rate, w (1 - min(0.08 |v| + 0.06 |w|, 0.4)); same tolerance.
+    p = base_params("calibrated-slip")
+    for v, w in ((0.0, 1.0), (1.0, 1.0), (1.5, 0.5), (1.5, 1.0)):
+        want = w * (1 - min(0.08 * v + 0.06 * w, 0.4))
+        got = steady_yaw(mujoco_response(p, v, w))
+        assert close(got, want), f"command ({v}, {w}): yaw rate {got:.3f}, profile {want:.3f}"

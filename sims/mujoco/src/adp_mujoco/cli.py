@@ -116,7 +116,8 @@ def evaluate(args) -> List[Dict[str, Any]]:
                 row = {"simulator": "mujoco", "planner": planner, "fidelity": fidelity,
                        "fidelity_label": label.get(fidelity, fidelity), "prediction": "off", "max_speed": speed,
                        "base": {"name": args.base, "track_multiplier": params.track_multiplier,
-                                "yaw_kp": params.yaw_kp, "yaw_ki": params.yaw_ki, "yaw_i_max": params.yaw_i_max}}
+                                "yaw_kp": params.yaw_kp, "yaw_ki": params.yaw_ki, "yaw_i_max": params.yaw_i_max,
+                                "yaw_slip": list(params.yaw_slip)}}
                 row.update(summarize(per_world, args.trim))
                 row.update({
                     "check_points_per_cycle": work[4] / n,
@@ -189,7 +190,8 @@ def _base_options(p) -> None:
                    help="the base controller: 'calibrated' (default: the Jackal controller plus a "
                    "gyro yaw-rate PI loop fitted so the robot turns at the commanded rate, "
                    "calibrated to the project's simulator's unicycle response, not to the real "
-                   "robot) or 'published' (Clearpath's controller, no yaw loop)")
+                   "robot), 'published' (Clearpath's controller, no yaw loop) or 'calibrated-slip' (the "
+                   "loop tracking gazebo-jackal's slipped yaw rate: an experiment)")
     p.add_argument("--track-multiplier", type=float, default=None,
                    help="override the base's wheel_separation_multiplier (both bases: the "
                    "Jackal's 1.5)")

@@ -59,6 +59,12 @@ class JackalParams:
     yaw_kp: float = 3.0
     yaw_ki: float = 30.0
     yaw_i_max: float = 3.0
+    # The yaw-rate loop's reference: the commanded w times 1 - min(a |v| + b |w|, c) for
+    # yaw_slip = (a, b, c). (0, 0, 0), the default: the commanded rate (the unicycle). The
+    # `calibrated-slip` base sets gazebo-jackal's yaw slip (settings/src/dynamics.rs:
+    # slip_per_v 0.08, slip_per_w 0.06, max_slip 0.4), so that MuJoCo turns as the project's
+    # simulator does; an experiment on the profile's slip, not a model of the robot.
+    yaw_slip: Tuple[float, float, float] = (0.0, 0.0, 0.0)
     # control.yaml: linear.x max_velocity 2.0 m/s, max_acceleration 20 m/s^2;
     # angular.z max_velocity 4.0 rad/s, max_acceleration 25 rad/s^2 (the spec sheet's top
     # speed is the same 2.0 m/s).
@@ -120,7 +126,10 @@ class JackalParams:
 CALIBRATED_YAW_LOOP = {"track_multiplier": 1.5, "yaw_kp": 3.0, "yaw_ki": 30.0, "yaw_i_max": 3.0}
 """The calibrated base's settings (see `JackalParams.calibrated`)."""
 
-BASES = ("calibrated", "published")
+GAZEBO_JACKAL_YAW_SLIP = (0.08, 0.06, 0.4)
+"""gazebo-jackal's yaw slip (slip_per_v, slip_per_w, max_slip; settings/src/dynamics.rs)."""
+
+BASES = ("calibrated", "published", "calibrated-slip")
 """The named base controllers (`base_params`)."""
 
 
@@ -130,6 +139,8 @@ def base_params(base: str, **kw) -> JackalParams:
         return JackalParams.calibrated(**kw)
     if base == "published":
         return JackalParams.published(**kw)
+    if base == "calibrated-slip":
+        return JackalParams.calibrated(**{"yaw_slip": GAZEBO_JACKAL_YAW_SLIP, **kw})
     raise ValueError(f"base {base!r}: expected one of {', '.join(BASES)}")
 
 
@@ -219,7 +230,8 @@ class SkidSteer:
         self.w += min(max(tw - self.w, -dw), dw)
         turn = self.w
         if yaw_rate is not None and (p.yaw_kp > 0.0 or p.yaw_ki > 0.0):
-            err = self.w - yaw_rate
+            a, b, c = p.yaw_slip
+            err = self.w * (1.0 - min(a * abs(self.v) + b * abs(self.w), c)) - yaw_rate
             self.yaw_i = min(max(self.yaw_i + p.yaw_ki * err * dt, -p.yaw_i_max), p.yaw_i_max)
             turn = self.w + p.yaw_kp * err + self.yaw_i
         half = p.effective_track / 2
@@ -232,5 +244,5 @@ class SkidSteer:
         return [left, left, right, right]
 
 
-__all__ = ["BASES", "CALIBRATED_YAW_LOOP", "JackalParams", "SkidSteer", "WHEELS", "actuators_xml",
+__all__ = ["BASES", "CALIBRATED_YAW_LOOP", "GAZEBO_JACKAL_YAW_SLIP", "JackalParams", "SkidSteer", "WHEELS", "actuators_xml",
            "base_params", "robot_xml"]
