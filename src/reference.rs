@@ -194,30 +194,108 @@ struct Key {
     key: String,
     value: String,
     meaning: String,
+    /// Commented out in the file (`# key = value`): absent unless set, its value an example.
+    optional: bool,
 }
 
-/// The file's opening comment and its keys, each with the comments above it and after it.
-fn parse(text: &str) -> (String, Vec<Key>) {
+/// The table a commented-out header (`# [name]`) opens: an optional table the file shows as
+/// an example.
+fn example_header(comment: &str) -> Option<&str> {
+    let name = comment.strip_prefix('[')?.strip_suffix(']')?;
+    let word = |c: char| c.is_ascii_lowercase() || c.is_ascii_digit() || c == '_' || c == '.';
+    (!name.is_empty() && name.chars().all(word)).then_some(name)
+}
+
+/// A commented-out key (`# key = value  # meaning`) whose value is a TOML value on one line:
+/// its key, value and trailing comment. Prose that happens to hold ` = ` is not one.
+fn example_key(comment: &str) -> Option<(String, String, String)> {
+    let (key, rest) = comment.split_once(" = ")?;
+    let key = key.trim();
+    let word = |c: char| c.is_ascii_lowercase() || c.is_ascii_digit() || c == '_';
+    if key.is_empty() || !key.chars().all(word) {
+        return None;
+    }
+    let (value, trailing) = match rest.split_once(" #") {
+        Some((v, t)) => (v.trim(), t.trim()),
+        None => (rest.trim(), ""),
+    };
+    toml::from_str::<toml::Table>(&format!("v = {value}")).ok()?;
+    Some((key.to_string(), value.to_string(), trailing.to_string()))
+}
+
+/// Joins the comments above a key and its trailing comment.
+fn meaning_of(pending: &[String], trailing: &str) -> String {
+    let mut meaning = pending.join(" ");
+    if !trailing.is_empty() {
+        if !meaning.is_empty() {
+            meaning.push(' ');
+        }
+        meaning.push_str(trailing);
+    }
+    meaning
+}
+
+/// The file's opening comment, its keys, each with the comments above it and after it, and
+/// the descriptions of its optional tables (the comments above a commented-out `# [name]`).
+/// Commented-out keys (`# key = value`) are keys too, marked optional: those under a
+/// commented-out header belong to its table, the others to the table they stand in.
+fn parse(text: &str) -> (String, Vec<Key>, Vec<(String, String)>) {
     let mut head = String::new();
-    let mut keys = Vec::new();
+    let mut keys: Vec<Key> = Vec::new();
+    let mut tables = Vec::new();
     let mut section = String::new();
+    // The optional table a commented-out header opened, until a blank line or a table.
+    let mut example: Option<String> = None;
     let mut pending: Vec<String> = Vec::new();
     let mut seen_table = false;
+    // The previous line was a key (or the continuation of its comment).
+    let mut after_key = false;
     let mut lines = text.lines().peekable();
     while let Some(line) = lines.next() {
         let t = line.trim();
+        if !t.starts_with('#') {
+            after_key = false;
+        }
         if t.is_empty() {
             if !seen_table && !pending.is_empty() && head.is_empty() {
                 head = pending.join(" ");
             }
             pending.clear();
+            example = None;
             continue;
         }
         if let Some(c) = t.strip_prefix('#') {
-            pending.push(c.trim().to_string());
+            let c = c.trim();
+            // An indented comment right under a key continues that key's trailing comment.
+            let indented = line.starts_with(char::is_whitespace);
+            if indented && after_key {
+                if let Some(last) = keys.last_mut() {
+                    last.meaning = meaning_of(&[std::mem::take(&mut last.meaning)], c);
+                }
+                continue;
+            }
+            after_key = false;
+            if let Some(name) = example_header(c) {
+                tables.push((name.to_string(), pending.join(" ")));
+                example = Some(name.to_string());
+                pending.clear();
+            } else if let Some((key, value, trailing)) = example_key(c) {
+                keys.push(Key {
+                    section: example.clone().unwrap_or_else(|| section.clone()),
+                    key,
+                    value,
+                    meaning: meaning_of(&pending, &trailing),
+                    optional: true,
+                });
+                pending.clear();
+                after_key = true;
+            } else {
+                pending.push(c.to_string());
+            }
             continue;
         }
         if t.starts_with('[') {
+            example = None;
             if !seen_table && head.is_empty() && !pending.is_empty() {
                 head = pending.join(" ");
             }
@@ -247,22 +325,18 @@ fn parse(text: &str) -> (String, Vec<Key>) {
             Some((v, c)) => (v.trim().to_string(), c.trim().to_string()),
             None => (value.trim().to_string(), String::new()),
         };
-        let mut meaning = pending.join(" ");
-        if !trailing.is_empty() {
-            if !meaning.is_empty() {
-                meaning.push(' ');
-            }
-            meaning.push_str(&trailing);
-        }
+        let meaning = meaning_of(&pending, &trailing);
         pending.clear();
         keys.push(Key {
             section: section.clone(),
             key: key.trim().to_string(),
             value,
             meaning,
+            optional: false,
         });
+        after_key = true;
     }
-    (head, keys)
+    (head, keys, tables)
 }
 
 /// The configuration reference: per documented file, its keys by table with the value the
@@ -275,7 +349,7 @@ pub fn config() -> String {
          file.\n\n"
     );
     for (path, what, text) in CONFIG_FILES {
-        let (head, keys) = parse(text);
+        let (head, keys, tables) = parse(text);
         let _ = writeln!(out, "## `{path}`\n\n{what}\n");
         if !head.is_empty() {
             let _ = writeln!(out, "{}\n", head);
@@ -288,16 +362,31 @@ pub fn config() -> String {
                 } else {
                     format!("[{}]", k.section)
                 };
+                let optional = tables.iter().find(|t| t.0 == k.section);
                 let _ = writeln!(
                     out,
-                    "{}### `{title}`\n\n| key | value | meaning |\n|---|---|---|",
-                    if current.is_some() { "\n" } else { "" }
+                    "{}### `{title}`{}\n\n{}| key | value | meaning |\n|---|---|---|",
+                    if current.is_some() { "\n" } else { "" },
+                    if optional.is_some() { " (optional)" } else { "" },
+                    optional.map_or(String::new(), |t| {
+                        let about = if t.1.is_empty() {
+                            String::new()
+                        } else {
+                            format!("{} ", prose(&t.1))
+                        };
+                        format!("{about}Absent unless given; the values shown are examples.\n\n")
+                    })
                 );
                 current = Some(k.section.as_str());
             }
+            let note = if k.optional && !tables.iter().any(|t| t.0 == k.section) {
+                "Optional (absent unless set; the value shown is an example). "
+            } else {
+                ""
+            };
             let _ = writeln!(
                 out,
-                "| `{}` | `{}` | {} |",
+                "| `{}` | `{}` | {note}{} |",
                 cell(&k.key),
                 cell(&k.value),
                 prose(&k.meaning)
@@ -580,10 +669,11 @@ mod tests {
         );
     }
 
-    /// Every key `adp train` knows (the code's defaults, serialized) stands in the file the
-    /// configuration reference takes its description from: `[slurm]` in `configs/slurm.toml`,
-    /// every other table in `configs/local.toml`. A key added to the code and not to the
-    /// file fails here.
+    /// Every key `adp train` knows (the code's defaults with every optional table and key
+    /// given, serialized) stands in the file the configuration reference takes its
+    /// description from, in its table: `[slurm]` in `configs/slurm.toml`, every other table in
+    /// `configs/local.toml` (optional ones commented out). A key added to the code and not to
+    /// the file fails here.
     #[test]
     fn every_training_key_is_described_in_its_file() {
         fn walk(table: &toml::Table, section: &str, out: &mut Vec<(String, String)>) {
@@ -597,24 +687,40 @@ mod tests {
         }
         // Derived from [run] and [env] unless given: described in the [td3] comment.
         let derived = ["obs_dim", "act_dim", "laser_dim"].map(|k| ("td3".to_string(), k.to_string()));
-        let text = toml::to_string(&train_config::TrainConfig::default()).unwrap();
+        let mut cfg = train_config::TrainConfig::default();
+        let files = proto::auth::TlsFiles {
+            cert: Some("/c.pem".into()),
+            key: Some("/k.pem".into()),
+            ca: Some("/ca.pem".into()),
+            domain: Some("learner".into()),
+        };
+        cfg.service.tls = Some(files.clone());
+        cfg.slurm.actor_tls = Some(files);
+        cfg.service.init_action = Some(vec![0.0; 4]);
+        cfg.env.randomize.noise_fraction = Some([0.05, 0.2]);
+        cfg.env.randomize.dropout = Some([0.0, 0.1]);
+        let text = toml::to_string(&cfg).unwrap();
         let mut keys = Vec::new();
         walk(&toml::from_str(&text).unwrap(), "", &mut keys);
-        // A file's keys, and the keys of its commented-out example tables (`# key = ...`).
-        let documented = |file: &str| -> (Vec<(String, String)>, &str) {
+        for optional in ["service.tls", "slurm.actor_tls", "env.randomize"] {
+            assert!(keys.iter().any(|k| k.0 == optional), "{optional} not serialized");
+        }
+        // A file's keys, the commented-out ones included, with their tables.
+        let documented = |file: &str| -> Vec<(String, String)> {
             let (_, _, text) = CONFIG_FILES.iter().find(|f| f.0 == file).unwrap();
-            (
-                parse(text).1.into_iter().map(|k| (k.section, k.key)).collect(),
-                text,
-            )
+            parse(text).1.into_iter().map(|k| (k.section, k.key)).collect()
         };
         let (local, slurm) = (documented("configs/local.toml"), documented("configs/slurm.toml"));
         let missing: Vec<String> = keys
             .iter()
             .filter(|k| !derived.contains(k))
             .filter(|k| {
-                let (keys, text) = if k.0 == "slurm" { &slurm } else { &local };
-                !keys.contains(k) && !text.contains(&format!("# {} =", k.1))
+                let file = if k.0.split('.').next() == Some("slurm") {
+                    &slurm
+                } else {
+                    &local
+                };
+                !file.contains(k)
             })
             .map(|(section, key)| format!("[{section}] {key}"))
             .collect();
@@ -628,9 +734,47 @@ mod tests {
 
     #[test]
     fn keys_take_the_comments_above_and_after_them() {
-        let (head, keys) = parse(
+        let (head, keys, tables) = parse(
             "# A file.\n# Two lines.\n\n[run]\n# Steps to run.\nsteps = 10  # agent steps\nname = \"a\"\n\
-             [[experiment.groups]]\nworlds = [\n  \"a\",\n  \"b\",\n]  # two\n",
+             [[experiment.groups]]\nworlds = [\n  \"a\",\n  \"b\",\n]  # two\n\
+             # A word = prose, not a key.\n# seed = 3  # an optional key\n\n\
+             # An optional table.\n# [run.tls]\n# cert = \"/c.pem\"  # the certificate\n\
+             # The key.\n# key = \"/k.pem\"\n\n# after = 1\n\
+             [more]\nlong = 2  # a comment\n           # that goes on\n# Above the next.\nnext = 3\n",
+        );
+        let long = keys.iter().find(|k| k.key == "long").unwrap();
+        assert_eq!(long.meaning, "a comment that goes on");
+        assert_eq!(keys.last().unwrap().meaning, "Above the next.");
+        assert_eq!(
+            tables,
+            [("run.tls".to_string(), "An optional table.".to_string())]
+        );
+        let optional: Vec<(&str, &str, &str, &str)> = keys
+            .iter()
+            .filter(|k| k.optional)
+            .map(|k| {
+                (
+                    k.section.as_str(),
+                    k.key.as_str(),
+                    k.value.as_str(),
+                    k.meaning.as_str(),
+                )
+            })
+            .collect();
+        assert_eq!(
+            optional,
+            [
+                (
+                    "experiment.groups",
+                    "seed",
+                    "3",
+                    "A word = prose, not a key. an optional key"
+                ),
+                ("run.tls", "cert", "\"/c.pem\"", "the certificate"),
+                ("run.tls", "key", "\"/k.pem\"", "The key."),
+                // A blank line ends the optional table.
+                ("experiment.groups", "after", "1", ""),
+            ]
         );
         assert_eq!(head, "A file. Two lines.");
         assert_eq!(
@@ -639,7 +783,8 @@ mod tests {
                 section: "run".into(),
                 key: "steps".into(),
                 value: "10".into(),
-                meaning: "Steps to run. agent steps".into()
+                meaning: "Steps to run. agent steps".into(),
+                optional: false,
             }
         );
         assert_eq!(keys[1].meaning, "");
