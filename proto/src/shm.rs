@@ -24,15 +24,17 @@
 //! SIGINT/SIGTERM behaviour). Shared-memory segments live in `/dev/shm` (prefix `iox2_`),
 //! management files under the iceoryx2 root path (`/tmp/iceoryx2/` unless
 //! [`ShmConfig::root`] says otherwise); a node removes its files when dropped, and the files
-//! of processes that died are removed by the next node that is created or by a sink that
-//! looks for its learner (see [`ShmStepSink::send`]).
+//! of processes that died are removed by the next node that is created, by the learner's
+//! policy publisher (every half second) or by a sink that looks for its learner (see
+//! [`ShmStepSink::send`]). A process looks for dead nodes at most once per half second
+//! (a look lists every node), not at every episode, node or service opening.
 
 use std::os::unix::ffi::OsStrExt;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::{mpsc, Arc};
+use std::sync::{mpsc, Arc, Mutex};
 use std::thread::{self, JoinHandle};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
@@ -108,6 +110,11 @@ impl Default for ShmConfig {
 impl ShmConfig {
     fn iceoryx(&self) -> Result<Config, ShmError> {
         let mut config = Config::default();
+        // Dead nodes are looked for by `remove_dead_nodes`, at most once per period per
+        // process, not by iceoryx2 at every node creation, node drop and service opening.
+        config.global.node.cleanup_dead_nodes_on_creation = false;
+        config.global.node.cleanup_dead_nodes_on_destruction = false;
+        config.global.service.cleanup_dead_nodes_on_open = false;
         if let Some(root) = &self.root {
             let path = Path::new(root.as_os_str().as_bytes()).map_err(|e| ShmError::Setup {
                 what: root.display().to_string(),
@@ -144,6 +151,8 @@ impl ShmConfig {
             .signal_handling_mode(SignalHandlingMode::Disabled)
             .create::<Ipc>()
             .map_err(|e| setup("create", e.to_string()))?;
+        // Frees the ports of dead processes before this node opens its service.
+        remove_dead_nodes(&config);
         Ok((config, node))
     }
 
@@ -384,10 +393,23 @@ fn read_slot(slot: &StepSlot) -> (LeaseHeader, StepView<'_>) {
     (lease, step)
 }
 
-/// Removes the resources of every iceoryx2 node under `config` whose process died (for a sink:
-/// a killed learner's subscriber, which then no longer counts as connected). Best effort: a
-/// node that cannot be removed now stays for the next look.
+/// Removes the resources of every iceoryx2 node under `config` whose process died, so that
+/// they stop holding ports and stop counting as connected: a killed learner's subscriber (a
+/// sink then reports [`PlaneError::Disconnected`] instead of waiting forever), or a killed
+/// actor's publisher and subscriber (their port slots, [`ShmConfig::max_actors`], are free
+/// again). Best effort: a node that cannot be removed now stays for the next look.
+///
+/// A look lists every node under the root and parses each one's details file, so its cost
+/// grows with the number of nodes (two per actor). One process therefore looks at most once
+/// per [`DEAD_NODE_SCAN_PERIOD`] per root path, whichever of its threads and ports asks
+/// ([`scan_due`]); a caller that finds a look done recently, or one running, returns at once.
+/// iceoryx2's own looks (at every node creation and drop and every service opening) are
+/// switched off in [`ShmConfig::iceoryx`] for the same reason: with a thousand actors they
+/// made starting the actors quadratic.
 fn remove_dead_nodes(config: &Config) {
+    if !scan_due(config.global.root_path().as_bytes(), Instant::now()) {
+        return;
+    }
     // A listing failure leaves everything as it was; the caller's next look retries.
     let _ = Node::<Ipc>::list(config, |state| {
         if let NodeState::Dead(node) = state {
@@ -396,6 +418,32 @@ fn remove_dead_nodes(config: &Config) {
         }
         CallbackProgression::Continue
     });
+}
+
+/// The least time between two looks for dead nodes under one root path in one process.
+const DEAD_NODE_SCAN_PERIOD: Duration = Duration::from_millis(500);
+
+/// When this process last looked for dead nodes, per iceoryx2 root path.
+static LAST_SCAN: Mutex<Vec<(Vec<u8>, Instant)>> = Mutex::new(Vec::new());
+
+/// Whether a look for dead nodes under `root` is due at `now` (none in this process within
+/// [`DEAD_NODE_SCAN_PERIOD`]); if so, records `now` as the last look. `false` while another
+/// thread holds the record (it is deciding or has just decided to look).
+fn scan_due(root: &[u8], now: Instant) -> bool {
+    let Ok(mut last) = LAST_SCAN.try_lock() else {
+        return false;
+    };
+    match last.iter_mut().find(|(r, _)| r == root) {
+        Some((_, at)) if now.saturating_duration_since(*at) < DEAD_NODE_SCAN_PERIOD => false,
+        Some((_, at)) => {
+            *at = now;
+            true
+        }
+        None => {
+            last.push((root.to_vec(), now));
+            true
+        }
+    }
 }
 
 /// `Debug` for the port wrappers: the type's name and its service label.
@@ -620,7 +668,9 @@ type PolicyPort = Publisher<Ipc, [f32], PolicyHead>;
 /// The learner's end of the policy service (`<prefix>/policy`).
 ///
 /// A background thread (`adp-shm-policy`) connects actors that subscribe later every 20 ms
-/// and hands them the latest version. `Send`; one thread publishes at a time (`&mut self`).
+/// and hands them the latest version; it also removes the nodes of dead processes (at most
+/// twice a second), which frees the port slots of killed actors. `Send`; one thread publishes
+/// at a time (`&mut self`).
 /// Dropping it stops that thread.
 pub struct ShmPolicyPublisher {
     publisher: Arc<PolicyPort>,
@@ -639,7 +689,7 @@ impl ShmPolicyPublisher {
     pub fn open(cfg: &ShmConfig) -> Result<Self, ShmError> {
         let bytes = POLICY_CHUNKS * cfg.max_policy_floats * std::mem::size_of::<f32>();
         ensure_room(bytes as u64, &format!("{}/policy", cfg.service_prefix))?;
-        let (_, node) = cfg.node("adp-learner-policy")?;
+        let (config, node) = cfg.node("adp-learner-policy")?;
         let (service, label) = cfg.policy(&node)?;
         let publisher = service
             .publisher_builder()
@@ -656,6 +706,9 @@ impl ShmPolicyPublisher {
             .name("adp-shm-policy".into())
             .spawn(move || {
                 while let Err(mpsc::RecvTimeoutError::Timeout) = stopped.recv_timeout(POLICY_REFRESH_PERIOD) {
+                    // Frees the ports of actors whose process died (at most every
+                    // `DEAD_NODE_SCAN_PERIOD`), so that actors replacing them can open.
+                    remove_dead_nodes(&config);
                     // A subscriber that cannot be connected now (e.g. a dying actor) is retried
                     // on the next round; iceoryx2 logs the failure.
                     let _ = port.update_connections();
@@ -1183,6 +1236,26 @@ mod tests {
         fn send<T: Send>() {}
         send::<ShmStepSource>();
         send::<ShmPolicyPublisher>();
+    }
+
+    #[test]
+    fn dead_nodes_are_looked_for_at_most_once_per_period_per_root() {
+        let t0 = Instant::now();
+        let (a, b) = (b"/scan-gate-test/a".as_slice(), b"/scan-gate-test/b".as_slice());
+        assert!(scan_due(a, t0), "the first look under a root is due");
+        assert!(
+            !scan_due(a, t0 + DEAD_NODE_SCAN_PERIOD / 2),
+            "a second look within the period is skipped"
+        );
+        assert!(
+            scan_due(b, t0 + DEAD_NODE_SCAN_PERIOD / 2),
+            "another root has its own period"
+        );
+        assert!(
+            scan_due(a, t0 + DEAD_NODE_SCAN_PERIOD),
+            "a look is due again after the period"
+        );
+        assert!(!scan_due(a, t0 + DEAD_NODE_SCAN_PERIOD), "and then skipped again");
     }
 
     #[test]
