@@ -240,3 +240,41 @@ def _figure(bases, tables, out: str) -> None:
     fig.suptitle("The MuJoCo Jackal's step and turn responses beside the project's gazebo-jackal profile")
     fig.tight_layout()
     fig.savefig(out, dpi=110)
+
+
+def command_usage(planners=("dwa", "mppi"), stride: int = 15, max_speed: float = 1.5) -> None:
+    """Prints which (v, w) the planners command: the runtime's planners under DDP's schedule
+    on every `stride`-th test world with the calibrated base, the quantiles of |w|, v and
+    v |w| over the planned commands (the range the calibration has to cover)."""
+    import adp_runtime
+
+    from .episode import navigator, run_episode
+
+    ids = adp_runtime.select_worlds("test")[::stride]
+    for planner in planners:
+        nav = navigator(planner, max_speed, fixed="ddp")
+        cmds = []
+
+        class Recorder:
+            episode = nav.episode
+
+            def __getattr__(self, name):
+                return getattr(nav, name)
+
+            def cycle(self, **kw):
+                out = nav.cycle(**kw)
+                if out.planned:
+                    cmds.append(out.command)
+                return out
+
+        for world in ids:
+            run_episode(world, Recorder(), seed=0, params=JackalParams.calibrated())
+        c = np.array(cmds)
+        v, w = c[:, 0], np.abs(c[:, 1])
+        print(f"{planner} at {max_speed} m/s, DDP, {len(c)} planned commands on {len(ids)} test worlds "
+              f"(every {stride}th)")
+        print(f"  |w| quantiles 50/90/99 %: {np.round(np.quantile(w, [.5, .9, .99]), 2)}, "
+              f"share |w| > 1: {np.mean(w > 1):.3f}, > 2: {np.mean(w > 2):.3f}")
+        print(f"  v quantiles 10/50/90 %: {np.round(np.quantile(v, [.1, .5, .9]), 2)}")
+        print(f"  v |w| quantiles 50/90/99 %: {np.round(np.quantile(v * w, [.5, .9, .99]), 2)}, "
+              f"share v |w| > 1: {np.mean(v * w > 1):.3f}")

@@ -255,6 +255,8 @@ def main(argv=None) -> int:
     ca = sub.add_parser("calibrate", help="step and turn responses of the published and calibrated "
                         "bases beside the project's gazebo-jackal profile; the figure with --out")
     ca.add_argument("--out", help="write the figure (PNG) here (needs matplotlib)")
+    ca.add_argument("--commands", action="store_true",
+                    help="also print which (v, w) DWA and MPPI command (DDP, every 15th test world)")
     args = ap.parse_args(argv)
     # MuJoCo's warnings to stderr, not to MUJOCO_LOG.TXT in the working directory (a
     # diverged state also ends its episode as a PhysicsError, recorded in its run).
@@ -264,9 +266,11 @@ def main(argv=None) -> int:
     if args.command == "actor":
         return actor(args)
     if args.command == "calibrate":
-        from .calibrate import run
+        from .calibrate import command_usage, run
 
         run(args.out)
+        if args.commands:
+            command_usage()
         return 0
     if args.runs < 1 or not (0 <= 2 * args.trim < args.runs):
         ap.error("--runs must be >= 1 and --trim less than half of --runs")
