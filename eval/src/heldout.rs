@@ -22,8 +22,9 @@ pub struct CurvePoint {
 }
 
 /// The evaluation interval of `reports`: the median of the positive gaps between successive
-/// candidates of each seed (robust to an evaluation that lagged or a resume's extra one);
-/// `None` with no gap.
+/// candidates of each seed (robust to an evaluation that lagged or a resume's extra one),
+/// rounded to two significant digits (a configured interval is a round number; the gaps
+/// differ from it by the steps an evaluation waits for); `None` with no gap.
 fn interval(reports: &[SelectionReport]) -> Option<u64> {
     let mut gaps: Vec<u64> = reports
         .iter()
@@ -35,13 +36,16 @@ fn interval(reports: &[SelectionReport]) -> Option<u64> {
         .filter(|&g| g > 0)
         .collect();
     gaps.sort_unstable();
-    gaps.get(gaps.len() / 2).copied()
+    let gap = *gaps.get(gaps.len() / 2)?;
+    let unit = 10u64.pow(gap.ilog10().saturating_sub(1));
+    Some(((gap + unit / 2) / unit * unit).max(1))
 }
 
-/// The curve of `reports`, one point per interval after the start. A seed counts in an
-/// interval with its last candidate there; a candidate earlier than the first interval
-/// (a resume's re-evaluation of the start) and a seed whose start was never evaluated are
-/// left out. Empty when no seed has a start and a later candidate.
+/// The curve of `reports`, one point per interval after the start: a candidate belongs to
+/// the multiple of the interval nearest its step, and a seed counts there with its last
+/// candidate. A candidate nearer the start than the first interval (a resume's
+/// re-evaluation of the start) and a seed whose start was never evaluated are left out.
+/// Empty when no seed has a start and a later candidate.
 pub fn curve(reports: &[SelectionReport]) -> Vec<CurvePoint> {
     let Some(every) = interval(reports) else {
         return Vec::new();
@@ -51,8 +55,11 @@ pub fn curve(reports: &[SelectionReport]) -> Vec<CurvePoint> {
     for r in reports {
         let Some(start) = r.start_score else { continue };
         let mut last: Vec<(u64, f64)> = Vec::new();
-        for c in r.candidates.iter().filter(|c| c.step >= every) {
-            let k = c.step / every;
+        for c in &r.candidates {
+            let k = (c.step as f64 / every as f64).round() as u64;
+            if k == 0 {
+                continue;
+            }
             match last.last_mut() {
                 Some(l) if l.0 == k => l.1 = c.score - start,
                 _ => last.push((k, c.score - start)),
@@ -106,7 +113,7 @@ mod tests {
             &[
                 (0, 0.40),
                 (29_000, 0.42),
-                (40_000, 0.38),
+                (39_990, 0.38),
                 (60_010, 0.41),
                 (60_020, 0.44),
             ],
@@ -116,9 +123,9 @@ mod tests {
             &[
                 (0, 0.30),
                 (1_100, 0.30),
-                (20_003, 0.26),
+                (19_997, 0.26),
                 (40_009, 0.34),
-                (60_009, 0.30),
+                (59_998, 0.30),
             ],
         );
         let c = curve(&[a, b]);
