@@ -23,8 +23,7 @@ fn known_keys(table: Option<&str>) -> Vec<String> {
     };
     std::fs::write(dir.join("probe.toml"), probe).unwrap();
     let err = read(&dir.join("probe.toml"))
-        .err()
-        .expect("an unknown key is refused")
+        .expect_err("an unknown key is refused")
         .to_string();
     let _ = std::fs::remove_dir_all(&dir);
     let list = err
