@@ -328,7 +328,15 @@ fn tiny_experiment_reports_resumes_and_refuses_mixing() {
         "{report3}"
     );
     let table1 = std::fs::read_to_string(out3.join("table1.md")).unwrap();
-    assert_eq!(table1.lines().count(), 4, "{table1}");
+    assert_eq!(
+        table1.lines().filter(|l| l.starts_with('|')).count(),
+        4,
+        "{table1}"
+    );
+    assert!(
+        table1.contains("over the 2 measured cells: above DDP in 0; below the best constant in none."),
+        "{table1}"
+    );
     let paper = read_json(&out3.join("results.json"));
     assert_eq!(paper["paper"]["table1"].as_array().unwrap().len(), 2);
     assert_eq!(paper["paper"]["table3"][0]["ddp"]["seeds"], 1);
